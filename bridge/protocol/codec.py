@@ -1,0 +1,276 @@
+"""Encode commands and replies, decode replies, all from the command table.
+
+Replies are handled columnar: a block of n records of one type is one NumPy
+structured view, so decoding costs a handful of array operations, not one
+Python object per record. Floats follow the 0xDB little-endian flag; the timer,
+the other integers and the checksum are always big-endian.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import struct
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bridge.protocol.table import (
+    COMMANDS,
+    REPLIES,
+    Command,
+    Field,
+    ReplySpec,
+    lookup,
+)
+
+
+class ProtocolError(ValueError):
+    """A command or reply that does not fit the protocol; the message says what to change."""
+
+
+def checksum(data: bytes | bytearray | memoryview) -> int:
+    """The manual's checksum: the 16-bit wrapping sum of every byte."""
+    return sum(data) & 0xFFFF
+
+
+def _wire_dtype(f: Field, little_endian: bool) -> str:
+    if f.kind == "f32":
+        return "<f4" if little_endian else ">f4"
+    if f.kind == "ascii":
+        return "S16"
+    return {"u8": "u1", "u16": ">u2", "u32": ">u4"}[f.kind]
+
+
+def _struct_dtype(fields: tuple[Field, ...], little_endian: bool, head: str) -> np.dtype:
+    """A packed dtype of one message: head byte, fields in wire order, (checksum)."""
+    parts: list[tuple[Any, ...]] = [(head, "u1")]
+    for i, f in enumerate(fields):
+        if f.is_pad:
+            parts.append((f"_pad{i}", f"V{f.count}"))
+        else:
+            parts.append((f.name, _wire_dtype(f, little_endian), f.shape))
+    return np.dtype(parts)
+
+
+@functools.cache
+def reply_dtype(code: int, little_endian: bool = False) -> np.dtype:
+    """The packed wire layout of one reply, checksum last."""
+    spec = REPLIES[code]
+    base = _struct_dtype(spec.fields, little_endian, "code")
+    dtype = np.dtype([*((n, base.fields[n][0]) for n in base.names), ("checksum", ">u2")])
+    assert dtype.itemsize == spec.length
+    return dtype
+
+
+@functools.cache
+def _command_dtype(code: int) -> np.dtype:
+    cmd = COMMANDS[code]
+    parts: list[tuple[Any, ...]] = [("code", "u1")]
+    if cmd.confirm:
+        parts.append(("confirm", "V" + str(len(cmd.confirm))))
+    base = _struct_dtype(cmd.params, False, "_")
+    parts.extend((n, base.fields[n][0]) for n in base.names[1:])
+    return np.dtype(parts)
+
+
+def _native(f: Field) -> str:
+    return {"f32": "f4", "u8": "u1", "u16": "u2", "u32": "u4", "ascii": "S16"}[f.kind]
+
+
+def _check_value(cmd: Command, f: Field, value: Any) -> None:
+    """Reject what the unit would clamp or ignore, naming the allowed values."""
+    where = f"0x{cmd.code:02X} {cmd.name}: {f.name}"
+    if f.kind == "f32":
+        arr = np.asarray(value, dtype=np.float64)
+        if arr.shape != f.shape:
+            raise ProtocolError(f"{where} needs {f.count} numbers, got {arr.shape}")
+        return
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ProtocolError(f"{where} must be an integer, got {value!r}")
+    bits = {"u8": 8, "u16": 16, "u32": 32}[f.kind]
+    if not 0 <= value < 1 << bits:
+        raise ProtocolError(f"{where}={value} does not fit {bits} bits")
+    if f.allowed is not None and value not in f.allowed:
+        shown = ", ".join(str(v) for v in sorted(f.allowed))
+        raise ProtocolError(f"{where}={value} is not one of {shown}")
+    if (f.lo is not None and value < f.lo) or (f.hi is not None and value > f.hi):
+        raise ProtocolError(f"{where}={value} is outside {f.lo:g}..{f.hi:g}")
+
+
+def encode_command(command: int | str, strict: bool = True, **params: Any) -> bytes:
+    """The bytes that send ``command`` with ``params``, confirmation sequence included.
+
+    ``strict`` rejects values the unit would clamp or ignore; ``strict=False``
+    only requires each value to fit its field (for probing a unit's range rules).
+    """
+    cmd = lookup(command)
+    if not cmd.documented:
+        raise ProtocolError(f"0x{cmd.code:02X} {cmd.name}: the manual gives no byte layout; "
+                            "use the vendor's tool for this")
+    names = [f.name for f in cmd.params if not f.is_pad]
+    unknown = set(params) - set(names)
+    missing = [n for n in names if n not in params]
+    if unknown or missing:
+        raise ProtocolError(f"0x{cmd.code:02X} {cmd.name} takes "
+                            f"{', '.join(names) or 'no parameters'}"
+                            + (f"; missing {', '.join(missing)}" if missing else "")
+                            + (f"; unknown {', '.join(sorted(unknown))}" if unknown else ""))
+    rec = np.zeros(1, _command_dtype(cmd.code))
+    rec["code"] = cmd.code
+    if cmd.confirm:
+        rec["confirm"] = np.void(cmd.confirm)
+    for f in cmd.params:
+        if f.is_pad:
+            continue
+        value = params[f.name]
+        if strict:
+            _check_value(cmd, f, value)
+        elif f.kind != "f32":
+            _check_value(cmd, Field(f.name, f.kind), value)
+        rec[f.name] = value
+    return rec.tobytes()
+
+
+@dataclass(frozen=True)
+class ParsedCommand:
+    """A command as a unit receives it."""
+
+    command: Command
+    params: dict[str, Any]
+    confirmed: bool
+
+
+def command_length(code: int) -> int | None:
+    """Bytes a command starting with ``code`` occupies, or None for a byte the unit ignores."""
+    cmd = COMMANDS.get(code)
+    return cmd.length if cmd is not None else None
+
+
+def parse_command(data: bytes) -> ParsedCommand:
+    """Decode one whole command (``command_length`` bytes) as the unit sees it."""
+    cmd = COMMANDS[data[0]]
+    if len(data) != cmd.length:
+        raise ProtocolError(f"0x{cmd.code:02X} {cmd.name} is {cmd.length} bytes, got {len(data)}")
+    confirmed = data[1 : 1 + len(cmd.confirm)] == cmd.confirm
+    rec = np.frombuffer(data, _command_dtype(cmd.code))[0]
+    params = {f.name: _py(rec[f.name]) for f in cmd.params if not f.is_pad}
+    return ParsedCommand(cmd, params, confirmed)
+
+
+def _py(value: Any) -> Any:
+    """A NumPy scalar or array as plain Python (lists, floats, ints, str)."""
+    if isinstance(value, bytes):
+        return value.decode("ascii", "replace").rstrip("\x00 ")
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def encode_replies(
+    code: int, columns: Mapping[str, Any], n: int = 1, little_endian: bool = False
+) -> bytes:
+    """n replies of type ``code`` from per-field columns (or scalars broadcast to n)."""
+    spec = REPLIES[code]
+    dtype = reply_dtype(code, little_endian)
+    recs = np.zeros(n, dtype)
+    recs["code"] = code
+    for f in spec.fields:
+        if f.is_pad:
+            continue
+        value = columns[f.name]
+        if f.kind == "ascii":
+            value = value.encode("ascii").ljust(16)[:16] if isinstance(value, str) else value
+        recs[f.name] = value
+    raw = recs.view(np.uint8).reshape(n, spec.length)
+    recs["checksum"] = raw[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
+    return recs.tobytes()
+
+
+def encode_reply(code: int, little_endian: bool = False, **values: Any) -> bytes:
+    """One reply; the emulator's and the tests' way to build exact reply bytes."""
+    return encode_replies(code, values, 1, little_endian)
+
+
+def decode_block(code: int, block: np.ndarray, little_endian: bool = False) -> dict[str, Any]:
+    """Columns of an (n, length) uint8 block of replies of one type, in native types."""
+    spec = REPLIES[code]
+    recs = block.reshape(-1).view(reply_dtype(code, little_endian))
+    return {f.name: recs[f.name].astype(_native(f)) for f in spec.fields if not f.is_pad}
+
+
+@functools.cache
+def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
+    """(unpacker, byte offset, field) for each field of a reply that has a valid domain."""
+    checks = []
+    offset = 1
+    for f in REPLIES[code].fields:
+        bounded = f.lo is not None or f.hi is not None or f.allowed is not None
+        if bounded and f.kind != "ascii":
+            order = "<" if f.kind == "f32" and little_endian else ">"
+            fmt = order + str(f.count) + {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
+            checks.append((struct.Struct(fmt), offset, f))
+        offset += f.size
+    return tuple(checks)
+
+
+def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
+    """Whether every field of one reply lies in its valid domain (NaN allowed).
+
+    Short replies can match their checksum by chance; while resynchronising the
+    framer also requires this before trusting a record.
+    """
+    for unpacker, offset, f in _domain_checks(code, little_endian):
+        for v in unpacker.unpack_from(record, offset):
+            if (f.lo is not None and v < f.lo) or (f.hi is not None and v > f.hi):
+                return False
+            if f.allowed is not None and v not in f.allowed:
+                return False
+    return True
+
+
+@dataclass
+class Batch:
+    """n consecutive replies of one type: one array per field, plus stream offsets.
+
+    ``offsets`` are the byte positions of each record's first byte in the stream
+    the framer was fed, so a caller can map records back to read times.
+    """
+
+    code: int
+    columns: dict[str, np.ndarray]
+    offsets: np.ndarray
+
+    @property
+    def spec(self) -> ReplySpec:
+        return REPLIES[self.code]
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def __len__(self) -> int:
+        return len(self.offsets)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def records(self) -> Iterator[dict[str, Any]]:
+        """One plain dict per record (command, then fields), for small tools."""
+        for i in range(len(self)):
+            out: dict[str, Any] = {"command": self.code}
+            for name, col in self.columns.items():
+                out[name] = _py(col[i])
+            yield out
+
+
+def json_safe(value: Any) -> Any:
+    """Nested lists with NaN and infinities replaced by None (JSON has no NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, list):
+        return [json_safe(v) for v in value]
+    return value
+

@@ -1,0 +1,175 @@
+"""Find whole replies in a byte stream cut at arbitrary places.
+
+The framer is fed chunks of any size and returns every intact reply exactly once,
+in order, as columnar ``Batch`` es. While it is in step with the stream (the last
+record ended where this one starts) a matching echo byte and checksum are enough;
+after losing step it advances one byte at a time and also requires every field
+to be plausible, because a 16-bit additive checksum over a short reply does match
+garbage now and then. Long runs of one record type (continuous mode) take a NumPy
+fast path that checks many records at once and falls back to the byte-wise
+scanner only around corruption; both paths accept exactly the same records.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bridge.protocol.codec import Batch, decode_block, plausible
+from bridge.protocol.table import DATA_CODES, REPLIES
+
+_MIN_FAST = 8  # records; below this the scanner is cheaper than array set-up
+_MAX_FAST = 1 << 16
+
+
+@dataclass
+class FramerStats:
+    """What the framer saw; ``checksum_failures`` counts candidates with a bad sum."""
+
+    records: Counter[int] = field(default_factory=Counter)
+    checksum_failures: int = 0
+    bytes_skipped: int = 0
+    resyncs: int = 0
+    bytes_fed: int = 0
+
+    def summary(self) -> str:
+        by_type = ", ".join(f"0x{c:02X}×{n}" for c, n in sorted(self.records.items())) or "none"
+        return (f"records: {by_type}; checksum failures: {self.checksum_failures}; "
+                f"bytes skipped: {self.bytes_skipped} of {self.bytes_fed}; "
+                f"resyncs: {self.resyncs}")
+
+
+class _Runs:
+    """Accepted records gathered into runs of one type, decoded once per run."""
+
+    def __init__(self) -> None:
+        self.runs: list[tuple[int, list[bytes], list[np.ndarray]]] = []
+
+    def add(self, code: int, data: bytes, offsets: np.ndarray) -> None:
+        if self.runs and self.runs[-1][0] == code:
+            self.runs[-1][1].append(data)
+            self.runs[-1][2].append(offsets)
+        else:
+            self.runs.append((code, [data], [offsets]))
+
+    def batches(self, little_endian: bool) -> list[Batch]:
+        out = []
+        for code, chunks, offsets in self.runs:
+            block = np.frombuffer(b"".join(chunks), np.uint8)
+            out.append(Batch(code, decode_block(code, block, little_endian),
+                             np.concatenate(offsets)))
+        return out
+
+
+class Framer:
+    """Streaming reply framer.
+
+    ``expect`` names the reply codes that may arrive (a continuous preset, or the
+    replies to commands in flight, plus 0x21 for errors); by default it runs
+    blind over every data record.
+    """
+
+    def __init__(self, expect: Iterable[int] | None = None, little_endian: bool = False) -> None:
+        self.little_endian = little_endian
+        self.stats = FramerStats()
+        self._buf = bytearray()
+        self._base = 0
+        self._locked = False
+        self._chunk = 256
+        self.expect(DATA_CODES if expect is None else expect)
+
+    def expect(self, codes: Iterable[int]) -> None:
+        """Change which replies may arrive from here on."""
+        codes = frozenset(codes)
+        unknown = [f"0x{c:02X}" for c in codes if c not in REPLIES]
+        if unknown:
+            raise ValueError(f"no reply starts with {', '.join(unknown)}")
+        self._lengths = {c: REPLIES[c].length for c in codes}
+        self._header = re.compile(b"[" + b"".join(re.escape(bytes((c,))) for c in codes) + b"]")
+
+    @property
+    def expected(self) -> frozenset[int]:
+        return frozenset(self._lengths)
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the rest of a possible record."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Batch]:
+        """Take the next chunk; return the records completed by it."""
+        self.stats.bytes_fed += len(data)
+        self._buf += data
+        return self._scan(final=False)
+
+    def flush(self) -> list[Batch]:
+        """End of stream: decide on every byte still held back."""
+        return self._scan(final=True)
+
+    def _scan(self, final: bool) -> list[Batch]:
+        buf, lengths, stats = self._buf, self._lengths, self.stats
+        runs = _Runs()
+        pos, n = 0, len(buf)
+        fast = True
+        while pos < n:
+            code = buf[pos]
+            size = lengths.get(code)
+            if size is None:
+                found = self._header.search(buf, pos + 1)
+                nxt = found.start() if found else n
+                self._lose_step(nxt - pos)
+                pos = nxt
+                continue
+            if pos + size > n:
+                if not final:
+                    break
+                self._lose_step(1)
+                pos += 1
+                continue
+            if fast and self._locked and (n - pos) // size >= _MIN_FAST:
+                good = self._fast(buf, pos, code, size, runs)
+                pos += good * size
+                fast = good == self._last_block
+                continue
+            rec = bytes(buf[pos : pos + size])
+            if (sum(rec[:-2]) & 0xFFFF) != (rec[-2] << 8 | rec[-1]):
+                stats.checksum_failures += 1
+            elif self._locked or plausible(code, rec, self.little_endian):
+                runs.add(code, rec, np.array([self._base + pos], np.int64))
+                stats.records[code] += 1
+                self._locked = True
+                fast = True
+                pos += size
+                continue
+            self._lose_step(1)
+            pos += 1
+        del buf[:pos]
+        self._base += pos
+        return runs.batches(self.little_endian)
+
+    def _lose_step(self, skipped: int) -> None:
+        if self._locked:
+            self._locked = False
+            self.stats.resyncs += 1
+        self.stats.bytes_skipped += skipped
+
+    def _fast(self, buf: bytearray, pos: int, code: int, size: int, runs: _Runs) -> int:
+        """Accept the longest run of intact ``code`` records at ``pos``; return its length."""
+        count = min(self._chunk, (len(buf) - pos) // size)
+        self._last_block = count
+        block = np.frombuffer(buf, np.uint8, count * size, pos).reshape(count, size)
+        sums = block[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
+        wire = block[:, -2].astype(np.uint32) << 8 | block[:, -1]
+        ok = (sums == wire) & (block[:, 0] == code)
+        del block
+        good = count if ok.all() else int(np.argmin(ok))
+        self._chunk = min(_MAX_FAST, self._chunk * 2) if good == count else max(64, 2 * good)
+        if good:
+            runs.add(code, bytes(buf[pos : pos + good * size]),
+                     self._base + pos + size * np.arange(good, dtype=np.int64))
+            self.stats.records[code] += good
+        return good
