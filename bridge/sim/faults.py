@@ -1,0 +1,106 @@
+"""Line faults on demand: what cables, USB hosts and wrong baud rates do to a byte stream."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Rates are per byte; intervals are mean seconds between events (0: never)."""
+
+    bit_flip_rate: float = 0.0
+    drop_rate: float = 0.0
+    stall_every_s: float = 0.0
+    stall_s: float = 0.05
+    disconnect_every_s: float = 0.0
+    disconnect_s: float = 1.0
+
+    @property
+    def any(self) -> bool:
+        return any((self.bit_flip_rate, self.drop_rate, self.stall_every_s,
+                    self.disconnect_every_s))
+
+
+class Faults:
+    """Seeded fault injector for one unit's output."""
+
+    def __init__(self, config: FaultConfig, seed: int, now: float) -> None:
+        self.config = config
+        self.rng = np.random.default_rng([seed, 0xFA017])
+        self.bits_flipped = 0
+        self.bytes_dropped = 0
+        self.stalls = 0
+        self.disconnects = 0
+        self._stall = self._window(now, config.stall_every_s, config.stall_s)
+        self._outage = self._window(now, config.disconnect_every_s, config.disconnect_s)
+
+    def _window(self, now: float, every: float, length: float) -> tuple[float, float] | None:
+        if every <= 0:
+            return None
+        start = now + float(self.rng.exponential(every))
+        return start, start + length
+
+    def corrupt(self, data: bytes) -> bytes:
+        """Flip one bit in, or drop, each byte with the configured probabilities."""
+        c = self.config
+        if not data or not (c.bit_flip_rate or c.drop_rate):
+            return data
+        arr = np.frombuffer(data, np.uint8).copy()
+        flip = self.rng.random(len(arr)) < c.bit_flip_rate
+        if flip.any():
+            arr[flip] ^= (1 << self.rng.integers(0, 8, int(flip.sum()))).astype(np.uint8)
+            self.bits_flipped += int(flip.sum())
+        keep = self.rng.random(len(arr)) >= c.drop_rate
+        self.bytes_dropped += int((~keep).sum())
+        return arr[keep].tobytes()
+
+    def stalled(self, now: float) -> bool:
+        """Inside a USB snub: the host receives nothing, then everything at once."""
+        if self._stall is None or now < self._stall[0]:
+            return False
+        if now < self._stall[1]:
+            return True
+        self.stalls += 1
+        self._stall = self._window(now, self.config.stall_every_s, self.config.stall_s)
+        return False
+
+    def outage(self, now: float) -> bool:
+        """Inside a disconnect: the cable is out and bytes are lost."""
+        if self._outage is None or now < self._outage[0]:
+            return False
+        if now < self._outage[1]:
+            return True
+        self.disconnects += 1
+        self._outage = self._window(now, self.config.disconnect_every_s, self.config.disconnect_s)
+        return False
+
+
+def reframe(data: bytes, sent_baud: int, read_baud: int) -> bytes:
+    """What a UART reading at ``read_baud`` makes of bytes sent back to back at ``sent_baud``.
+
+    Each byte is a start bit, eight data bits LSB first and a stop bit. The
+    receiver waits for a falling edge, samples the middle of each of its own bit
+    periods and keeps the byte even on a framing error, as a tty does by default.
+    """
+    if sent_baud == read_baud or not data:
+        return data
+    bits = np.unpackbits(np.frombuffer(data, np.uint8)[:, None], axis=1, bitorder="little")
+    line = np.concatenate([np.zeros((len(data), 1), np.uint8), bits,
+                           np.ones((len(data), 1), np.uint8)], axis=1).ravel()
+    ratio = sent_baud / read_baud
+    out = bytearray()
+    i = 0.0
+    n = len(line)
+    while True:
+        start = int(np.argmin(line[int(i):])) + int(i) if int(i) < n else n
+        if start >= n or line[start] != 0:
+            break
+        samples = start + (np.arange(1, 9) + 0.5) * ratio
+        if samples[-1] >= n:
+            break
+        out.append(int(np.packbits(line[samples.astype(int)], bitorder="little")[0]))
+        i = start + 9.5 * ratio
+    return bytes(out)

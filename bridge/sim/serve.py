@@ -1,0 +1,339 @@
+"""Serve emulated units on pseudo-terminals or TCP, paced in real time.
+
+One thread drives every unit: it reads what hosts sent, runs each unit up to
+the current time and writes the bytes that have crossed the line. A pty is
+opened by pyserial like a real port (its baud setting is read back, and a host
+at the wrong rate receives what a UART would make of it); TCP serves pyserial's
+``socket://`` URLs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import selectors
+import socket
+import termios
+import threading
+import time
+import tty
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from bridge.sim.faults import FaultConfig, Faults, reframe
+from bridge.sim.unit import SimUnit, UnitConfig
+
+_TICK_S = 0.0005
+_SPEEDS = {getattr(termios, f"B{b}"): b for b in (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600) if hasattr(termios, f"B{b}")}
+
+
+class Link:
+    """One unit's end of a host connection."""
+
+    url: str
+
+    def read(self) -> bytes:
+        raise NotImplementedError
+
+    def write(self, data: bytes) -> int:
+        """Write what the host side can take now; return the bytes lost (host not reading)."""
+        raise NotImplementedError
+
+    def host_baud(self) -> int | None:
+        return None
+
+    def selectables(self) -> list[int | socket.socket]:
+        raise NotImplementedError
+
+    def readable(self, obj: int | socket.socket) -> bytes:
+        raise NotImplementedError
+
+    def unplug(self) -> None:
+        """Drop the host's connection, as a pulled cable does."""
+
+    def plug(self) -> None:
+        """Offer the connection again after an unplug."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class PtyLink(Link):
+    """A pseudo-terminal; ``link`` is a stable symlink that survives unplug/plug."""
+
+    def __init__(self, baud: int, link: Path | None = None) -> None:
+        self.link = link
+        self.baud = baud
+        self._open()
+
+    def _open(self) -> None:
+        """A raw pty at the unit's baud rate, until a host opens it at its own."""
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        attrs = termios.tcgetattr(self.slave)
+        speed = next(code for code, baud in _SPEEDS.items() if baud == self.baud)
+        attrs[4] = attrs[5] = speed
+        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        if self.link is not None:
+            tmp = self.link.with_name(self.link.name + ".new")
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(self.path)
+            os.replace(tmp, self.link)
+        self.url = str(self.link or self.path)
+
+    def selectables(self) -> list[int | socket.socket]:
+        return [self.master]
+
+    def readable(self, obj: int | socket.socket) -> bytes:
+        try:
+            return os.read(self.master, 4096)
+        except OSError:
+            return b""
+
+    def write(self, data: bytes) -> int:
+        try:
+            written = os.write(self.master, data)
+        except BlockingIOError:
+            written = 0
+        except OSError as exc:
+            if exc.errno not in (errno.EIO, errno.EAGAIN):
+                raise
+            written = 0
+        return len(data) - written
+
+    def host_baud(self) -> int | None:
+        try:
+            return _SPEEDS.get(termios.tcgetattr(self.slave)[5])
+        except termios.error:
+            return None
+
+    def unplug(self) -> None:
+        self.close()
+
+    def plug(self) -> None:
+        self._open()
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.master = self.slave = -1
+
+
+class TcpLink(Link):
+    """A TCP port serving one host at a time (a later one replaces the earlier)."""
+
+    def __init__(self, host: str, port: int) -> None:
+        self.server = socket.create_server((host, port), reuse_port=False)
+        self.server.setblocking(False)
+        bound_host, bound_port = self.server.getsockname()[:2]
+        self.url = f"socket://{bound_host}:{bound_port}"
+        self.client: socket.socket | None = None
+        self.unplugged = False
+
+    def selectables(self) -> list[int | socket.socket]:
+        return [self.server] + ([self.client] if self.client else [])
+
+    def readable(self, obj: int | socket.socket) -> bytes:
+        if obj is self.server:
+            with contextlib.suppress(BlockingIOError):
+                conn, _ = self.server.accept()
+                if self.unplugged:
+                    conn.close()
+                    return b""
+                self._drop_client()
+                conn.setblocking(False)
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self.client = conn
+            return b""
+        try:
+            data = obj.recv(4096)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            data = b""
+        if not data:
+            self._drop_client()
+        return data
+
+    def write(self, data: bytes) -> int:
+        if self.client is None:
+            return len(data)
+        try:
+            return len(data) - self.client.send(data)
+        except BlockingIOError:
+            return len(data)
+        except OSError:
+            self._drop_client()
+            return len(data)
+
+    def _drop_client(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+    def unplug(self) -> None:
+        self.unplugged = True
+        self._drop_client()
+
+    def plug(self) -> None:
+        self.unplugged = False
+
+    def close(self) -> None:
+        self._drop_client()
+        self.server.close()
+
+
+@dataclass
+class _Slot:
+    unit: SimUnit
+    link: Link
+    faults: Faults
+    held: bytearray
+    lost: int = 0
+    plugged: bool = True
+
+
+class Simulator:
+    """N units, each on its own pty or TCP port, run by one background thread.
+
+    Use as a context manager; ``endpoints`` are what ``gx3 bridge --port`` takes,
+    ``units`` expose each unit's state and ground truth.
+    """
+
+    def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
+                 port: int = 0, faults: FaultConfig | None = None,
+                 links: list[Path] | None = None) -> None:
+        if transport not in ("pty", "tcp"):
+            raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
+        faults = faults or FaultConfig()
+        now = time.monotonic()
+        self.slots: list[_Slot] = []
+        try:
+            for i, config in enumerate(configs):
+                unit = SimUnit(config, now)
+                link: Link
+                if transport == "pty":
+                    link = PtyLink(unit.baud, links[i] if links else None)
+                else:
+                    link = TcpLink(host, port + i if port else 0)
+                self.slots.append(_Slot(unit, link, Faults(faults, config.motion.seed, now),
+                                        bytearray()))
+        except BaseException:
+            self._close_links()
+            raise
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="gx3-sim", daemon=True)
+        self.error: BaseException | None = None
+
+    @property
+    def units(self) -> list[SimUnit]:
+        return [s.unit for s in self.slots]
+
+    @property
+    def endpoints(self) -> list[str]:
+        return [s.link.url for s in self.slots]
+
+    def start(self) -> Simulator:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+        self._close_links()
+
+    def _close_links(self) -> None:
+        for s in self.slots:
+            s.link.close()
+
+    def __enter__(self) -> Simulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        try:
+            with selectors.DefaultSelector() as sel:
+                while not self._stop.is_set():
+                    self._register(sel)
+                    for key, _ in sel.select(_TICK_S):
+                        slot: _Slot = key.data
+                        data = slot.link.readable(key.fileobj)
+                        if data and slot.plugged:
+                            slot.unit.receive(self._as_unit_hears(slot, data), time.monotonic())
+                    now = time.monotonic()
+                    for slot in self.slots:
+                        self._pump(slot, now)
+        except BaseException as exc:
+            self.error = exc
+            raise
+
+    def _register(self, sel: selectors.BaseSelector) -> None:
+        wanted = {(obj if isinstance(obj, int) else obj.fileno()): (obj, slot)
+                  for slot in self.slots if slot.plugged for obj in slot.link.selectables()}
+        for fd in [fd for fd in sel.get_map() if fd not in wanted]:
+            sel.unregister(fd)
+        for fd, (obj, slot) in wanted.items():
+            key = sel.get_map().get(fd)
+            if key is None or key.fileobj is not obj:
+                if key is not None:
+                    sel.unregister(fd)
+                sel.register(obj, selectors.EVENT_READ, slot)
+
+    @staticmethod
+    def _as_unit_hears(slot: _Slot, data: bytes) -> bytes:
+        host = slot.link.host_baud()
+        return reframe(data, host, slot.unit.baud) if host else data
+
+    def _pump(self, slot: _Slot, now: float) -> None:
+        out = slot.faults.corrupt(slot.unit.poll(now))
+        if slot.faults.outage(now):
+            if slot.plugged:
+                slot.link.unplug()
+                slot.plugged = False
+                slot.held.clear()
+            return
+        if not slot.plugged:
+            slot.link.plug()
+            slot.plugged = True
+        host = slot.link.host_baud()
+        if host:
+            out = reframe(out, slot.unit.baud, host)
+        slot.held += out
+        if slot.held and not slot.faults.stalled(now):
+            slot.lost += slot.link.write(bytes(slot.held))
+            slot.held.clear()
+
+
+def unit_configs(count: int, base: UnitConfig,
+                 clock_ppm: list[float] | None = None) -> list[UnitConfig]:
+    """``count`` independent units: own serial numbers, seeds and clock errors.
+
+    Without ``clock_ppm`` each unit draws its clock error from its seed within
+    the manual's ±0.01 % (±100 ppm); with it, unit i takes ``clock_ppm[i]``
+    (the last value repeats).
+    """
+    out = []
+    for i in range(count):
+        seed = base.motion.seed + i
+        if clock_ppm:
+            ppm = clock_ppm[min(i, len(clock_ppm) - 1)]
+        else:
+            ppm = round(float(np.random.default_rng([seed, 0xC10C]).uniform(-100, 100)), 1)
+        state = None
+        if base.state_file is not None:
+            state = base.state_file if count == 1 else base.state_file.with_name(
+                f"{base.state_file.stem}-{i + 1}{base.state_file.suffix}")
+        serial = base.serial if count == 1 else f"{base.serial}-{i + 1}"
+        out.append(replace(base, serial=serial, clock_ppm=ppm, state_file=state,
+                           motion=replace(base.motion, seed=seed)))
+    return out

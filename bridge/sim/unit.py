@@ -1,0 +1,506 @@
+"""One emulated 3DM-GX3: the device's behaviour in time, with no I/O.
+
+A transport hands it the bytes the host sent (``receive``) and asks for the
+bytes that have finished crossing the line by a given host time (``poll``).
+Everything else follows the manual: commands are answered from the command
+table at the end of the next 1 ms calculation cycle, one per cycle; the line
+carries baud/10 bytes per second and a continuous record that finds it busy is
+skipped; the timer runs at 62,500 ticks per second of the unit's own clock,
+which is off by ``clock_ppm``.
+
+Time is host monotonic seconds throughout; the unit's clock is derived from it.
+Continuous records are computed a little ahead in vectorised blocks and the
+not-yet-started part of that plan is dropped whenever a command changes state.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bridge.protocol.codec import encode_replies, encode_reply, parse_command
+from bridge.protocol.convert import wake_time_seconds
+from bridge.protocol.table import (
+    COMMANDS,
+    DATA_CODES,
+    ERROR_REPLY,
+    REPLIES,
+    TICKS_PER_SECOND,
+    Command,
+    Flag,
+    Mode,
+)
+from bridge.sim import state
+from bridge.sim.motion import Motion, MotionConfig
+from bridge.sim.state import Sampling, Stored
+
+CYCLE_S = 0.001
+LOOKAHEAD_S = 0.02
+USER_EEPROM = (range(0x0000, 0x00F0), range(0x0400, 0x0430))
+# The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
+# and bit 3 (system tick). A healthy awake unit sets both.
+STATIONARY_TEST_OK = 0b1001
+_ORIENTATION_FIELDS = ("m", "c", "euler", "quaternion", "stab_accel", "stab_mag")
+_MAG_FIELDS = ("mag", "stab_mag")
+_RAW_FIELDS = ("raw_accel", "raw_ang_rate", "temperature")
+
+
+@dataclass(frozen=True)
+class UnitConfig:
+    """Identity, clock and motion of one unit; ``stored`` is its factory memory."""
+
+    serial: str = "SIM0001"
+    model_number: str = "6225-4220"
+    model_name: str = "3DM-GX3-25"
+    options: str = "5g 300d/s"
+    lot: str = "SIM"
+    firmware: int = 1127
+    timer_start: int = 0
+    clock_ppm: float = 0.0
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    stored: Stored = field(default_factory=Stored)
+    state_file: Path | None = None
+    truth_length: int = 200_000
+
+    def id_string(self, selector: int) -> str:
+        return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
+
+
+@dataclass(frozen=True)
+class Truth:
+    """What a record really was: when it was sampled and the attitude at that instant."""
+
+    time_ns: int
+    device_s: float
+    timer: int
+    code: int
+    quaternion: tuple[float, float, float, float]
+
+
+class _Segment:
+    """Bytes leaving the unit back to back from ``start`` at ``rate`` bytes/s.
+
+    An empty segment marks a continuous record skipped because the line was busy.
+    """
+
+    __slots__ = ("data", "rate", "sent", "start", "truth")
+
+    def __init__(self, start: float, data: bytes, rate: float, truth: Truth | None) -> None:
+        self.start, self.data, self.rate, self.truth, self.sent = start, data, rate, truth, 0
+
+    @property
+    def end(self) -> float:
+        return self.start + len(self.data) / self.rate
+
+
+class SimUnit:
+    """The device model. Not thread-safe: one transport thread drives it."""
+
+    def __init__(self, config: UnitConfig, now: float | None = None,
+                 wall_ns: int | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        self.config = config
+        self.motion = Motion(config.motion)
+        self.stored = state.load(config.state_file, config.stored)
+        self._t0 = now
+        self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
+        self._scale = 1.0 + config.clock_ppm * 1e-6
+        self.truth: deque[Truth] = deque(maxlen=config.truth_length)
+        self.records_skipped = 0
+        self.records_sent = 0
+        self._plan: deque[_Segment] = deque()
+        self._line_free = now
+        self._sent_until = now
+        self._replan = False
+        self._new_phase = False
+        self._inbox = bytearray()
+        self._queue: deque[tuple[float, bytes]] = deque()
+        self._busy_until = now
+        self.pps_seconds = 0
+        self._boot(now, config.timer_start, ready=now)
+
+    # --- clock -------------------------------------------------------------------------
+    def device_time(self, host: float) -> float:
+        return (host - self._t0) * self._scale
+
+    def host_time(self, device: float) -> float:
+        return self._t0 + device / self._scale
+
+    def _cycle_after(self, host: float) -> int:
+        """Index of the first calculation cycle ending at or after ``host``."""
+        return math.ceil(self.device_time(host) / CYCLE_S - 1e-9)
+
+    def timer_at(self, device: np.ndarray | float) -> np.ndarray:
+        ticks = np.floor((np.asarray(device) - self._timer_epoch) * TICKS_PER_SECOND + 0.5)
+        return ((ticks.astype(np.int64) + self._timer_value) & 0xFFFF_FFFF).astype(np.uint32)
+
+    def _set_timer(self, host: float, value: int) -> None:
+        self._timer_epoch = self.device_time(host)
+        self._timer_value = value
+
+    # --- state -------------------------------------------------------------------------
+    def _boot(self, host: float, timer_value: int, ready: float) -> None:
+        """Power-up, reset or wake from deep sleep: RAM reloads from non-volatile memory."""
+        self._set_timer(host, timer_value)
+        s = self.stored
+        self.sampling = s.sampling
+        self.baud = s.baud
+        self.accel_bias = np.array(s.accel_bias)
+        self.gyro_bias = np.array(s.gyro_bias)
+        self._ready = ready
+        self._wake(Mode(s.mode_preset))
+
+    def _wake(self, preset: Mode) -> None:
+        self.continuous_command = self.stored.continuous_preset
+        if preset == Mode.CONTINUOUS and self.continuous_command == 0:
+            preset = Mode.ACTIVE
+        self.mode = preset
+        self._stream_from = self._ready
+        self._stream_phase = self._cycle_after(self._ready)
+
+    @property
+    def little_endian(self) -> bool:
+        return bool(self.sampling.flags & Flag.LITTLE_ENDIAN_FLOATS)
+
+    @property
+    def period(self) -> float:
+        return self.sampling.decimation * CYCLE_S
+
+    def _persist(self, **changes: Any) -> None:
+        self.stored = replace(self.stored, **changes)
+        state.save(self.config.state_file, self.stored)
+
+    # --- transport interface -------------------------------------------------------------
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes from the host, arrived at host time ``now``."""
+        if now < self._ready:
+            return
+        if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
+            self._wake_up(now)
+            return
+        self._inbox += data
+        while self._inbox:
+            cmd = COMMANDS.get(self._inbox[0])
+            if cmd is None:
+                del self._inbox[0]
+                continue
+            if len(self._inbox) < cmd.length:
+                break
+            self._queue.append((now, bytes(self._inbox[: cmd.length])))
+            del self._inbox[: cmd.length]
+
+    def poll(self, now: float) -> bytes:
+        """Run the unit up to ``now``; return the bytes that finished crossing the line."""
+        while self._queue:
+            arrived, raw = self._queue[0]
+            at = self.host_time(max(self._cycle_after(arrived), self._cycle_after(self._busy_until))
+                                * CYCLE_S)
+            if at > now:
+                break
+            self._queue.popleft()
+            self._busy_until = at + CYCLE_S
+            self._execute(raw, at)
+        self._plan_stream(now + LOOKAHEAD_S)
+        return self._transmit(now)
+
+    def next_event(self) -> float | None:
+        """Host time at which ``poll`` next has something to do."""
+        times = []
+        if self._plan:
+            seg = self._plan[0]
+            times.append(seg.start + (seg.sent + 1) / seg.rate)
+        if self._queue:
+            times.append(self._busy_until)
+        return min(times) if times else None
+
+    # --- output --------------------------------------------------------------------------
+    def _schedule(self, at: float, data: bytes, truth: Truth | None = None,
+                  skippable: bool = False) -> None:
+        """Queue bytes for the line; a skippable record that finds the line busy is lost."""
+        if at < self._line_free - 1e-9:
+            if skippable:
+                self._plan.append(_Segment(at, b"", 1.0, None))
+                return
+            at = self._line_free
+        seg = _Segment(at, data, self.baud / 10.0, truth)
+        self._plan.append(seg)
+        self._line_free = seg.end
+
+    def _cancel_after(self, at: float) -> None:
+        """Forget planned output that has not started by ``at`` (state changed then)."""
+        while self._plan and self._plan[-1].start > at and self._plan[-1].sent == 0:
+            self._plan.pop()
+        busy = [seg.end for seg in self._plan if seg.data]
+        self._line_free = max(at, self._sent_until, *busy)
+
+    def _transmit(self, now: float) -> bytes:
+        out = bytearray()
+        while self._plan and self._plan[0].start <= now:
+            seg = self._plan[0]
+            if not seg.data:
+                self.records_skipped += 1
+                self._plan.popleft()
+                continue
+            if seg.sent == 0 and seg.truth is not None:
+                self.truth.append(seg.truth)
+                self.records_sent += 1
+            done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-9))
+            out += seg.data[seg.sent : done]
+            seg.sent = done
+            if done < len(seg.data):
+                break
+            self._sent_until = seg.end
+            self._plan.popleft()
+        return bytes(out)
+
+    # --- continuous mode -----------------------------------------------------------------
+    def _plan_stream(self, horizon: float) -> None:
+        if self.mode != Mode.CONTINUOUS or self.continuous_command not in DATA_CODES:
+            return
+        first = max(self._cycle_after(self._stream_from), self._cycle_after(self._ready))
+        step = self.sampling.decimation
+        k0 = self._stream_phase
+        first = k0 + math.ceil((first - k0) / step) * step
+        last = self._cycle_after(horizon)
+        if first > last:
+            return
+        cycles = np.arange(first, last + 1, step)
+        code = self.continuous_command
+        records, truths = self._records(code, cycles)
+        size = REPLIES[code].length
+        for i, at in enumerate(self.host_time(cycles * CYCLE_S)):
+            self._schedule(float(at), records[i * size : (i + 1) * size], truths[i], skippable=True)
+        self._stream_from = float(self.host_time((cycles[-1] + 1) * CYCLE_S))
+
+    def _start_stream(self, code: int, at: float) -> None:
+        """Stream ``code`` from the first cycle after this command's reply."""
+        self._changed(at)
+        self.mode = Mode.CONTINUOUS
+        self.continuous_command = code
+        self._new_phase = True
+
+    def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[Truth]]:
+        """The bytes of one record of ``code`` per calculation cycle, and their truth."""
+        device = cycles * CYCLE_S
+        sample = self.motion.sample(device, self.period)
+        timers = self.timer_at(device)
+        columns = {"timer": timers}
+        for f in REPLIES[code].fields:
+            if f.name != "timer":
+                columns[f.name] = self._reported(f.name, sample)
+        data = encode_replies(code, columns, len(cycles), self.little_endian)
+        wall = (self.host_time(device) * 1e9 + self._wall_offset_ns).astype(np.int64)
+        quats = sample["quaternion"]
+        truths = [Truth(int(wall[i]), float(device[i]), int(timers[i]), code,
+                        tuple(quats[i].tolist())) for i in range(len(cycles))]
+        return data, truths
+
+    def _reported(self, name: str, sample: dict[str, np.ndarray]) -> np.ndarray:
+        """A quantity as the unit reports it in its current state and settings."""
+        value = sample[name].copy()
+        flags = self.sampling.flags
+        if name in ("accel", "delta_vel"):
+            value -= self.accel_bias * (self.period if name == "delta_vel" else 1.0)
+        if name in ("ang_rate", "delta_ang"):
+            value -= self.gyro_bias * (self.period if name == "delta_ang" else 1.0)
+        if self.mode == Mode.IDLE:
+            return np.zeros_like(value) if name in _RAW_FIELDS else np.full_like(value, np.nan)
+        if name in _MAG_FIELDS and flags & Flag.DISABLE_MAG:
+            value[:] = np.nan
+        if name in _ORIENTATION_FIELDS and not flags & Flag.ORIENTATION:
+            value[:] = np.nan
+        if name == "quaternion" and not flags & Flag.QUATERNION:
+            value[:] = np.nan
+        if flags & Flag.SUPPRESS_NAN and value.dtype.kind == "f":
+            value = np.nan_to_num(value, nan=0.0)
+        return value
+
+    # --- commands ------------------------------------------------------------------------
+    def _execute(self, raw: bytes, at: float) -> None:
+        parsed = parse_command(raw)
+        cmd = parsed.command
+        if not parsed.confirmed:
+            self._schedule(at, ERROR_REPLY)
+            return
+        if cmd.data:
+            self._reply_data(cmd.code, at)
+            return
+        handler = getattr(self, f"_do_{cmd.name}", None)
+        if handler is None:
+            return
+        values = handler(at, **_normalise(cmd, parsed.params))
+        if values is not None and cmd.replies(parsed.params):
+            self._schedule(at, encode_reply(cmd.code, self.little_endian, **values))
+        if self._replan:
+            self._stream_from = self._line_free if self._new_phase else at
+            if self._new_phase:
+                self._stream_phase = self._cycle_after(self._stream_from)
+            self._replan = self._new_phase = False
+
+    def _reply_data(self, code: int, at: float) -> None:
+        cycle = np.array([self._cycle_after(at)])
+        data, truths = self._records(code, cycle)
+        self._schedule(at, data, truths[0])
+
+    def _changed(self, at: float) -> None:
+        """State changes at ``at``: drop the output planned after it and plan again."""
+        self._cancel_after(at)
+        self._replan = True
+
+    def _timer_now(self, at: float) -> int:
+        return int(self.timer_at(self.device_time(at)))
+
+    def _do_set_continuous(self, at: float, command: int | None) -> dict[str, Any]:
+        if command == 0:
+            self._changed(at)
+            self.mode = Mode.ACTIVE
+        elif command is not None:
+            self._start_stream(command, at)
+        return {"command": self.continuous_command, "timer": self._timer_now(at)}
+
+    def _do_write_accel_bias(self, at: float, accel_bias: list[float]) -> dict[str, Any]:
+        self._changed(at)
+        self.accel_bias = np.array(accel_bias, dtype=np.float32).astype(np.float64)
+        return {"accel_bias": self.accel_bias, "timer": self._timer_now(at)}
+
+    def _do_write_gyro_bias(self, at: float, gyro_bias: list[float]) -> dict[str, Any]:
+        self._changed(at)
+        self.gyro_bias = np.array(gyro_bias, dtype=np.float32).astype(np.float64)
+        return {"gyro_bias": self.gyro_bias, "timer": self._timer_now(at)}
+
+    def _do_capture_gyro_bias(self, at: float, sampling_time_ms: int) -> None:
+        """Average the gyro for the sampling time, then answer; a moving unit gets it wrong."""
+        n = max(1, sampling_time_ms)
+        start = self._cycle_after(at)
+        device = np.arange(start, start + n) * CYCLE_S
+        done = self.host_time(device[-1] + CYCLE_S)
+        self._changed(at)
+        self.gyro_bias = self.motion.sample(device, CYCLE_S)["ang_rate"].mean(axis=0)
+        self._busy_until = max(self._busy_until, done)
+        values = {"gyro_bias": self.gyro_bias, "timer": self._timer_now(done)}
+        self._schedule(done, encode_reply(0xCD, self.little_endian, **values))
+
+    def _do_transfer_to_nonvolatile(self, at: float, quantity: int | None) -> dict[str, Any]:
+        if quantity == 1:
+            self._persist(accel_bias=tuple(self.accel_bias.tolist()))
+        elif quantity == 2:
+            self._persist(gyro_bias=tuple(self.gyro_bias.tolist()))
+        return {"quantity": 0xFFFF if quantity is None else quantity,
+                "timer": self._timer_now(at)}
+
+    def _do_mode(self, at: float, mode: int | None) -> dict[str, Any]:
+        if mode in (Mode.ACTIVE, Mode.IDLE, Mode.SLEEP, Mode.DEEP_SLEEP):
+            self._changed(at)
+            self.mode = Mode(mode)
+        elif mode == Mode.CONTINUOUS and self.stored.continuous_preset in DATA_CODES:
+            self._start_stream(self.stored.continuous_preset, at)
+        return {"mode": int(self.mode)}
+
+    def _wake_up(self, now: float) -> None:
+        """Any byte wakes a sleeping unit into its preset mode after the settling time."""
+        ready = now + wake_time_seconds(self.sampling.filter_width)
+        if self.mode == Mode.DEEP_SLEEP:
+            self._boot(now, 0, ready)
+        else:
+            self._ready = ready
+            self._wake(Mode(self.stored.mode_preset))
+
+    def _do_mode_preset(self, at: float, mode_preset: int | None) -> dict[str, Any]:
+        if mode_preset:
+            self._persist(mode_preset=mode_preset)
+        return {"mode_preset": self.stored.mode_preset}
+
+    def _do_continuous_preset(self, at: float, continuous_preset: int | None) -> dict[str, Any]:
+        if continuous_preset:
+            self._persist(continuous_preset=continuous_preset)
+        return {"continuous_preset": self.stored.continuous_preset}
+
+    def _do_timer(self, at: float, function: int | None, value: int) -> dict[str, Any]:
+        if function == 1:
+            self._changed(at)
+            self._set_timer(at, value)
+        elif function == 2:
+            self.pps_seconds = value
+            return {"timer": value}
+        return {"timer": self._timer_now(at)}
+
+    def _do_comms_settings(self, at: float, port: int | None, function: int | None,
+                           baud: int | None, config: int) -> dict[str, Any] | None:
+        if port not in (None, 1):
+            return {"port": port, "baud": 0, "config": 0}
+        if function in (1, 2) and baud is not None:
+            self._changed(at)
+            self._schedule(at, encode_reply(0xD9, port=1, baud=baud, config=0x02))
+            self.baud = baud
+            if function == 2:
+                self._persist(baud=baud)
+            return None
+        return {"port": 1, "baud": self.baud, "config": 0x02}
+
+    def _do_stationary_test(self, at: float) -> dict[str, Any]:
+        return {"test_result": 0 if self.mode == Mode.IDLE else STATIONARY_TEST_OK}
+
+    def _do_sampling_settings(self, at: float, function: int | None, **new: int) -> dict[str, Any]:
+        if function in (1, 2, 3):
+            current = asdict(self.sampling)
+            merged = {k: current[k] if v is None else v for k, v in new.items()}
+            if merged["flags"] & (Flag.ORIENTATION | Flag.QUATERNION):
+                merged["decimation"] = max(2, merged["decimation"])
+            self._changed(at)
+            self._new_phase = merged["decimation"] != self.sampling.decimation
+            self.sampling = Sampling(**merged)
+            if function == 2:
+                self._persist(sampling=self.sampling)
+        return asdict(self.sampling)
+
+    def _do_realign_up_north(self, at: float, function: int | None, up_realign: int | None,
+                             north_realign: int | None) -> dict[str, Any]:
+        return {}
+
+    def _do_write_eeprom(self, at: float, address: int, value: int) -> dict[str, Any]:
+        if any(address in r for r in USER_EEPROM):
+            self._persist(eeprom=self.stored.with_word(address, value).eeprom)
+        return {"word": self.stored.word(address)}
+
+    def _do_read_eeprom(self, at: float, address: int) -> dict[str, Any]:
+        return {"word": self.stored.word(address)}
+
+    def _do_firmware_version(self, at: float) -> dict[str, Any]:
+        return {"firmware": self.config.firmware}
+
+    def _do_device_id(self, at: float, selector: int | None) -> dict[str, Any]:
+        if selector is None:
+            return {"selector": 0xFF, "text": ""}
+        return {"selector": selector, "text": self.config.id_string(selector)}
+
+    def _do_stop_continuous(self, at: float) -> None:
+        self._changed(at)
+        self.mode = Mode.ACTIVE
+
+    def _do_device_reset(self, at: float) -> None:
+        self._changed(at)
+        self._inbox.clear()
+        self._queue.clear()
+        self._boot(at, 0, at + wake_time_seconds(self.stored.sampling.filter_width))
+
+
+def _normalise(cmd: Command, params: dict[str, Any]) -> dict[str, Any]:
+    """Apply the manual's range rules: clamp into range, ignore (None) outside a set."""
+    out = {}
+    for f in cmd.params:
+        if f.is_pad:
+            continue
+        value = params[f.name]
+        if f.allowed is not None and value not in f.allowed:
+            value = None
+        elif f.lo is not None and f.hi is not None:
+            value = int(min(max(value, f.lo), f.hi))
+        out[f.name] = value
+    return out
+
