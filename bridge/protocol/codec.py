@@ -100,8 +100,11 @@ def _check_value(cmd: Command, f: Field, value: Any) -> None:
         raise ProtocolError(f"{where}={value} is outside {f.lo:g}..{f.hi:g}")
 
 
-def encode_command(command: int | str, strict: bool = True, **params: Any) -> bytes:
+def encode_command(command: int | str, /, strict: bool = True, **params: Any) -> bytes:
     """The bytes that send ``command`` with ``params``, confirmation sequence included.
+
+    ``command`` is positional-only so that 0xC4's parameter, also named ``command``,
+    can be passed as a keyword.
 
     ``strict`` rejects values the unit would clamp or ignore; ``strict=False``
     only requires each value to fit its field (for probing a unit's range rules).

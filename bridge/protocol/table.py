@@ -248,7 +248,7 @@ _SETTINGS: tuple[Command, ...] = (
     Command(0xCA, "write_gyro_bias", "Write Gyro Bias Correction", b"\x12\xa5",
             (Field("gyro_bias", "f32", (3,), unit="rad/s"),), q("gyro_bias", "timer")),
     Command(0xCD, "capture_gyro_bias", "Capture Gyro Bias", b"\xc1\x29",
-            (_u16("sampling_time_ms", 0, 65_535, "stationary averaging time, 10000-30000 advised"),),
+            (_u16("sampling_time_ms", 0, 65_535, "stationary averaging, 10000-30000 advised"),),
             q("gyro_bias", "timer"),
             notes="The reply comes after the sampling time has elapsed."),
     Command(0xD0, "transfer_to_nonvolatile", "Transfer Quantity to Non-Volatile Memory",
@@ -352,7 +352,8 @@ class ReplySpec:
 #: Every reply a unit can send, by its first byte: the echoed command, or 0x21.
 REPLIES: dict[int, ReplySpec] = {
     ERROR_CODE: ReplySpec(ERROR_CODE, "error"),
-    **{c.code: ReplySpec(c.code, c.name, c.reply) for c in COMMANDS.values() if c.reply is not None},
+    **{c.code: ReplySpec(c.code, c.name, c.reply)
+       for c in COMMANDS.values() if c.reply is not None},
 }
 
 

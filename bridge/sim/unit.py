@@ -136,12 +136,17 @@ class SimUnit:
         """Index of the first calculation cycle ending at or after ``host``."""
         return math.ceil(self.device_time(host) / CYCLE_S - 1e-9)
 
-    def timer_at(self, device: np.ndarray | float) -> np.ndarray:
-        ticks = np.floor((np.asarray(device) - self._timer_epoch) * TICKS_PER_SECOND + 0.5)
-        return ((ticks.astype(np.int64) + self._timer_value) & 0xFFFF_FFFF).astype(np.uint32)
+    def _cycle_at(self, host: float) -> int:
+        """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
+        return round(self.device_time(host) / CYCLE_S)
+
+    def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
+        """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
+        ticks = ((np.asarray(cycles, np.int64) - self._timer_epoch) * 125 + 1) >> 1
+        return ((ticks + self._timer_value) & 0xFFFF_FFFF).astype(np.uint32)
 
     def _set_timer(self, host: float, value: int) -> None:
-        self._timer_epoch = self.device_time(host)
+        self._timer_epoch = self._cycle_at(host)
         self._timer_value = value
 
     # --- state -------------------------------------------------------------------------
@@ -247,9 +252,10 @@ class SimUnit:
                 self.records_skipped += 1
                 self._plan.popleft()
                 continue
-            if seg.sent == 0 and seg.truth is not None:
+            if seg.truth is not None:
                 self.truth.append(seg.truth)
                 self.records_sent += 1
+                seg.truth = None
             done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-9))
             out += seg.data[seg.sent : done]
             seg.sent = done
@@ -289,7 +295,7 @@ class SimUnit:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
         device = cycles * CYCLE_S
         sample = self.motion.sample(device, self.period)
-        timers = self.timer_at(device)
+        timers = self.timer_at(cycles)
         columns = {"timer": timers}
         for f in REPLIES[code].fields:
             if f.name != "timer":
@@ -310,7 +316,7 @@ class SimUnit:
         if name in ("ang_rate", "delta_ang"):
             value -= self.gyro_bias * (self.period if name == "delta_ang" else 1.0)
         if self.mode == Mode.IDLE:
-            return np.zeros_like(value) if name in _RAW_FIELDS else np.full_like(value, np.nan)
+            value[:] = 0 if name in _RAW_FIELDS else np.nan
         if name in _MAG_FIELDS and flags & Flag.DISABLE_MAG:
             value[:] = np.nan
         if name in _ORIENTATION_FIELDS and not flags & Flag.ORIENTATION:
@@ -354,7 +360,7 @@ class SimUnit:
         self._replan = True
 
     def _timer_now(self, at: float) -> int:
-        return int(self.timer_at(self.device_time(at)))
+        return int(self.timer_at(self._cycle_at(at)))
 
     def _do_set_continuous(self, at: float, command: int | None) -> dict[str, Any]:
         if command == 0:

@@ -1,0 +1,339 @@
+"""The emulated unit in virtual time: rates, pacing, skipping, clocks, memory, physics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.protocol.codec import Batch, encode_command
+from bridge.protocol.convert import m_to_euler, m_to_quaternion, quaternion_to_m
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import DATA_CODES, REPLIES, TICKS_PER_SECOND, Flag
+from bridge.sim.faults import FaultConfig, Faults, reframe
+from bridge.sim.motion import MotionConfig
+from bridge.sim.state import Sampling, Stored
+from bridge.sim.unit import SimUnit, UnitConfig
+
+SETTINGS = {"filter_width": 15, "mag_filter_width": 17, "up_compensation": 10,
+            "north_compensation": 10}
+
+
+class Host:
+    """Drives a unit in virtual time, as a transport would, and frames what it says."""
+
+    def __init__(self, unit: SimUnit, t: float = 0.0) -> None:
+        self.unit, self.t = unit, t
+
+    def run(self, seconds: float, step: float = 0.0005) -> bytes:
+        out = bytearray()
+        end = self.t + seconds
+        while self.t < end:
+            self.t = min(end, self.t + step)
+            out += self.unit.poll(self.t)
+        return bytes(out)
+
+    def send(self, name: str, settle: float = 0.01, /, **params: int) -> bytes:
+        self.unit.receive(encode_command(name, **params), self.t)
+        return self.run(settle)
+
+    def records(self, seconds: float, *codes: int) -> list[Batch]:
+        framer = Framer(codes or DATA_CODES, little_endian=self.unit.little_endian)
+        return framer.feed(self.run(seconds)) + framer.flush()
+
+    def stream(self, code: int, decimation: int, baud: int = 115_200, flags: int = 0) -> None:
+        if baud != self.unit.baud:
+            self.send("comms_settings", port=1, function=1, baud=baud, config=2)
+        self.send("sampling_settings", function=1, decimation=decimation, flags=flags, **SETTINGS)
+        self.send("set_continuous", command=code)
+
+
+def unit(**kw: object) -> Host:
+    motion = kw.pop("motion", MotionConfig(seed=3))
+    u = SimUnit(UnitConfig(motion=motion, **kw), now=0.0, wall_ns=1_000_000_000_000)
+    host = Host(u)
+    host.run(0.2)
+    return host
+
+
+def one(batches: list[Batch], code: int) -> Batch:
+    found = [b for b in batches if b.code == code]
+    assert found, f"no 0x{code:02X} records in {[hex(b.code) for b in batches]}"
+    return Batch(code, {k: np.concatenate([b[k] for b in found]) for k in found[0].columns},
+                 np.concatenate([b.offsets for b in found]))
+
+
+@pytest.mark.parametrize(("decimation", "baud"), [(10, 115_200), (4, 115_200), (2, 460_800),
+                                                  (1, 921_600)])
+def test_continuous_rate_and_timer_spacing(decimation: int, baud: int) -> None:
+    host = unit()
+    host.stream(0xC2, decimation, baud)
+    host.run(0.05)
+    recs = one(host.records(1.0, 0xC2), 0xC2)
+    assert len(recs) == pytest.approx(1000 / decimation, abs=2)
+    steps = np.diff(recs["timer"].astype(np.int64))
+    assert steps.mean() == pytest.approx(decimation * TICKS_PER_SECOND / 1000, rel=1e-3)
+    assert np.abs(steps - decimation * 62.5).max() <= 0.5
+    assert host.unit.records_skipped == 0
+
+
+def test_a_slow_line_skips_records_and_the_timer_shows_the_gap() -> None:
+    host = unit()
+    host.stream(0xCC, 1, 115_200)
+    recs = one(host.records(1.0, 0xCC), 0xCC)
+    per_record = 79 * 10 / 115_200
+    assert len(recs) == pytest.approx(1 / (np.ceil(per_record * 1000) / 1000), rel=0.02)
+    steps = np.diff(recs["timer"].astype(np.int64))
+    assert steps.min() > 62.5 * per_record * 1000 - 1
+    assert host.unit.records_skipped > 800
+    assert host.unit.records_sent + host.unit.records_skipped >= 990
+
+
+def test_bytes_leave_at_the_line_rate() -> None:
+    host = unit()
+    host.stream(0xC8, 10, 115_200)
+    host.run(0.05)
+    arrivals = [len(host.run(0.0001, step=0.0001)) for _ in range(2000)]
+    assert sum(arrivals) == pytest.approx(67 * 20, abs=67)
+    assert max(arrivals) <= 2
+
+
+def test_timer_rollover_is_crossed() -> None:
+    host = unit(timer_start=0xFFFF_FFFF - TICKS_PER_SECOND // 2)
+    host.stream(0xC2, 10)
+    timers = one(host.records(1.5, 0xC2), 0xC2)["timer"].astype(np.int64)
+    wraps = np.flatnonzero(np.diff(timers) < 0)
+    assert len(wraps) == 1
+    unwrapped = timers + (np.arange(len(timers)) > wraps[0]) * (1 << 32)
+    assert np.allclose(np.diff(unwrapped), 625, atol=1)
+
+
+@pytest.mark.parametrize("ppm", [-100.0, 0.0, 250.0])
+def test_clock_error_shows_in_the_timer(ppm: float) -> None:
+    host = unit(clock_ppm=ppm)
+    host.stream(0xC2, 100)
+    host.run(0.05)
+    recs = one(host.records(20.0, 0xC2), 0xC2)
+    ticks = np.diff(recs["timer"][[0, -1]].astype(np.int64))[0]
+    host_s = len(recs) and (recs["timer"].size - 1) * 0.1 / (1 + ppm * 1e-6)
+    truth = list(host.unit.truth)[-len(recs):]
+    assert (truth[-1].time_ns - truth[0].time_ns) / 1e9 == pytest.approx(host_s, abs=1e-6)
+    assert ticks / TICKS_PER_SECOND / host_s == pytest.approx(1 + ppm * 1e-6, abs=2e-7)
+
+
+def test_mode_reply_comes_before_the_first_record() -> None:
+    host = unit(stored=Stored(continuous_preset=0xC2))
+    framer = Framer({0xD4, 0xC2})
+    batches = framer.feed(host.send("mode", 0.1, mode=2))
+    assert batches[0].code == 0xD4 and batches[0]["mode"][0] == 2
+    assert batches[1].code == 0xC2 and len(batches[1]) >= 9
+
+
+def test_factory_preset_zero_makes_continuous_mode_do_nothing() -> None:
+    host = unit()
+    assert host.send("mode", 0.2, mode=2) == bytes((0xD4, 0x01, 0x00, 0xD5))
+
+
+def test_power_on_in_continuous_preset_streams_without_a_mode_reply() -> None:
+    host = unit(stored=Stored(mode_preset=2, continuous_preset=0xCE))
+    batches = host.records(0.5, 0xCE, 0xD4)
+    assert [b.code for b in batches] == [0xCE]
+
+
+def test_idle_mode_returns_nan_and_suppression_zeros() -> None:
+    host = unit()
+    host.send("mode", mode=3)
+    host.unit.receive(bytes((0xC8,)), host.t)
+    rec = one(host.records(0.01, 0xC8), 0xC8)
+    assert np.isnan(rec["accel"]).all() and np.isnan(rec["m"]).all()
+    host.send("sampling_settings", function=1, decimation=10,
+              flags=int(Flag.ORIENTATION | Flag.SUPPRESS_NAN), **SETTINGS)
+    host.unit.receive(bytes((0xC2,)), host.t)
+    rec = one(host.records(0.01, 0xC2), 0xC2)
+    assert (rec["accel"] == 0).all()
+
+
+def test_little_endian_flag_swaps_floats_only() -> None:
+    host = unit()
+    host.stream(0xC2, 10, flags=int(Flag.LITTLE_ENDIAN_FLOATS))
+    raw = host.run(0.2)
+    start = raw.index(bytes((0xC2,)), 8)
+    rec = raw[start : start + 31]
+    accel_le = np.frombuffer(rec[1:13], "<f4")
+    assert np.linalg.norm(accel_le) == pytest.approx(1.0, abs=0.5)
+    timer = int.from_bytes(rec[25:29], "big")
+    assert sum(rec[:29]) & 0xFFFF == int.from_bytes(rec[29:31], "big")
+    assert timer in {t.timer for t in host.unit.truth}
+
+
+def test_sleep_wakes_on_any_byte_after_the_settling_time() -> None:
+    host = unit()
+    host.send("mode", mode=4)
+    assert host.send("firmware_version", 0.05) == b""
+    host.run(0.09)
+    reply = host.send("firmware_version", 0.01)
+    assert reply[:1] == bytes((0xE9,)) and len(reply) == 7
+
+
+def test_deep_sleep_wake_restarts_the_timer() -> None:
+    host = unit(timer_start=10_000_000)
+    host.send("mode", mode=5)
+    host.unit.receive(b"\x00", host.t)
+    host.run(0.2)
+    reply = host.send("timer", function=0, value=0)
+    assert int.from_bytes(reply[1:5], "big") < 0.3 * TICKS_PER_SECOND
+
+
+def test_nonvolatile_state_survives_reset_and_restart(tmp_path: Path) -> None:
+    state = tmp_path / "unit.json"
+    host = unit(state_file=state)
+    host.send("sampling_settings", function=2, decimation=20, flags=3, **SETTINGS)
+    host.send("mode_preset", mode_preset=3)
+    host.send("continuous_preset", continuous_preset=0xCB)
+    host.send("write_gyro_bias", gyro_bias=[0.01, 0.02, 0.03])
+    host.send("transfer_to_nonvolatile", quantity=2)
+    host.send("write_accel_bias", accel_bias=[0.5, 0.5, 0.5])
+    host.send("write_eeprom", address=0x0401, value=0xBEEF)
+    host.send("comms_settings", port=1, function=2, baud=230_400, config=2)
+    host.send("sampling_settings", function=1, decimation=50, flags=3, **SETTINGS)
+    host.send("device_reset", 0.2)
+    u = host.unit
+    assert (u.sampling.decimation, u.mode, u.baud) == (20, 3, 230_400)
+    assert u.accel_bias.tolist() == [0, 0, 0]
+    assert u.gyro_bias.tolist() == pytest.approx([0.01, 0.02, 0.03])
+    again = SimUnit(UnitConfig(state_file=state), now=0.0)
+    assert again.stored == u.stored
+    assert again.stored.word(0x0401) == 0xBEEF and again.stored.continuous_preset == 0xCB
+
+
+def test_reset_drops_commands_sent_while_booting() -> None:
+    host = unit()
+    host.unit.receive(encode_command("device_reset"), host.t)
+    host.run(0.002)
+    assert host.send("firmware_version", 0.05) == b""
+    host.run(0.1)
+    assert len(host.send("firmware_version", 0.01)) == 7
+
+
+def test_commands_are_answered_one_per_cycle() -> None:
+    host = unit()
+    burst = b"".join(encode_command("firmware_version") for _ in range(5))
+    host.unit.receive(burst, host.t)
+    received, starts = 0, []
+    for _ in range(200):
+        got = len(host.run(0.0001, step=0.0001))
+        if got and received % 7 == 0:
+            starts.append(host.t)
+        received += got
+    assert received == 35
+    assert np.diff(starts).min() >= 0.001 - 2e-4
+
+
+def test_orientation_on_limits_the_rate_to_500_hz() -> None:
+    host = unit()
+    reply = host.send("sampling_settings", function=1, decimation=1,
+                      flags=int(Flag.ORIENTATION), **SETTINGS)
+    assert int.from_bytes(reply[1:3], "big") == 2
+
+
+def test_quaternion_needs_its_flag() -> None:
+    host = unit()
+    host.unit.receive(bytes((0xDF,)), host.t)
+    assert np.isnan(one(host.records(0.01, 0xDF), 0xDF)["quaternion"]).all()
+    host.send("sampling_settings", function=1, decimation=10,
+              flags=int(Flag.ORIENTATION | Flag.QUATERNION), **SETTINGS)
+    host.unit.receive(bytes((0xDF,)), host.t)
+    q = one(host.records(0.01, 0xDF), 0xDF)["quaternion"][0]
+    assert np.linalg.norm(q) == pytest.approx(1, abs=1e-6) and q[0] >= 0
+
+
+def test_streamed_records_match_the_ground_truth_attitude() -> None:
+    host = unit()
+    host.stream(0xCC, 10, flags=int(Flag.ORIENTATION))
+    recs = one(host.records(2.0, 0xCC), 0xCC)
+    truth = {t.timer: t for t in host.unit.truth}
+    m_true = quaternion_to_m(np.array([truth[int(k)].quaternion for k in recs["timer"]]))
+    assert np.abs(recs["m"] - m_true).max() < 1e-6
+
+
+def test_emulated_records_are_physically_consistent() -> None:
+    """What a user integrates from the unit's own records agrees with its attitude."""
+    host = unit()
+    host.stream(0xC8, 10, flags=int(Flag.ORIENTATION))
+    recs = one(host.records(3.0, 0xC8), 0xC8)
+    m = recs["m"].astype(np.float64)
+    assert np.abs(m @ np.swapaxes(m, 1, 2) - np.eye(3)).max() < 1e-6
+    assert np.allclose(np.linalg.det(m), 1, atol=1e-6)
+    assert np.allclose(quaternion_to_m(m_to_quaternion(m)), m, atol=1e-6)
+    assert m_to_euler(m).shape == (len(m), 3)
+    rate = recs["ang_rate"].astype(np.float64)
+    dt = 0.01
+    current = m[0]
+    for i in range(1, len(m)):
+        w = 0.5 * (rate[i - 1] + rate[i]) * dt
+        skew = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        current = (np.eye(3) - skew + skew @ skew / 2) @ current
+    angle = np.arccos(np.clip((np.trace(current @ m[-1].T) - 1) / 2, -1, 1))
+    assert angle < 2e-3
+
+
+def test_a_static_unit_reads_one_g() -> None:
+    host = unit(motion=MotionConfig(seed=5, static=True))
+    host.stream(0xCB, 10)
+    recs = one(host.records(0.5, 0xCB), 0xCB)
+    assert np.allclose(np.linalg.norm(recs["accel"], axis=1), 1.0, atol=1e-6)
+    assert np.allclose(recs["ang_rate"], 0, atol=1e-9)
+
+
+def test_capture_gyro_bias_finds_the_true_bias_of_a_still_unit() -> None:
+    bias = (0.004, -0.002, 0.001)
+    host = unit(motion=MotionConfig(static=True, gyro_bias_rad_s=bias))
+    host.unit.receive(encode_command("capture_gyro_bias", sampling_time_ms=500), host.t)
+    assert host.run(0.45) == b""
+    batches = Framer({0xCD}).feed(host.run(0.1))
+    assert batches[0]["gyro_bias"][0] == pytest.approx(bias, abs=1e-7)
+    host.unit.receive(bytes((0xC2,)), host.t)
+    assert np.abs(one(host.records(0.01, 0xC2), 0xC2)["ang_rate"]).max() < 1e-7
+
+
+def test_reframe_models_a_uart_at_the_wrong_rate() -> None:
+    data = bytes(range(0xC0, 0xD0)) * 4
+    assert reframe(data, 115_200, 115_200) == data
+    wrong = reframe(data, 921_600, 115_200)
+    assert wrong != data and len(wrong) < len(data)
+    slow = reframe(data, 115_200, 921_600)
+    assert len(slow) > len(data)
+
+
+def test_faults_flip_and_drop_at_their_rates() -> None:
+    faults = Faults(FaultConfig(bit_flip_rate=0.01, drop_rate=0.01), seed=1, now=0.0)
+    data = bytes(200_000)
+    out = faults.corrupt(data)
+    assert len(data) - len(out) == faults.bytes_dropped
+    assert faults.bytes_dropped == pytest.approx(2000, rel=0.15)
+    assert faults.bits_flipped == pytest.approx(2000, rel=0.15)
+    assert sum(bin(b).count("1") for b in out) == pytest.approx(faults.bits_flipped, abs=40)
+
+
+def test_stalls_hold_output_then_release_it() -> None:
+    faults = Faults(FaultConfig(stall_every_s=0.5, stall_s=0.1), seed=2, now=0.0)
+    held = [faults.stalled(t / 1000) for t in range(5000)]
+    runs = np.diff(np.flatnonzero(np.diff(np.array(held, int))))
+    assert faults.stalls >= 3
+    assert np.all(runs[::2] == 100)
+
+
+def test_every_reply_length_matches_what_the_unit_sends() -> None:
+    host = unit()
+    for code in sorted(DATA_CODES):
+        host.unit.receive(bytes((code,)), host.t)
+        assert len(host.run(0.01)) == REPLIES[code].length
+
+
+def test_sampling_reply_reflects_settings() -> None:
+    host = unit()
+    reply = host.send("sampling_settings", function=0, decimation=1, flags=0, **SETTINGS)
+    sampling = Sampling()
+    assert int.from_bytes(reply[1:3], "big") == sampling.decimation
+    assert int.from_bytes(reply[3:5], "big") == sampling.flags
