@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bridge.sim.faults import FaultConfig, Faults, reframe
-from bridge.sim.unit import SimUnit, UnitConfig
+from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
 
 _TICK_S = 0.0005
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
@@ -271,11 +271,19 @@ class Simulator:
                         if data and slot.plugged:
                             slot.unit.receive(self._as_unit_hears(slot, data), time.monotonic())
                     now = time.monotonic()
+                    self._plan_one(now)
                     for slot in self.slots:
                         self._pump(slot, now)
         except BaseException as exc:
             self.error = exc
             raise
+
+    def _plan_one(self, now: float) -> None:
+        """Compute ahead for the unit closest to running dry, one per tick, so that
+        sixteen units never stall the line together."""
+        slot = min(self.slots, key=lambda s: s.unit.planned_until)
+        if slot.unit.planned_until < now + LOOKAHEAD_S / 2:
+            slot.unit.plan(now)
 
     def _register(self, sel: selectors.BaseSelector) -> None:
         wanted = {(obj if isinstance(obj, int) else obj.fileno()): (obj, slot)

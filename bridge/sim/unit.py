@@ -41,7 +41,12 @@ from bridge.sim.motion import Motion, MotionConfig
 from bridge.sim.state import Sampling, Stored
 
 CYCLE_S = 0.001
-LOOKAHEAD_S = 0.02
+_HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, counted in halves
+# Continuous records are computed in vectorised blocks up to LOOKAHEAD_S ahead.
+# A transport spreads that work over its units with ``plan``; ``poll`` plans
+# itself only when less than URGENT_S is left.
+LOOKAHEAD_S = 0.1
+URGENT_S = 0.005
 USER_EEPROM = (range(0x0000, 0x00F0), range(0x0400, 0x0430))
 # The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
 # and bit 3 (system tick). A healthy awake unit sets both.
@@ -142,7 +147,8 @@ class SimUnit:
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
-        ticks = ((np.asarray(cycles, np.int64) - self._timer_epoch) * 125 + 1) >> 1
+        elapsed = np.asarray(cycles, np.int64) - self._timer_epoch
+        ticks = (elapsed * _HALF_TICKS_PER_CYCLE + 1) >> 1
         return ((ticks + self._timer_value) & 0xFFFF_FFFF).astype(np.uint32)
 
     def _set_timer(self, host: float, value: int) -> None:
@@ -211,8 +217,19 @@ class SimUnit:
             self._queue.popleft()
             self._busy_until = at + CYCLE_S
             self._execute(raw, at)
-        self._plan_stream(now + LOOKAHEAD_S)
+        if self.planned_until < now + URGENT_S:
+            self.plan(now)
         return self._transmit(now)
+
+    @property
+    def planned_until(self) -> float:
+        """Host time up to which continuous output is computed (inf when not streaming)."""
+        streaming = self.mode == Mode.CONTINUOUS and self.continuous_command in DATA_CODES
+        return self._stream_from if streaming else math.inf
+
+    def plan(self, now: float) -> None:
+        """Compute continuous output up to ``LOOKAHEAD_S`` past ``now``."""
+        self._plan_stream(now + LOOKAHEAD_S)
 
     def next_event(self) -> float | None:
         """Host time at which ``poll`` next has something to do."""
@@ -267,7 +284,7 @@ class SimUnit:
 
     # --- continuous mode -----------------------------------------------------------------
     def _plan_stream(self, horizon: float) -> None:
-        if self.mode != Mode.CONTINUOUS or self.continuous_command not in DATA_CODES:
+        if self.planned_until == math.inf:
             return
         first = max(self._cycle_after(self._stream_from), self._cycle_after(self._ready))
         step = self.sampling.decimation
