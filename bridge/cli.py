@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from bridge.protocol.codec import json_safe
-from bridge.protocol.docs import command_table_markdown
+from bridge.protocol.docs import command_table_markdown, reply_schemas
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES
 
@@ -101,10 +101,15 @@ def _write(batches: list, out) -> None:
 def commands(
     markdown: Annotated[bool, typer.Option(
         "--markdown", help="Print the table as Markdown (what docs/commands.md holds).")] = False,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print every reply's wire layout as JSON (what schemas/replies.json "
+        "holds).")] = False,
 ) -> None:
     """List every 3DM-GX3 command with its bytes, parameters and reply layout."""
     text = command_table_markdown()
-    if markdown:
+    if as_json:
+        sys.stdout.write(json.dumps(reply_schemas(), indent=1) + "\n")
+    elif markdown:
         sys.stdout.write(text)
     else:
         from rich.markdown import Markdown

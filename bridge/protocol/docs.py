@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from bridge.protocol.table import COMMANDS, ERROR_REPLY, Field
+from typing import Any
+
+from bridge.protocol.table import COMMANDS, ERROR_REPLY, REPLIES, Field
+
+SCHEMA_VERSION = 1
 
 
 def _field(f: Field) -> str:
@@ -55,3 +59,30 @@ def command_table_markdown() -> str:
         lines.append(f"| 0x{c.code:02X} | {c.name} | {sends} | {confirm} | {params} | {reply} "
                      f"| {fields} | {'; '.join(notes)} |")
     return "\n".join(lines) + "\n"
+
+
+def reply_schemas() -> dict[str, Any]:
+    """Every reply's wire layout, language-neutral, for decoders written elsewhere."""
+    replies = []
+    for spec in REPLIES.values():
+        offset, fields = 1, []
+        for f in spec.fields:
+            if not f.is_pad:
+                entry: dict[str, Any] = {"name": f.name, "offset": offset, "type": f.kind,
+                                         "shape": list(f.shape)}
+                if f.unit:
+                    entry["unit"] = f.unit
+                if f.doc:
+                    entry["doc"] = f.doc
+                fields.append(entry)
+            offset += f.size
+        replies.append({"code": spec.code, "name": spec.name, "length": spec.length,
+                        "fields": fields})
+    return {
+        "schema": "gx3-bridge/replies",
+        "version": SCHEMA_VERSION,
+        "byte_order": "big-endian; f32 little-endian when 0xDB flag bit 4 is set",
+        "checksum": "u16 big-endian in the last two bytes: sum of all preceding bytes mod 65536",
+        "types": {"u8": 1, "u16": 2, "u32": 4, "f32": 4, "ascii": 16},
+        "replies": replies,
+    }
