@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from bridge.protocol.table import TICKS_PER_SECOND
+
 FloatArray = npt.NDArray[np.float64]
 FloatOut = FloatArray | np.float64
 
-TICKS_PER_SECOND = 62_500
 STANDARD_GRAVITY = 9.80665
 
 _DIRICHLET_EPS = 1e-12
@@ -31,7 +32,9 @@ def _out(x: npt.ArrayLike) -> FloatOut:
 
 def _check_shape(a: FloatArray, tail: tuple[int, ...], name: str) -> None:
     if a.ndim < len(tail) or a.shape[a.ndim - len(tail) :] != tail:
-        raise ValueError(f"{name} must have shape (..., {', '.join(map(str, tail))}), got {a.shape}")
+        raise ValueError(
+            f"{name} must have shape (..., {', '.join(map(str, tail))}), got {a.shape}"
+        )
 
 
 def _dirichlet(x: FloatArray, n: FloatArray) -> FloatArray:
@@ -52,7 +55,7 @@ def euler_to_m(euler: npt.ArrayLike) -> FloatArray:
     _check_shape(e, (3,), "euler")
     sr, sp, sy = np.sin(e[..., 0]), np.sin(e[..., 1]), np.sin(e[..., 2])
     cr, cp, cy = np.cos(e[..., 0]), np.cos(e[..., 1]), np.cos(e[..., 2])
-    m = np.empty(e.shape[:-1] + (3, 3), dtype=np.float64)
+    m = np.empty((*e.shape[:-1], 3, 3), dtype=np.float64)
     m[..., 0, 0] = cy * cp
     m[..., 0, 1] = sy * cp
     m[..., 0, 2] = -sp
@@ -123,7 +126,7 @@ def quaternion_to_m(q: npt.ArrayLike) -> FloatArray:
     _check_shape(a, (4,), "q")
     a = a / np.linalg.norm(a, axis=-1, keepdims=True)
     q0, q1, q2, q3 = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    m = np.empty(a.shape[:-1] + (3, 3), dtype=np.float64)
+    m = np.empty((*a.shape[:-1], 3, 3), dtype=np.float64)
     m[..., 0, 0] = q0 * q0 - 0.5 + q1 * q1
     m[..., 0, 1] = q1 * q2 + q0 * q3
     m[..., 0, 2] = q1 * q3 - q0 * q2

@@ -1,13 +1,14 @@
 """Find whole replies in a byte stream cut at arbitrary places.
 
 The framer is fed chunks of any size and returns every intact reply exactly once,
-in order, as columnar ``Batch`` es. While it is in step with the stream (the last
-record ended where this one starts) a matching echo byte and checksum are enough;
-after losing step it advances one byte at a time and also requires every field
-to be plausible, because a 16-bit additive checksum over a short reply does match
-garbage now and then. Long runs of one record type (continuous mode) take a NumPy
-fast path that checks many records at once and falls back to the byte-wise
-scanner only around corruption; both paths accept exactly the same records.
+in order, as columnar ``Batch`` es. A record needs an expected echo byte, a
+matching checksum and every field plausible: a 16-bit additive checksum matches
+garbage now and then, both while resynchronising and when a record cut short or
+missing a byte spans into the next one while the framer still believes it is in
+step. After losing step the framer advances one byte at a time. Long runs of one
+record type (continuous mode) take a NumPy fast path that checks many records at
+once and falls back to the byte-wise scanner only around corruption; both paths
+accept exactly the same records.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bridge.protocol.codec import Batch, decode_block, plausible
+from bridge.protocol.codec import Batch, decode_block, plausible, plausible_rows
 from bridge.protocol.table import DATA_CODES, REPLIES
 
 _MIN_FAST = 8  # records; below this the scanner is cheaper than array set-up
@@ -138,7 +139,7 @@ class Framer:
             rec = bytes(buf[pos : pos + size])
             if (sum(rec[:-2]) & 0xFFFF) != (rec[-2] << 8 | rec[-1]):
                 stats.checksum_failures += 1
-            elif self._locked or plausible(code, rec, self.little_endian):
+            elif plausible(code, rec, self.little_endian):
                 runs.add(code, rec, np.array([self._base + pos], np.int64))
                 stats.records[code] += 1
                 self._locked = True
@@ -165,6 +166,7 @@ class Framer:
         sums = block[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
         wire = block[:, -2].astype(np.uint32) << 8 | block[:, -1]
         ok = (sums == wire) & (block[:, 0] == code)
+        ok &= plausible_rows(code, block, self.little_endian)
         del block
         good = count if ok.all() else int(np.argmin(ok))
         self._chunk = min(_MAX_FAST, self._chunk * 2) if good == count else max(64, 2 * good)

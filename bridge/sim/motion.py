@@ -4,7 +4,10 @@ Every quantity a simulated unit reports is derived from one analytic trajectory,
 outputs are mutually consistent (M, Euler and Q agree; AngRate is the true body rate of
 M; DeltaAng integrates AngRate; Accel is the specific force of the same motion) and a
 test can check a pipeline against exact values. Samples are a pure function of
-(config, t), so a unit can regenerate any sample it has already sent.
+(config, t), so a unit can regenerate any sample it has already sent: the same call
+gives identical arrays, and a sample computed within another batch agrees to the last
+float64 bit or so (NumPy's vector and scalar libm loops may round differently), far
+below the float32 the unit sends. Nothing depends on the other times in a batch.
 """
 
 from __future__ import annotations
@@ -79,7 +82,7 @@ def _time_keyed_normals(seed: int, t: FloatArray, count: int) -> FloatArray:
 
     A Generator per sample would be far too slow at high rates; hashing the microsecond
     time stamp gives the same per-sample determinism vectorised (Box-Muller on hashed
-    uniforms), so a sample regenerated alone equals the one generated in a batch.
+    uniforms), so a sample's noise does not depend on the batch it is generated in.
     """
     micros = np.round(t * 1e6).astype(np.int64).view(np.uint64)
     key = _splitmix64(np.array([seed & 0xFFFF_FFFF_FFFF_FFFF], dtype=np.uint64))
@@ -134,7 +137,7 @@ def _sincos_near(
     """sin and cos of (a0 + delta) from those of a0, by the angle-addition formulas.
 
     bound is an upper limit of |delta| known in advance (not measured from the data), so
-    a sample computes identically whatever batch it is generated in. delta is consumed
+    a sample takes the same arithmetic path whatever batch it is in. delta is consumed
     as scratch space.
     """
     if bound <= _TAYLOR_MAX_STEP_RAD:
@@ -226,8 +229,8 @@ def _shift_coefficients(
 def _combine(weights: FloatArray, features: FloatArray) -> FloatArray:
     """(3, 2K) weights . (3, 2K, n) features -> (3, n).
 
-    einsum's own loop adds the terms in a fixed order, unlike BLAS, so each sample's
-    result is independent of the batch it is computed in.
+    einsum's own loop adds the terms in a fixed order, unlike BLAS, whose blocking
+    (and so its rounding) depends on the batch size.
     """
     return np.einsum("ak,akn->an", weights, features)
 

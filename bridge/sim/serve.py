@@ -303,7 +303,7 @@ class Simulator:
         return reframe(data, host, slot.unit.baud) if host else data
 
     def _pump(self, slot: _Slot, now: float) -> None:
-        out = slot.faults.corrupt(slot.unit.poll(now))
+        line = slot.unit.poll_line(now)
         if slot.faults.outage(now):
             if slot.plugged:
                 slot.link.unplug()
@@ -314,9 +314,8 @@ class Simulator:
             slot.link.plug()
             slot.plugged = True
         host = slot.link.host_baud()
-        if host:
-            out = reframe(out, slot.unit.baud, host)
-        slot.held += out
+        for baud, data in line:
+            slot.held += slot.faults.corrupt(reframe(data, baud, host) if host else data)
         if slot.held and not slot.faults.stalled(now):
             slot.lost += slot.link.write(bytes(slot.held))
             slot.held.clear()

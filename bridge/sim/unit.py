@@ -49,7 +49,8 @@ LOOKAHEAD_S = 0.1
 URGENT_S = 0.005
 USER_EEPROM = (range(0x0000, 0x00F0), range(0x0400, 0x0430))
 # The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
-# and bit 3 (system tick). A healthy awake unit sets both.
+# and bit 3 (system tick), which an awake unit sets in every mode. The 5 V flag
+# that drops in idle mode has no bit number in the manual.
 STATIONARY_TEST_OK = 0b1001
 _ORIENTATION_FIELDS = ("m", "c", "euler", "quaternion", "stab_accel", "stab_mag")
 _MAG_FIELDS = ("mag", "stab_mag")
@@ -89,15 +90,16 @@ class Truth:
 
 
 class _Segment:
-    """Bytes leaving the unit back to back from ``start`` at ``rate`` bytes/s.
+    """Bytes leaving the unit back to back from ``start`` at ``baud``.
 
     An empty segment marks a continuous record skipped because the line was busy.
     """
 
-    __slots__ = ("data", "rate", "sent", "start", "truth")
+    __slots__ = ("baud", "data", "rate", "sent", "start", "truth")
 
-    def __init__(self, start: float, data: bytes, rate: float, truth: Truth | None) -> None:
-        self.start, self.data, self.rate, self.truth, self.sent = start, data, rate, truth, 0
+    def __init__(self, start: float, data: bytes, baud: int, truth: Truth | None) -> None:
+        self.start, self.data, self.baud, self.truth, self.sent = start, data, baud, truth, 0
+        self.rate = baud / 10.0
 
     @property
     def end(self) -> float:
@@ -208,6 +210,10 @@ class SimUnit:
 
     def poll(self, now: float) -> bytes:
         """Run the unit up to ``now``; return the bytes that finished crossing the line."""
+        return b"".join(data for _, data in self.poll_line(now))
+
+    def poll_line(self, now: float) -> list[tuple[int, bytes]]:
+        """As ``poll``, with the baud rate each run of bytes went out at (0xD9 changes it)."""
         while self._queue:
             arrived, raw = self._queue[0]
             at = self.host_time(max(self._cycle_after(arrived), self._cycle_after(self._busy_until))
@@ -247,10 +253,10 @@ class SimUnit:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
         if at < self._line_free - 1e-9:
             if skippable:
-                self._plan.append(_Segment(at, b"", 1.0, None))
+                self._plan.append(_Segment(at, b"", self.baud, None))
                 return
             at = self._line_free
-        seg = _Segment(at, data, self.baud / 10.0, truth)
+        seg = _Segment(at, data, self.baud, truth)
         self._plan.append(seg)
         self._line_free = seg.end
 
@@ -261,8 +267,8 @@ class SimUnit:
         busy = [seg.end for seg in self._plan if seg.data]
         self._line_free = max(at, self._sent_until, *busy)
 
-    def _transmit(self, now: float) -> bytes:
-        out = bytearray()
+    def _transmit(self, now: float) -> list[tuple[int, bytes]]:
+        out: list[tuple[int, bytes]] = []
         while self._plan and self._plan[0].start <= now:
             seg = self._plan[0]
             if not seg.data:
@@ -274,13 +280,18 @@ class SimUnit:
                 self.records_sent += 1
                 seg.truth = None
             done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-9))
-            out += seg.data[seg.sent : done]
+            if done > seg.sent:
+                chunk = seg.data[seg.sent : done]
+                if out and out[-1][0] == seg.baud:
+                    out[-1] = (seg.baud, out[-1][1] + chunk)
+                else:
+                    out.append((seg.baud, chunk))
             seg.sent = done
             if done < len(seg.data):
                 break
             self._sent_until = seg.end
             self._plan.popleft()
-        return bytes(out)
+        return out
 
     # --- continuous mode -----------------------------------------------------------------
     def _plan_stream(self, horizon: float) -> None:
@@ -328,7 +339,7 @@ class SimUnit:
         """A quantity as the unit reports it in its current state and settings."""
         value = sample[name].copy()
         flags = self.sampling.flags
-        if name in ("accel", "delta_vel"):
+        if name in ("accel", "stab_accel", "delta_vel"):
             value -= self.accel_bias * (self.period if name == "delta_vel" else 1.0)
         if name in ("ang_rate", "delta_ang"):
             value -= self.gyro_bias * (self.period if name == "delta_ang" else 1.0)
@@ -383,6 +394,7 @@ class SimUnit:
         if command == 0:
             self._changed(at)
             self.mode = Mode.ACTIVE
+            self.continuous_command = 0
         elif command is not None:
             self._start_stream(command, at)
         return {"command": self.continuous_command, "timer": self._timer_now(at)}
@@ -467,7 +479,7 @@ class SimUnit:
         return {"port": 1, "baud": self.baud, "config": 0x02}
 
     def _do_stationary_test(self, at: float) -> dict[str, Any]:
-        return {"test_result": 0 if self.mode == Mode.IDLE else STATIONARY_TEST_OK}
+        return {"test_result": STATIONARY_TEST_OK}
 
     def _do_sampling_settings(self, at: float, function: int | None, **new: int) -> dict[str, Any]:
         if function in (1, 2, 3):
@@ -498,6 +510,7 @@ class SimUnit:
         return {"firmware": self.config.firmware}
 
     def _do_device_id(self, at: float, selector: int | None) -> dict[str, Any]:
+        """An unknown selector has no current value to return: 0xFF and a blank string."""
         if selector is None:
             return {"selector": 0xFF, "text": ""}
         return {"selector": selector, "text": self.config.id_string(selector)}

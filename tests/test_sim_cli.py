@@ -1,0 +1,258 @@
+"""The `gx3 sim` console script, run as a user runs it: a real process on real endpoints.
+
+Replies are checked with a hand-written checksum and ``struct``, independently of
+``bridge.protocol``, so the test sees what a host on the other end would see.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import select
+import shutil
+import signal
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+import typer.core
+import typer.main
+
+from bridge.cli import app
+
+WRAP = 1 << 32
+C2_LENGTH = 31
+TIMER_START = 4_294_900_000
+# Every option the brief for `gx3 sim` names; the command's own list is added below.
+DOCUMENTED_OPTIONS = (
+    "--pty", "--tcp", "--units", "--serial", "--model-name", "--model-number", "--firmware",
+    "--timer-start", "--clock-ppm", "--seed", "--static", "--noise-accel", "--noise-gyro",
+    "--noise-mag", "--gyro-bias", "--decimation", "--flags", "--continuous-preset",
+    "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
+    "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
+)
+
+
+def gx3() -> str:
+    """The installed console script: next to this interpreter, else on PATH."""
+    beside = Path(sys.executable).parent / "gx3"
+    if beside.exists():
+        return str(beside)
+    found = shutil.which("gx3")
+    assert found, "the gx3 console script is not installed"
+    return found
+
+
+def checksum(data: bytes) -> bytes:
+    """The manual's checksum: 16-bit wrapping sum of the preceding bytes, big-endian."""
+    return struct.pack(">H", sum(data) & 0xFFFF)
+
+
+def framed(body: bytes) -> bytes:
+    return body + checksum(body)
+
+
+def intact(reply: bytes, code: int, length: int) -> bool:
+    return len(reply) == length and reply[0] == code and reply[-2:] == checksum(reply[:-2])
+
+
+def ask(port: serial.SerialBase, command: bytes, length: int, timeout: float = 2.0) -> bytes:
+    """Send one command and read its whole reply, or whatever came before the deadline."""
+    port.write(command)
+    port.flush()
+    deadline = time.monotonic() + timeout
+    reply = bytearray()
+    while len(reply) < length and time.monotonic() < deadline:
+        reply += port.read(length - len(reply))
+    return bytes(reply)
+
+
+def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
+    """Intact records of a stream joined mid-record: sync on two in a row, then walk."""
+    for start in range(length):
+        first, second = data[start : start + length], data[start + length : start + 2 * length]
+        if intact(first, code, length) and intact(second, code, length):
+            break
+    else:
+        return []
+    records = []
+    for i in range(start, len(data) - length + 1, length):
+        chunk = data[i : i + length]
+        assert intact(chunk, code, length), f"record at byte {i} is broken: {chunk.hex()}"
+        records.append(chunk)
+    return records
+
+
+def timer_of(record: bytes) -> int:
+    return struct.unpack_from(">I", record, len(record) - 6)[0]
+
+
+class Sim:
+    """One running `gx3 sim` process."""
+
+    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
+        self.proc = proc
+
+    def endpoints(self, n: int, timeout: float = 15.0) -> list[str]:
+        """The first ``n`` lines of stdout, which name the endpoints."""
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        fd = self.proc.stdout.fileno()
+        deadline = time.monotonic() + timeout
+        out = b""
+        while out.count(b"\n") < n:
+            left = deadline - time.monotonic()
+            assert left > 0, f"gx3 sim printed only {out!r}"
+            ready, _, _ = select.select([fd], [], [], left)
+            if ready:
+                chunk = os.read(fd, 4096)
+                assert chunk, f"gx3 sim exited early: {self.proc.stderr.read().decode()}"
+                out += chunk
+        return out.decode().splitlines()[:n]
+
+    def stop(self, sig: signal.Signals = signal.SIGTERM) -> tuple[int, str]:
+        """Signal the process; its exit code and everything it wrote on stderr."""
+        assert self.proc.stderr is not None
+        self.proc.send_signal(sig)
+        code = self.proc.wait(timeout=10)
+        return code, self.proc.stderr.read().decode()
+
+
+@pytest.fixture
+def run_sim() -> Iterator[Callable[..., Sim]]:
+    """Start `gx3 sim` with arguments; every process started is killed and reaped after."""
+    started: list[subprocess.Popen[bytes]] = []
+
+    def start(*args: str) -> Sim:
+        proc = subprocess.Popen([gx3(), "sim", *args], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        started.append(proc)
+        return Sim(proc)
+
+    yield start
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
+
+
+def test_tcp_units_are_distinct_devices(run_sim: Callable[..., Sim]) -> None:
+    """Three units: three socket:// lines, three serial numbers, three attitudes."""
+    sim = run_sim("--tcp", "127.0.0.1:0", "--units", "3", "--static")
+    urls = sim.endpoints(3)
+    assert all(re.fullmatch(r"socket://127\.0\.0\.1:\d+", url) for url in urls), urls
+    assert len(set(urls)) == 3
+    serials, accels = [], []
+    for url in urls:
+        with serial.serial_for_url(url, timeout=0.05) as port:
+            reply = ask(port, b"\xea\x01", 20)
+            assert intact(reply, 0xEA, 20) and reply[1] == 1, reply.hex()
+            serials.append(reply[2:18])
+            reply = ask(port, b"\xc2", C2_LENGTH)
+            assert intact(reply, 0xC2, C2_LENGTH), reply.hex()
+            accel = np.array(struct.unpack_from(">3f", reply, 1))
+            assert np.linalg.norm(accel) == pytest.approx(1.0, abs=1e-3)
+            accels.append(accel)
+    assert len(set(serials)) == 3, serials
+    for a, b in itertools.combinations(accels, 2):
+        assert np.abs(a - b).max() > 1e-3, "two units report the same attitude"
+
+
+def test_pty_endpoint_opens_with_pyserial(run_sim: Callable[..., Sim]) -> None:
+    sim = run_sim("--pty", "--firmware", "4242")
+    (path,) = sim.endpoints(1)
+    assert Path(path).exists(), path
+    with serial.Serial(path, 115_200, timeout=0.05) as port:
+        assert ask(port, b"\xe9", 7) == framed(b"\xe9" + struct.pack(">I", 4242))
+
+
+def test_timer_rolls_over_through_zero(run_sim: Callable[..., Sim]) -> None:
+    """Started 67,296 ticks (~1.08 s) before the rollover, the stream wraps through 0."""
+    sim = run_sim("--tcp", "127.0.0.1:0", "--timer-start", str(TIMER_START),
+                  "--continuous-preset", "0xC2", "--mode-preset", "2", "--decimation", "10")
+    (url,) = sim.endpoints(1)
+    data = bytearray()
+    records: list[bytes] = []
+    with serial.serial_for_url(url, timeout=0.05) as port:
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            data += port.read(4096)
+            records = stream_records(bytes(data), 0xC2, C2_LENGTH)
+            timers = [timer_of(r) for r in records]
+            if any(b < a for a, b in itertools.pairwise(timers)) and timers[-1] > 1000:
+                break
+    timers = [timer_of(r) for r in records]
+    assert len(timers) > 20
+    assert timers[0] >= TIMER_START
+    assert any(b < a for a, b in itertools.pairwise(timers)), "no rollover within 3 s"
+    assert {(b - a) % WRAP for a, b in itertools.pairwise(timers)} == {625}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
+                                        sig: signal.Signals) -> None:
+    sim = run_sim("--tcp", "127.0.0.1:0", "--serial", "SIGTEST")
+    (url,) = sim.endpoints(1)
+    with serial.serial_for_url(url, timeout=0.05) as port:
+        assert intact(ask(port, b"\xc2", C2_LENGTH), 0xC2, C2_LENGTH)
+    code, stderr = sim.stop(sig)
+    assert code == 0, stderr
+    assert "Traceback" not in stderr
+    assert re.search(r"SIGTEST: 1 records sent", stderr), stderr
+
+
+def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path: Path) -> None:
+    """0xD5 writes non-volatile memory: a second run on the same --state file still has it."""
+    state = tmp_path / "unit.json"
+    first = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
+    (url,) = first.endpoints(1)
+    with serial.serial_for_url(url, timeout=0.05) as port:
+        assert ask(port, b"\xd5\xba\x89\x03", 4) == framed(b"\xd5\x03")
+    assert first.stop()[0] == 0
+    assert state.exists()
+    second = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
+    (url,) = second.endpoints(1)
+    with serial.serial_for_url(url, timeout=0.05) as port:
+        assert ask(port, b"\xd5\xba\x89\x00", 4) == framed(b"\xd5\x03")
+        assert ask(port, b"\xd4\xa3\x47\x00", 4) == framed(b"\xd4\x03"), "woke in idle"
+    assert second.stop()[0] == 0
+
+
+@pytest.mark.parametrize("args", [
+    ("--tcp", "127.0.0.1:0", "--baud", "9600"),
+    ("--pty", "--tcp", "127.0.0.1:0"),
+    (),
+    ("--tcp", "127.0.0.1:0", "--continuous-preset", "0x01"),
+], ids=["baud-9600", "both-transports", "no-transport", "preset-not-data"])
+def test_bad_arguments_fail_with_one_line(args: tuple[str, ...]) -> None:
+    done = subprocess.run([gx3(), "sim", *args], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=15)
+    assert done.returncode != 0
+    assert done.stdout == ""
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, done.stderr
+    assert "error" in lines[0].lower()
+    assert "Traceback" not in done.stderr
+
+
+def test_help_mentions_every_option() -> None:
+    group = typer.main.get_command(app)
+    assert isinstance(group, typer.core.TyperGroup)
+    command = group.commands["sim"]
+    declared = {opt for param in command.params for opt in param.opts if opt.startswith("--")}
+    done = subprocess.run([gx3(), "sim", "--help"], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=15,
+                          env={**os.environ, "COLUMNS": "80"})
+    assert done.returncode == 0, done.stderr
+    missing = [opt for opt in sorted(declared | set(DOCUMENTED_OPTIONS))
+               if not re.search(re.escape(opt) + r"(?![\w-])", done.stdout)]
+    assert not missing, done.stdout
