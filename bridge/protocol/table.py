@@ -133,7 +133,7 @@ QUANTITIES: dict[str, Field] = {
         Field("north_compensation", "u16", lo=1, hi=1000, unit="s", doc="north correction"),
         Field("word", "u16", doc="EEPROM word"),
         Field("firmware", "u32", doc="firmware version number"),
-        Field("selector", "u8", lo=0, hi=4, doc="device ID string selector"),
+        Field("selector", "u8", doc="device ID string selector echoed (0xFF: unknown)"),
         Field("text", "ascii", doc="16-character ASCII ID string"),
     )
 }
