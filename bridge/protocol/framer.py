@@ -81,6 +81,7 @@ class Framer:
         self._base = 0
         self._locked = False
         self._chunk = 256
+        self._checked: tuple[int, int, bool, np.ndarray] | None = None
         self.expect(DATA_CODES if expect is None else expect)
 
     def expect(self, codes: Iterable[int]) -> None:
@@ -152,6 +153,20 @@ class Framer:
         self._base += pos
         return runs.batches(self.little_endian)
 
+    def _checked_from(self, start: int, code: int, size: int) -> np.ndarray | None:
+        """The checks already made on the records at ``start``, if a block covered them.
+
+        A flipped bit costs one record but keeps the alignment, so the block checked
+        before it still answers for the records after it.
+        """
+        if self._checked is None:
+            return None
+        origin, checked_code, little_endian, ok = self._checked
+        if (checked_code, little_endian) != (code, self.little_endian) or start < origin:
+            return None
+        index, misaligned = divmod(start - origin, size)
+        return None if misaligned or index >= len(ok) else ok[index:]
+
     def _lose_step(self, skipped: int) -> None:
         if self._locked:
             self._locked = False
@@ -160,16 +175,24 @@ class Framer:
 
     def _fast(self, buf: bytearray, pos: int, code: int, size: int, runs: _Runs) -> int:
         """Accept the longest run of intact ``code`` records at ``pos``; return its length."""
-        count = min(self._chunk, (len(buf) - pos) // size)
-        self._last_block = count
-        block = np.frombuffer(buf, np.uint8, count * size, pos).reshape(count, size)
-        sums = block[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
-        wire = block[:, -2].astype(np.uint32) << 8 | block[:, -1]
-        ok = (sums == wire) & (block[:, 0] == code)
-        ok &= plausible_rows(code, block, self.little_endian)
-        del block
-        good = count if ok.all() else int(np.argmin(ok))
-        self._chunk = min(_MAX_FAST, self._chunk * 2) if good == count else max(64, 2 * good)
+        start = self._base + pos
+        ok = self._checked_from(start, code, size)
+        if ok is None:
+            count = min(self._chunk, (len(buf) - pos) // size)
+            block = np.frombuffer(buf, np.uint8, count * size, pos).reshape(count, size)
+            sums = block[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
+            wire = block[:, -2].astype(np.uint32) << 8 | block[:, -1]
+            ok = (sums == wire) & (block[:, 0] == code)
+            ok &= plausible_rows(code, block, self.little_endian)
+            del block
+            self._checked = (start, code, self.little_endian, ok)
+            fresh = True
+        else:
+            fresh = False
+        self._last_block = len(ok)
+        good = len(ok) if ok.all() else int(np.argmin(ok))
+        if fresh:
+            self._chunk = min(_MAX_FAST, self._chunk * 2) if good == len(ok) else max(64, 2 * good)
         if good:
             runs.add(code, bytes(buf[pos : pos + good * size]),
                      self._base + pos + size * np.arange(good, dtype=np.int64))
