@@ -65,8 +65,8 @@ def load(path: Path | None, default: Stored) -> Stored:
         values["eeprom"] = tuple((int(a), int(v)) for a, v in raw.get("eeprom", {}).items())
         return Stored(**values)
     except (OSError, ValueError, TypeError) as exc:
-        raise StateFileError(f"{path}: not a unit state file ({exc}); "
-                             "delete it to start from factory settings") from None
+        raise StateFileError(f"{path}: not a unit state file ({exc}); give another path, "
+                             "or remove this one to start from factory settings") from None
 
 
 def save(path: Path | None, stored: Stored) -> None:

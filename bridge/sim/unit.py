@@ -237,16 +237,6 @@ class SimUnit:
         """Compute continuous output up to ``LOOKAHEAD_S`` past ``now``."""
         self._plan_stream(now + LOOKAHEAD_S)
 
-    def next_event(self) -> float | None:
-        """Host time at which ``poll`` next has something to do."""
-        times = []
-        if self._plan:
-            seg = self._plan[0]
-            times.append(seg.start + (seg.sent + 1) / seg.rate)
-        if self._queue:
-            times.append(self._busy_until)
-        return min(times) if times else None
-
     # --- output --------------------------------------------------------------------------
     def _schedule(self, at: float, data: bytes, truth: Truth | None = None,
                   skippable: bool = False) -> None:
