@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 TICKS_PER_SECOND = 62_500
+CALCULATION_CYCLE_S = 0.001  # the unit samples, filters and answers once per 1 ms cycle
 ERROR_CODE = 0x21
 ERROR_REPLY = bytes((0x21, 0x00, 0x21))
 BAUD_RATES = (115_200, 230_400, 460_800, 921_600)

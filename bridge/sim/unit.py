@@ -27,6 +27,7 @@ import numpy as np
 from bridge.protocol.codec import encode_replies, encode_reply, parse_command
 from bridge.protocol.convert import wake_time_seconds
 from bridge.protocol.table import (
+    CALCULATION_CYCLE_S,
     COMMANDS,
     DATA_CODES,
     ERROR_REPLY,
@@ -40,7 +41,6 @@ from bridge.sim import state
 from bridge.sim.motion import Motion, MotionConfig
 from bridge.sim.state import Sampling, Stored
 
-CYCLE_S = 0.001
 _HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, counted in halves
 # Continuous records are computed in vectorised blocks up to LOOKAHEAD_S ahead.
 # A transport spreads that work over its units with ``plan``; ``poll`` plans
@@ -141,11 +141,11 @@ class SimUnit:
 
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(self.device_time(host) / CYCLE_S - 1e-9)
+        return math.ceil(self.device_time(host) / CALCULATION_CYCLE_S - 1e-9)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
-        return round(self.device_time(host) / CYCLE_S)
+        return round(self.device_time(host) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
@@ -183,7 +183,7 @@ class SimUnit:
 
     @property
     def period(self) -> float:
-        return self.sampling.decimation * CYCLE_S
+        return self.sampling.decimation * CALCULATION_CYCLE_S
 
     def _persist(self, **changes: Any) -> None:
         self.stored = replace(self.stored, **changes)
@@ -217,11 +217,11 @@ class SimUnit:
         while self._queue:
             arrived, raw = self._queue[0]
             at = self.host_time(max(self._cycle_after(arrived), self._cycle_after(self._busy_until))
-                                * CYCLE_S)
+                                * CALCULATION_CYCLE_S)
             if at > now:
                 break
             self._queue.popleft()
-            self._busy_until = at + CYCLE_S
+            self._busy_until = at + CALCULATION_CYCLE_S
             self._execute(raw, at)
         if self.planned_until < now + URGENT_S:
             self.plan(now)
@@ -298,9 +298,9 @@ class SimUnit:
         code = self.continuous_command
         records, truths = self._records(code, cycles)
         size = REPLIES[code].length
-        for i, at in enumerate(self.host_time(cycles * CYCLE_S)):
+        for i, at in enumerate(self.host_time(cycles * CALCULATION_CYCLE_S)):
             self._schedule(float(at), records[i * size : (i + 1) * size], truths[i], skippable=True)
-        self._stream_from = float(self.host_time((cycles[-1] + 1) * CYCLE_S))
+        self._stream_from = float(self.host_time((cycles[-1] + 1) * CALCULATION_CYCLE_S))
 
     def _start_stream(self, code: int, at: float) -> None:
         """Stream ``code`` from the first cycle after this command's reply."""
@@ -311,7 +311,7 @@ class SimUnit:
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[Truth]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
-        device = cycles * CYCLE_S
+        device = cycles * CALCULATION_CYCLE_S
         sample = self.motion.sample(device, self.period)
         timers = self.timer_at(cycles)
         columns = {"timer": timers}
@@ -403,10 +403,10 @@ class SimUnit:
         """Average the gyro for the sampling time, then answer; a moving unit gets it wrong."""
         n = max(1, sampling_time_ms)
         start = self._cycle_after(at)
-        device = np.arange(start, start + n) * CYCLE_S
-        done = self.host_time(device[-1] + CYCLE_S)
+        device = np.arange(start, start + n) * CALCULATION_CYCLE_S
+        done = self.host_time(device[-1] + CALCULATION_CYCLE_S)
         self._changed(at)
-        self.gyro_bias = self.motion.sample(device, CYCLE_S)["ang_rate"].mean(axis=0)
+        self.gyro_bias = self.motion.sample(device, CALCULATION_CYCLE_S)["ang_rate"].mean(axis=0)
         self._busy_until = max(self._busy_until, done)
         values = {"gyro_bias": self.gyro_bias, "timer": self._timer_now(done)}
         self._schedule(done, encode_reply(0xCD, self.little_endian, **values))
