@@ -4,8 +4,9 @@ Run by hand: `python bench/bench_sim.py [--units 16] [--seconds 10]`. Starts
 `gx3 sim --pty` in its own process (as a user would), opens every pty at
 921,600 baud, reads them all from one thread, and reports per unit the record
 rate achieved, records lost, and the pacing jitter: the spread of each record's
-arrival time around a straight-line fit of arrival time against the unit's own
-timer (what a host sees, scheduling effects included).
+arrival time (the time of the read that completed it) around a straight-line fit
+of arrival time against the unit's own timer. Reads are only timestamped while
+measuring and framed afterwards, so the reader's own work does not count as jitter.
 """
 
 from __future__ import annotations
@@ -23,12 +24,19 @@ import numpy as np
 import serial
 
 from bridge.protocol.framer import Framer
-from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
 
 
 def _cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def main() -> None:
@@ -51,39 +59,38 @@ def main() -> None:
         time.sleep(0.5)
         for port in ports:
             port.reset_input_buffer()
-        framers = [Framer([code]) for _ in ports]
-        arrivals: list[list[np.ndarray]] = [[] for _ in ports]
-        timers: list[list[np.ndarray]] = [[] for _ in ports]
+        reads: list[list[tuple[float, bytes]]] = [[] for _ in ports]
         sel = selectors.DefaultSelector()
         for i, port in enumerate(ports):
             sel.register(port.fileno(), selectors.EVENT_READ, i)
         cpu0, t0 = _cpu_seconds(proc.pid), time.monotonic()
         while time.monotonic() - t0 < args.seconds:
             for key, _ in sel.select(0.1):
-                i = key.data
-                data = os.read(key.fd, 65536)
-                now = time.monotonic()
-                for batch in framers[i].feed(data):
-                    timers[i].append(batch["timer"].astype(np.int64))
-                    arrivals[i].append(np.full(len(batch), now))
+                reads[key.data].append((time.monotonic(), os.read(key.fd, 65536)))
         elapsed = time.monotonic() - t0
         cpu = (_cpu_seconds(proc.pid) - cpu0) / elapsed
+        rss = _rss_mib(proc.pid)
     finally:
         for port in ports:
             port.close()
         proc.terminate()
         proc.wait(timeout=10)
     rates, residuals, lost, bad = [], [], 0, 0
-    for i in range(len(ports)):
-        ticks = np.concatenate(timers[i])
-        arrived = np.concatenate(arrivals[i])
+    size = REPLIES[code].length
+    for unit_reads in reads:
+        framer = Framer([code])
+        batches = framer.feed(b"".join(data for _, data in unit_reads))
+        ticks = np.concatenate([b["timer"] for b in batches]).astype(np.int64)
+        ends = np.concatenate([b.offsets for b in batches]) + size
+        received = np.cumsum([len(data) for _, data in unit_reads])
+        arrived = np.array([t for t, _ in unit_reads])[np.searchsorted(received, ends)]
         steps = np.diff(ticks) & 0xFFFF_FFFF
         lost += int(np.round(steps / (TICKS_PER_SECOND / 1000)).sum() - len(steps))
         seconds = np.concatenate([[0], np.cumsum(steps)]) / TICKS_PER_SECOND
         fit = np.polyfit(seconds, arrived, 1)
         residuals.append(arrived - np.polyval(fit, seconds))
         rates.append(len(ticks) / elapsed)
-        bad += framers[i].stats.checksum_failures
+        bad += framer.stats.checksum_failures
     res = np.concatenate(residuals) * 1e3
     print(f"{args.units} units x 0x{code:02X} at 1000 Hz, 921600 baud, {elapsed:.1f} s")
     print(f"  records/s per unit: min {min(rates):.1f}  mean {np.mean(rates):.1f}  "
@@ -91,7 +98,7 @@ def main() -> None:
     print(f"  records lost (timer gaps): {lost}  checksum failures: {bad}")
     print(f"  arrival jitter around the device timer (ms): std {res.std():.3f}  "
           f"p99 {np.percentile(np.abs(res), 99):.3f}  max {np.abs(res).max():.3f}")
-    print(f"  emulator CPU: {cpu * 100:.0f} % of one core")
+    print(f"  emulator CPU: {cpu * 100:.0f} % of one core, resident memory {rss:.0f} MiB")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from bridge.protocol.table import DATA_CODES, REPLIES, TICKS_PER_SECOND, Flag
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling, Stored
-from bridge.sim.unit import SimUnit, UnitConfig
+from bridge.sim.unit import SimUnit, TruthLog, UnitConfig
 
 SETTINGS = {"filter_width": 15, "mag_filter_width": 17, "up_compensation": 10,
             "north_compensation": 10}
@@ -117,8 +117,8 @@ def test_clock_error_shows_in_the_timer(ppm: float) -> None:
     recs = one(host.records(20.0, 0xC2), 0xC2)
     ticks = np.diff(recs["timer"][[0, -1]].astype(np.int64))[0]
     host_s = len(recs) and (recs["timer"].size - 1) * 0.1 / (1 + ppm * 1e-6)
-    truth = list(host.unit.truth)[-len(recs):]
-    assert (truth[-1].time_ns - truth[0].time_ns) / 1e9 == pytest.approx(host_s, abs=1e-6)
+    sampled = host.unit.truth.arrays()["time_ns"][-len(recs):]
+    assert (sampled[-1] - sampled[0]) / 1e9 == pytest.approx(host_s, abs=1e-6)
     assert ticks / TICKS_PER_SECOND / host_s == pytest.approx(1 + ppm * 1e-6, abs=2e-7)
 
 
@@ -164,7 +164,7 @@ def test_little_endian_flag_swaps_floats_only() -> None:
     assert np.linalg.norm(accel_le) == pytest.approx(1.0, abs=0.5)
     timer = int.from_bytes(rec[25:29], "big")
     assert sum(rec[:29]) & 0xFFFF == int.from_bytes(rec[29:31], "big")
-    assert timer in {t.timer for t in host.unit.truth}
+    assert timer in host.unit.truth.arrays()["timer"]
 
 
 def test_sleep_wakes_on_any_byte_after_the_settling_time() -> None:
@@ -252,8 +252,9 @@ def test_streamed_records_match_the_ground_truth_attitude() -> None:
     host = unit()
     host.stream(0xCC, 10, flags=int(Flag.ORIENTATION))
     recs = one(host.records(2.0, 0xCC), 0xCC)
-    truth = {t.timer: t for t in host.unit.truth}
-    m_true = quaternion_to_m(np.array([truth[int(k)].quaternion for k in recs["timer"]]))
+    truth = host.unit.truth.arrays()
+    index = {int(timer): i for i, timer in enumerate(truth["timer"])}
+    m_true = quaternion_to_m(truth["quaternion"][[index[int(k)] for k in recs["timer"]]])
     assert np.abs(recs["m"] - m_true).max() < 1e-6
 
 
@@ -337,3 +338,13 @@ def test_sampling_reply_reflects_settings() -> None:
     sampling = Sampling()
     assert int.from_bytes(reply[1:3], "big") == sampling.decimation
     assert int.from_bytes(reply[3:5], "big") == sampling.flags
+
+
+def test_truth_log_keeps_the_newest_records_in_order() -> None:
+    log = TruthLog(3)
+    for i in range(5):
+        log.append((i * 1000, i * 0.01, i, 0xC2, np.array([1.0, 0, 0, 0])))
+    truth = log.arrays()
+    assert len(log) == 3
+    assert truth["timer"].tolist() == [2, 3, 4]
+    assert truth["time_ns"].tolist() == [2000, 3000, 4000]

@@ -16,6 +16,7 @@ not-yet-started part of that plan is dropped whenever a command changes state.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field, replace
@@ -72,21 +73,53 @@ class UnitConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     stored: Stored = field(default_factory=Stored)
     state_file: Path | None = None
-    truth_length: int = 200_000
+    truth_length: int = 100_000
 
     def id_string(self, selector: int) -> str:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
 
 
-@dataclass(frozen=True)
-class Truth:
-    """What a record really was: when it was sampled and the attitude at that instant."""
+#: One record's truth: sample instant (host wall clock, ns), device time (s), timer,
+#: record type, true attitude quaternion (scalar first, earth to sensor).
+TruthRow = tuple[int, float, int, int, np.ndarray]
 
-    time_ns: int
-    device_s: float
-    timer: int
-    code: int
-    quaternion: tuple[float, float, float, float]
+
+class TruthLog:
+    """What the last ``capacity`` records really were, kept as columns.
+
+    Columns, not an object per record: a fleet at 1 kHz would otherwise fill the
+    heap with millions of objects and stall the emulator in garbage collection.
+    Safe to read from another thread while the unit runs.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self._columns = {
+            "time_ns": np.zeros(capacity, np.int64),
+            "device_s": np.zeros(capacity),
+            "timer": np.zeros(capacity, np.uint32),
+            "code": np.zeros(capacity, np.uint8),
+            "quaternion": np.zeros((capacity, 4)),
+        }
+        self._capacity = capacity
+        self._written = 0
+        self._lock = threading.Lock()
+
+    def append(self, row: TruthRow) -> None:
+        with self._lock:
+            i = self._written % self._capacity
+            for column, value in zip(self._columns.values(), row, strict=True):
+                column[i] = value
+            self._written += 1
+
+    def __len__(self) -> int:
+        return min(self._written, self._capacity)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Copies of every column, oldest record first."""
+        with self._lock:
+            n, start = len(self), self._written % self._capacity
+            order = np.arange(start - n, start) % self._capacity
+            return {name: column[order] for name, column in self._columns.items()}
 
 
 class _Segment:
@@ -97,7 +130,7 @@ class _Segment:
 
     __slots__ = ("baud", "data", "rate", "sent", "start", "truth")
 
-    def __init__(self, start: float, data: bytes, baud: int, truth: Truth | None) -> None:
+    def __init__(self, start: float, data: bytes, baud: int, truth: TruthRow | None) -> None:
         self.start, self.data, self.baud, self.truth, self.sent = start, data, baud, truth, 0
         self.rate = baud / 10.0
 
@@ -118,7 +151,7 @@ class SimUnit:
         self._t0 = now
         self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
         self._scale = 1.0 + config.clock_ppm * 1e-6
-        self.truth: deque[Truth] = deque(maxlen=config.truth_length)
+        self.truth = TruthLog(config.truth_length)
         self.records_skipped = 0
         self.records_sent = 0
         self._plan: deque[_Segment] = deque()
@@ -238,7 +271,7 @@ class SimUnit:
         self._plan_stream(now + LOOKAHEAD_S)
 
     # --- output --------------------------------------------------------------------------
-    def _schedule(self, at: float, data: bytes, truth: Truth | None = None,
+    def _schedule(self, at: float, data: bytes, truth: TruthRow | None = None,
                   skippable: bool = False) -> None:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
         if at < self._line_free - 1e-9:
@@ -309,7 +342,7 @@ class SimUnit:
         self.continuous_command = code
         self._new_phase = True
 
-    def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[Truth]]:
+    def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
         device = cycles * CALCULATION_CYCLE_S
         sample = self.motion.sample(device, self.period)
@@ -320,9 +353,8 @@ class SimUnit:
                 columns[f.name] = self._reported(f.name, sample)
         data = encode_replies(code, columns, len(cycles), self.little_endian)
         wall = (self.host_time(device) * 1e9 + self._wall_offset_ns).astype(np.int64)
-        quats = sample["quaternion"]
-        truths = [Truth(int(wall[i]), float(device[i]), int(timers[i]), code,
-                        tuple(quats[i].tolist())) for i in range(len(cycles))]
+        truths = list(zip(wall.tolist(), device.tolist(), timers.tolist(), [code] * len(cycles),
+                          sample["quaternion"], strict=True))
         return data, truths
 
     def _reported(self, name: str, sample: dict[str, np.ndarray]) -> np.ndarray:
