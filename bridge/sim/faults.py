@@ -18,10 +18,29 @@ class FaultConfig:
     disconnect_every_s: float = 0.0
     disconnect_s: float = 1.0
 
-    @property
-    def any(self) -> bool:
-        return any((self.bit_flip_rate, self.drop_rate, self.stall_every_s,
-                    self.disconnect_every_s))
+
+class _Episodes:
+    """Episodes ``length`` seconds long, starting at random intervals of mean ``every``."""
+
+    def __init__(self, rng: np.random.Generator, every: float, length: float, now: float) -> None:
+        self.rng, self.every, self.length = rng, every, length
+        self.ended = 0
+        self._window = self._next(now)
+
+    def _next(self, now: float) -> tuple[float, float] | None:
+        if self.every <= 0:
+            return None
+        start = now + float(self.rng.exponential(self.every))
+        return start, start + self.length
+
+    def active(self, now: float) -> bool:
+        if self._window is None or now < self._window[0]:
+            return False
+        if now < self._window[1]:
+            return True
+        self.ended += 1
+        self._window = self._next(now)
+        return False
 
 
 class Faults:
@@ -32,16 +51,16 @@ class Faults:
         self.rng = np.random.default_rng([seed, 0xFA017])
         self.bits_flipped = 0
         self.bytes_dropped = 0
-        self.stalls = 0
-        self.disconnects = 0
-        self._stall = self._window(now, config.stall_every_s, config.stall_s)
-        self._outage = self._window(now, config.disconnect_every_s, config.disconnect_s)
+        self._stalls = _Episodes(self.rng, config.stall_every_s, config.stall_s, now)
+        self._outages = _Episodes(self.rng, config.disconnect_every_s, config.disconnect_s, now)
 
-    def _window(self, now: float, every: float, length: float) -> tuple[float, float] | None:
-        if every <= 0:
-            return None
-        start = now + float(self.rng.exponential(every))
-        return start, start + length
+    @property
+    def stalls(self) -> int:
+        return self._stalls.ended
+
+    @property
+    def disconnects(self) -> int:
+        return self._outages.ended
 
     def corrupt(self, data: bytes) -> bytes:
         """Flip one bit in, or drop, each byte with the configured probabilities."""
@@ -59,23 +78,11 @@ class Faults:
 
     def stalled(self, now: float) -> bool:
         """Inside a USB snub: the host receives nothing, then everything at once."""
-        if self._stall is None or now < self._stall[0]:
-            return False
-        if now < self._stall[1]:
-            return True
-        self.stalls += 1
-        self._stall = self._window(now, self.config.stall_every_s, self.config.stall_s)
-        return False
+        return self._stalls.active(now)
 
     def outage(self, now: float) -> bool:
         """Inside a disconnect: the cable is out and bytes are lost."""
-        if self._outage is None or now < self._outage[0]:
-            return False
-        if now < self._outage[1]:
-            return True
-        self.disconnects += 1
-        self._outage = self._window(now, self.config.disconnect_every_s, self.config.disconnect_s)
-        return False
+        return self._outages.active(now)
 
 
 def reframe(data: bytes, sent_baud: int, read_baud: int) -> bytes:
