@@ -234,34 +234,22 @@ def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
     return True
 
 
-def _f32_inward(bound: float, up: bool) -> np.float32:
-    """The float32 bound that, compared in float32, gives the float64 comparison's answer."""
-    x = np.float32(bound)
-    if (up and float(x) < bound) or (not up and float(x) > bound):
-        x = np.nextafter(x, np.float32(np.inf if up else -np.inf))
-    return x
-
-
 @functools.cache
 def _row_checks(code: int, little_endian: bool) -> tuple[list[Any], list[Any]]:
-    """Bounded fields for plausible_rows: adjacent floats merged into one run, so a data
-    record costs one conversion and two comparisons rather than two per field."""
+    """``_domain_checks`` grouped for blocks: adjacent float fields form one run, so a
+    data record costs one conversion and two comparisons rather than two per field."""
     runs: list[list[Any]] = []  # [offset, size, lo per element, hi per element]
-    ints: list[tuple[Any, ...]] = []
+    ints: list[tuple[int, int, np.dtype, Field]] = []
     for _, offset, f in _domain_checks(code, little_endian):
         if f.kind != "f32":
-            allowed = None if f.allowed is None else np.array(sorted(f.allowed))
-            ints.append((offset, f.size, np.dtype(_wire_dtype(f, little_endian)), f.lo, f.hi,
-                         allowed))
+            ints.append((offset, f.size, np.dtype(_wire_dtype(f, little_endian)), f))
             continue
         if not runs or runs[-1][0] + runs[-1][1] != offset:
             runs.append([offset, 0, [], []])
-        run = runs[-1]
-        run[1] += f.size
-        run[2] += [-np.inf if f.lo is None else _f32_inward(f.lo, up=True)] * f.count
-        run[3] += [np.inf if f.hi is None else _f32_inward(f.hi, up=False)] * f.count
-    floats = [[o, n, np.array(lo, np.float32), np.array(hi, np.float32)] for o, n, lo, hi in runs]
-    return floats, ints
+        runs[-1][1] += f.size
+        runs[-1][2] += [-np.inf if f.lo is None else f.lo] * f.count
+        runs[-1][3] += [np.inf if f.hi is None else f.hi] * f.count
+    return [(o, n, np.array(lo), np.array(hi)) for o, n, lo, hi in runs], ints
 
 
 def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) -> np.ndarray:
@@ -270,16 +258,17 @@ def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) ->
     floats, ints = _row_checks(code, little_endian)
     wire = np.dtype("<f4" if little_endian else ">f4")
     for offset, size, lo, hi in floats:
-        x = block[:, offset : offset + size].view(wire).astype(np.float32)
+        with np.errstate(invalid="ignore"):  # garbage holds signalling NaNs
+            x = block[:, offset : offset + size].view(wire).astype(np.float64)
         ok &= ~((x < lo) | (x > hi)).any(axis=1)  # NaN compares false: allowed
-    for offset, size, dtype, lo, hi, allowed in ints:
+    for offset, size, dtype, f in ints:
         col = block[:, offset : offset + size].view(dtype)
-        if lo is not None:
-            ok &= ~(col < lo).any(axis=1)
-        if hi is not None:
-            ok &= ~(col > hi).any(axis=1)
-        if allowed is not None:
-            ok &= np.isin(col, allowed).all(axis=1)
+        if f.lo is not None:
+            ok &= ~(col < f.lo).any(axis=1)
+        if f.hi is not None:
+            ok &= ~(col > f.hi).any(axis=1)
+        if f.allowed is not None:
+            ok &= np.isin(col, sorted(f.allowed)).all(axis=1)
     return ok
 
 
