@@ -18,7 +18,8 @@ from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES
 
 app = typer.Typer(
     name="gx3",
-    help="Bridge MicroStrain 3DM-GX3 inertial sensors onto Zenoh, MCAP and Rerun.",
+    help="Tools for MicroStrain 3DM-GX3 inertial sensors: decode raw captures, emulate "
+         "units on ptys or TCP, look up the command set.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -34,11 +35,18 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
-def _reply_code(text: str) -> int:
+def _code(text: str | None) -> int:
+    """A command byte as people write it: 0xC8, 200 or 0o310; none is 0."""
+    if text is None:
+        return 0
     try:
-        code = int(text, 0)
+        return int(text, 0)
     except ValueError:
         raise typer.BadParameter(f"{text!r} is not a number such as 0xC8") from None
+
+
+def _reply_code(text: str) -> int:
+    code = _code(text)
     if code not in REPLIES:
         raise typer.BadParameter(f"no reply starts with 0x{code:02X}")
     return code
@@ -122,15 +130,6 @@ def _parse_tcp(text: str) -> tuple[str, int]:
     if not sep or not port.isdigit():
         raise typer.BadParameter(f"{text!r} is not HOST:PORT, e.g. 127.0.0.1:0")
     return host or "127.0.0.1", int(port)
-
-
-def _code(text: str | None) -> int:
-    if text is None:
-        return 0
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise typer.BadParameter(f"{text!r} is not a number such as 0xC2") from None
 
 
 @app.command()
@@ -259,8 +258,6 @@ def sim(
     for slot in simulator.slots:
         u = slot.unit
         err.print(f"{u.config.serial}: {u.records_sent} records sent, {u.records_skipped} "
-                  f"skipped (line busy), {slot.lost} bytes lost (host not reading)")
+                  f"skipped (line busy), {slot.lost} bytes not delivered (no host connected, or "
+                  "host not reading)")
 
-
-def main() -> None:
-    app()
