@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Annotated, BinaryIO
@@ -10,6 +11,7 @@ from typing import Annotated, BinaryIO
 import typer
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
 from bridge.protocol.codec import json_safe
 from bridge.protocol.docs import command_table_markdown, reply_schemas
@@ -79,18 +81,26 @@ def decode(
     """Decode a raw capture: one JSON object per record on stdout, a summary on stderr.
 
     Each object has "command" (integer), "timer" where the record has one, and
-    each quantity under its DESIGN.md name (vectors and matrices as nested
-    lists, matrices row-major). NaN is written as null. Corrupt bytes are
+    each quantity under its name (accel, ang_rate, mag, m, euler, quaternion,
+    temperature, …: see docs/commands.md); vectors and matrices are nested
+    lists, matrices row-major. NaN is written as null. Corrupt bytes are
     skipped and counted; every intact record after them is still decoded.
+    On a terminal, progress is shown on stderr.
     """
     codes = [_reply_code(c) for c in expect] if expect else sorted(DATA_CODES)
     framer = Framer(codes, little_endian=little_endian)
     out = sys.stdout
     stream = _open_input(file)
+    size = None if file == "-" else os.fstat(stream.fileno()).st_size
+    progress = Progress(TextColumn("decoding"), BarColumn(), DownloadColumn(),
+                        TransferSpeedColumn(), console=err, transient=True,
+                        disable=not err.is_terminal)
     try:
-        with stream:
+        with stream, progress:
+            task = progress.add_task("decode", total=size)
             while chunk := stream.read(_READ_SIZE):
                 _write(framer.feed(chunk), out)
+                progress.advance(task, len(chunk))
             _write(framer.flush(), out)
         out.flush()
     except BrokenPipeError:
