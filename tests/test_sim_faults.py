@@ -48,11 +48,13 @@ def test_corruption_costs_only_the_damaged_records(flipping: Simulator) -> None:
     framer = Framer({0xC2})
     timers = np.concatenate([b["timer"] for b in framer.feed(data)]).astype(np.int64)
     steps = np.diff(timers)
+    sent = len(data) / 31
+    expected_damaged = sent * 31 * (2e-3 + 5e-4)
+    damaged = int((steps // 250 - 1).sum())
     assert framer.stats.checksum_failures > 0
-    assert set(np.unique(steps)) <= {250 * k for k in range(1, 20)}
-    damaged = (steps // 250 - 1).sum()
-    assert damaged == pytest.approx(len(data) / 31 * 31 * 2.5e-3, rel=0.6)
-    assert len(timers) > 0.85 * len(data) / 31
+    assert (steps > 0).all() and (steps % 250 == 0).all(), "a record that was never sent"
+    assert damaged <= 2 * expected_damaged + 5, (damaged, expected_damaged)
+    assert len(timers) >= 0.8 * sent, (len(timers), sent)
 
 
 def test_usb_snubs_hold_bytes_back_then_burst() -> None:
