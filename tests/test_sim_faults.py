@@ -45,16 +45,19 @@ def flipping() -> Iterator[Simulator]:
 def test_corruption_costs_only_the_damaged_records(flipping: Simulator) -> None:
     with serial.serial_for_url(flipping.endpoints[0], timeout=0.05) as port:
         data = b"".join(d for _, d in read_for(port, 2.0))
+    sent_timers = flipping.units[0].truth.arrays()["timer"]
     framer = Framer({0xC2})
     timers = np.concatenate([b["timer"] for b in framer.feed(data)]).astype(np.int64)
-    steps = np.diff(timers)
     sent = len(data) / 31
     expected_damaged = sent * 31 * (2e-3 + 5e-4)
-    damaged = int((steps // 250 - 1).sum())
+    damaged = int((np.diff(timers) // 250 - 1).sum())
     assert framer.stats.checksum_failures > 0
-    assert (steps > 0).all() and (steps % 250 == 0).all(), "a record that was never sent"
     assert damaged <= 2 * expected_damaged + 5, (damaged, expected_damaged)
     assert len(timers) >= 0.8 * sent, (len(timers), sent)
+    # At this fault rate a record now and then takes two flips that cancel in the
+    # additive checksum; no framer can catch those, so a few per thousand may pass.
+    genuine = np.isin(timers, sent_timers)
+    assert genuine.mean() >= 0.995, timers[~genuine]
 
 
 def test_usb_snubs_hold_bytes_back_then_burst() -> None:
