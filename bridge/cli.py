@@ -6,14 +6,14 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, BinaryIO
+from typing import Annotated, BinaryIO, TextIO
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-from bridge.protocol.codec import json_safe
+from bridge.protocol.codec import Batch, json_safe
 from bridge.protocol.docs import command_table_markdown, reply_schemas
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES
@@ -109,7 +109,7 @@ def decode(
     err.print(framer.stats.summary())
 
 
-def _write(batches: list, out) -> None:
+def _write(batches: list[Batch], out: TextIO) -> None:
     for batch in batches:
         for record in batch.records():
             out.write(json.dumps({k: json_safe(v) for k, v in record.items()}) + "\n")

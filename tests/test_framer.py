@@ -123,10 +123,10 @@ def test_fast_path_and_byte_scanner_agree_on_a_long_run(monkeypatch: pytest.Monk
     fast_records = []
     original = Framer._fast
 
-    def spy(self: Framer, *args: object) -> int:
-        good = original(self, *args)
+    def spy(self: Framer, *args: object) -> tuple[int, bool]:
+        good, whole = original(self, *args)
         fast_records.append(good)
-        return good
+        return good, whole
 
     monkeypatch.setattr(Framer, "_fast", spy)
     whole = run(Framer([0xC8]), raw, [])

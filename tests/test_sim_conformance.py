@@ -278,6 +278,15 @@ class Host:
         assert_frame(reply, 0xDB, 19)
         return Sampling(*struct.unpack_from(">HHBBHH", reply, 1))
 
+    @contextmanager
+    def sampling_kept(self) -> Iterator[Sampling]:
+        """The current 0xDB settings, put back however the test ends."""
+        saved = self.sampling()
+        try:
+            yield saved
+        finally:
+            self.sampling(1, saved)
+
 
 @contextmanager
 def serve(transport: str, config: UnitConfig = CONFIG) -> Iterator[Host]:
@@ -448,8 +457,7 @@ def test_temperatures_are_12_bit_codes(host: Host) -> None:
 
 def test_quaternion_is_nan_until_flag_bit_12(host: Host) -> None:
     """0xDF needs 0xDB bit 12 (the 0xDF section's "bit 11" disables gravity compensation)."""
-    saved = host.sampling()
-    try:
+    with host.sampling_kept() as saved:
         values, _ = host.record(0xDF)
         assert np.isnan(values).all()
         host.sampling(1, replace(saved, flags=saved.flags | GRAVITY_BIT))
@@ -466,14 +474,11 @@ def test_quaternion_is_nan_until_flag_bit_12(host: Host) -> None:
             [q1 * q3 + q0 * q2, q2 * q3 - q0 * q1, q0**2 - 0.5 + q3**2],
         ])
         assert from_q == pytest.approx(orientation(host), abs=1e-5)
-    finally:
-        host.sampling(1, saved)
 
 
 def test_little_endian_flag_swaps_floats_only(host: Host) -> None:
     """0xDB bit 4: floats little-endian; the timer and checksum stay big-endian."""
-    saved = host.sampling()
-    try:
+    with host.sampling_kept() as saved:
         host.sampling(1, replace(saved, flags=saved.flags | LITTLE_ENDIAN_BIT))
         before, _, _ = host.timer()
         values, stamp = host.record(0xC2, little_endian=True)
@@ -482,8 +487,6 @@ def test_little_endian_flag_swaps_floats_only(host: Host) -> None:
         assert (stamp - before) % WRAP <= (after - before) % WRAP
         codes, _ = host.record(0xD1)
         assert (codes < 4096).all(), "temperatures are integers, not floats"
-    finally:
-        host.sampling(1, saved)
 
 
 def test_timer_counts_62500_ticks_per_second(host: Host) -> None:
@@ -762,13 +765,10 @@ def test_sampling_settings_read_gives_manual_defaults(host: Host) -> None:
 
 
 def test_sampling_settings_set_and_read_back(host: Host) -> None:
-    saved = host.sampling()
     wanted = Sampling(20, 0x0003, 8, 9, 30, 40)
-    try:
+    with host.sampling_kept() as saved:
         assert host.sampling(1, wanted) == wanted
         assert host.sampling() == wanted
-    finally:
-        host.sampling(1, saved)
     assert host.sampling() == saved
 
 
@@ -778,33 +778,24 @@ def test_sampling_settings_set_and_read_back(host: Host) -> None:
 ], ids=["below", "above"])
 def test_sampling_settings_are_clamped_into_range(host: Host, sent: Sampling,
                                                   clamped: Sampling) -> None:
-    saved = host.sampling()
-    try:
+    with host.sampling_kept():
         assert host.sampling(1, sent) == clamped
         assert host.sampling() == clamped
-    finally:
-        host.sampling(1, saved)
 
 
 def test_sampling_settings_function_3_is_silent_but_applies(host: Host) -> None:
-    saved = host.sampling()
-    try:
+    with host.sampling_kept() as saved:
         host.send(replace(saved, decimation=25).command(3))
         assert host.listen(0.1) == b""
         assert host.sampling().decimation == 25
-    finally:
-        host.sampling(1, saved)
 
 
 def test_magnetometer_off_gives_nan(host: Host) -> None:
-    saved = host.sampling()
-    try:
+    with host.sampling_kept() as saved:
         host.sampling(1, replace(saved, flags=saved.flags | DISABLE_MAG_BIT))
         for code in (0xC7, 0xCB):
             values, _ = host.record(code)
             assert np.isnan(values[-3:]).all(), hexid(code)
-    finally:
-        host.sampling(1, saved)
 
 
 def test_realign_replies_with_function_0_only(host: Host) -> None:

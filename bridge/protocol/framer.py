@@ -133,9 +133,8 @@ class Framer:
                 pos += 1
                 continue
             if fast and self._locked and (n - pos) // size >= _MIN_FAST:
-                good = self._fast(buf, pos, code, size, runs)
+                good, fast = self._fast(buf, pos, code, size, runs)
                 pos += good * size
-                fast = good == self._last_block
                 continue
             rec = bytes(buf[pos : pos + size])
             if (sum(rec[:-2]) & 0xFFFF) != (rec[-2] << 8 | rec[-1]):
@@ -173,8 +172,13 @@ class Framer:
             self.stats.resyncs += 1
         self.stats.bytes_skipped += skipped
 
-    def _fast(self, buf: bytearray, pos: int, code: int, size: int, runs: _Runs) -> int:
-        """Accept the longest run of intact ``code`` records at ``pos``; return its length."""
+    def _fast(self, buf: bytearray, pos: int, code: int, size: int,
+              runs: _Runs) -> tuple[int, bool]:
+        """Accept the longest run of intact ``code`` records at ``pos``.
+
+        Returns its length and whether every record checked was intact (if not, the
+        scanner must look at the one that failed before the fast path runs again).
+        """
         start = self._base + pos
         ok = self._checked_from(start, code, size)
         if ok is None:
@@ -189,7 +193,6 @@ class Framer:
             fresh = True
         else:
             fresh = False
-        self._last_block = len(ok)
         good = len(ok) if ok.all() else int(np.argmin(ok))
         if fresh:
             self._chunk = min(_MAX_FAST, self._chunk * 2) if good == len(ok) else max(64, 2 * good)
@@ -197,4 +200,4 @@ class Framer:
             runs.add(code, bytes(buf[pos : pos + good * size]),
                      self._base + pos + size * np.arange(good, dtype=np.int64))
             self.stats.records[code] += good
-        return good
+        return good, good == len(ok)

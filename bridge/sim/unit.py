@@ -25,11 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from bridge.protocol.codec import encode_replies, encode_reply, parse_command
+from bridge.protocol.codec import command_length, encode_replies, encode_reply, parse_command
 from bridge.protocol.convert import wake_time_seconds
 from bridge.protocol.table import (
     CALCULATION_CYCLE_S,
-    COMMANDS,
     DATA_CODES,
     ERROR_REPLY,
     REPLIES,
@@ -232,14 +231,14 @@ class SimUnit:
             return
         self._inbox += data
         while self._inbox:
-            cmd = COMMANDS.get(self._inbox[0])
-            if cmd is None:
+            size = command_length(self._inbox[0])
+            if size is None:
                 del self._inbox[0]
                 continue
-            if len(self._inbox) < cmd.length:
+            if len(self._inbox) < size:
                 break
-            self._queue.append((now, bytes(self._inbox[: cmd.length])))
-            del self._inbox[: cmd.length]
+            self._queue.append((now, bytes(self._inbox[:size])))
+            del self._inbox[:size]
 
     def poll(self, now: float) -> bytes:
         """Run the unit up to ``now``; return the bytes that finished crossing the line."""
