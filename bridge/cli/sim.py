@@ -1,141 +1,17 @@
-"""The `gx3` command line."""
+"""`gx3 sim`: emulated units on ptys or TCP."""
 
 from __future__ import annotations
 
-import json
-import os
-import sys
 from pathlib import Path
-from typing import Annotated, BinaryIO, TextIO
+from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-from bridge.protocol.codec import Batch, json_safe
-from bridge.protocol.docs import command_table_markdown, reply_schemas
-from bridge.protocol.framer import Framer
-from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES
-
-app = typer.Typer(
-    name="gx3",
-    help="Tools for MicroStrain 3DM-GX3 inertial sensors: decode raw captures, emulate "
-         "units on ptys or TCP, look up the command set.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
-
-_READ_SIZE = 1 << 20
+from bridge.cli.common import app, err, fail, parse_code
+from bridge.protocol.table import BAUD_RATES, DATA_CODES
 
 
-def fail(message: str, code: int = 2) -> typer.Exit:
-    """Print a one-line error for a person and return the exit to raise."""
-    err.print(f"[bold red]error:[/] {escape(message)}")
-    return typer.Exit(code)
-
-
-def _code(text: str | None) -> int:
-    """A command byte as people write it: 0xC8, 200 or 0o310; none is 0."""
-    if text is None:
-        return 0
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise typer.BadParameter(f"{text!r} is not a number such as 0xC8") from None
-
-
-def _reply_code(text: str) -> int:
-    code = _code(text)
-    if code not in REPLIES:
-        raise typer.BadParameter(f"no reply starts with 0x{code:02X}")
-    return code
-
-
-def _open_input(path: str) -> BinaryIO:
-    if path == "-":
-        return sys.stdin.buffer
-    try:
-        return Path(path).open("rb")
-    except FileNotFoundError:
-        raise fail(f"{path}: no such file; give a capture of raw bytes, or - for stdin") from None
-    except IsADirectoryError:
-        raise fail(f"{path} is a directory; give a file of raw bytes") from None
-    except PermissionError:
-        raise fail(f"{path}: permission denied") from None
-
-
-@app.command()
-def decode(
-    file: Annotated[str, typer.Argument(
-        help="File of raw bytes as read off the line; - for stdin.")],
-    little_endian: Annotated[bool, typer.Option(
-        "--little-endian", help="Floats were sent little-endian (0xDB flag bit 4 set).")] = False,
-    expect: Annotated[list[str] | None, typer.Option(
-        "--expect", "-e", metavar="CODE",
-        help="Reply code to look for, e.g. 0xC8 or 0xD4 (repeatable). "
-             "Default: every data record.")] = None,
-) -> None:
-    """Decode a raw capture: one JSON object per record on stdout, a summary on stderr.
-
-    Each object has "command" (integer), "timer" where the record has one, and
-    each quantity under its name (accel, ang_rate, mag, m, euler, quaternion,
-    temperature, …: see docs/commands.md); vectors and matrices are nested
-    lists, matrices row-major. NaN is written as null. Corrupt bytes are
-    skipped and counted; every intact record after them is still decoded.
-    On a terminal, progress is shown on stderr.
-    """
-    codes = [_reply_code(c) for c in expect] if expect else sorted(DATA_CODES)
-    framer = Framer(codes, little_endian=little_endian)
-    out = sys.stdout
-    stream = _open_input(file)
-    size = None if file == "-" else os.fstat(stream.fileno()).st_size
-    progress = Progress(TextColumn("decoding"), BarColumn(), DownloadColumn(),
-                        TransferSpeedColumn(), console=err, transient=True,
-                        disable=not err.is_terminal)
-    try:
-        with stream, progress:
-            task = progress.add_task("decode", total=size)
-            while chunk := stream.read(_READ_SIZE):
-                _write(framer.feed(chunk), out)
-                progress.advance(task, len(chunk))
-            _write(framer.flush(), out)
-        out.flush()
-    except BrokenPipeError:
-        sys.stderr.close()
-        raise typer.Exit(0) from None
-    err.print(framer.stats.summary())
-
-
-def _write(batches: list[Batch], out: TextIO) -> None:
-    for batch in batches:
-        for record in batch.records():
-            out.write(json.dumps({k: json_safe(v) for k, v in record.items()}) + "\n")
-
-
-@app.command()
-def commands(
-    markdown: Annotated[bool, typer.Option(
-        "--markdown", help="Print the table as Markdown (what docs/commands.md holds).")] = False,
-    as_json: Annotated[bool, typer.Option(
-        "--json", help="Print every reply's wire layout as JSON (what schemas/replies.json "
-        "holds).")] = False,
-) -> None:
-    """List every 3DM-GX3 command with its bytes, parameters and reply layout."""
-    text = command_table_markdown()
-    if as_json:
-        sys.stdout.write(json.dumps(reply_schemas(), indent=1) + "\n")
-    elif markdown:
-        sys.stdout.write(text)
-    else:
-        from rich.markdown import Markdown
-
-        Console().print(Markdown(text))
-
-
-def _parse_tcp(text: str) -> tuple[str, int]:
+def parse_tcp(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit():
         raise typer.BadParameter(f"{text!r} is not HOST:PORT, e.g. 127.0.0.1:0")
@@ -219,12 +95,12 @@ def sim(
     if baud not in BAUD_RATES:
         raise fail(f"--baud {baud} is not one the unit supports: "
                    + ", ".join(str(b) for b in BAUD_RATES))
-    preset = _code(continuous_preset)
+    preset = parse_code(continuous_preset)
     if preset and preset not in DATA_CODES:
         raise fail(f"--continuous-preset 0x{preset:02X} is not a data command; use one of "
                    + " ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
     stored = Stored(mode_preset=mode_preset, continuous_preset=preset, baud=baud,
-                    sampling=Sampling(decimation=decimation, flags=_code(flags)))
+                    sampling=Sampling(decimation=decimation, flags=parse_code(flags)))
     motion = MotionConfig(seed=seed, static=static, noise_accel_g=noise_accel,
                           noise_gyro_rad_s=noise_gyro, noise_mag_gauss=noise_mag,
                           gyro_bias_rad_s=(gyro_bias,) * 3)
@@ -238,7 +114,7 @@ def sim(
                                             for i in range(units)]
     faults = FaultConfig(flip_rate, drop_rate, stall_every, stall_for, disconnect_every,
                          disconnect_for)
-    host, port = _parse_tcp(tcp) if tcp else ("127.0.0.1", 0)
+    host, port = parse_tcp(tcp) if tcp else ("127.0.0.1", 0)
     try:
         simulator = Simulator(configs, "pty" if pty else "tcp", host, port, faults, links)
     except StateFileError as exc:
@@ -270,4 +146,3 @@ def sim(
         err.print(f"{u.config.serial}: {u.records_sent} records sent, {u.records_skipped} "
                   f"skipped (line busy), {slot.lost} bytes not delivered (no host connected, or "
                   "host not reading)")
-

@@ -1,0 +1,6 @@
+"""The `gx3` command line: one Typer app, one module per group of commands."""
+
+from bridge.cli import commands, decode, sim
+from bridge.cli.common import app
+
+__all__ = ["app", "commands", "decode", "sim"]

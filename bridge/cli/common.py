@@ -1,0 +1,78 @@
+"""What every `gx3` command shares: the Typer app, the stderr console and one-line errors."""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from typer.core import TyperOption
+
+from bridge.protocol.table import REPLIES
+
+_type_of_option = TyperOption.display_type_rich
+
+
+def _flag_shows_no_type(self: TyperOption, ctx: Any) -> str | None:
+    """Typer labels on/off flags ``<bool>`` in help, as if they took a value: show none."""
+    return None if self.is_flag else _type_of_option(self, ctx)
+
+
+TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[method-assign]
+
+app = typer.Typer(
+    name="gx3",
+    help="Tools for MicroStrain 3DM-GX3 inertial sensors: decode raw captures, emulate "
+         "units on ptys or TCP, look up the command set.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def fail(message: str, code: int = 2) -> typer.Exit:
+    """Print a one-line error for a person and return the exit to raise."""
+    err.print(f"[bold red]error:[/] {escape(message)}")
+    return typer.Exit(code)
+
+
+def parse_code(text: str | None) -> int:
+    """A command byte as people write it: 0xC8, 200 or 0o310; none is 0."""
+    if text is None:
+        return 0
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise typer.BadParameter(f"{text!r} is not a number such as 0xC8") from None
+
+
+def parse_reply_code(text: str) -> int:
+    code = parse_code(text)
+    if code not in REPLIES:
+        raise typer.BadParameter(f"no reply starts with 0x{code:02X}")
+    return code
+
+
+def _package_version() -> str:
+    try:
+        return version("gx3-bridge")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        typer.echo(f"gx3 {_package_version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    show_version: Annotated[bool, typer.Option(
+        "--version", callback=_show_version, is_eager=True,
+        help="Print the version and exit.")] = False,
+) -> None:
+    """Tools for MicroStrain 3DM-GX3 inertial sensors."""
