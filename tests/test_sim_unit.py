@@ -348,3 +348,36 @@ def test_truth_log_keeps_the_newest_records_in_order() -> None:
     assert len(log) == 3
     assert truth["timer"].tolist() == [2, 3, 4]
     assert truth["time_ns"].tolist() == [2000, 3000, 4000]
+
+
+@pytest.mark.parametrize(("name", "params"), [("timer", {"function": 0, "value": 0}),
+                                              ("firmware_version", {}),
+                                              ("write_gyro_bias", {"gyro_bias": [0.0, 0.0, 0.0]})])
+@pytest.mark.parametrize("decimation", [1, 4, 10])
+def test_replies_while_streaming_leave_at_once_in_timer_order(
+        name: str, params: dict[str, object], decimation: int) -> None:
+    """The unit answers at the next calculation cycles, between the records around it."""
+    host = unit()
+    host.stream(0xC2, decimation)
+    host.run(0.3)
+    command = encode_command(name, **params)
+    reply_code, reply_length = command[0], REPLIES[command[0]].length
+    framer = Framer({0xC2, reply_code})
+    framer.feed(host.run(0.0023))
+    sent = host.t
+    host.unit.receive(command, sent)
+    batches: list[Batch] = []
+    answered = None
+    while host.t < sent + 0.2:
+        batches += framer.feed(host.run(0.0001, step=0.0001))
+        if answered is None and any(b.code == reply_code for b in batches):
+            answered = host.t
+    assert answered is not None
+    line_s = 10 / 115_200
+    # the record on the line, then the reply, within a few cycles
+    assert answered - sent <= 0.003 + (31 + reply_length) * line_s
+    codes = [b.code for b in batches for _ in range(len(b))]
+    assert codes.count(reply_code) == 1 and codes.count(0xC2) > 10
+    if any(f.name == "timer" for f in REPLIES[reply_code].fields):
+        timers = np.concatenate([b["timer"] for b in batches]).astype(np.int64)
+        assert np.all(np.diff(timers) >= 0)

@@ -156,7 +156,6 @@ class SimUnit:
         self._plan: deque[_Segment] = deque()
         self._line_free = now
         self._sent_until = now
-        self._replan = False
         self._new_phase = False
         self._inbox = bytearray()
         self._queue: deque[tuple[float, bytes]] = deque()
@@ -336,7 +335,6 @@ class SimUnit:
 
     def _start_stream(self, code: int, at: float) -> None:
         """Stream ``code`` from the first cycle after this command's reply."""
-        self._changed(at)
         self.mode = Mode.CONTINUOUS
         self.continuous_command = code
         self._new_phase = True
@@ -378,6 +376,21 @@ class SimUnit:
 
     # --- commands ------------------------------------------------------------------------
     def _execute(self, raw: bytes, at: float) -> None:
+        """Act on one command at the end of cycle ``at``, as the manual has it in every mode.
+
+        Records planned for later cycles are planned again after the reply, so that a
+        reply leaves at once and in timer order with the records around it.
+        """
+        self._cancel_after(at)
+        self._reply(raw, at)
+        if self._new_phase:
+            self._stream_from = self._line_free
+            self._stream_phase = self._cycle_after(self._stream_from)
+        else:
+            self._stream_from = self.host_time((self._cycle_at(at) + 1) * CALCULATION_CYCLE_S)
+        self._new_phase = False
+
+    def _reply(self, raw: bytes, at: float) -> None:
         parsed = parse_command(raw)
         cmd = parsed.command
         if not parsed.confirmed:
@@ -392,28 +405,17 @@ class SimUnit:
         values = handler(at, **_normalise(cmd, parsed.params))
         if values is not None and cmd.replies(parsed.params):
             self._schedule(at, encode_reply(cmd.code, self.little_endian, **values))
-        if self._replan:
-            self._stream_from = self._line_free if self._new_phase else at
-            if self._new_phase:
-                self._stream_phase = self._cycle_after(self._stream_from)
-            self._replan = self._new_phase = False
 
     def _reply_data(self, code: int, at: float) -> None:
         cycle = np.array([self._cycle_after(at)])
         data, truths = self._records(code, cycle)
         self._schedule(at, data, truths[0])
 
-    def _changed(self, at: float) -> None:
-        """State changes at ``at``: drop the output planned after it and plan again."""
-        self._cancel_after(at)
-        self._replan = True
-
     def _timer_now(self, at: float) -> int:
         return int(self.timer_at(self._cycle_at(at)))
 
     def _do_set_continuous(self, at: float, command: int | None) -> dict[str, Any]:
         if command == 0:
-            self._changed(at)
             self.mode = Mode.ACTIVE
             self.continuous_command = 0
         elif command is not None:
@@ -421,12 +423,10 @@ class SimUnit:
         return {"command": self.continuous_command, "timer": self._timer_now(at)}
 
     def _do_write_accel_bias(self, at: float, accel_bias: list[float]) -> dict[str, Any]:
-        self._changed(at)
         self.accel_bias = np.array(accel_bias, dtype=np.float32).astype(np.float64)
         return {"accel_bias": self.accel_bias, "timer": self._timer_now(at)}
 
     def _do_write_gyro_bias(self, at: float, gyro_bias: list[float]) -> dict[str, Any]:
-        self._changed(at)
         self.gyro_bias = np.array(gyro_bias, dtype=np.float32).astype(np.float64)
         return {"gyro_bias": self.gyro_bias, "timer": self._timer_now(at)}
 
@@ -436,7 +436,6 @@ class SimUnit:
         start = self._cycle_after(at)
         device = np.arange(start, start + n) * CALCULATION_CYCLE_S
         done = self.host_time(device[-1] + CALCULATION_CYCLE_S)
-        self._changed(at)
         self.gyro_bias = self.motion.sample(device, CALCULATION_CYCLE_S)["ang_rate"].mean(axis=0)
         self._busy_until = max(self._busy_until, done)
         values = {"gyro_bias": self.gyro_bias, "timer": self._timer_now(done)}
@@ -452,7 +451,6 @@ class SimUnit:
 
     def _do_mode(self, at: float, mode: int | None) -> dict[str, Any]:
         if mode in (Mode.ACTIVE, Mode.IDLE, Mode.SLEEP, Mode.DEEP_SLEEP):
-            self._changed(at)
             self.mode = Mode(mode)
         elif mode == Mode.CONTINUOUS and self.stored.continuous_preset in DATA_CODES:
             self._start_stream(self.stored.continuous_preset, at)
@@ -479,7 +477,6 @@ class SimUnit:
 
     def _do_timer(self, at: float, function: int | None, value: int) -> dict[str, Any]:
         if function == 1:
-            self._changed(at)
             self._set_timer(at, value)
         elif function == 2:
             self.pps_seconds = value
@@ -491,7 +488,6 @@ class SimUnit:
         if port not in (None, 1):
             return {"port": port, "baud": 0, "config": 0}
         if function in (1, 2) and baud is not None:
-            self._changed(at)
             self._schedule(at, encode_reply(0xD9, port=1, baud=baud, config=0x02))
             self.baud = baud
             if function == 2:
@@ -508,7 +504,6 @@ class SimUnit:
             merged = {k: current[k] if v is None else v for k, v in new.items()}
             if merged["flags"] & (Flag.ORIENTATION | Flag.QUATERNION):
                 merged["decimation"] = max(2, merged["decimation"])
-            self._changed(at)
             self._new_phase = merged["decimation"] != self.sampling.decimation
             self.sampling = Sampling(**merged)
             if function == 2:
@@ -537,11 +532,9 @@ class SimUnit:
         return {"selector": selector, "text": self.config.id_string(selector)}
 
     def _do_stop_continuous(self, at: float) -> None:
-        self._changed(at)
         self.mode = Mode.ACTIVE
 
     def _do_device_reset(self, at: float) -> None:
-        self._changed(at)
         self._inbox.clear()
         self._queue.clear()
         self._boot(at, 0, at + wake_time_seconds(self.stored.sampling.filter_width))
