@@ -25,6 +25,7 @@ from bridge.protocol.table import (
     BAUD_RATES,
     DATA_CODES,
     ERROR_CODE,
+    REPLIES,
     TICKS_PER_SECOND,
     Flag,
     lookup,
@@ -164,36 +165,46 @@ class Session:
             raise DeviceError(f"0x{cmd.code:02X} is the record being received; stop "
                               "streaming or polling it first")
         self._guard(name, params, persist)
-        raw = encode_command(name, **params)
         if timeout is None:
             timeout = 0.25 + _line_time(2 * (cmd.reply_length or 0) + 200, self.port.baud)
-        self._expect(cmd.code, ERROR_CODE)
+        return self.transact(encode_command(name, **params), cmd.code, timeout, retries)
+
+    def transact(self, raw: bytes, code: int, timeout: float = 0.5,
+                 retries: int = 0) -> dict[str, Any]:
+        """Write ``raw`` and wait for the reply starting with ``code`` (no safety check:
+        for bytes built by hand, e.g. to probe a unit)."""
+        self._expect(code, ERROR_CODE)
         try:
             for _ in range(retries + 1):
                 self.port.write(raw)
-                reply = self._await(cmd.code, timeout)
+                reply = self._await(code, timeout)
                 if reply is not None:
                     return reply
         finally:
             self._expect()
+        name = REPLIES[code].name if code in REPLIES else "reply"
         raise CommandTimeout(
-            f"no reply to 0x{cmd.code:02X} {cmd.name} from {self.port.url} at {self.port.baud} "
+            f"no reply to 0x{code:02X} {name} from {self.port.url} at {self.port.baud} "
             f"baud after {retries + 1} tries; check the cable, the baud rate (--baud, or "
             "--baud auto) and that the unit is powered")
 
     def _await(self, code: int, timeout: float) -> dict[str, Any] | None:
+        """The reply to ``code``; stream records that come meanwhile go to the backlog."""
         deadline = time.monotonic() + timeout
         while (left := deadline - time.monotonic()) > 0:
+            reply: dict[str, Any] | None = None
             for batch in self._read(min(left, 0.05)):
                 if batch.code == ERROR_CODE:
                     raise CommandRejected(
                         f"the unit answered 0x{code:02X} with the error reply 21 00 21 "
                         "(confirmation bytes not accepted)")
-                if batch.code == code and batch.code != self.streaming:
-                    rest = next(batch.records())
-                    rest.pop("command", None)
-                    return rest
-                self._backlog.append(batch)
+                if batch.code == code and batch.code != self.streaming and reply is None:
+                    reply = next(batch.records())
+                    reply.pop("command", None)
+                elif batch.code == self.streaming:
+                    self._backlog.append(batch)
+            if reply is not None:
+                return reply
         return None
 
     # --- bring-up ----------------------------------------------------------------------
