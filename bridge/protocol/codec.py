@@ -36,6 +36,11 @@ def checksum(data: bytes | bytearray | memoryview) -> int:
     return sum(data) & 0xFFFF
 
 
+def checksum_rows(block: np.ndarray) -> np.ndarray:
+    """``checksum`` of each row of an (n, k) uint8 block, at array speed."""
+    return block.sum(axis=1, dtype=np.uint32) & 0xFFFF
+
+
 def _wire_dtype(f: Field, little_endian: bool) -> str:
     if f.kind == "f32":
         return "<f4" if little_endian else ">f4"
@@ -188,7 +193,7 @@ def encode_replies(
             value = value.encode("ascii").ljust(16)[:16] if isinstance(value, str) else value
         recs[f.name] = value
     raw = recs.view(np.uint8).reshape(n, spec.length)
-    recs["checksum"] = raw[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
+    recs["checksum"] = checksum_rows(raw[:, :-2])
     return recs.tobytes()
 
 
@@ -274,15 +279,19 @@ def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) ->
 
 @dataclass
 class Batch:
-    """n consecutive replies of one type: one array per field, plus stream offsets.
+    """n consecutive replies of one type and float byte order: one array per field.
 
-    ``offsets`` are the byte positions of each record's first byte in the stream
-    the framer was fed, so a caller can map records back to read times.
+    ``offsets`` are the byte positions of each record's first byte in the stream the
+    framer was fed; ``rx_ns`` the receive time of the read that completed each record
+    (its last byte), so a replayed capture times every record as the live run did.
+    ``little_endian`` is the float byte order the records were decoded with.
     """
 
     code: int
     columns: dict[str, np.ndarray]
     offsets: np.ndarray
+    rx_ns: np.ndarray
+    little_endian: bool
 
     @property
     def spec(self) -> ReplySpec:

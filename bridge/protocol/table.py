@@ -45,6 +45,8 @@ class Flag(IntEnum):
 
 
 DEFAULT_FLAGS = Flag.ORIENTATION | Flag.CONING_SCULLING
+#: The reply whose ``flags`` set the float byte order of every record after it.
+BYTE_ORDER_REPLY = 0xDB
 
 SIZES = {"u8": 1, "u16": 2, "u32": 4, "f32": 4, "ascii": 16, "pad": 1}
 
