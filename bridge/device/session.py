@@ -199,8 +199,7 @@ class Session:
                         f"the unit answered 0x{code:02X} with the error reply 21 00 21 "
                         "(confirmation bytes not accepted)")
                 if batch.code == code and batch.code != self.streaming and reply is None:
-                    reply = next(batch.records())
-                    reply.pop("command", None)
+                    reply = _first_record(batch)
                 elif batch.code == self.streaming:
                     self._backlog.append(batch)
             if reply is not None:
@@ -307,6 +306,16 @@ class Session:
         time.sleep(0.01)
         self.send("stop_continuous")
         self._expect()
+
+
+def _first_record(batch: Batch) -> dict[str, Any]:
+    """The fields of a batch's first record as plain Python values."""
+    out: dict[str, Any] = {}
+    for name, column in batch.columns.items():
+        value = column[0].tolist()
+        out[name] = value.decode("ascii", "replace").rstrip("\x00 ") \
+            if isinstance(value, bytes) else value
+    return out
 
 
 def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> tuple[Port, int]:

@@ -136,7 +136,8 @@ class Framer:
         if unknown:
             raise ValueError(f"no reply starts with {', '.join(unknown)}")
         self._lengths = {c: REPLIES[c].length for c in codes}
-        self._header = re.compile(b"[" + b"".join(re.escape(bytes((c,))) for c in codes) + b"]")
+        self._header = re.compile(b"[" + b"".join(re.escape(bytes((c,))) for c in codes) + b"]"
+                                  if codes else b"(?!)")  # nothing expected: skip every byte
 
     @property
     def expected(self) -> frozenset[int]:
