@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import serial
 
+from bridge.protocol.codec import encode_command
 from bridge.protocol.framer import Framer
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
@@ -103,3 +104,19 @@ def test_a_pulled_cable_ends_the_connection_and_the_unit_comes_back(
             read_for(port, 5.0)
         assert Framer({0xC2}).feed(reopen_and_read(url))
         assert sim.slots[0].faults.disconnects >= 1 or not sim.slots[0].plugged
+
+
+def test_a_host_at_the_wrong_baud_rate_does_not_stop_the_unit() -> None:
+    with Simulator([UnitConfig()], "pty") as sim:
+        with serial.Serial(sim.endpoints[0], 9600, timeout=0.05) as wrong:
+            wrong.write(encode_command("firmware_version") * 3)
+            wrong.flush()
+            read_for(wrong, 0.2)
+        with serial.Serial(sim.endpoints[0], 115_200, timeout=0.05) as right:
+            reply = b""
+            deadline = time.monotonic() + 5.0
+            while len(reply) < 7 and time.monotonic() < deadline:
+                right.write(encode_command("firmware_version"))
+                reply = right.read(7)
+        assert sim.error is None
+        assert reply[:1] == b"\xe9" and len(reply) == 7

@@ -299,13 +299,44 @@ def test_capture_gyro_bias_finds_the_true_bias_of_a_still_unit() -> None:
     assert np.abs(one(host.records(0.01, 0xC2), 0xC2)["ang_rate"]).max() < 1e-7
 
 
-def test_reframe_models_a_uart_at_the_wrong_rate() -> None:
-    data = bytes(range(0xC0, 0xD0)) * 4
-    assert reframe(data, 115_200, 115_200) == data
-    wrong = reframe(data, 921_600, 115_200)
-    assert wrong != data and len(wrong) < len(data)
-    slow = reframe(data, 115_200, 921_600)
-    assert len(slow) > len(data)
+RATES = (9600, 19200, 57600, 115_200, 230_400, 460_800, 921_600)
+
+
+def falling_edges(data: bytes) -> int:
+    """Falling edges on an idle-high line carrying ``data`` as 8N1 frames."""
+    bits = np.unpackbits(np.frombuffer(data, np.uint8)[:, None], axis=1, bitorder="little")
+    line = np.concatenate([np.ones((len(data), 1), int), np.zeros((len(data), 1), int), bits],
+                          axis=1).ravel()
+    return int(((line[:-1] == 1) & (line[1:] == 0)).sum())
+
+
+@pytest.mark.parametrize("read", RATES)
+@pytest.mark.parametrize("sent", RATES)
+def test_reframe_at_any_pair_of_rates_ends_and_stays_a_uart(sent: int, read: int) -> None:
+    data = bytes(range(256)) * 4 + bytes(50) + b"\xff" * 50
+    out = reframe(data, sent, read)
+    ratio = sent / read
+    assert len(out) <= falling_edges(data)  # every byte needs a start bit's edge
+    assert len(out) <= len(data) * 10 / (9.5 * ratio) + 1  # and 9.5 of its own bits
+    if sent == read:
+        assert out == data
+    if ratio <= 1 / 9.5:  # every sent bit outlasts a whole received byte
+        assert out == bytes(falling_edges(data))
+
+
+def test_reframe_hand_worked_cases() -> None:
+    # 0xE9 on the line: 0 1001 0111 1: three falling edges, each a 0x00 with a framing error
+    assert reframe(b"\xe9", 9600, 115_200) == bytes(3)
+    # at half the rate the receiver samples every second bit: both 0xFF frames make one
+    assert reframe(b"\xff\xff", 230_400, 115_200) == b"\xff"
+    # a UART tolerates a few percent of mismatch
+    data = bytes(range(256))
+    assert reframe(data, 115_200, 118_000) == data == reframe(data, 115_200, 112_000)
+
+
+def test_a_long_low_line_is_one_break_byte() -> None:
+    """Each 0x00 at 9600 holds the line low for 96 of 921,600's bits: one 0x00, not ten."""
+    assert reframe(bytes(3), 9600, 921_600) == bytes(3)
 
 
 def test_faults_flip_and_drop_at_their_rates() -> None:

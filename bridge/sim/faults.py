@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,26 +89,39 @@ class Faults:
 def reframe(data: bytes, sent_baud: int, read_baud: int) -> bytes:
     """What a UART reading at ``read_baud`` makes of bytes sent back to back at ``sent_baud``.
 
-    Each byte is a start bit, eight data bits LSB first and a stop bit. The
-    receiver waits for a falling edge, samples the middle of each of its own bit
-    periods and keeps the byte even on a framing error, as a tty does by default.
+    Each byte is a start bit, eight data bits LSB first and a stop bit; the line is
+    idle (high) before and after. The receiver starts a byte on a falling edge,
+    samples the middle of each of its own bit periods and keeps the byte even on a
+    framing error, as a tty does by default. It then waits for the line to be high
+    again before the next falling edge, so a long low line (a break) gives one 0x00.
+
+    Every possible start is a falling edge, and where a byte starting on one edge
+    lets the receiver look for the next is known in advance; following that chain
+    costs one step per byte received, so the whole is O(n) at any ratio of rates.
     """
     if sent_baud == read_baud or not data:
         return data
+    ratio = sent_baud / read_baud  # one received bit, in sent bits
     bits = np.unpackbits(np.frombuffer(data, np.uint8)[:, None], axis=1, bitorder="little")
-    line = np.concatenate([np.zeros((len(data), 1), np.uint8), bits,
-                           np.ones((len(data), 1), np.uint8)], axis=1).ravel()
-    ratio = sent_baud / read_baud
-    out = bytearray()
-    i = 0.0
-    n = len(line)
-    while True:
-        start = int(np.argmin(line[int(i):])) + int(i) if int(i) < n else n
-        if start >= n or line[start] != 0:
-            break
-        samples = start + (np.arange(1, 9) + 0.5) * ratio
-        if samples[-1] >= n:
-            break
-        out.append(int(np.packbits(line[samples.astype(int)], bitorder="little")[0]))
-        i = start + 9.5 * ratio
-    return bytes(out)
+    frames = np.concatenate([np.zeros((len(data), 1), np.uint8), bits,
+                             np.ones((len(data), 1), np.uint8)], axis=1).ravel()
+    line = np.concatenate([frames, np.ones(math.ceil(10 * ratio) + 2, np.uint8)])
+    size = len(line)
+    index = np.arange(size)
+    falling = (line == 0) & np.concatenate([[True], line[:-1] == 1])
+    edges = np.flatnonzero(falling)
+    # first high at or after each bit, and first falling edge at or after it (size: none)
+    next_high = np.minimum.accumulate(np.where(line == 1, index, size)[::-1])[::-1]
+    next_edge = np.append(np.minimum.accumulate(np.where(falling, index, size)[::-1])[::-1], size)
+    stop = np.minimum((edges + 9.5 * ratio).astype(np.int64), size - 1)
+    following = np.full(size + 1, size, np.int64)
+    following[edges] = next_edge[next_high[stop] + 1]
+    chain = following.tolist()
+    starts = []
+    start = int(edges[0])
+    while start < size:
+        starts.append(start)
+        start = chain[start]
+    samples = np.array(starts)[:, None] + (np.arange(1, 9) + 0.5) * ratio
+    received = line[samples.astype(np.int64)]
+    return np.packbits(received, axis=1, bitorder="little").tobytes()
