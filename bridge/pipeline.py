@@ -115,13 +115,22 @@ class Pipeline:
         self.counters = Counters()
         self.info: UnitInfo | None = None
         self.clock: OnlineClock | None = None
-        self._actions: queue.Queue[tuple[Action, queue.Queue[Any]]] = queue.Queue()
+        self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
-    def submit(self, action: Action, timeout: float = 30.0) -> dict[str, Any]:
-        """Run ``action(session, info)`` on the pipeline's thread; its result or error."""
+    def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
+               ) -> dict[str, Any]:
+        """Run ``action(session, info)`` on the pipeline's thread; its result or error.
+
+        ``effect`` says what the action did to the stream: "reconfigure" (settings
+        changed: timing follows them) or "restart" (the unit resets: bring it up again).
+        """
         done: queue.Queue[Any] = queue.Queue(maxsize=1)
-        self._actions.put((action, done))
-        result = done.get(timeout=timeout)
+        self._actions.put((action, effect, done))
+        try:
+            result = done.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"the unit did not finish the command within {timeout:g} s") \
+                from None
         if isinstance(result, BaseException):
             raise result
         return dict(result)
@@ -149,6 +158,8 @@ class Pipeline:
                     self._event("reconnect", detail=f"back after {gap:.1f} s")
                 lost_at = None
                 self._stream(session, stop)
+            except _Restart:
+                self.counters.state = "bring-up"
             except (PortError, DeviceError) as exc:
                 lost_at = lost_at or time.time_ns()
                 self.counters.state = "lost"
@@ -184,9 +195,7 @@ class Pipeline:
             session.change_baud(info, o.new_baud, o.persist)
         info.record = o.record or info.continuous_preset or DEFAULT_RECORD
         self.info = info
-        self.unwrap = TimerUnwrapper(info.period_ticks)
-        self.clock = OnlineClock(filter_delay_ns=self._filter_delay_ns(info),
-                                 floor_ns=self._floor_ns(info))
+        self._start_timing(info)
         if o.poll_hz is None:
             session.start_streaming(info.record)
         else:
@@ -196,6 +205,11 @@ class Pipeline:
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz")
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
+
+    def _start_timing(self, info: UnitInfo) -> None:
+        self.unwrap = TimerUnwrapper(info.period_ticks)
+        self.clock = OnlineClock(filter_delay_ns=self._filter_delay_ns(info),
+                                 floor_ns=self._floor_ns(info))
 
     @staticmethod
     def _filter_delay_ns(info: UnitInfo) -> int:
@@ -259,13 +273,22 @@ class Pipeline:
         assert self.info is not None
         while True:
             try:
-                action, done = self._actions.get_nowait()
+                action, effect, done = self._actions.get_nowait()
             except queue.Empty:
                 return
             try:
-                done.put(action(session, self.info))
+                result = action(session, self.info)
             except (DeviceError, PortError, ValueError) as exc:
                 done.put(exc)
+                self._event("command", detail=f"refused: {exc}")
+                continue
+            done.put(result)
+            self._event("command", detail=f"{effect}: {result}"[:200])
+            if effect == "restart":
+                raise _Restart
+            if effect == "reconfigure":
+                self._start_timing(self.info)
+                self.sink.info(self.info)
 
     def _status(self, session: Session) -> None:
         c = self.counters
@@ -285,6 +308,10 @@ class Pipeline:
 
     def _event(self, kind: str, ticks: int = 0, count: int = 0, detail: str = "") -> None:
         self.sink.event(UnitEvent(kind, time.time_ns(), ticks, count, detail))
+
+
+class _Restart(Exception):
+    """The unit was reset on purpose: bring it up again, no disconnect to report."""
 
 
 def _take(batch: Batch, keep: np.ndarray) -> Batch:

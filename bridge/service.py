@@ -92,7 +92,7 @@ def command_handler(pipeline: Pipeline, allow: bool) -> Callable[[bytes], bytes]
             return run_action(name, session, info, params, confirm)
 
         try:
-            return _reply(True, result=pipeline.submit(action, ACTIONS[name].restarts))
+            return _reply(True, result=pipeline.submit(action, ACTIONS[name].effect))
         except (DeviceError, TimeoutError, ValueError) as exc:
             return _reply(False, error=str(exc))
     return handle

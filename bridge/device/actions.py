@@ -22,13 +22,14 @@ STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 @dataclass(frozen=True)
 class Action:
     """``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
-    lasting change; ``restarts`` means the unit comes back as after power-up."""
+    lasting change; ``effect`` what it does to a running stream: "none",
+    "reconfigure" (settings changed) or "restart" (the unit comes back as after power-up)."""
 
     name: str
     summary: str
     run: Callable[[Session, UnitInfo, Params], Params]
     persists: Callable[[Params], bool] = lambda p: bool(p.get("persist"))
-    restarts: bool = False
+    effect: str = "none"
 
 
 def info_result(info: UnitInfo) -> Params:
@@ -105,11 +106,12 @@ def _reset(session: Session, info: UnitInfo, params: Params) -> Params:
 
 ACTIONS: dict[str, Action] = {a.name: a for a in (
     Action("info", "Read firmware, ID strings and settings", _info, lambda p: False),
-    Action("configure", "Change sampling, baud rate or presets", _configure, _configure_persists),
+    Action("configure", "Change sampling, baud rate or presets", _configure, _configure_persists,
+           "reconfigure"),
     Action("capture_bias", "Capture the gyro bias of a still unit (0xCD)", _capture_bias),
     Action("set_timer", "Restart the timer at a value (0xD7)", _set_timer, lambda p: False),
     Action("stationary_test", "Run the self-test (0xDA)", _stationary_test, lambda p: False),
-    Action("reset", "Soft-reset the unit (0xFE)", _reset, lambda p: True, restarts=True),
+    Action("reset", "Soft-reset the unit (0xFE)", _reset, lambda p: True, "restart"),
 )}
 
 
