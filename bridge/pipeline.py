@@ -207,7 +207,9 @@ class Pipeline:
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
 
     def _start_timing(self, info: UnitInfo) -> None:
-        self.unwrap = TimerUnwrapper(info.period_ticks)
+        # Polled records come on whatever cycle the request reached: no output period.
+        period = None if self.options.poll_hz is not None else info.period_ticks
+        self.unwrap = TimerUnwrapper(period)
         self.clock = OnlineClock(filter_delay_ns=self._filter_delay_ns(info),
                                  floor_ns=self._floor_ns(info))
 
@@ -254,7 +256,7 @@ class Pipeline:
 
     def _process(self, batch: Batch) -> None:
         assert self.clock is not None
-        unwrapped = self.unwrap.update(batch["timer"])
+        unwrapped = self.unwrap.update(batch["timer"], batch.rx_ns)
         for ev in unwrapped.events:
             self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
             if ev.kind == "reset":

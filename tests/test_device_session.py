@@ -69,7 +69,7 @@ def test_bring_up_reads_identity_and_settings(transport: str) -> None:
     assert info.ids == {"model_number": "6225-4220", "serial": "DEV0001",
                         "model_name": "3DM-GX3-25", "options": "5g 300d/s", "lot": "LOT7"}
     assert info.sampling["decimation"] == 10 and info.continuous_preset == 0
-    assert info.period_ticks == 625
+    assert info.period_ticks == 625.0
 
 
 STARTS = {

@@ -84,8 +84,9 @@ class UnitInfo:
         return 1000.0 / max(1, self.sampling.get("decimation", 1))
 
     @property
-    def period_ticks(self) -> int:
-        return round(TICKS_PER_SECOND * max(1, self.sampling.get("decimation", 1)) / 1000)
+    def period_ticks(self) -> float:
+        """The output period in timer ticks: decimation x 62.5."""
+        return TICKS_PER_SECOND * max(1, self.sampling.get("decimation", 1)) / 1000
 
 
 def _line_time(nbytes: int, baud: int) -> float:
