@@ -68,38 +68,29 @@ def event_message(unit: str, event: UnitEvent) -> Event:
                  count=event.count or 1, detail=event.detail)
 
 
-def command_handler(pipeline: Pipeline, allow: bool) -> Callable[[bytes], bytes]:
-    """What the unit's command queryable answers: JSON in, JSON out.
-
-    A request is ``{"action": NAME, "params": {...}, "confirm": bool}``; a bridge
-    started without --allow-commands refuses every one.
-    """
-    def handle(payload: bytes) -> bytes:
+def command_handler(pipeline: Pipeline) -> Callable[[str], str]:
+    """What the unit's command queryable answers (only on a bridge started with
+    --allow-commands): a JSON request ``{"action": NAME, "params": {...}, "confirm":
+    bool}`` in, the JSON result out; a ValueError becomes the query's error reply."""
+    def handle(text: str) -> str:
         try:
-            request = json.loads(payload or b"{}")
+            request = json.loads(text or "{}")
             name = str(request.get("action", ""))
             params = dict(request.get("params") or {})
             confirm = bool(request.get("confirm"))
         except (ValueError, AttributeError, TypeError):
-            return _reply(False, error="the request is not a JSON object with an action")
-        if not allow:
-            return _reply(False, error="this bridge does not take commands; start it with "
-                                       "--allow-commands to allow them")
+            raise ValueError("the request is not a JSON object with an action") from None
         if name not in ACTIONS:
-            return _reply(False, error=f"unknown action {name!r}; known: {', '.join(ACTIONS)}")
+            raise ValueError(f"unknown action {name!r}; known: {', '.join(ACTIONS)}")
 
         def action(session: Session, info: UnitInfo) -> dict[str, Any]:
             return run_action(name, session, info, params, confirm)
 
         try:
-            return _reply(True, result=pipeline.submit(action, ACTIONS[name].effect))
-        except (DeviceError, TimeoutError, ValueError) as exc:
-            return _reply(False, error=str(exc))
+            return json.dumps(pipeline.submit(action, ACTIONS[name].effect))
+        except (DeviceError, TimeoutError) as exc:
+            raise ValueError(str(exc)) from None
     return handle
-
-
-def _reply(ok: bool, **fields: Any) -> bytes:
-    return json.dumps({"ok": ok, **fields}).encode()
 
 
 class BusSink:
@@ -138,7 +129,7 @@ class BusSink:
             self.publisher = UnitPublisher(
                 self.session, self.unit, prefix=self.prefix,
                 cache_samples=max(1, round(self.cache_s * info.output_hz)),
-                command_handler=command_handler(self.pipeline, self.allow_commands))
+                on_command=command_handler(self.pipeline), allow_commands=self.allow_commands)
             meta = {"unit": self.unit, "port": self.port, "baud": str(info.baud),
                     "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
                     "flags": str(info.sampling.get("flags", 0)),

@@ -16,8 +16,9 @@ from bridge.protocol.table import BAUD_RATES, DATA_CODES
 
 ZenohConfigOpt = Annotated[Path | None, typer.Option(
     "--zenoh-config", metavar="FILE",
-    help="Zenoh JSON5 configuration (mode, endpoints, TLS, access control); flags below "
-         "override it. Default: a peer on loopback without multicast scouting.")]
+    help="Zenoh JSON5 configuration (mode, endpoints, scouting, TLS, access control); "
+         "the flags below override it. Default: Zenoh's own (a peer that finds others by "
+         "multicast scouting). configs/ has examples.")]
 ConnectOpt = Annotated[list[str] | None, typer.Option(
     "--connect", metavar="ENDPOINT", help="Zenoh endpoint to connect to, e.g. "
     "tcp/192.168.1.10:7447 (repeatable).")]
@@ -114,12 +115,12 @@ def run_bridge(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    from bridge.bus.session import open_session
+    from bridge.bus.session import SessionError, open_session
     from bridge.service import BusSink
 
     try:
-        bus = open_session(zenoh_config, connect or [], listen or [], mode)
-    except ValueError as exc:
+        bus = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
+    except SessionError as exc:
         raise fail(str(exc)) from None
     writer: list[RawCaptureWriter] = []
     early: list[tuple[bytes, int]] = []  # reads before the unit's name is known
