@@ -1,14 +1,17 @@
 """Operator actions on a unit: `gx3 info`, `configure`, `capture-bias`, `set-timer`,
 `stationary-test`, `reset`.
 
-Each works on a port directly; a lasting change asks for confirmation first (or
-takes ``--yes``).
+Each works on a port directly (``--port``), or on running bridges over Zenoh
+(``--unit NAME``, or a key expression such as ``'*'`` for the whole fleet) where
+the bridge was started with ``--allow-commands``. A lasting change asks for
+confirmation first (or takes ``--yes``).
 """
 
 from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import typer
@@ -25,6 +28,20 @@ PortOpt = Annotated[str, typer.Option(
     "--port", "-p", metavar="PORT",
     help="Device path or pyserial URL: /dev/ttyACM0, a pty, socket://HOST:PORT, "
          "rfc2217://HOST:PORT.")]
+TargetPortOpt = Annotated[str | None, typer.Option(
+    "--port", "-p", metavar="PORT",
+    help="Act on the unit on this port: device path or pyserial URL (/dev/ttyACM0, a "
+         "pty, socket://HOST:PORT, rfc2217://HOST:PORT).")]
+UnitOpt = Annotated[str | None, typer.Option(
+    "--unit", "-u", metavar="NAME|KEYEXPR",
+    help="Instead of --port: act through running bridges over Zenoh; a unit name, or a "
+         "key expression chunk such as '*' for every unit.")]
+PrefixOpt = Annotated[str, typer.Option(help="Key prefix of the bridges (with --unit).")]
+ZenohConfigOpt = Annotated[str | None, typer.Option(
+    "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration (with --unit).")]
+ConnectOpt = Annotated[list[str] | None, typer.Option(
+    "--connect", metavar="ENDPOINT",
+    help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (with --unit; repeatable).")]
 BaudOpt = Annotated[str, typer.Option(
     "--baud", metavar="RATE|auto",
     help="Baud rate the unit talks at now (115200 from the factory); auto tries the "
@@ -53,11 +70,55 @@ def _confirm(name: str, params: dict[str, Any], yes: bool) -> bool:
                          "Continue?", default=False)
 
 
-def _run(port_url: str, baud_text: str, name: str, params: dict[str, Any], yes: bool,
-         as_json: bool) -> None:
-    baud = parse_baud(baud_text)
+@dataclass(frozen=True)
+class Target:
+    """Where an action goes: a port, or bridges over Zenoh."""
+
+    port: str | None
+    baud: str
+    unit: str | None
+    prefix: str
+    zenoh_config: str | None
+    connect: list[str] | None
+
+
+def _run(target: Target, name: str, params: dict[str, Any], yes: bool, as_json: bool) -> None:
+    if (target.port is None) == (target.unit is None):
+        raise fail("give either --port (a unit on a serial port) or --unit (running bridges "
+                   "over Zenoh)")
     if not _confirm(name, params, yes):
         raise fail("cancelled; nothing was sent", 1)
+    if target.unit is not None:
+        _run_remote(target, name, params, as_json)
+        return
+    assert target.port is not None
+    _run_local(target.port, target.baud, name, params, as_json)
+
+
+def _run_remote(target: Target, name: str, params: dict[str, Any], as_json: bool) -> None:
+    from bridge.bus.remote import RemoteError, ask_units
+
+    try:
+        results = ask_units(target.prefix, target.unit or "*", name, params,
+                            zenoh_config=target.zenoh_config, connect=target.connect or [])
+    except RemoteError as exc:
+        raise fail(str(exc), 1) from None
+    failed = False
+    for unit, ok, result in results:
+        if not as_json:
+            Console().print(f"[bold]{unit}[/]")
+        if ok:
+            show(result, as_json)
+        else:
+            failed = True
+            err.print(f"[red]{unit}:[/] {result.get('error', result)}")
+    if failed:
+        raise typer.Exit(1)
+
+
+def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
+               as_json: bool) -> None:
+    baud = parse_baud(baud_text)
     try:
         port = find_baud(port_url, 115_200)[0] if baud is None else Port.open(port_url, baud)
     except (PortError, DeviceError) as exc:
@@ -88,15 +149,21 @@ def show(result: dict[str, Any], as_json: bool) -> None:
 
 
 @app.command()
-def info(port: PortOpt, baud: BaudOpt = "115200", as_json: JsonOpt = False) -> None:
+def info(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+         prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+         connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
     """Read a unit's firmware, ID strings, sampling settings and presets (changes nothing)."""
-    _run(port, baud, "info", {}, True, as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "info", {}, True, as_json)
 
 
 @app.command()
 def configure(
-    port: PortOpt,
+    port: TargetPortOpt = None,
     baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
     decimation: Annotated[int | None, typer.Option(
         min=1, max=1000, help="Output rate = 1000 Hz / N.")] = None,
     flags: Annotated[str | None, typer.Option(
@@ -138,13 +205,18 @@ def configure(
         "continuous_preset": parse_code(continuous_preset) if continuous_preset else None,
         "persist": persist,
     }
-    _run(port, baud, "configure", params, yes, as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "configure", params, yes,
+         as_json)
 
 
 @app.command("capture-bias")
 def capture_bias(
-    port: PortOpt,
+    port: TargetPortOpt = None,
     baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
     sampling_ms: Annotated[int, typer.Option(
         min=1, max=65_535, help="Averaging time, ms (the manual advises 10000-30000).")] = 10_000,
     persist: Annotated[bool, typer.Option(
@@ -154,30 +226,39 @@ def capture_bias(
 ) -> None:
     """Capture the gyro bias (0xCD): keep the unit perfectly still while it samples."""
     err.print(f"[dim]sampling for {sampling_ms / 1000:g} s: keep the unit still…[/]")
-    _run(port, baud, "capture_bias", {"sampling_ms": sampling_ms, "persist": persist}, yes,
-         as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "capture_bias",
+         {"sampling_ms": sampling_ms, "persist": persist}, yes, as_json)
 
 
 @app.command("set-timer")
 def set_timer(
-    port: PortOpt,
+    port: TargetPortOpt = None,
     baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
     value: Annotated[int, typer.Option(min=0, max=0xFFFF_FFFF,
                                        help="New timer value, ticks.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:
     """Restart the unit's timer at a value (0xD7; not stored)."""
-    _run(port, baud, "set_timer", {"value": value}, True, as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "set_timer",
+         {"value": value}, True, as_json)
 
 
 @app.command("stationary-test")
-def stationary_test(port: PortOpt, baud: BaudOpt = "115200", as_json: JsonOpt = False) -> None:
+def stationary_test(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+                    prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+                    connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
     """Run the self-test (0xDA) on a still unit and print its flags."""
-    _run(port, baud, "stationary_test", {}, True, as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "stationary_test", {}, True,
+         as_json)
 
 
 @app.command()
-def reset(port: PortOpt, baud: BaudOpt = "115200", yes: YesOpt = False,
-          as_json: JsonOpt = False) -> None:
+def reset(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+          prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+          connect: ConnectOpt = None, yes: YesOpt = False, as_json: JsonOpt = False) -> None:
     """Soft-reset the unit (0xFE): it restarts from its stored settings."""
-    _run(port, baud, "reset", {}, yes, as_json)
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "reset", {}, yes, as_json)
