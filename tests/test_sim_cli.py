@@ -37,6 +37,7 @@ DOCUMENTED_OPTIONS = (
     "--noise-mag", "--gyro-bias", "--decimation", "--flags", "--continuous-preset",
     "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
     "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
+    "--no-filter-model", "--disconnect-power-cycles",
 )
 
 
@@ -72,6 +73,15 @@ def ask(port: serial.SerialBase, command: bytes, length: int, timeout: float = 2
     while len(reply) < length and time.monotonic() < deadline:
         reply += port.read(length - len(reply))
     return bytes(reply)
+
+
+def settle(port: serial.SerialBase, timeout: float = 5.0) -> None:
+    """Wait out the unit's power-up settling (bytes sent during it are lost), then drain."""
+    deadline = time.monotonic() + timeout
+    while not port.read(7) and time.monotonic() < deadline:
+        port.write(b"\xe9")
+    time.sleep(0.05)
+    port.reset_input_buffer()
 
 
 def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
@@ -154,6 +164,7 @@ def test_tcp_units_are_distinct_devices(run_sim: Callable[..., Sim]) -> None:
     serials, accels = [], []
     for url in urls:
         with serial.serial_for_url(url, timeout=0.05) as port:
+            settle(port)
             reply = ask(port, b"\xea\x01", 20)
             assert intact(reply, 0xEA, 20) and reply[1] == 1, reply.hex()
             serials.append(reply[2:18])
@@ -172,6 +183,7 @@ def test_pty_endpoint_opens_with_pyserial(run_sim: Callable[..., Sim]) -> None:
     (path,) = sim.endpoints(1)
     assert Path(path).exists(), path
     with serial.Serial(path, 115_200, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xe9", 7) == framed(b"\xe9" + struct.pack(">I", 4242))
 
 
@@ -203,6 +215,7 @@ def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
     sim = run_sim("--tcp", "127.0.0.1:0", "--serial", "SIGTEST")
     (url,) = sim.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert intact(ask(port, b"\xc2", C2_LENGTH), 0xC2, C2_LENGTH)
     code, stderr = sim.stop(sig)
     assert code == 0, stderr
@@ -216,12 +229,14 @@ def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path:
     first = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
     (url,) = first.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xd5\xba\x89\x03", 4) == framed(b"\xd5\x03")
     assert first.stop()[0] == 0
     assert state.exists()
     second = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
     (url,) = second.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xd5\xba\x89\x00", 4) == framed(b"\xd5\x03")
         assert ask(port, b"\xd4\xa3\x47\x00", 4) == framed(b"\xd4\x03"), "woke in idle"
     assert second.stop()[0] == 0
