@@ -49,9 +49,9 @@ def parse_number(option: str, text: str | None) -> int:
         raise OptionError(option, f"{text!r} is not a number such as 0xC8") from None
 
 
-def _bad_numbers(checks: dict[str, tuple[float, float, float]]) -> Iterator[tuple[str, str]]:
+def _bad_numbers(checks: list[tuple[str, float, float, float]]) -> Iterator[tuple[str, str]]:
     """(option, what is wrong) for every value that is not a finite number in [lo, hi]."""
-    for option, (value, lo, hi) in checks.items():
+    for option, value, lo, hi in checks:
         if not (math.isfinite(value) and lo <= value <= hi):
             upper = "up" if hi == math.inf else f"to {_shown(hi)}"
             yield option, f"{_shown(value)} is not a number from {_shown(lo)} {upper}"
@@ -167,19 +167,18 @@ def sim(
             raise OptionError("--pty/--tcp", "choose one transport: --pty or --tcp HOST:PORT")
         if link is not None and tcp is not None:
             raise OptionError("--link", "makes a symlink to a pty; it does not go with --tcp")
-        checks = {"--units": (units, 1, 64), "--firmware": (firmware, 0, 0xFFFF_FFFF),
-                  "--timer-start": (timer_start, 0, 0xFFFF_FFFF), "--seed": (seed, 0, 2**63 - 1),
-                  "--noise-accel": (noise_accel, 0, 100), "--noise-gyro": (noise_gyro, 0, 100),
-                  "--noise-mag": (noise_mag, 0, 100), "--gyro-bias": (gyro_bias, -100, 100),
-                  "--flip-rate": (flip_rate, 0, 1), "--drop-rate": (drop_rate, 0, 1),
-                  "--stall-every": (stall_every, 0, math.inf),
-                  "--stall-for": (stall_for, 0, math.inf),
-                  "--disconnect-every": (disconnect_every, 0, math.inf),
-                  "--disconnect-for": (disconnect_for, 0, math.inf)}
-        if duration is not None:
-            checks["--duration"] = (duration, 0, math.inf)
-        for i, ppm in enumerate(clock_ppm or ()):
-            checks[f"--clock-ppm (value {i + 1})"] = (ppm, -MAX_CLOCK_PPM, MAX_CLOCK_PPM)
+        checks: list[tuple[str, float, float, float]] = [
+            ("--units", units, 1, 64), ("--firmware", firmware, 0, 0xFFFF_FFFF),
+            ("--timer-start", timer_start, 0, 0xFFFF_FFFF), ("--seed", seed, 0, 2**63 - 1),
+            ("--noise-accel", noise_accel, 0, 100), ("--noise-gyro", noise_gyro, 0, 100),
+            ("--noise-mag", noise_mag, 0, 100), ("--gyro-bias", gyro_bias, -100, 100),
+            ("--flip-rate", flip_rate, 0, 1), ("--drop-rate", drop_rate, 0, 1),
+            ("--stall-every", stall_every, 0, math.inf), ("--stall-for", stall_for, 0, math.inf),
+            ("--disconnect-every", disconnect_every, 0, math.inf),
+            ("--disconnect-for", disconnect_for, 0, math.inf),
+            *(("--clock-ppm", ppm, -MAX_CLOCK_PPM, MAX_CLOCK_PPM) for ppm in clock_ppm or ()),
+            ("--duration", 0.0 if duration is None else duration, 0, math.inf),
+        ]
         for option, message in _bad_numbers(checks):
             raise OptionError(option, message)
         preset = parse_number("--continuous-preset", continuous_preset)

@@ -40,7 +40,7 @@ def _to_stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-class LinkError(OSError):
+class LinkError(Exception):
     """A --link path that cannot be made or would replace something that is not ours."""
 
 
@@ -83,8 +83,8 @@ class PtyLink(Link):
         self.link = link
         self.baud = baud
         if link is not None and (link.exists() or link.is_symlink()) and not _ours(link):
-            raise LinkError(errno.EEXIST, f"{link} exists and is not a link to a pty; remove "
-                            "it or choose another path")
+            raise LinkError(f"{link} exists and is not a link to a pty; remove it or choose "
+                            "another path")
         self._open()
 
     def _open(self) -> None:
@@ -105,8 +105,7 @@ class PtyLink(Link):
                 os.replace(tmp, self.link)
             except OSError as exc:
                 self._close_fds()
-                raise LinkError(exc.errno, f"cannot make {self.link}: "
-                                f"{exc.strerror or exc}") from None
+                raise LinkError(f"cannot make {self.link}: {exc.strerror or exc}") from None
         self.url = str(self.link or self.path)
 
     def selectables(self) -> list[int | socket.socket]:
