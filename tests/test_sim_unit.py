@@ -375,11 +375,12 @@ def test_sampling_reply_reflects_settings() -> None:
 def test_truth_log_keeps_the_newest_records_in_order() -> None:
     log = TruthLog(3)
     for i in range(5):
-        log.append((i * 1000, i * 0.01, i, 0xC2, np.array([1.0, 0, 0, 0])))
+        log.append((i * 1000, i * 1000 - 7, i * 0.01, i, 0xC2, np.array([1.0, 0, 0, 0])))
     truth = log.arrays()
     assert len(log) == 3
     assert truth["timer"].tolist() == [2, 3, 4]
     assert truth["time_ns"].tolist() == [2000, 3000, 4000]
+    assert truth["value_ns"].tolist() == [1993, 2993, 3993]
 
 
 @pytest.mark.parametrize(("name", "params"), [("timer", {"function": 0, "value": 0}),

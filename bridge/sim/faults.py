@@ -10,7 +10,11 @@ import numpy as np
 
 @dataclass(frozen=True)
 class FaultConfig:
-    """Rates are per byte; intervals are mean seconds between events (0: never)."""
+    """Rates are per byte; intervals are mean seconds between events (0: never).
+
+    ``disconnect_power_cycles``: a disconnect also cuts a USB-powered unit's power,
+    so it boots when plugged back in.
+    """
 
     bit_flip_rate: float = 0.0
     drop_rate: float = 0.0
@@ -18,6 +22,7 @@ class FaultConfig:
     stall_s: float = 0.05
     disconnect_every_s: float = 0.0
     disconnect_s: float = 1.0
+    disconnect_power_cycles: bool = False
 
 
 class _Episodes:
@@ -45,15 +50,21 @@ class _Episodes:
 
 
 class Faults:
-    """Seeded fault injector for one unit's output."""
+    """Seeded fault injector for one unit's output.
+
+    Each kind of fault draws from its own generator, and byte faults from one number
+    per byte, so the same seed and the same bytes give the same faults however the
+    bytes are split into writes.
+    """
 
     def __init__(self, config: FaultConfig, seed: int, now: float) -> None:
         self.config = config
-        self.rng = np.random.default_rng([seed, 0xFA017])
+        self._flips, self._drops, stalls, outages = (
+            np.random.default_rng([seed, 0xFA017, kind]) for kind in range(4))
         self.bits_flipped = 0
         self.bytes_dropped = 0
-        self._stalls = _Episodes(self.rng, config.stall_every_s, config.stall_s, now)
-        self._outages = _Episodes(self.rng, config.disconnect_every_s, config.disconnect_s, now)
+        self._stalls = _Episodes(stalls, config.stall_every_s, config.stall_s, now)
+        self._outages = _Episodes(outages, config.disconnect_every_s, config.disconnect_s, now)
 
     @property
     def stalls(self) -> int:
@@ -69,11 +80,13 @@ class Faults:
         if not data or not (c.bit_flip_rate or c.drop_rate):
             return data
         arr = np.frombuffer(data, np.uint8).copy()
-        flip = self.rng.random(len(arr)) < c.bit_flip_rate
+        draw = self._flips.random(len(arr))
+        flip = draw < c.bit_flip_rate
         if flip.any():
-            arr[flip] ^= (1 << self.rng.integers(0, 8, int(flip.sum()))).astype(np.uint8)
+            bit = (draw[flip] / c.bit_flip_rate * 8).astype(np.uint8)  # uniform in 0..7
+            arr[flip] ^= (np.uint8(1) << bit).astype(np.uint8)
             self.bits_flipped += int(flip.sum())
-        keep = self.rng.random(len(arr)) >= c.drop_rate
+        keep = self._drops.random(len(arr)) >= c.drop_rate
         self.bytes_dropped += int((~keep).sum())
         return arr[keep].tobytes()
 
