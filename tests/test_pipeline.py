@@ -142,7 +142,7 @@ def test_power_cycled_unit_is_a_reset() -> None:
 
 
 def test_operator_action_while_streaming() -> None:
-    with running(BASE) as (_, pipeline, sink):
+    with running(BASE) as (sim, pipeline, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 20)
 
         def info(session: Session, unit: UnitInfo) -> dict[str, Any]:
@@ -151,8 +151,12 @@ def test_operator_action_while_streaming() -> None:
         result = pipeline.submit(info)
         n = len(sink.column("ticks"))
         wait_for(lambda: len(sink.column("ticks")) >= n + 20)
+        sent = sim.units[0].truth.arrays()["timer"]
     assert result["serial"] == "PIPE0001"
-    assert (np.diff(sink.column("ticks")) == 625).all()
+    got = sink.column("timer")
+    start = int(np.flatnonzero(sent == got[0])[0])
+    assert (sent[start : start + len(got)] == got).all(), "a record the unit sent was lost"
+    assert (np.diff(sink.column("ticks")) % 625 == 0).all()
 
 
 @pytest.mark.parametrize("poll_hz", [50.0])

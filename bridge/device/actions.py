@@ -23,7 +23,8 @@ STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 class Action:
     """``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
     lasting change; ``effect`` what it does to a running stream: "none",
-    "reconfigure" (settings changed) or "restart" (the unit comes back as after power-up)."""
+    "reconfigure" (settings changed), "discontinuity" (the timer jumps) or "restart"
+    (the unit comes back as after power-up)."""
 
     name: str
     summary: str
@@ -109,7 +110,8 @@ ACTIONS: dict[str, Action] = {a.name: a for a in (
     Action("configure", "Change sampling, baud rate or presets", _configure, _configure_persists,
            "reconfigure"),
     Action("capture_bias", "Capture the gyro bias of a still unit (0xCD)", _capture_bias),
-    Action("set_timer", "Restart the timer at a value (0xD7)", _set_timer, lambda p: False),
+    Action("set_timer", "Restart the timer at a value (0xD7)", _set_timer, lambda p: False,
+           "discontinuity"),
     Action("stationary_test", "Run the self-test (0xDA)", _stationary_test, lambda p: False),
     Action("reset", "Soft-reset the unit (0xFE)", _reset, lambda p: True, "restart"),
 )}

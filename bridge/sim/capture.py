@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bridge.protocol.table import CALCULATION_CYCLE_S, REPLIES, Mode
-from bridge.sim.state import Sampling, Stored
+from bridge.sim.state import Sampling
 from bridge.sim.unit import SimUnit, UnitConfig
 from bridge.sim.usb import UsbDelivery, UsbLink
 
