@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -62,8 +63,11 @@ class ListSink:
 
 
 @contextmanager
-def running(config: UnitConfig, **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
-    with Simulator([config], "pty") as sim:
+def running(config: UnitConfig, link: Path | None = None,
+            **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
+    """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
+    (the kernel may give a replugged pty another number, as udev rules prevent for real)."""
+    with Simulator([config], "pty", links=[link] if link else None) as sim:
         sink = ListSink()
         pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
         stop = threading.Event()
@@ -115,8 +119,8 @@ def test_time_is_on_the_host_clock_and_monotonic() -> None:
     assert abs(int(t[-1]) - time.time_ns()) < 5e9
 
 
-def test_unplugged_unit_is_reported_and_resumes() -> None:
-    with running(BASE, silence_s=0.5) as (sim, _, sink):
+def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.5)
         wait_for(lambda: "reconnect" in sink.kinds())
@@ -130,8 +134,8 @@ def test_unplugged_unit_is_reported_and_resumes() -> None:
     assert (np.diff(sink.column("ticks")) > 0).all()
 
 
-def test_power_cycled_unit_is_a_reset() -> None:
-    with running(BASE, silence_s=0.5) as (sim, _, sink):
+def test_power_cycled_unit_is_a_reset(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.0, power_cycle=True)
         wait_for(lambda: "reconnect" in sink.kinds())
