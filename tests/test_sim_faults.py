@@ -85,7 +85,7 @@ def reopen_and_read(url: str, timeout: float = 5.0) -> bytes:
     while time.monotonic() < deadline:
         try:
             with serial.serial_for_url(url, baudrate=115_200, timeout=0.3) as port:
-                data = port.read(300)
+                data: bytes = port.read(300)
         except (serial.SerialException, OSError):
             time.sleep(0.05)
             continue
@@ -137,8 +137,8 @@ def test_a_second_tcp_client_is_refused_and_the_first_keeps_the_unit() -> None:
     with Simulator([UnitConfig()], "tcp", notify=notices.append) as sim, \
             serial.serial_for_url(sim.endpoints[0], timeout=0.05) as first:
         assert ask_until_answered(first, encode_command("firmware_version"), 7)[:1] == b"\xe9"
-        with socket.create_connection(sim.endpoints[0][len("socket://"):].split(":"),
-                                      timeout=5) as second:
+        host, port = sim.endpoints[0][len("socket://"):].split(":")
+        with socket.create_connection((host, int(port)), timeout=5) as second:
             assert second.recv(1) == b""  # closed at once
         assert ask_until_answered(first, encode_command("firmware_version"), 7)[:1] == b"\xe9"
     assert len(notices) == 1 and "refused a second client" in notices[0]
@@ -189,7 +189,7 @@ def ask_until_answered(port: serial.SerialBase, command: bytes, length: int,
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         port.write(command)
-        reply = port.read(length)
+        reply: bytes = port.read(length)
         while reply and len(reply) < length and time.monotonic() < deadline:
             reply += port.read(length - len(reply))
         if len(reply) == length:
