@@ -70,6 +70,7 @@ def test_summary_is_one_line_on_stderr(capture: Path) -> None:
     done = gx3("decode", str(capture))
     (summary,) = done.stderr.decode().splitlines()
     assert summary == ("records: 0xC2×1, 0xC8×1, 0xCB×1, 0xD1×1, 0xDF×1; checksum failures: 0; "
+                       "implausible: 0; "
                        f"bytes skipped: 2 of {len(CAPTURE)}; resyncs: 0")
 
 

@@ -63,7 +63,8 @@ def one(batches: list[Batch], code: int) -> Batch:
     found = [b for b in batches if b.code == code]
     assert found, f"no 0x{code:02X} records in {[hex(b.code) for b in batches]}"
     return Batch(code, {k: np.concatenate([b[k] for b in found]) for k in found[0].columns},
-                 np.concatenate([b.offsets for b in found]))
+                 np.concatenate([b.offsets for b in found]),
+                 np.concatenate([b.rx_ns for b in found]), found[0].little_endian)
 
 
 @pytest.mark.parametrize(("decimation", "baud"), [(10, 115_200), (4, 115_200), (2, 460_800),

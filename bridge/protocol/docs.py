@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bridge.protocol.table import COMMANDS, ERROR_REPLY, REPLIES, Field
+from bridge.protocol.table import COMMANDS, DATA_CODES, ERROR_REPLY, REPLIES, Field, When
 
 SCHEMA_VERSION = 1
 
@@ -15,12 +15,38 @@ def _field(f: Field) -> str:
     if f.is_pad:
         return f"reserved ({f.count} bytes)"
     rule = ""
-    if f.allowed is not None and len(f.allowed) <= 8:
-        rule = " ∈ {" + ", ".join(str(v) for v in sorted(f.allowed)) + "}"
-    elif f.lo is not None and f.hi is not None and f.kind != "f32":
-        rule = f" ∈ [{f.lo:g}, {f.hi:g}]"
+    values = f.allowed if f.allowed is not None else f.domain_values
+    low, high = (f.lo, f.hi) if f.lo is not None else f.domain or (None, None)
+    if values is not None and len(values) <= 8:
+        rule = " ∈ {" + ", ".join(str(v) for v in sorted(values)) + "}"
+    elif low is not None and high is not None and f.kind != "f32":
+        rule = f" ∈ [{low:g}, {high:g}]"
     unit = f" [{f.unit}]" if f.unit else ""
     return f"`{f.name}` {kind}{unit}{rule}"
+
+
+def _when(*rules: When) -> str:
+    """' when function=2 or ...' for the notes; empty for a rule that always holds."""
+    shown = []
+    for w in rules:
+        if w.param is None:
+            return ""
+        values = sorted(w.values)
+        if w.values == DATA_CODES:
+            text = f"{w.param} is a data command"
+        elif len(values) == 1:
+            text = f"{w.param}={values[0]}"
+        else:
+            text = f"{w.param} in {{{', '.join(str(v) for v in values)}}}"
+        if w.before_firmware is not None:
+            text += f" on firmware before {_version(w.before_firmware)}"
+        shown.append(text)
+    return " when " + " or ".join(shown)
+
+
+def _version(number: int) -> str:
+    """0xE9's version number as the manual writes it: 1127 is 1.1.27."""
+    return f"{number // 1000}.{number // 100 % 10}.{number % 100}"
 
 
 def command_table_markdown() -> str:
@@ -47,11 +73,13 @@ def command_table_markdown() -> str:
         notes = []
         if c.data:
             notes.append("data record, valid continuous preset")
-        if c.persists or c.persists_when:
-            when = f" when {c.persists_when[0]}={c.persists_when[1]}" if c.persists_when else ""
-            notes.append(f"changes non-volatile state{when}: sent only on explicit request")
+        if c.persists_when:
+            notes.append(f"changes non-volatile state{_when(*c.persists_when)}: "
+                         "sent only on explicit request")
         if c.silent_when:
-            notes.append(f"no reply when {c.silent_when[0]}={c.silent_when[1]}")
+            notes.append(f"no reply{_when(c.silent_when)}")
+        if c.ignored_when:
+            notes.append(f"{', '.join(c.ignored)} ignored (may be left out){_when(c.ignored_when)}")
         if c.notes:
             notes.append(c.notes)
         sends = f"{c.length} B" if c.documented else "?"
@@ -70,6 +98,10 @@ def reply_schemas() -> dict[str, Any]:
             if not f.is_pad:
                 entry: dict[str, Any] = {"name": f.name, "offset": offset, "type": f.kind,
                                          "shape": list(f.shape)}
+                if f.domain is not None:
+                    entry["range"] = list(f.domain)
+                if f.domain_values is not None:
+                    entry["values"] = sorted(f.domain_values)
                 if f.unit:
                     entry["unit"] = f.unit
                 if f.doc:
@@ -84,5 +116,8 @@ def reply_schemas() -> dict[str, Any]:
         "byte_order": "big-endian; f32 little-endian when 0xDB flag bit 4 is set",
         "checksum": "u16 big-endian in the last two bytes: sum of all preceding bytes mod 65536",
         "types": {"u8": 1, "u16": 2, "u32": 4, "f32": 4, "ascii": 16},
+        "plausible": "what a unit can send: a field's values lie in its range (f32: or are "
+                     "NaN or infinite) or among its values; a candidate with any other value "
+                     "is garbage that matched the checksum",
         "replies": replies,
     }

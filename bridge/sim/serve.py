@@ -238,6 +238,8 @@ class _Slot:
     lost: int = 0
     plugged: bool = True
     state_reported: bool = False
+    pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
+    power_cycle: bool = False
 
 
 class Simulator:
@@ -340,6 +342,13 @@ class Simulator:
                     sel.unregister(fd)
                 sel.register(obj, selectors.EVENT_READ, slot)
 
+    def unplug(self, index: int, seconds: float, power_cycle: bool = False) -> None:
+        """Pull unit ``index``'s cable for ``seconds``, as a test or a demo does on purpose;
+        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug."""
+        slot = self.slots[index]
+        slot.power_cycle = power_cycle
+        slot.pulled_until = time.monotonic() + seconds
+
     @staticmethod
     def _as_unit_hears(slot: _Slot, data: bytes) -> bytes:
         host = slot.link.host_baud()
@@ -351,7 +360,7 @@ class Simulator:
             slot.state_reported = True
             self.notify(f"{slot.unit.config.serial}: cannot save non-volatile memory "
                         f"({slot.unit.state_error}); running on, changes kept until exit")
-        if slot.faults.outage(now):
+        if slot.faults.outage(now) or now < slot.pulled_until:
             if slot.plugged:
                 slot.link.unplug()
                 slot.plugged = False
@@ -360,7 +369,8 @@ class Simulator:
         if not slot.plugged:
             slot.link.plug()
             slot.plugged = True
-            if slot.faults.config.disconnect_power_cycles:
+            if slot.faults.config.disconnect_power_cycles or slot.power_cycle:
+                slot.power_cycle = False
                 slot.unit.power_cycle(now)
                 line = []
         host = slot.link.host_baud()

@@ -38,6 +38,7 @@ from bridge.protocol.table import (
     Mode,
 )
 from bridge.sim import state
+from bridge.sim.clock import UnitClock
 from bridge.sim.motion import Motion, MotionConfig
 from bridge.sim.state import USER_EEPROM, Sampling, Stored
 
@@ -71,6 +72,9 @@ class UnitConfig:
     firmware: int = 1127
     timer_start: int = 0
     clock_ppm: float = 0.0
+    clock_wander_ppm: float = 0.0
+    clock_wander_period_s: float = 300.0
+    clock_seed: int = 0
     motion: MotionConfig = field(default_factory=MotionConfig)
     stored: Stored = field(default_factory=Stored)
     state_file: Path | None = None
@@ -154,6 +158,8 @@ class SimUnit:
         self.motion = Motion(config.motion)
         self.stored = state.load(config.state_file, config.stored)
         self._t0 = now
+        self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
+                                config.clock_wander_period_s, config.clock_seed)
         self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
         self._scale = 1.0 + config.clock_ppm * 1e-6
         self.truth = TruthLog(config.truth_length)
@@ -172,10 +178,14 @@ class SimUnit:
         self._restart(now, config.timer_start)
 
     # --- clock -------------------------------------------------------------------------
-    def device_time(self, host: float) -> float:
+    def device_time(self, host: Any) -> Any:
+        if self._clock.wanders:
+            return self._clock.device(host)
         return (host - self._t0) * self._scale
 
-    def host_time(self, device: float) -> float:
+    def host_time(self, device: Any) -> Any:
+        if self._clock.wanders:
+            return self._clock.host(device)
         return self._t0 + device / self._scale
 
     def _host_times(self, device: np.ndarray) -> np.ndarray:
