@@ -21,7 +21,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -190,15 +190,15 @@ class SimUnit:
 
     def _host_times(self, device: np.ndarray) -> np.ndarray:
         """``host_time`` at many instants: its arithmetic takes arrays as they are."""
-        return np.asarray(self.host_time(cast(float, device)))
+        return np.asarray(self.host_time(device))
 
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(self.device_time(host) / CALCULATION_CYCLE_S - 1e-9)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - 1e-9)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
-        return round(self.device_time(host) / CALCULATION_CYCLE_S)
+        return round(float(self.device_time(host)) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
