@@ -102,7 +102,7 @@ def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
 
 
 def timer_of(record: bytes) -> int:
-    return struct.unpack_from(">I", record, len(record) - 6)[0]
+    return int(struct.unpack_from(">I", record, len(record) - 6)[0])
 
 
 class Sim:

@@ -59,7 +59,8 @@ class Link:
     def selectables(self) -> list[int | socket.socket]:
         raise NotImplementedError
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
+        """What arrived on ``obj``, one of ``selectables``."""
         raise NotImplementedError
 
     def unplug(self) -> None:
@@ -111,7 +112,7 @@ class PtyLink(Link):
     def selectables(self) -> list[int | socket.socket]:
         return [self.master]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         try:
             return os.read(self.master, 4096)
         except OSError:
@@ -170,9 +171,9 @@ class TcpLink(Link):
         self.unplugged = False
 
     def selectables(self) -> list[int | socket.socket]:
-        return [self.server] + ([self.client] if self.client else [])
+        return [self.server] if self.client is None else [self.server, self.client]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         if obj is self.server:
             with contextlib.suppress(BlockingIOError):
                 conn, peer = self.server.accept()
@@ -187,6 +188,8 @@ class TcpLink(Link):
                 conn.setblocking(False)
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self.client = conn
+            return b""
+        if not isinstance(obj, socket.socket):
             return b""
         try:
             data = obj.recv(4096)

@@ -101,7 +101,7 @@ class TruthLog:
     """
 
     def __init__(self, capacity: int) -> None:
-        self._columns = {
+        self._columns: dict[str, np.ndarray] = {
             "time_ns": np.zeros(capacity, np.int64),
             "value_ns": np.zeros(capacity, np.int64),
             "device_s": np.zeros(capacity),
@@ -188,13 +188,17 @@ class SimUnit:
             return self._clock.host(device)
         return self._t0 + device / self._scale
 
+    def _host_times(self, device: np.ndarray) -> np.ndarray:
+        """``host_time`` at many instants: its arithmetic takes arrays as they are."""
+        return np.asarray(self.host_time(device))
+
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(self.device_time(host) / CALCULATION_CYCLE_S - 1e-9)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - 1e-9)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
-        return round(self.device_time(host) / CALCULATION_CYCLE_S)
+        return round(float(self.device_time(host)) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
@@ -217,7 +221,8 @@ class SimUnit:
         """Power-on or reset: input is dropped, output starts after Equation 1's settling."""
         self._inbox.clear()
         self._queue.clear()
-        self._boot(at, timer_value, at + wake_time_seconds(self.stored.sampling.filter_width))
+        self._boot(at, timer_value,
+                   at + float(wake_time_seconds(self.stored.sampling.filter_width)))
 
     def _boot(self, host: float, timer_value: int, ready: float) -> None:
         """Power-up, reset or wake from deep sleep: RAM reloads from non-volatile memory."""
@@ -367,8 +372,8 @@ class SimUnit:
         code = self.continuous_command
         records, truths = self._records(code, cycles)
         size = REPLIES[code].length
-        for i, at in enumerate(self.host_time(cycles * CALCULATION_CYCLE_S)):
-            self._schedule(float(at), records[i * size : (i + 1) * size], truths[i], skippable=True)
+        for i, at in enumerate(self._host_times(cycles * CALCULATION_CYCLE_S).tolist()):
+            self._schedule(at, records[i * size : (i + 1) * size], truths[i], skippable=True)
         self._stream_from = float(self.host_time((cycles[-1] + 1) * CALCULATION_CYCLE_S))
 
     def _start_stream(self, code: int, at: float) -> None:
@@ -411,8 +416,8 @@ class SimUnit:
         timers = self.timer_at(cycles)
         columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
-        wall = self.host_time(device) * 1e9 + self._wall_offset_ns
-        valued = self.host_time(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
+        wall = self._host_times(device) * 1e9 + self._wall_offset_ns
+        valued = self._host_times(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
         truths = list(zip(wall.astype(np.int64).tolist(), valued.astype(np.int64).tolist(),
                           device.tolist(), timers.tolist(), [code] * len(cycles),
                           sample["quaternion"], strict=True))
@@ -528,7 +533,7 @@ class SimUnit:
 
     def _wake_up(self, now: float) -> None:
         """Any byte wakes a sleeping unit into its preset mode after the settling time."""
-        ready = now + wake_time_seconds(self.sampling.filter_width)
+        ready = now + float(wake_time_seconds(self.sampling.filter_width))
         if self.mode == Mode.DEEP_SLEEP:
             self._boot(now, 0, ready)
         else:
