@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
 import select
 import shutil
 import signal
@@ -15,13 +17,17 @@ from typing import IO, Any
 
 import pytest
 
+from bridge.protocol.table import COMMANDS
+
 ROOT = Path(__file__).resolve().parents[1]
 GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
 
 
-def gx3(*args: str, stdin: bytes = b"") -> subprocess.CompletedProcess[bytes]:
+def gx3(*args: str, stdin: bytes = b"", columns: int = 80) -> subprocess.CompletedProcess[bytes]:
     assert GX3, "the gx3 console script is not installed next to this interpreter"
-    return subprocess.run([GX3, *args], input=stdin, capture_output=True, timeout=60, check=False)
+    env = {**os.environ, "COLUMNS": str(columns)}
+    return subprocess.run([GX3, *args], input=stdin, capture_output=True, timeout=60,
+                          check=False, env=env)
 
 
 def frame(code: int, payload: bytes) -> bytes:
@@ -242,3 +248,33 @@ def test_docs_command_reference_is_generated_from_the_table() -> None:
     done = gx3("commands", "--markdown")
     assert done.returncode == 0
     assert (ROOT / "docs" / "commands.md").read_text(encoding="utf-8") == done.stdout.decode()
+
+
+def test_command_list_fits_an_80_column_terminal() -> None:
+    done = gx3("commands", columns=80)
+    assert done.returncode == 0
+    text = done.stdout.decode()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    for code, cmd in COMMANDS.items():
+        assert f"0x{code:02X}  {cmd.name}: " in text
+
+
+def test_help_names_only_commands_that_exist() -> None:
+    top = gx3("--help", columns=100)
+    existing = set(re.findall(r"│ (\w+)\s{2,}", top.stdout.decode()))
+    assert {"commands", "decode", "sim"} <= existing
+    for name in existing:
+        text = gx3(name, "--help", columns=100).stdout.decode()
+        assert set(re.findall(r"gx3 (\w+)", text)) <= existing, name
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["decode", "--expect", "zz", "-"], "--expect"),
+    (["sim", "--pty", "--flags", "zz", "--duration", "0"], "--flags"),
+    (["sim", "--pty", "--continuous-preset", "0xZ", "--duration", "0"], "--continuous-preset"),
+])
+def test_option_errors_name_the_option(args: list[str], option: str) -> None:
+    done = gx3(*args)
+    assert done.returncode == 2
+    assert re.search(f"Invalid value for '?{option}", done.stderr.decode())
+    assert b"Traceback" not in done.stderr

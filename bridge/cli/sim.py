@@ -76,8 +76,8 @@ def sim(
 ) -> None:
     """Emulate 3DM-GX3 units byte for byte, on ptys or TCP, until interrupted.
 
-    Prints one endpoint per line on stdout, in the form `gx3 bridge --port`
-    takes (a pty path, or socket://HOST:PORT), then runs. Each unit answers
+    Prints one endpoint per line on stdout, in the form pyserial's
+    serial_for_url takes (a pty path, or socket://HOST:PORT), then runs. Each unit answers
     every command of the manual, streams in continuous mode at the line's pace,
     and keeps its non-volatile memory in --state if given.
     """
@@ -95,12 +95,12 @@ def sim(
     if baud not in BAUD_RATES:
         raise fail(f"--baud {baud} is not one the unit supports: "
                    + ", ".join(str(b) for b in BAUD_RATES))
-    preset = parse_code(continuous_preset)
+    preset = parse_code(continuous_preset, "--continuous-preset")
     if preset and preset not in DATA_CODES:
         raise fail(f"--continuous-preset 0x{preset:02X} is not a data command; use one of "
                    + " ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
     stored = Stored(mode_preset=mode_preset, continuous_preset=preset, baud=baud,
-                    sampling=Sampling(decimation=decimation, flags=parse_code(flags)))
+                    sampling=Sampling(decimation=decimation, flags=parse_code(flags, "--flags")))
     motion = MotionConfig(seed=seed, static=static, noise_accel_g=noise_accel,
                           noise_gyro_rad_s=noise_gyro, noise_mag_gauss=noise_mag,
                           gyro_bias_rad_s=(gyro_bias,) * 3)
