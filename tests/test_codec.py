@@ -19,7 +19,6 @@ from bridge.protocol.codec import (
     encode_command,
     encode_replies,
     encode_reply,
-    json_safe,
     parse_command,
     plausible,
     plausible_rows,
@@ -372,13 +371,3 @@ def test_plausible_rows_agrees_at_every_float_bound(code: int, f: Field,
     expected = [plausible(code, row, little_endian) for row in rows]
     assert expected.count(False) >= 2
     assert plausible_rows(code, block, little_endian).tolist() == expected
-
-
-# -------------------------------------------------------------------- json_safe
-
-
-def test_json_safe_replaces_non_finite_floats_with_none() -> None:
-    assert json_safe([[1.0, math.nan], [math.inf, -math.inf]]) == [[1.0, None], [None, None]]
-    assert json_safe(math.nan) is None
-    assert json_safe(3) == 3
-    assert json_safe("x") == "x"
