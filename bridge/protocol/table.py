@@ -406,6 +406,15 @@ class ReplySpec:
     def length(self) -> int:
         return 3 + sum(f.size for f in self.fields)
 
+    def offset(self, name: str) -> int:
+        """Byte position of field ``name`` in the reply (the echo byte is at 0)."""
+        at = 1
+        for f in self.fields:
+            if f.name == name:
+                return at
+            at += f.size
+        raise KeyError(f"0x{self.code:02X} {self.name} has no field {name!r}")
+
 
 #: Every reply a unit can send, by its first byte: the echoed command, or 0x21.
 REPLIES: dict[int, ReplySpec] = {
