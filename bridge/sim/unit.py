@@ -21,7 +21,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -178,11 +178,19 @@ class SimUnit:
         self._restart(now, config.timer_start)
 
     # --- clock -------------------------------------------------------------------------
+    @overload
+    def device_time(self, host: float) -> float: ...
+    @overload
+    def device_time(self, host: np.ndarray) -> np.ndarray: ...
     def device_time(self, host: Any) -> Any:
         if self._clock.wanders:
             return self._clock.device(host)
         return (host - self._t0) * self._scale
 
+    @overload
+    def host_time(self, device: float) -> float: ...
+    @overload
+    def host_time(self, device: np.ndarray) -> np.ndarray: ...
     def host_time(self, device: Any) -> Any:
         if self._clock.wanders:
             return self._clock.host(device)
