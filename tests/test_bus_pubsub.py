@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -296,3 +297,24 @@ def test_info_and_command_queryables(endpoint: str) -> None:
         assert _reply_texts(b, "gx3/imu1/command", "reset") == [
             "ERR imu1: unknown command 'reset'"]
     assert carried_out == ["capture_gyro_bias"]
+
+
+def test_example_subscriber_decodes_from_the_schema_alone(
+        endpoint: str, publisher: Callable[..., Publisher]) -> None:
+    script = ROOT / "examples" / "subscriber.py"
+    source = script.read_text()
+    assert "import bridge" not in source and "from bridge" not in source
+    pub = publisher("--count", "4000", "--rate", "1000", "--code", "0xC2")
+    pub.start()
+    done = subprocess.run([sys.executable, str(script), "--connect", endpoint, "--lines", "2"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert len(lines) == 2, done.stdout
+    for line in lines:
+        match = re.fullmatch(r"imu0 0xC2 ticks=(\d+) time=\S+ accel=\[(.*)\] ang_rate=\[(.*)\] "
+                             r"\((\d+)/s, missed 0\)", line)
+        assert match, line
+        index = int(match[1]) // 62
+        assert match[2] == match[3] == ", ".join([f"{float(index)}"] * 3)
+        assert 500 <= int(match[4]) <= 1500, "about one second of 1 kHz samples per line"
