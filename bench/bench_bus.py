@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -48,8 +49,7 @@ def batch_of(code: int, n: int, rng: np.random.Generator) -> Batch:
     return Batch(code, columns, np.arange(n))
 
 
-def per_sample_us(fn: object, batches: int, per_read: int) -> float:
-    assert callable(fn)
+def per_sample_us(fn: Callable[[], object], batches: int, per_read: int) -> float:
     t = time.process_time()
     for _ in range(batches):
         fn()
@@ -68,7 +68,6 @@ def main() -> None:
           f"{'encode+put':>11s} {'CPU at 1 kHz':>12s}")
     for code in (0xC2, 0xC8, 0xCC):
         batch = batch_of(code, k, rng)
-        quantities = record_quantities(code)
         reps = max(1, 20_000 // k)
         bulk = per_sample_us(lambda b=batch: encode_batch("bench", b, times, times, times),
                              reps, k)
@@ -77,7 +76,8 @@ def main() -> None:
             for i in range(len(b)):
                 ImuSample(unit="bench", command=b.code, timer=int(b["timer"][i]), ticks=i,
                           time_ns=i, rx_ns=i, **{q: b[q][i].reshape(-1).tolist()
-                                                  for q in quantities}).SerializeToString()
+                                                  for q in record_quantities(b.code)}
+                          ).SerializeToString()
         proto = per_sample_us(objects, reps, k)
 
         with socket.socket() as s:
