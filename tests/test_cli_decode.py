@@ -276,5 +276,5 @@ def test_help_names_only_commands_that_exist() -> None:
 def test_option_errors_name_the_option(args: list[str], option: str) -> None:
     done = gx3(*args)
     assert done.returncode == 2
-    assert re.search(f"Invalid value for '?{option}", done.stderr.decode())
+    assert re.search(f"(Invalid value for '?|error: ){option}\\b", done.stderr.decode())
     assert b"Traceback" not in done.stderr
