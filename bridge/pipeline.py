@@ -187,6 +187,7 @@ class Pipeline:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
+        session.paced = self._transport() == "uart"
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
