@@ -20,7 +20,7 @@ from typing import IO, NamedTuple
 import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Header, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
 
 from bridge.bus.codec import decode_batch, peek
@@ -49,6 +49,7 @@ class ChannelInfo:
     unit: str
     kind: str  # the topic's last chunk: imu, status, event, info, frame, raw
     message_encoding: str
+    schema_id: int
     schema_name: str
     metadata: dict[str, str]
 
@@ -80,6 +81,9 @@ class _Block:
             s, length = int(start[i]), int(self.length[mask][i])
             out[i] = peek(self.data[s : s + length])[1]
         return out
+
+    def __len__(self) -> int:
+        return len(self.channel)
 
     def payloads(self, mask: np.ndarray) -> list[bytes]:
         data = self.data
@@ -142,6 +146,7 @@ class Archive:
 
     path: Path
     size: int
+    header: Header | None = None
     complete: bool = False
     dropped_bytes: int = 0
     problem: str | None = None
@@ -151,8 +156,6 @@ class Archive:
     metadata: list[Metadata] = field(default_factory=list)
     attachments: list[Attachment] = field(default_factory=list)
     blocks: list[_Block] = field(default_factory=list)
-    #: Order in which schemas, channels and messages first appeared (for copying).
-    order: list[tuple[str, int]] = field(default_factory=list)
 
     # -- what is in it -------------------------------------------------------------------
 
@@ -294,7 +297,7 @@ def _channel_info(ch: Channel, schemas: dict[int, Schema]) -> ChannelInfo:
     parts = ch.topic.split("/")
     unit = ch.metadata.get("unit") or (parts[-2] if len(parts) >= 3 else "")
     schema = schemas.get(ch.schema_id)
-    return ChannelInfo(ch.id, ch.topic, unit, parts[-1], ch.message_encoding,
+    return ChannelInfo(ch.id, ch.topic, unit, parts[-1], ch.message_encoding, ch.schema_id,
                        schema.name if schema else "", dict(ch.metadata))
 
 
@@ -331,14 +334,12 @@ def _other(archive: Archive, opcode: int, body: bytes) -> None:
     """Records other than messages that an archive keeps."""
     if opcode == Opcode.SCHEMA:
         schema = Schema.read(_read_stream(body))
-        if schema.id not in archive.schemas:
-            archive.order.append(("schema", schema.id))
         archive.schemas[schema.id] = schema
     elif opcode == Opcode.CHANNEL:
         ch = Channel.read(_read_stream(body))
-        if ch.id not in archive.channels:
-            archive.order.append(("channel", ch.id))
         archive.channels[ch.id] = _channel_info(ch, archive.schemas)
+    elif opcode == Opcode.HEADER:
+        archive.header = Header.read(_read_stream(body))
     elif opcode == Opcode.METADATA:
         archive.metadata.append(Metadata.read(_read_stream(body)))
     elif opcode == Opcode.ATTACHMENT:
