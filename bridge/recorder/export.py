@@ -93,10 +93,11 @@ def _unit_times(blocks: Sequence[Samples], re_estimate: ReEstimate | None) -> li
 
 
 def sample_table(archive: Archive, units: Iterable[str] | None = None,
-                 codes: Iterable[int] | None = None, start: TimeBound | None = None,
-                 end: TimeBound | None = None,
+                 codes: Iterable[int] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None,
                  re_estimate: ReEstimate | None = None) -> dict[str, np.ndarray]:
-    """Columns of the export: one row per sample, in time order; ``end`` is exclusive."""
+    """Columns of the export: one row per sample, in time order, with ``start_ns <=
+    time_ns < end_ns``."""
     blocks = archive.samples(units, codes)
     by_unit: dict[str, list[Samples]] = {}
     for b in blocks:
@@ -106,11 +107,10 @@ def sample_table(archive: Archive, units: Iterable[str] | None = None,
     ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
     time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)
     keep = np.ones(len(time_ns), bool)
-    first = int(time_ns.min()) if len(time_ns) else 0
-    if start is not None:
-        keep &= time_ns >= start.resolve(first)
-    if end is not None:
-        keep &= time_ns < end.resolve(first)
+    if start_ns is not None:
+        keep &= time_ns >= start_ns
+    if end_ns is not None:
+        keep &= time_ns < end_ns
     present = [q for q in QUANTITY_ORDER if any(q in b.columns for b, _ in ordered)]
     columns: dict[str, np.ndarray] = {
         "unit": np.concatenate([np.full(len(b), unit_names.index(b.unit), np.int32)

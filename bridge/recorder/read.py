@@ -172,6 +172,13 @@ class Archive:
     def _ids(self, topic: str) -> list[int]:
         return [c.id for c in self.channels.values() if c.topic == topic]
 
+    def first_sample_ns(self) -> int | None:
+        """Log time (= live time_ns) of the earliest ImuSample, if any."""
+        ids = np.array([c.id for c in self.channels.values() if c.kind == "imu"], np.uint16)
+        firsts = [int(b.log_time[m].min()) for b in self.blocks
+                  if (m := np.isin(b.channel, ids)).any()]
+        return min(firsts) if firsts else None
+
     def counts(self) -> dict[str, tuple[int, int, int]]:
         """Per topic: (messages, first log time, last log time) in ns."""
         out: dict[str, tuple[int, int, int]] = {}
