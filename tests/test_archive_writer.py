@@ -93,9 +93,9 @@ def write_fleet(path: Path, **options: object) -> Written:
     feed.append((T0 + 7, "gx3/u1/raw", b"\xcc\x00\x01raw bytes", T0 + 7))
     feed.sort(key=lambda f: f[0])
     with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
-        for rx, key, payload, log_ns in feed:
-            writer.write(key, payload, rx)
-            written.add(key, log_ns, rx, payload)
+        for receive_ns, key, payload, log_ns in feed:
+            writer.write(key, payload, receive_ns)
+            written.add(key, log_ns, receive_ns, payload)
     return written
 
 
@@ -123,7 +123,7 @@ def test_data_channels_hold_the_zenoh_bytes_logged_at_sample_time(tmp_path: Path
     with path.open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        assert summary is not None and summary.chunk_indexes
+        assert summary is not None and summary.chunk_indexes and summary.statistics
         schemas = {s.id: s for s in summary.schemas.values()}
         for ch in summary.channels.values():
             kind = ch.topic.rsplit("/", 1)[1]
@@ -298,7 +298,7 @@ def test_unknown_keys_and_bad_payloads_are_refused(tmp_path: Path) -> None:
             writer.write("gx3/u1/command", b"x", 1)
         with pytest.raises(ValueError, match="not of the form"):
             writer.write("other/u1/imu", b"x", 1)
-        with pytest.raises(ValueError, match="not a gx3.v1.Status"):
+        with pytest.raises(ValueError, match=r"not a gx3\.v1\.Status"):
             writer.write("gx3/u1/status", b"\xff\xff\xff", 1)
     with pytest.raises(ArchiveError, match="closed"):
         writer.write("gx3/u1/raw", b"x", 1)
