@@ -29,6 +29,9 @@ def _read(path: Path) -> Archive:
     with progress:
         task = progress.add_task("read", total=size)
         archive = read_archive(path, lambda done: progress.update(task, completed=done))
+    if not archive.message_count:
+        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
+                         "; is it an archive written by gx3?")
     problem = describe_problem(archive)
     if problem:
         err.print(f"[yellow]warning:[/] {problem}; `gx3 repair` makes a finished copy")
