@@ -165,7 +165,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
 
 def test_bad_input_gives_one_line_errors(fleet: tuple[Path, Written], tmp_path: Path) -> None:
     path, _ = fleet
-    cases = [(["export", f, "-o", tmp_path / "o.csv"], says)
+    cases: list[tuple[list[str | Path], str]] = [(["export", f, "-o", tmp_path / "o.csv"], says)
              for says, f in _bad_files(tmp_path).items()]
     cases += [
         (["export", tmp_path / "missing.mcap", "-o", tmp_path / "o.csv"], "no such file"),
