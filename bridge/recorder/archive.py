@@ -143,7 +143,7 @@ class ArchiveWriter:
 
     def __init__(self, path: Path, *, prefix: str = PREFIX, chunk_size: int = 1 << 20,
                  split_bytes: int | None = None, split_seconds: float | None = None,
-                 frames: bool = True, frame_rate_hz: float | None = 100.0,
+                 frames: bool = True, frame_rate_hz: float | None = 25.0,
                  frame_spacing: float = 0.5,
                  metadata: dict[str, str] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
