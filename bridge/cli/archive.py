@@ -11,6 +11,7 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 from bridge.cli.common import app, err, fail, parse_code
 from bridge.recorder.archive import ArchiveError
 from bridge.recorder.export import (
+    align_table,
     check_format,
     event_table,
     parse_time,
@@ -69,6 +70,11 @@ def export(
              "from the first sample.")] = None,
     end: Annotated[str | None, typer.Option(
         help="End instant (exclusive), as --start.")] = None,
+    align: Annotated[float | None, typer.Option(
+        metavar="RATE",
+        help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
+             "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
+             "empty inside gaps.")] = None,
     events: Annotated[Path | None, typer.Option(
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
@@ -95,8 +101,14 @@ def export(
             raise ValueError(f"{archive}: no samples match (units: "
                              f"{', '.join(data.units()) or 'none'}); check --unit, --type, "
                              "--start and --end")
+        n_units = len(set(table["unit"].tolist()))
+        if align is not None:
+            table = align_table(table, align)
+            msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} samples "
+                   f"of {n_units} units to {output}")
+        else:
+            msg = f"wrote {rows} samples of {n_units} units to {output}"
         write_table(table, output)
-        msg = f"wrote {rows} samples of {len(set(table['unit'].tolist()))} units to {output}"
         if events is not None:
             ev = event_table(data, unit, lo_ns, hi_ns)
             write_table(ev, events)

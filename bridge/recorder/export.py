@@ -22,8 +22,14 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from bridge.bus.codec import HEADER
+from bridge.bus.codec import HEADER, elements
 from bridge.bus.gx3_pb2 import Event, ImuSample
+from bridge.protocol.convert import (
+    euler_to_quaternion,
+    m_to_quaternion,
+    quaternion_to_euler,
+    quaternion_to_m,
+)
 from bridge.recorder.read import Archive, Samples
 
 #: Offline re-estimate of sample times for one unit: (ticks, rx_ns) -> time_ns, all in
@@ -185,3 +191,85 @@ def write_table(columns: dict[str, np.ndarray], path: Path) -> None:
         pq.write_table(table, path, compression="zstd")
     else:
         pa_csv.write_csv(table, path)
+
+
+# -- aligning units on one time grid ---------------------------------------------------------
+
+#: Neighbouring samples further apart than this many typical periods are a gap: no value
+#: is made up between them.
+GAP_PERIODS = 1.5
+_TO_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "m": lambda v: m_to_quaternion(v.reshape(-1, 3, 3)),
+    "quaternion": lambda v: v,
+    "euler": euler_to_quaternion,
+}
+_FROM_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "m": lambda q: quaternion_to_m(q).reshape(-1, 9),
+    "quaternion": lambda q: q,
+    "euler": quaternion_to_euler,
+}
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Spherical interpolation of (n, 4) unit quaternions, the short way round."""
+    q0 = q0 / np.linalg.norm(q0, axis=1, keepdims=True)
+    q1 = q1 / np.linalg.norm(q1, axis=1, keepdims=True)
+    dot = np.sum(q0 * q1, axis=1)
+    q1 = np.where(dot[:, None] < 0, -q1, q1)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    sin = np.sin(theta)
+    small = sin < 1e-9
+    safe = np.where(small, 1.0, sin)
+    a = np.where(small, 1.0 - w, np.sin((1.0 - w) * theta) / safe)
+    b = np.where(small, w, np.sin(w * theta) / safe)
+    out: np.ndarray = a[:, None] * q0 + b[:, None] * q1
+    return out
+
+
+def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str) -> np.ndarray:
+    """``values`` (n, k) at sample times ``t`` on ``grid``: linear for vectors, slerp for
+    orientation (m, quaternion, euler); NaN outside the samples and inside gaps."""
+    out = np.full((len(grid), values.shape[1]), np.nan)
+    if len(t) < 2:
+        exact = np.isin(grid, t)
+        out[exact] = values[:1]
+        return out
+    period = float(np.median(np.diff(t)))
+    i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 2)
+    span = (t[i + 1] - t[i]).astype(np.float64)
+    w = (grid - t[i]) / np.where(span > 0, span, 1.0)
+    ok = (grid >= t[0]) & (grid <= t[-1]) & (span <= GAP_PERIODS * period)
+    ok |= grid == t[i]  # a sample exactly on the grid is always kept
+    lo, hi, w = values[i[ok]].astype(np.float64), values[i[ok] + 1].astype(np.float64), w[ok]
+    if quantity in _TO_QUATERNION:
+        to_q, from_q = _TO_QUATERNION[quantity], _FROM_QUATERNION[quantity]
+        out[ok] = from_q(_slerp(to_q(lo), to_q(hi), w))
+    else:
+        out[ok] = lo + w[:, None] * (hi - lo)
+    return out
+
+
+def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
+    """One row per instant of a grid at ``rate_hz`` (on multiples of the period since the
+    epoch), one column per unit and quantity column, named ``<unit>/<column>``."""
+    if not rate_hz > 0:
+        raise ValueError(f"--align {rate_hz}: give a positive rate in Hz, e.g. 100")
+    step = round(1e9 / rate_hz)
+    times = table["time_ns"]
+    grid = np.arange(-(-int(times.min()) // step) * step, int(times.max()) + 1, step,
+                     dtype=np.int64)
+    out: dict[str, np.ndarray] = {"time_ns": grid}
+    groups = [(q, flat_names(q, elements(q))) for q in QUANTITY_ORDER]
+    for unit in sorted(set(table["unit"].tolist())):
+        rows = table["unit"] == unit
+        for q, names in groups:
+            if names[0] not in table:
+                continue
+            values = np.stack([table[n][rows] for n in names], axis=1)
+            have = np.isfinite(values).all(axis=1)
+            if not have.any():
+                continue
+            aligned = resample(times[rows][have], values[have], grid, q)
+            for k, name in enumerate(names):
+                out[f"{unit}/{name}"] = aligned[:, k].astype(np.float32)
+    return out
