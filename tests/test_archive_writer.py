@@ -351,3 +351,24 @@ def test_a_full_disk_stops_the_archive_with_one_line_and_keeps_it_readable(
     got = archive.messages("gx3/u1/imu")
     assert 1000 <= len(got) <= int(written)
     assert got.log_time.tolist() == (T0 + np.arange(len(got)) * 1_000_000).tolist()
+
+
+def test_tick_flushes_a_second_after_the_last_flush_while_messages_pause(
+        tmp_path: Path) -> None:
+    now = [0.0]
+    path = tmp_path / "idle.mcap"
+    writer = ArchiveWriter(path, clock=lambda: now[0])
+    batch = synthetic_batch(0xC2, 3, 1)
+    t = T0 + np.arange(3, dtype=np.int64) * PERIOD
+    for p, ti in zip(encode_batch("u1", batch, np.arange(3), t, t), t.tolist(), strict=True):
+        writer.write("gx3/u1/imu", p, ti)
+    now[0] = 0.9
+    writer.tick()
+    assert read_archive(path).message_count == 0  # still in the open chunk
+    now[0] = 1.0
+    writer.tick()
+    on_disk = read_archive(path)
+    assert on_disk.message_count == 3 and not on_disk.complete
+    writer.close()
+    writer.close()
+    assert read_archive(path).complete
