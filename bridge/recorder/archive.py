@@ -187,6 +187,7 @@ class ArchiveWriter:
                                     "sensor-to-earth (M transposed), quaternion x y z w",
                 **self.metadata}
         self._guard(writer.add_metadata, "gx3.archive", meta)
+        self._guard(stream.flush)  # a file killed in its first second still opens
 
     def _fail(self, path: Path, exc: OSError, opening: bool = False) -> ArchiveError:
         why = exc.strerror or str(exc)
