@@ -16,7 +16,7 @@ from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from mcap.reader import make_reader
 
 from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m, euler_to_quaternion
 from bridge.protocol.table import REPLIES
@@ -372,3 +372,28 @@ def test_tick_flushes_a_second_after_the_last_flush_while_messages_pause(
     writer.close()
     writer.close()
     assert read_archive(path).complete
+
+
+def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: Path) -> None:
+    m = euler_to_m(np.array([0.0, 0.0, 0.3])).reshape(-1).tolist()
+    # m before the header fields (another producer's order), a unit name unlike the key's
+    head = ImuSample(unit="other", command=0xC5, timer=1, ticks=1, time_ns=T0 + 5, rx_ns=T0 + 9)
+    reordered = ImuSample(m=m).SerializeToString() + head.SerializeToString()
+    # the bulk header, then an m field cut short: archived, but it gets no frame
+    cut = ImuSample(unit="u1", command=0xC5, timer=2, ticks=2, time_ns=T0 + 6,
+                    rx_ns=T0 + 9).SerializeToString() + b"\x82\x01\x24" + bytes(10)
+    path = tmp_path / "odd.mcap"
+    with ArchiveWriter(path, frame_rate_hz=None) as writer:
+        writer.write("gx3/u1/imu", reordered, T0 + 10)
+        writer.write("gx3/u1/imu", cut, T0 + 11)
+        with pytest.raises(ValueError, match=r"not a gx3\.v1\.ImuSample"):
+            writer.write("gx3/u1/imu", b"\xff" * 8, T0 + 12)
+    archive = read_archive(path)
+    imu = archive.messages("gx3/u1/imu")
+    assert imu.payloads == [reordered, cut] and imu.log_time.tolist() == [T0 + 5, T0 + 6]
+    frames = archive.messages("gx3/u1/frame")
+    assert len(frames) == 1 and frames.log_time[0] == T0 + 5
+    frame = FrameTransform.FromString(frames.payloads[0])
+    assert frame.child_frame_id == "u1"
+    q = np.array([frame.rotation.x, frame.rotation.y, frame.rotation.z, frame.rotation.w])
+    np.testing.assert_allclose(rotation(q), np.reshape(m, (3, 3)).T, atol=1e-6)

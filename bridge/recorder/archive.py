@@ -36,9 +36,10 @@ from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from google.protobuf.message import DecodeError, Message
 from mcap.writer import CompressionType, Writer
 
-from bridge.bus.codec import decode_batch, layout, parse
+from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
+from bridge.protocol.table import DATA_CODES
 from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
 from bridge.recorder.rawcapture import RAW_ENCODING
 
@@ -103,7 +104,7 @@ def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
     if len(payload) >= head.size:
         t0, n, name, t1, command, t2, _, t3, _, t4, time_ns = head.unpack_from(payload)
         if (t0, t1, t2, t3, t4) == _HEADER_TAGS and n == len(name) and n < 0x80:
-            return unit, command, time_ns
+            return name.decode(errors="replace"), command, time_ns
     msg = parse(payload)
     return msg.unit, msg.command, msg.time_ns
 
@@ -290,7 +291,11 @@ class ArchiveWriter:
 
     def _queue_frame(self, unit: str, sample_unit: str, code: int, log_ns: int,
                      payload: bytes, rx: int) -> None:
-        if not has_attitude(layout(code, sample_unit).quantities):
+        if code not in DATA_CODES or not has_attitude(record_quantities(code)):
+            return  # the bytes are archived all the same
+        try:  # a malformed sample gets no frame, and cannot spoil its group's bulk decode
+            decode_batch(sample_unit, code, [payload])
+        except ValueError:
             return
         # at most one frame per period per unit; time going back (a reset) starts again
         self._frame_due[unit] = log_ns + self.frame_period_ns
