@@ -169,12 +169,16 @@ class Archive:
     def units(self) -> list[str]:
         return sorted({c.unit for c in self.channels.values() if c.unit})
 
-    def _ids(self, topic: str) -> list[int]:
-        return [c.id for c in self.channels.values() if c.topic == topic]
+    def _ids(self, topic: str | None = None, kind: str | None = None,
+             unit: str | None = None) -> np.ndarray:
+        """Ids of the channels that match (a topic can have several after a merge)."""
+        return np.array([c.id for c in self.channels.values()
+                         if topic in (None, c.topic) and kind in (None, c.kind)
+                         and unit in (None, c.unit)], np.uint16)
 
     def first_sample_ns(self) -> int | None:
         """Log time (= live time_ns) of the earliest ImuSample, if any."""
-        ids = np.array([c.id for c in self.channels.values() if c.kind == "imu"], np.uint16)
+        ids = self._ids(kind="imu")
         firsts = [int(b.log_time[m].min()) for b in self.blocks
                   if (m := np.isin(b.channel, ids)).any()]
         return min(firsts) if firsts else None
@@ -192,7 +196,7 @@ class Archive:
 
     def messages(self, topic: str) -> Messages:
         """Every message of ``topic``, in log-time order."""
-        ids = np.array(self._ids(topic), np.uint16)
+        ids = self._ids(topic)
         info = next(c for c in self.channels.values() if c.topic == topic) if len(ids) else None
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         payloads: list[bytes] = []
@@ -210,15 +214,14 @@ class Archive:
 
     def iter_messages(self, topics: Iterable[str] | None = None) -> Iterator[Record]:
         """Messages of ``topics`` (default: all) merged in log-time order."""
-        chosen = self.topics() if topics is None else list(topics)
-        all_msgs = [self.messages(t) for t in chosen]
-        keys = np.concatenate([m.log_time for m in all_msgs]) if all_msgs else np.zeros(0)
-        which = np.concatenate([np.full(len(m), i) for i, m in enumerate(all_msgs)]) \
-            if all_msgs else np.zeros(0, int)
-        index = np.concatenate([np.arange(len(m)) for m in all_msgs]) if all_msgs \
-            else np.zeros(0, int)
-        for k in np.argsort(keys, kind="stable").tolist():
-            m, i = all_msgs[which[k]], int(index[k])
+        msgs = [self.messages(t) for t in (self.topics() if topics is None else topics)]
+        if not msgs:
+            return
+        which = np.repeat(np.arange(len(msgs)), [len(m) for m in msgs]).tolist()
+        index = np.concatenate([np.arange(len(m)) for m in msgs]).tolist()
+        times = np.concatenate([m.log_time for m in msgs])
+        for k in np.argsort(times, kind="stable").tolist():
+            m, i = msgs[which[k]], index[k]
             yield Record(m.topic, int(m.log_time[i]), int(m.publish_time[i]),
                          int(m.sequence[i]), m.payloads[i])
 
@@ -230,7 +233,8 @@ class Archive:
         wanted_codes = None if codes is None else set(codes)
         groups: dict[tuple[str, int], tuple[list[bytes], list[np.ndarray], list[np.ndarray]]]
         groups = {}
-        for unit, ids in self._imu_channels(units).items():
+        chosen = self.units() if units is None else sorted(set(units))
+        for unit, ids in ((u, self._ids(kind="imu", unit=u)) for u in chosen):
             for block in self.blocks:
                 mask = np.isin(block.channel, ids)
                 if not mask.any():
@@ -257,14 +261,6 @@ class Archive:
             out.append(Samples(unit, code, {k: v[order] for k, v in cols.items()},
                                np.concatenate(pub_parts)[order]))
         return out
-
-    def _imu_channels(self, units: Iterable[str] | None) -> dict[str, np.ndarray]:
-        wanted = None if units is None else set(units)
-        out: dict[str, list[int]] = {}
-        for c in self.channels.values():
-            if c.kind == "imu" and (wanted is None or c.unit in wanted):
-                out.setdefault(c.unit, []).append(c.id)
-        return {u: np.array(ids, np.uint16) for u, ids in out.items()}
 
     def events(self, units: Iterable[str] | None = None) -> list[tuple[str, Event]]:
         """(unit, Event) of every event channel, in time order."""
