@@ -155,7 +155,7 @@ def test_operator_action_while_streaming() -> None:
         result = pipeline.submit(info)
         n = len(sink.column("ticks"))
         wait_for(lambda: len(sink.column("ticks")) >= n + 20)
-        sent = sim.units[0].truth.arrays()["timer"]
+    sent = sim.units[0].truth.arrays()["timer"]  # the pipeline has stopped: all in
     assert result["serial"] == "PIPE0001"
     got = sink.column("timer")
     start = int(np.flatnonzero(sent == got[0])[0])
