@@ -114,3 +114,35 @@ def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr.decode()
     fixed = read_archive(repaired)
     assert fixed.complete and sum(len(b) for b in fixed.samples(["a"])) == len(ticks)
+
+
+def test_replay_of_the_raw_capture_gives_the_live_samples(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    live, capture, replayed = (tmp_path / n for n in ("live.mcap", "raw.mcap", "re.mcap"))
+    proc = recorder(live, rec_cfg, "--history", "10000")
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", "--capture",
+                           str(capture)) as bridge:
+        wait_for(lambda: samples_in(live, "a") >= 300)
+        bridge.send_signal(signal.SIGINT)
+        bridge.wait(timeout=30)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=30)
+    done = subprocess.run([GX3 or "gx3", "replay", str(capture), "-o", str(replayed)],
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+
+    def columns(path: Path) -> dict[str, np.ndarray]:
+        blocks = read_archive(path).samples(["a"])
+        out = {k: np.concatenate([b.columns[k] for b in blocks])
+               for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
+        order = np.argsort(out["ticks"], kind="stable")
+        return {k: v[order] for k, v in out.items()}
+
+    a, b = columns(live), columns(replayed)
+    assert len(a["ticks"]) >= 300
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)

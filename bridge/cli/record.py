@@ -133,3 +133,40 @@ def record(
         files = ", ".join(str(p) for p in writer.paths)
         console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")
     err.file.flush()
+
+
+@app.command("replay")
+def replay_command(
+    captures: Annotated[list[Path], typer.Argument(
+        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+                                        "recorded with --raw).")],
+    output: Annotated[Path, typer.Option(
+        "--output", "-o", metavar="ARCHIVE.mcap", help="Archive to write.")],
+    prefix: PrefixOpt = "gx3",
+) -> None:
+    """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
+
+    Gives the samples and live time_ns the bridge published when the capture was
+    made. A capture from another program is understood from its bytes: record type,
+    rate and float byte order.
+    """
+    from bridge.recorder.archive import ArchiveError
+    from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.replay import Replayed, ReplayError, replay
+
+    for path in captures:
+        if not path.is_file():
+            raise fail(f"{path}: no such file; give a raw capture (gx3 bridge --capture)")
+
+    def report(result: Replayed) -> None:
+        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
+        err.print(f"{result.unit}: {result.samples:,} samples"
+                  + (f", {events}" if events else "") + guessed)
+
+    try:
+        results = replay(captures, output, prefix, on_unit=report)
+    except (ReplayError, ArchiveReadError, ArchiveError) as exc:
+        raise fail(str(exc), 1) from None
+    err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
+              f"{len(results)} unit(s)")
