@@ -38,14 +38,18 @@ DEVICE_TIME = "device_time"
 
 #: The GX3-25 case, north (x) x east (y) x down (z) in the sensor frame, in metres.
 BOX_SIZE_M = (0.044, 0.025, 0.011)
-#: Drawn ten times life size, so a case 0.44 m long sits in a scene with 1 m spacing.
-BOX_SCALE = 10.0
+#: Drawn 15 times life size (0.66 x 0.375 x 0.165 m): its half-diagonal, 0.39 m, keeps
+#: neighbours 1 m apart clear of each other in any attitude.
+BOX_SCALE = 15.0
 #: Distance between neighbouring units along east, in metres of the scene.
 UNIT_SPACING_M = 1.0
-AXIS_LENGTH_M = 0.3
-#: Arrow lengths: 1 g of specific force is drawn 0.35 m long, 1 gauss 0.6 m long.
-ACCEL_ARROW_M_PER_G = 0.35
-MAG_ARROW_M_PER_GAUSS = 0.6
+AXIS_LENGTH_M = 0.45
+#: A north-east-down triad, labelled, south of the first unit: which way is which.
+NED_ORIGIN_M = (-UNIT_SPACING_M, 0.0, 0.0)
+NED_COLOR: Rgb = (170, 170, 170)
+#: Arrow lengths: 1 g of specific force is drawn 0.5 m long, 1 gauss 0.9 m long.
+ACCEL_ARROW_M_PER_G = 0.5
+MAG_ARROW_M_PER_GAUSS = 0.9
 
 Rgb = tuple[int, int, int]
 
@@ -136,9 +140,28 @@ def series_colors(index: int, lines: int) -> npt.NDArray[np.uint8]:
     return np.round(light * (1.0 + np.clip(shade, None, 0.0))).astype(np.uint8)
 
 
-def blueprint(plots: Iterable[str], window_s: float | None = None) -> rrb.Blueprint:
-    """The default layout: the 3-D scene and the events on the left, a grid of time-series
-    views on the right, one per plot present, in the order of PLOTS_TABLE.
+# The entity path repeats the unit, which the text starts with.
+_EVENT_COLUMNS = rrb.archetypes.TextLogColumns(
+    timeline_columns=[rrb.encodings.TimelineColumn(TIME),
+                      rrb.encodings.TimelineColumn(DEVICE_TIME, visible=False)],
+    text_log_columns=[rrb.encodings.TextLogColumn("LogLevel"),
+                      rrb.encodings.TextLogColumn("Body"),
+                      rrb.encodings.TextLogColumn("EntityPath", visible=False)])
+
+
+def eye(units: int) -> rrb.EyeControls3D:
+    """A camera south of the row of units and above it, looking north at its middle, so east
+    is to the right and every unit is in the picture."""
+    middle = unit_position(0) + (unit_position(max(units, 1) - 1) - unit_position(0)) / 2
+    distance = 0.6 + 0.7 * max(units, 1) * UNIT_SPACING_M
+    return rrb.EyeControls3D(position=middle + np.array([-distance, 0.0, -0.7 * distance]),
+                             look_target=middle, eye_up=[0.0, 0.0, -1.0])
+
+
+def blueprint(plots: Iterable[str], units: int, window_s: float | None = None
+              ) -> rrb.Blueprint:
+    """The default layout: the 3-D scene of ``units`` units and the events on the left, a
+    grid of time-series views on the right, one per plot present, in the order of PLOTS_TABLE.
 
     ``window_s`` makes the plots show only the last so many seconds (for live viewing).
     """
@@ -153,10 +176,12 @@ def blueprint(plots: Iterable[str], window_s: float | None = None) -> rrb.Bluepr
              for p in PLOTS_TABLE if p.name in present]
     columns = 1 if len(views) <= 3 else 2 if len(views) <= 8 else 3
     left = rrb.Vertical(
-        rrb.Spatial3DView(origin=WORLD, name="attitude (NED: x north, y east, z down)"),
-        rrb.TextLogView(origin=EVENTS, name="events"),
+        rrb.Spatial3DView(origin=WORLD, name="attitude (NED: x north, y east, z down)",
+                          eye_controls=eye(units)),
+        rrb.TextLogView(origin=EVENTS, name="events", columns=_EVENT_COLUMNS),
         row_shares=[3, 1],
     )
     right = rrb.Grid(*views, grid_columns=columns) if views else None
     main = rrb.Horizontal(left, right, column_shares=[2, 3]) if right else left
-    return rrb.Blueprint(main, rrb.TimePanel(timeline=TIME), collapse_panels=True)
+    return rrb.Blueprint(main, rrb.TimePanel(timeline=TIME, state="collapsed"),
+                         collapse_panels=True)

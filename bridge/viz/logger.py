@@ -101,8 +101,8 @@ class RerunLogger:
     ``target`` is a RecordingStream the caller set up (spawned viewer, gRPC connection,
     file) or a path, for which the logger opens an .rrd file of its own and closes it in
     ``close``. ``units`` fixes the order of units in the scene; others join as they
-    appear. The blueprint is (re)sent, as active and default, whenever a plot appears,
-    so it is in every recording and grows with the fleet; ``window_s`` limits the plots
+    appear. The blueprint is (re)sent, as active and default, whenever a plot or a unit
+    appears, so it is in every recording and grows with the fleet; ``window_s`` limits the plots
     to the last so many seconds, for live viewing.
     """
 
@@ -121,8 +121,11 @@ class RerunLogger:
         self._styled: set[tuple[str, str]] = set()
         self._plots: set[str] = set()
         self._first_offset: dict[str, int] = {}
-        self._sent_plots: frozenset[str] | None = None
+        self._sent: tuple[frozenset[str], int] | None = None
         self.recording.log(layout.WORLD, rr.ViewCoordinates.FRD, static=True)
+        self.recording.log(f"{layout.WORLD}/ned", rr.Arrows3D(
+            origins=[layout.NED_ORIGIN_M] * 3, vectors=np.eye(3) * layout.AXIS_LENGTH_M,
+            colors=[layout.NED_COLOR], radii=0.005, labels=["N", "E", "D"]), static=True)
         for unit in units:
             self._unit(unit)
         self._send_blueprint()
@@ -216,6 +219,7 @@ class RerunLogger:
                           dtype=object)
         self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
                          rr.TextLog.columns, text=texts, level=levels)
+        self._send_blueprint()
 
     def flush(self) -> None:
         self.recording.flush()
@@ -268,13 +272,14 @@ class RerunLogger:
             colors=layout.series_colors(index, len(labels))), static=True)
 
     def _send_blueprint(self) -> None:
-        """Send the blueprint when the set of plots changed since it was last sent."""
+        """Send the blueprint when the plots or the number of units changed since it was
+        last sent."""
         with self._lock:
-            plots = frozenset(self._plots)
-            if plots == self._sent_plots:
+            sent = (frozenset(self._plots), len(self._units))
+            if sent == self._sent:
                 return
-            self._sent_plots = plots
-        self.recording.send_blueprint(layout.blueprint(plots, self.window_s),
+            self._sent = sent
+        self.recording.send_blueprint(layout.blueprint(*sent, window_s=self.window_s),
                                       make_active=True, make_default=True)
 
     def _send_split(self, path: str, time_ns: np.ndarray, device_ns: np.ndarray,
