@@ -257,3 +257,25 @@ def test_bad_input_is_one_clear_line(tmp_path: Path) -> None:
             log.log_samples("u", 0xC2, {**cols, "accel": cols["accel"][:5]})
         with pytest.raises(ValueError, match="0x10 is not a data record"):
             log.log_samples("u", 0x10, cols)
+
+
+def test_batches_are_gathered_then_sent_in_chunks_of_max_rows(tmp_path: Path) -> None:
+    path = tmp_path / "gather.rrd"
+    cols = demo_columns("u", 0xC2, 1, 1.2)
+    half = {k: v[:60] for k, v in cols.items()}
+    rest = {k: v[60:] for k, v in cols.items()}
+
+    def accel_chunks() -> list[int]:
+        return [c.num_rows for c in RrdReader(path).stream()
+                if c.entity_path == "/plots/accel/u" and c.timeline_names]
+
+    with RerunLogger(path, latency_s=3600.0, max_rows=100) as log:
+        log.log_samples("u", 0xC2, half)
+        log.recording.flush()
+        assert accel_chunks() == []  # gathered, not sent
+        log.log_samples("u", 0xC2, rest)  # 120 rows: due
+        log.recording.flush()
+        assert accel_chunks() == [100, 20]
+        log.log_samples("u", 0xC2, half)
+        log.flush()
+        assert accel_chunks() == [100, 20, 60]

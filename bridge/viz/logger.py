@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -95,6 +97,15 @@ def sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.nda
     return series
 
 
+@dataclass
+class _Pending:
+    """Batches of one unit and record type gathered since ``since`` (monotonic seconds)."""
+
+    since: float
+    parts: list[dict[str, np.ndarray]] = field(default_factory=list)
+    rows: int = 0
+
+
 class RerunLogger:
     """Writes a fleet's samples, status and events to one Rerun recording.
 
@@ -102,13 +113,16 @@ class RerunLogger:
     file) or a path, for which the logger opens an .rrd file of its own and closes it in
     ``close``. ``units`` fixes the order of units in the scene; others join as they
     appear. The blueprint is (re)sent, as active and default, whenever a plot or a unit
-    appears, so it is in every recording and grows with the fleet; ``window_s`` limits the plots
-    to the last so many seconds, for live viewing.
+    appears, so it is in every recording and grows with the fleet; ``window_s`` limits the
+    plots to the last so many seconds, for live viewing. Samples reach the recording at
+    most ``latency_s`` after they were logged, provided the caller logs or flushes at
+    least that often (a live caller with no data flowing calls ``flush``).
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
                  units: Iterable[str] = (), *, application_id: str = "gx3",
-                 recording_id: str | None = None, window_s: float | None = None) -> None:
+                 recording_id: str | None = None, window_s: float | None = None,
+                 latency_s: float = 0.25, max_rows: int = 4096) -> None:
         if isinstance(target, rr.RecordingStream):
             self.recording, self._owned = target, False
         else:
@@ -116,6 +130,9 @@ class RerunLogger:
             self.recording.save(os.fspath(target))
             self._owned = True
         self.window_s = window_s
+        self.latency_s = latency_s
+        self.max_rows = max_rows
+        self._pending: dict[tuple[str, int], _Pending] = {}
         self._lock = threading.Lock()
         self._units: dict[str, int] = {}
         self._styled: set[tuple[str, str]] = set()
@@ -138,7 +155,12 @@ class RerunLogger:
     def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
         """A batch of one unit's records of type ``code``: every quantity the record holds
         plus ``ticks`` (unwrapped device timer) and ``time_ns`` (aligned host time), as
-        ``bridge.bus.codec.decode_batch`` returns them."""
+        ``bridge.bus.codec.decode_batch`` returns them.
+
+        Batches are gathered per unit and record type and sent once ``max_rows`` rows or
+        ``latency_s`` seconds have built up (checked at each call), or on ``flush``: a
+        send costs about the same for 10 rows as for 4,000.
+        """
         quantities = record_quantities(code)
         missing = [c for c in ("ticks", "time_ns", *quantities) if c not in columns]
         if missing:
@@ -152,30 +174,14 @@ class RerunLogger:
                              f"do not have the {n} rows of ticks")
         if n == 0:
             return
-        index = self._unit(unit)
-        record = {q: columns[q] for q in quantities}
-        time_ns = np.asarray(columns["time_ns"], np.int64)
-        device_ns = np.asarray(columns["ticks"], np.int64) * NS_PER_TICK
-        rec = self.recording
-        for plot, values in sample_series(record, n).items():
-            self._style(plot, unit, index)
-            rec.send_columns(layout.plot_path(plot, unit), indexes=_indexes(time_ns, device_ns),
-                             columns=rr.Scalars.columns(scalars=values))
-        body = layout.body_path(unit)
-        xyzw = sensor_to_earth(record)
-        if xyzw is not None:
-            ok = np.isfinite(xyzw).all(axis=1)
-            rec.send_columns(body, indexes=_indexes(time_ns[ok], device_ns[ok]),
-                             columns=rr.Transform3D.columns(quaternion=xyzw[ok]))
-        for name, scale, arrow in (("accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
-                                   ("stab_accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
-                                   ("mag", layout.MAG_ARROW_M_PER_GAUSS, "mag"),
-                                   ("stab_mag", layout.MAG_ARROW_M_PER_GAUSS, "mag")):
-            if name in record:
-                vectors = np.asarray(record[name], np.float32) * np.float32(scale)
-                rec.send_columns(f"{body}/{arrow}", indexes=_indexes(time_ns, device_ns),
-                                 columns=rr.Arrows3D.columns(vectors=vectors))
-        self._send_blueprint()
+        self._unit(unit)
+        now = time.monotonic()
+        with self._lock:
+            pending = self._pending.setdefault((unit, code), _Pending(now))
+            pending.parts.append({c: np.asarray(columns[c]) for c in
+                                  ("ticks", "time_ns", *quantities)})
+            pending.rows += n
+        self._send_pending(now)
 
     def log_status(self, unit: str, statuses: Status | Sequence[Status]) -> None:
         """Status messages of one unit: samples/s, dropped total, clock offset (relative
@@ -222,11 +228,13 @@ class RerunLogger:
         self._send_blueprint()
 
     def flush(self) -> None:
+        """Send every gathered sample and wait until the recording has them."""
+        self._send_pending(None)
         self.recording.flush()
 
     def close(self) -> None:
         """Flush; for a logger that opened its own file, also finish and close that file."""
-        self.recording.flush()
+        self.flush()
         if self._owned:
             self.recording.disconnect()
 
@@ -258,6 +266,48 @@ class RerunLogger:
             rec.log(f"{body}/{arrow}", rr.Arrows3D.from_fields(
                 colors=np.array([arrow_color], np.uint8), radii=0.01), static=True)
         return index
+
+    def _send_pending(self, now: float | None) -> None:
+        """Send the gathered batches that are due at ``now`` (all of them for None)."""
+        with self._lock:
+            due = [key for key, p in self._pending.items() if now is None
+                   or p.rows >= self.max_rows or now - p.since >= self.latency_s]
+            taken = [(key, self._pending.pop(key)) for key in due]
+        for (unit, _), pending in taken:
+            parts = pending.parts
+            record = parts[0] if len(parts) == 1 else {
+                c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
+            for start in range(0, pending.rows, self.max_rows):
+                self._send_samples(unit, {c: v[start:start + self.max_rows]
+                                          for c, v in record.items()})
+        if taken:
+            self._send_blueprint()
+
+    def _send_samples(self, unit: str, record: dict[str, np.ndarray]) -> None:
+        """One send per plot and scene entity, for all rows at once."""
+        index, rec, n = self._units[unit], self.recording, len(record["ticks"])
+        time_ns = np.asarray(record.pop("time_ns"), np.int64)
+        device_ns = np.asarray(record.pop("ticks"), np.int64) * NS_PER_TICK
+        indexes = _indexes(time_ns, device_ns)
+        for plot, values in sample_series(record, n).items():
+            self._style(plot, unit, index)
+            rec.send_columns(layout.plot_path(plot, unit), indexes=indexes,
+                             columns=rr.Scalars.columns(scalars=values))
+        body = layout.body_path(unit)
+        xyzw = sensor_to_earth(record)
+        if xyzw is not None:
+            ok = np.isfinite(xyzw).all(axis=1)
+            rec.send_columns(body, indexes=indexes if ok.all() else
+                             _indexes(time_ns[ok], device_ns[ok]),
+                             columns=rr.Transform3D.columns(quaternion=xyzw[ok]))
+        for name, scale, arrow in (("accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
+                                   ("stab_accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
+                                   ("mag", layout.MAG_ARROW_M_PER_GAUSS, "mag"),
+                                   ("stab_mag", layout.MAG_ARROW_M_PER_GAUSS, "mag")):
+            if name in record:
+                vectors = np.asarray(record[name], np.float32) * np.float32(scale)
+                rec.send_columns(f"{body}/{arrow}", indexes=indexes,
+                                 columns=rr.Arrows3D.columns(vectors=vectors))
 
     def _style(self, plot: str, unit: str, index: int) -> None:
         """Names and colours of a unit's lines in a plot, logged once, static."""
