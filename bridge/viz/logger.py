@@ -134,6 +134,7 @@ class RerunLogger:
         self.max_rows = max_rows
         self._pending: dict[tuple[str, int], _Pending] = {}
         self._lock = threading.Lock()
+        self._blueprint_lock = threading.Lock()
         self._units: dict[str, int] = {}
         self._styled: set[tuple[str, str]] = set()
         self._plots: set[str] = set()
@@ -323,14 +324,15 @@ class RerunLogger:
 
     def _send_blueprint(self) -> None:
         """Send the blueprint when the plots or the number of units changed since it was
-        last sent."""
-        with self._lock:
-            sent = (frozenset(self._plots), len(self._units))
+        last sent; one sender at a time, so the last one sent is the newest."""
+        with self._blueprint_lock:
+            with self._lock:
+                sent = (frozenset(self._plots), len(self._units))
             if sent == self._sent:
                 return
             self._sent = sent
-        self.recording.send_blueprint(layout.blueprint(*sent, window_s=self.window_s),
-                                      make_active=True, make_default=True)
+            self.recording.send_blueprint(layout.blueprint(*sent, window_s=self.window_s),
+                                          make_active=True, make_default=True)
 
     def _send_split(self, path: str, time_ns: np.ndarray, device_ns: np.ndarray,
                     has_device: np.ndarray, columns: Callable[..., Any],
