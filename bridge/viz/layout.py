@@ -5,12 +5,13 @@ so one time-series view per quantity (origin ``/plots/accel``) takes in every un
 including units that appear after the blueprint was sent.
 
     /world                           ViewCoordinates.FRD: X north, Y east, Z down (NED)
+    /world/ned                       Arrows3D labelled N, E, D: which way is which
     /world/<unit>                    Transform3D translation: units side by side, eastwards
     /world/<unit>/body               Transform3D quaternion per sample: sensor to earth (M^T)
     /world/<unit>/body/box           Boxes3D, the unit's case scaled up BOX_SCALE times
     /world/<unit>/body/axes          Arrows3D, sensor x (red), y (green), z (blue)
-    /world/<unit>/body/accel         Arrows3D per sample, accel in the sensor frame
-    /world/<unit>/body/mag           Arrows3D per sample, mag in the sensor frame
+    /world/<unit>/body/accel         Arrows3D per sample, accel (or stab_accel), sensor frame
+    /world/<unit>/body/mag           Arrows3D per sample, mag (or stab_mag), sensor frame
     /plots/<plot>/<unit>             Scalars per sample or status, SeriesLines static
     /events/<unit>                   TextLog per event
 """
@@ -50,6 +51,13 @@ NED_COLOR: Rgb = (170, 170, 170)
 #: Arrow lengths: 1 g of specific force is drawn 0.5 m long, 1 gauss 0.9 m long.
 ACCEL_ARROW_M_PER_G = 0.5
 MAG_ARROW_M_PER_GAUSS = 0.9
+#: Quantity -> the arrow under the unit's body that shows it, and its length per unit.
+ARROWS = {
+    "accel": ("accel", ACCEL_ARROW_M_PER_G),
+    "stab_accel": ("accel", ACCEL_ARROW_M_PER_G),
+    "mag": ("mag", MAG_ARROW_M_PER_GAUSS),
+    "stab_mag": ("mag", MAG_ARROW_M_PER_GAUSS),
+}
 
 Rgb = tuple[int, int, int]
 

@@ -179,7 +179,8 @@ class RerunLogger:
         now = time.monotonic()
         with self._lock:
             pending = self._pending.setdefault((unit, code), _Pending(now))
-            pending.parts.append({c: np.asarray(columns[c]) for c in
+            # copies: the caller may reuse its buffers before the batch is sent
+            pending.parts.append({c: np.array(columns[c]) for c in
                                   ("ticks", "time_ns", *quantities)})
             pending.rows += n
         self._send_pending(now)
@@ -221,9 +222,9 @@ class RerunLogger:
         self._unit(unit)
         time_ns = np.array([e.time_ns for e in items], np.int64)
         ticks = np.array([e.ticks for e in items], np.int64)
-        texts = np.array([event_text(unit, e) for e in items], dtype=object)
+        texts = np.array([event_text(unit, e) for e in items], dtype=str)
         levels = np.array([_EVENT_LEVEL.get(e.kind, rr.TextLogLevel.INFO) for e in items],
-                          dtype=object)
+                          dtype=str)
         self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
                          rr.TextLog.columns, text=texts, level=levels)
         self._send_blueprint()
@@ -301,10 +302,7 @@ class RerunLogger:
             rec.send_columns(body, indexes=indexes if ok.all() else
                              _indexes(time_ns[ok], device_ns[ok]),
                              columns=rr.Transform3D.columns(quaternion=xyzw[ok]))
-        for name, scale, arrow in (("accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
-                                   ("stab_accel", layout.ACCEL_ARROW_M_PER_G, "accel"),
-                                   ("mag", layout.MAG_ARROW_M_PER_GAUSS, "mag"),
-                                   ("stab_mag", layout.MAG_ARROW_M_PER_GAUSS, "mag")):
+        for name, (arrow, scale) in layout.ARROWS.items():
             if name in record:
                 vectors = np.asarray(record[name], np.float32) * np.float32(scale)
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
@@ -343,8 +341,7 @@ class RerunLogger:
             if rows.any():
                 self.recording.send_columns(
                     path, indexes=_indexes(time_ns[rows], None if dev is None else dev[rows]),
-                    columns=columns(**{k: list(v[rows]) if v.dtype == object else v[rows]
-                                       for k, v in values.items()}))
+                    columns=columns(**{k: v[rows] for k, v in values.items()}))
 
 
 def event_text(unit: str, event: Event) -> str:
