@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rerun.experimental import ViewerClient
+from rerun.experimental import ViewerClient, ViewerState
 
 from bridge.viz.demo import DEMO_EPOCH_NS, write_demo
 from bridge.viz.layout import TIME
@@ -42,10 +42,11 @@ def _rerun_executable() -> str:
 
 
 def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: int | None = None,
-           size: tuple[int, int] = (1600, 1000), timeout_s: float = 60.0) -> None:
+           size: tuple[int, int] = (1600, 1000), timeout_s: float = 60.0) -> ViewerState:
     """Open ``rrd`` in a headless viewer, pause the time cursor at ``at_ns`` on the ``time``
-    timeline (default: where the viewer puts it), and save what it shows to ``png``
-    (twice ``size`` in pixels)."""
+    timeline (default: where the viewer puts it), save what it shows to ``png`` and return
+    the viewer's own account of it: recordings, timelines, views and what each view
+    failed to show."""
     port = _free_port()
     viewer = subprocess.Popen(
         [_rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
@@ -66,6 +67,7 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
             client.set_time(TIME, timestamp=np.datetime64(at_ns, "ns"), play_state="paused")
         time.sleep(1.0)  # let the views catch up with the cursor before the shot
         client.save_screenshot(os.fspath(png))
+        return client.get_state()
     finally:
         os.killpg(viewer.pid, signal.SIGTERM)  # the wrapper and the viewer it started
         viewer.wait(timeout=10)
