@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
+import rerun as rr
 from rerun.chunk import RrdReader
 
 from bridge.bus.gx3_pb2 import Event, Status
@@ -318,3 +319,19 @@ def test_units_logging_from_several_threads(tmp_path: Path) -> None:
     east = sorted(table(store, f"/world/{u}", index=None).column(
         f"/world/{u}:Transform3D:translation").to_pylist()[0][0][1] for u in data)
     assert east == [0.0, 1.0, 2.0, 3.0]  # each unit its own place
+
+
+def test_a_stream_the_caller_owns_stays_open(tmp_path: Path) -> None:
+    """gx3 view hands in a stream connected to a viewer: the logger flushes it, never
+    closes it."""
+    path = tmp_path / "own.rrd"
+    rec = rr.RecordingStream("gx3", recording_id="caller")
+    rec.save(path)
+    with RerunLogger(rec) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.2))
+    rec.log("/after", rr.TextLog("still open"), static=True)
+    rec.flush()
+    rec.disconnect()
+    names = {c.entity_path for c in RrdReader(path).stream()}
+    assert {"/plots/accel/a", "/after"} <= names
+    assert RrdReader(path).recordings()[0].recording_id == "caller"
