@@ -9,7 +9,7 @@ Two runs, both writing an .rrd file through RerunLogger:
   reports samples/s.
 
 Each reports the file size per sample. Run by hand:
-    .venv/bin/python bench/bench_viz.py [--units 4] [--rate 100000] [--seconds 10]
+    .venv/bin/python bench/bench_viz.py [--units 100] [--rate 100000] [--seconds 10]
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def run(todo: list[tuple[str, dict[str, np.ndarray]]], path: Path, units: int,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--units", type=int, default=4)
+    ap.add_argument("--units", type=int, default=100, help="1,000 Hz each at the default rate")
     ap.add_argument("--rate", type=float, default=100_000.0, help="samples/s, all units")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--batch-ms", type=float, default=50.0, help="live batch length")

@@ -39,7 +39,8 @@ class _Batch:
 def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float = 100.0,
                  start_s: float = 0.0, drift_ppm: float = 0.0) -> dict[str, np.ndarray]:
     """``seconds`` of one unit's ``code`` records from ``start_s`` of device time on, as
-    decode_batch returns them; host time runs ``drift_ppm`` slower than the device clock."""
+    decode_batch returns them; time_ns is device time scaled by 1 + drift_ppm * 1e-6, as in
+    the Status clock model."""
     n = round(seconds * rate_hz)
     ticks = round(start_s * TICKS_PER_SECOND) + np.arange(n, dtype=np.int64) * round(
         TICKS_PER_SECOND / rate_hz)
@@ -51,7 +52,6 @@ def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float
     time_ns = DEMO_EPOCH_NS + np.round(device_s * 1e9 * (1.0 + drift_ppm * 1e-6)).astype(np.int64)
     payloads = encode_batch(unit, _Batch(code, values), ticks, time_ns, time_ns + 2_000_000)
     return decode_batch(unit, code, payloads)
-
 
 
 #: The demo fleet: unit name, record type, motion seed, clock drift [ppm].
