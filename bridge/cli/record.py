@@ -50,6 +50,9 @@ def record(
         "--raw", help="Also record each unit's raw reads where its bridge offers them.")] = False,
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
+    rrd: Annotated[Path | None, typer.Option(
+        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded.")]
+    = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file when one reaches this size, MB.")] = None,
     split_minutes: Annotated[float | None, typer.Option(
@@ -106,8 +109,24 @@ def record(
         console.print(f"[dim]{time.strftime('%H:%M:%S')}[/] {unit} "
                       + ("[green]joined[/]" if joined else "[red]left[/]"))
 
+    logger = None
+    if rrd is not None:
+        from bridge.viz.logger import RerunLogger
+        from bridge.viz.sources import log_messages
+
+        try:
+            logger = RerunLogger(rrd, recording_id=path.stem)
+        except OSError as exc:
+            writer.close()
+            session.close()
+            raise fail(f"--rrd {rrd}: cannot write ({exc.strerror or exc})") from None
+        sink = logger
+
+        def to_rerun(messages: list[Any]) -> None:
+            log_messages(sink, messages, prefix)
     started = time.monotonic()
-    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce)
+    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
+                        on_written=None if logger is None else to_rerun)
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:
@@ -120,6 +139,8 @@ def record(
                                        recorder.written, path), refresh=True)
     finally:
         recorder.close()
+        if logger is not None:
+            logger.close()
         try:
             writer.close()
         except ArchiveError as exc:
