@@ -1,0 +1,257 @@
+"""Online estimate of the instant each record was sampled, on the host clock.
+
+A record is received after it was sampled, never before: the host time of a read
+is an upper bound on the sample instant of every record in it. The estimator
+keeps a sliding window of (ticks, receive time) points and fits the line
+``host = offset + rate * ticks`` that lies under all of them and is highest in
+the middle of the window (the lower convex hull's supporting edge there), found
+by bisection on the slope. A point that came late (OS latency, a burst after a
+stall) lies above the line and does not move it; the window follows a rate that
+wanders with temperature.
+
+USB adds a quantisation the hull cannot see through: bytes reach the host only
+at 1 ms frame boundaries of the host controller's clock. The frame grid is found
+from the receive times themselves (they cluster just after each boundary), each
+receive time is snapped down to its frame, and the spread of the snapped points
+under one frame tells how much of the frame the unit's phase has covered. A unit
+whose clock beats slowly against the frame clock covers little, and the true
+line then lies anywhere up to a frame under the hull; the estimate takes the
+middle of what is left. With a fast-drifting unit the points cover the whole
+frame and nothing is taken off.
+
+Arithmetic is on integers and float64 in a fixed order, and the fit is redone
+only at ticks-determined points, so the output depends on the records alone,
+not on how they are split into ``update`` calls.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.timing.unwrap import NS_PER_TICK
+
+_MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
+_BISECTIONS = 32
+_WARM_S = 10.0  # refit ten times a second until the window is this long
+_GRID_BIN_NS = 1_000
+_GRID_MARGIN_NS = 20_000  # snap a little before the estimated frame boundary
+_BUCKET_TICKS = TICKS_PER_SECOND // 4
+# A serial line's window follows drift through the fit's midpoint; over USB the
+# slope comes from recent staircase corners, and a long window lets a unit that
+# beats slowly against the frame clock show two of them.
+_LINE_WINDOW_S = 60.0
+_FRAME_WINDOW_S = 300.0
+_CHORD_TICKS = 20 * TICKS_PER_SECOND  # corners this far apart give the slope
+_GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
+_GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
+
+
+@dataclass(frozen=True)
+class ClockState:
+    """The model for status: host minus nominal device time at the latest record,
+    the device clock's rate error, the median latency above the fit, points used."""
+
+    offset_ns: int
+    drift_ppm: float
+    spread_ns: int
+    samples: int
+
+
+@dataclass(frozen=True)
+class _Line:
+    x_ref: int  # ticks, absolute
+    y_ref: int  # host ns, absolute
+    rate: float  # ns per tick
+    bias: float  # ns to take off (unresolved part of a USB frame)
+
+    def at(self, ticks: np.ndarray) -> np.ndarray:
+        dx = (ticks - self.x_ref).astype(np.float64)
+        return self.y_ref + np.round(self.rate * dx - self.bias).astype(np.int64)
+
+
+class OnlineClock:
+    """Maps unwrapped ticks to host ns, one ``update`` per batch of valid records.
+
+    ``filter_delay_ns``: the unit's moving-average delay, (M - 1) / 2 ms for filter
+    width M. ``floor_ns``: the least time from sample to receive the transport
+    allows (a UART's line time of the record, len * 10 / baud s; USB: 0).
+    ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line.
+    """
+
+    def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
+                 window_s: float | None = None, refit_s: float = 1.0) -> None:
+        if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0:
+            raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
+        if window_s is None:
+            window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
+        if window_s <= 0 or refit_s <= 0:
+            raise ValueError("window_s and refit_s must be positive")
+        self.filter_delay_ns = int(filter_delay_ns)
+        self.floor_ns = int(floor_ns)
+        self.frame_ns = int(frame_ns)
+        self._window = round(window_s * TICKS_PER_SECOND)
+        self._refit = round(refit_s * TICKS_PER_SECOND)
+        bins = max(1, self.frame_ns // _GRID_BIN_NS)
+        self._grid = np.zeros(bins if self.frame_ns else 0)
+        self._rate = float(NS_PER_TICK)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start over after the tick base changed (device reset); keep rate and grid."""
+        self._x = np.zeros(0, np.int64)
+        self._y = np.zeros(0, np.int64)
+        self._new_x: list[int] = []
+        self._new_y: list[int] = []
+        self._line: _Line | None = None
+        self._next_fit: int | None = None
+        self._spread = 0
+
+    @property
+    def state(self) -> ClockState:
+        line = self._line
+        if line is None:
+            return ClockState(0, 0.0, 0, 0)
+        x = int(self._x[-1])
+        offset = int(line.at(np.array([x]))[0]) - x * NS_PER_TICK
+        return ClockState(offset, (line.rate / NS_PER_TICK - 1.0) * 1e6, self._spread,
+                          len(self._x))
+
+    def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
+        """Sample instants (host ns) of records with increasing ``ticks`` received at
+        ``rx_ns``: the instant their values describe, filter delay taken out."""
+        x = np.asarray(ticks, np.int64)
+        y = np.asarray(rx_ns, np.int64) - self.floor_ns
+        if x.shape != y.shape:
+            raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
+        out = np.empty(len(x), np.int64)
+        i = 0
+        while i < len(x):
+            j = i if self._next_fit is None else i + int(np.searchsorted(x[i:], self._next_fit))
+            if j > i and self._line is not None:
+                out[i:j] = self._line.at(x[i:j])
+            self._new_x += x[i : j + 1].tolist()
+            self._new_y += y[i : j + 1].tolist()
+            if j >= len(x):
+                break
+            self._fit(int(x[j]))
+            assert self._line is not None
+            out[j : j + 1] = self._line.at(x[j : j + 1])
+            i = j + 1
+        return out - self.filter_delay_ns
+
+    # --- fitting -------------------------------------------------------------------------
+    def _fit(self, now: int) -> None:
+        new_y = np.array(self._new_y, np.int64)
+        self._x = np.concatenate([self._x, np.array(self._new_x, np.int64)])
+        self._y = np.concatenate([self._y, new_y])
+        self._new_x, self._new_y = [], []
+        keep = int(np.searchsorted(self._x, now - self._window))
+        self._x, self._y = self._x[keep:], self._y[keep:]
+        span = int(self._x[-1] - self._x[0])
+        step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
+        self._next_fit = now + max(1, step)
+        upper = self._snap(new_y) if self.frame_ns else self._y
+        x_ref = int(self._x[0]) + span // 2
+        y_ref = int(upper[0])
+        dx = (self._x - x_ref).astype(np.float64)
+        dy = (upper - y_ref).astype(np.float64)
+        bias = 0.0
+        if self.frame_ns:
+            line = self._frame_fit(upper)
+            if line is not None:
+                x_ref, y_ref, self._rate = line
+                dx = (self._x - x_ref).astype(np.float64)
+                dy = (upper - y_ref).astype(np.float64)
+        elif span >= 2 * TICKS_PER_SECOND:
+            self._rate = _support_slope(dx, dy, self._rate)
+        level = float(np.min(dy - self._rate * dx))
+        residual = dy - self._rate * dx - level
+        if self.frame_ns:
+            recent = residual[dx >= 0]
+            same = recent[recent < self.frame_ns - _GRID_GUARD_NS]
+            bias = (self.frame_ns - float(same.max())) / 2 if len(same) else 0.0
+        raw = (self._y - y_ref).astype(np.float64) - self._rate * dx - level
+        self._spread = int(np.median(raw))
+        self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
+
+    def _frame_fit(self, upper: np.ndarray) -> tuple[int, int, float] | None:
+        """The latest whole step of the frame staircase: anchor point and slope.
+
+        Snapped to frames, a unit's points form a staircase whose treads follow
+        the frame clock; the true line touches the corner of every tread, so the
+        slope is that of a hull edge between two corners. The first and last edges
+        run along partial treads and are not used; with fewer than two corners the
+        slope so far stands.
+        """
+        x, y = _bucket_minima(self._x, upper, self._rate)
+        corners = _lower_hull(x, y)[1:-1]
+        if len(corners) < 2:
+            return None
+        b = corners[-1]
+        older = [c for c in corners[:-1] if b[0] - c[0] >= _CHORD_TICKS] or corners[:1]
+        a = older[-1]
+        if b[0] - a[0] < _CHORD_TICKS // 4:
+            return None
+        return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
+
+    def _snap(self, new_y: np.ndarray) -> np.ndarray:
+        """Receive times moved down to the USB frame that carried them."""
+        f = self.frame_ns
+        self._grid *= _GRID_DECAY
+        self._grid += np.bincount((new_y % f) // _GRID_BIN_NS, minlength=len(self._grid))
+        h = self._grid
+        centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
+        edges = np.arange(len(h)) * _GRID_BIN_NS
+        cost = (h * centres).sum() - h.sum() * edges + f * (np.cumsum(h) - h)
+        phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+        return (self._y - phase) // f * f + phase + _GRID_MARGIN_NS
+
+
+def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
+    """The earliest-received point of each short stretch of ticks.
+
+    Within a quarter second the unit's phase against the frame grid barely moves,
+    so the point nearest the line is one that was read in the frame that carried
+    it: a lower bound on the line as well as an upper one.
+    """
+    v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
+    buckets = x // _BUCKET_TICKS
+    starts = np.flatnonzero(np.diff(buckets, prepend=buckets[0] - 1))
+    lowest = np.repeat(np.minimum.reduceat(v, starts), np.diff(starts, append=len(v)))
+    keep = np.flatnonzero(v == lowest)
+    kb = buckets[keep]
+    keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
+    return x[keep].tolist(), y[keep].tolist()
+
+
+def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
+    """Andrew's monotone chain on integers (exact: collinear treads stay collinear)."""
+    hull: list[tuple[int, int]] = []
+    for p in zip(x, y, strict=True):
+        while len(hull) >= 2:
+            (x1, y1), (x2, y2) = hull[-2], hull[-1]
+            if (x2 - x1) * (p[1] - y1) - (y2 - y1) * (p[0] - x1) > 0:
+                break
+            hull.pop()
+        hull.append(p)
+    return hull
+
+
+def _support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
+    """The slope of the highest line under every point, judged at dx = 0.
+
+    ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point
+    moves from one side of dx = 0 to the other.
+    """
+    lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
+    for _ in range(_BISECTIONS):
+        mid = (lo + hi) / 2
+        if dx[int(np.argmin(dy - mid * dx))] > 0:
+            hi = mid
+        else:
+            lo = mid
+    return (lo + hi) / 2

@@ -1,0 +1,55 @@
+"""Timer in, sample instants out: the unwrapper and the clock model in step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from bridge.timing.clock import ClockState, OnlineClock
+from bridge.timing.unwrap import TimerUnwrapper, TimingEvent
+
+
+@dataclass
+class TimelineBatch:
+    """One batch's timing, aligned with its records; drop those not ``valid``."""
+
+    ticks: npt.NDArray[np.int64]  # -1 where not valid
+    time_ns: npt.NDArray[np.int64]  # -1 where not valid
+    valid: npt.NDArray[np.bool_]
+    events: list[TimingEvent] = field(default_factory=list)
+    dropped: int = 0
+
+
+class Timeline:
+    """Feeds each batch's timers through the unwrapper and its valid records through
+    the clock, restarting the clock at each reset (the tick base moved)."""
+
+    def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
+                 floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None) -> None:
+        self.unwrapper = TimerUnwrapper(period_ticks)
+        self.clock = OnlineClock(filter_delay_ns, floor_ns, frame_ns, window_s)
+
+    @property
+    def state(self) -> ClockState:
+        return self.clock.state
+
+    def expect_discontinuity(self, period_ticks: float | None = None) -> None:
+        """The bridge reset the unit, set its timer or changed its sampling."""
+        self.unwrapper.expect_discontinuity(period_ticks)
+
+    def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike) -> TimelineBatch:
+        rx = np.asarray(rx_ns, np.int64)
+        u = self.unwrapper.update(timer, rx)
+        time_ns = np.full(len(rx), -1, np.int64)
+        starts = [e.index for e in u.events if e.kind == "reset"] + [len(rx)]
+        begin = 0
+        for end in starts:
+            part = np.flatnonzero(u.valid[begin:end]) + begin
+            if len(part):
+                time_ns[part] = self.clock.update(u.ticks[part], rx[part])
+            if end < len(rx):
+                self.clock.reset()
+            begin = end
+        return TimelineBatch(u.ticks, time_ns, u.valid, u.events, u.dropped)

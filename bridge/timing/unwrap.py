@@ -1,0 +1,255 @@
+"""The 32-bit timer as a 64-bit tick count, with its discontinuities named.
+
+The timer counts 62,500 ticks a second and wraps every ~19 h. Between two records
+it advances by a whole number of output periods (a multiple of decimation x 62.5
+ticks, give or take the half tick the unit rounds to); more than one period is a
+gap of dropped samples. A value off that lattice is either a reset (0xD7 timer
+set, 0xFE reset, power cycle: the timer starts again somewhere else) or a
+corrupted record (two compensating bit flips pass the additive checksum). The two
+look the same until the next record: a reset is followed by records that agree
+with it, a glitch by records that agree with what came before. So an off-lattice
+record is dropped at once and named when the next one arrives; after an
+unannounced reset that costs the first record of the new epoch. A bridge that
+itself resets the unit, sets the timer or changes the sampling calls
+``expect_discontinuity`` and loses nothing. A single bit flip never lands on the
+lattice (62.5 x decimation never divides a power of two), and with receive times
+a jump the host clock does not back is refused too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from bridge.protocol.table import TICKS_PER_SECOND
+
+TIMER_MODULUS = 1 << 32
+NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 ns
+#: How much later than the record before it a record may be received and still be
+#: believed: covers stalled reads and a scheduler that sleeps for a while.
+HOST_SLACK_NS = 500_000_000
+#: How far a timer that ran on through a reconnect may disagree with the host's elapsed
+#: time (receive latency on both sides of the outage, and a stalled read).
+CONTINUATION_SLACK_S = 0.1
+_LATTICE_TOLERANCE = 0.5  # ticks: each timer value is rounded to the nearest half up
+
+
+@dataclass(frozen=True)
+class TimingEvent:
+    """Something the timeline did that a user should hear about (``gx3/<unit>/event``).
+
+    ``index`` is the record's position in the ``update`` call that found it (for a
+    glitch found one record late, possibly negative: in an earlier call); ``ticks``
+    the unwrapped ticks of the record that confirmed it; ``count`` the samples
+    missing (gap), records dropped (glitch, reset) or the rollovers so far.
+    """
+
+    kind: str  # "rollover" | "reset" | "gap" | "glitch"
+    index: int
+    ticks: int
+    count: int
+
+
+@dataclass
+class Unwrapped:
+    """One ``update``'s result, aligned with its input records."""
+
+    ticks: npt.NDArray[np.int64]  # -1 where not valid
+    valid: npt.NDArray[np.bool_]  # False: a corrupt or unconfirmed timer; drop the record
+    events: list[TimingEvent] = field(default_factory=list)
+    dropped: int = 0  # samples the unit produced that never arrived (gaps)
+
+
+@dataclass
+class _Anchor:
+    timer: int
+    ticks: int
+    rx: int | None
+
+
+class TimerUnwrapper:
+    """Unwraps timers record by record; state carries across ``update`` calls.
+
+    ``period_ticks`` is the output period in ticks (decimation x 62.5), or None
+    when unknown: then gaps are not counted and only host time checks jumps.
+    """
+
+    def __init__(self, period_ticks: float | None = None) -> None:
+        if period_ticks is not None and period_ticks <= 0:
+            raise ValueError(f"period_ticks must be positive, got {period_ticks}")
+        self.period_ticks = period_ticks
+        self._ref: _Anchor | None = None
+        self._candidate: tuple[_Anchor, int] | None = None  # and its record number
+        self._fresh = True
+        self._records = 0
+        self._last_ticks = -1
+        self.dropped = 0
+        self.glitches = 0
+        self.resets = 0
+        self.rollovers = 0
+
+    def expect_discontinuity(self, period_ticks: float | None = None) -> None:
+        """The next record starts a new timer epoch or phase (the bridge caused it)."""
+        if period_ticks is not None:
+            self.period_ticks = period_ticks
+        self._fresh = True
+
+    # --- classification ----------------------------------------------------------------
+    def _advance(self, ref: _Anchor, timer: int, rx: int | None) -> tuple[int, int] | None:
+        """Ticks from ``ref`` to this record and periods spanned, or None if implausible."""
+        d = (timer - ref.timer) % TIMER_MODULUS
+        host = None if rx is None or ref.rx is None else (rx - ref.rx) // NS_PER_TICK
+        if host is not None and host > TIMER_MODULUS // 2:
+            d += max(0, (host + HOST_SLACK_NS // NS_PER_TICK - d) // TIMER_MODULUS) \
+                * TIMER_MODULUS
+        if d <= 0 or (host is not None and d > host + HOST_SLACK_NS // NS_PER_TICK):
+            return None
+        if self.period_ticks is None:
+            return d, 1
+        n = round(d / self.period_ticks)
+        if n < 1 or abs(d - n * self.period_ticks) > _LATTICE_TOLERANCE:
+            return None
+        return d, n
+
+    # --- update --------------------------------------------------------------------------
+    def update(self, timer: npt.ArrayLike,
+               rx_ns: npt.ArrayLike | None = None) -> Unwrapped:
+        """Unwrap one batch of timers (uint32), with each record's receive time if known."""
+        timers = np.asarray(timer).astype(np.int64)
+        rx = None if rx_ns is None else np.asarray(rx_ns, np.int64)
+        if rx is not None and rx.shape != timers.shape:
+            raise ValueError(f"timer and rx_ns differ in length: {timers.shape} vs {rx.shape}")
+        out = self._fast(timers, rx)
+        if out is None:
+            out = self._slow(timers, rx)
+        self._records += len(timers)
+        return out
+
+    def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
+        """The common case in one go: every record exactly one period after the last."""
+        ref = self._ref
+        if ref is None or self._candidate is not None or self._fresh or not len(timers):
+            return None
+        d = np.diff(timers, prepend=ref.timer) % TIMER_MODULUS
+        ok = d > 0
+        if self.period_ticks is not None:
+            ok &= np.abs(d - self.period_ticks) <= _LATTICE_TOLERANCE
+        if rx is not None and ref.rx is not None:
+            host = np.diff(rx, prepend=ref.rx) // NS_PER_TICK
+            ok &= (d <= host + HOST_SLACK_NS // NS_PER_TICK) & (host <= TIMER_MODULUS // 2)
+        if not ok.all():
+            return None
+        ticks = ref.ticks + np.cumsum(d)
+        events = []
+        for i in np.flatnonzero(np.diff(timers, prepend=ref.timer) < 0).tolist():
+            self.rollovers += 1
+            events.append(TimingEvent("rollover", i, int(ticks[i]), self.rollovers))
+        self._ref = _Anchor(int(timers[-1]), int(ticks[-1]),
+                            None if rx is None else int(rx[-1]))
+        self._last_ticks = int(ticks[-1])
+        return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events)
+
+    def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
+        n = len(timers)
+        ticks = np.full(n, -1, np.int64)
+        valid = np.zeros(n, bool)
+        out = Unwrapped(ticks, valid)
+        for i in range(n):
+            t = int(timers[i])
+            r = None if rx is None else int(rx[i])
+            value = self._step(t, r, i, out)
+            if value is not None:
+                ticks[i] = value
+                valid[i] = True
+                self._last_ticks = value
+        return out
+
+    def _step(self, t: int, r: int | None, i: int, out: Unwrapped) -> int | None:
+        ref = self._ref
+        if ref is None:
+            self._ref = _Anchor(t, t, r)
+            self._fresh = False
+            return t
+        step = self._advance(ref, t, r)
+        if step is not None:
+            self._drop_candidate(out)
+            self._fresh = False
+            return self._accept(ref, t, r, step, i, out)
+        if self._fresh:
+            d = self._continuation(ref, t, r)
+            if d is not None:
+                self._drop_candidate(out)
+                self._fresh = False
+                periods = max(1, round(d / self.period_ticks)) if self.period_ticks else 1
+                return self._accept(ref, t, r, (d, periods), i, out)
+        cand = self._candidate
+        if self._fresh or (cand is not None and self._advance(cand[0], t, r) is not None):
+            if cand is not None and not self._fresh:
+                first = cand[0]
+                first.ticks = self._last_ticks + self._host_ticks(first.rx)
+                self._candidate = None
+                self._ref = first
+                step = self._advance(first, t, r)
+                assert step is not None
+                value = self._accept(first, t, r, step, i, out, gaps=False)
+                dropped = 1
+            else:
+                self._drop_candidate(out)
+                value, dropped = self._last_ticks + self._host_ticks(r), 0
+                self._ref = _Anchor(t, value, r)
+            self._fresh = False
+            self.resets += 1
+            out.events.append(TimingEvent("reset", i, value, dropped))
+            return value
+        self._drop_candidate(out)
+        self._candidate = (_Anchor(t, -1, r), self._records + i)
+        return None
+
+    @staticmethod
+    def _continuation(ref: _Anchor, t: int, r: int | None) -> int | None:
+        """Ticks since ``ref`` if the timer ran on through an announced discontinuity.
+
+        A restarted stream starts on a new phase of the decimation lattice, so only
+        host time can tell a timer that ran on (a reconnect: count the gap) from one
+        that restarted (a reset): the advance must match the host's elapsed time.
+        """
+        if r is None or ref.rx is None or r < ref.rx:
+            return None
+        host = (r - ref.rx) / NS_PER_TICK
+        d = (t - ref.timer) % TIMER_MODULUS
+        d += round((host - d) / TIMER_MODULUS) * TIMER_MODULUS
+        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * host
+        return d if d > 0 and abs(d - host) <= tolerance else None
+
+    def _host_ticks(self, r: int | None) -> int:
+        """Ticks a new epoch starts at: after the last, by the host's elapsed time."""
+        ref = self._ref
+        if r is None or ref is None or ref.rx is None:
+            return 1
+        return max(1, (r - ref.rx) // NS_PER_TICK)
+
+    def _accept(self, ref: _Anchor, t: int, r: int | None, step: tuple[int, int], i: int,
+                out: Unwrapped, gaps: bool = True) -> int:
+        d, periods = step
+        value = ref.ticks + d
+        wraps = (ref.timer + d) // TIMER_MODULUS
+        for _ in range(wraps):
+            self.rollovers += 1
+            out.events.append(TimingEvent("rollover", i, value, self.rollovers))
+        if gaps and periods > 1 and self.period_ticks is not None:
+            out.events.append(TimingEvent("gap", i, value, periods - 1))
+            out.dropped += periods - 1
+            self.dropped += periods - 1
+        self._ref = _Anchor(t, value, r)
+        return value
+
+    def _drop_candidate(self, out: Unwrapped) -> None:
+        """The record held in doubt agreed with nothing after it: it was corrupt."""
+        if self._candidate is None:
+            return
+        number = self._candidate[1]
+        self._candidate = None
+        self.glitches += 1
+        out.events.append(TimingEvent("glitch", number - self._records, self._last_ticks, 1))
