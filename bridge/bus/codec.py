@@ -36,6 +36,7 @@ class RecordBatch(Protocol):
     """What publishing needs of a block of decoded records (bridge.protocol.codec.Batch)."""
 
     code: int
+    rx_ns: np.ndarray  # host receive time of the read that completed each record
 
     def __len__(self) -> int: ...
 
