@@ -125,7 +125,7 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
                  rx_ns: np.ndarray) -> list[bytes]:
     """One serialized ImuSample per record of ``batch``: what protobuf would produce."""
     lay = layout(batch.code, unit)
-    recs = np.repeat(lay.template, len(batch))
+    recs = np.frombuffer(bytearray(lay.template.tobytes() * len(batch)), lay.dtype)
     recs["timer"] = batch["timer"]
     recs["ticks"] = ticks
     recs["time_ns"] = time_ns
