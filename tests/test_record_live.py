@@ -35,6 +35,14 @@ def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
                              "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
+def rerun_rows(path: Path, entity: str) -> int:
+    """Rows logged at ``entity`` on the ``time`` timeline, read with Rerun's own reader."""
+    from rerun.chunk import RrdReader
+
+    return sum(c.num_rows for c in RrdReader(path).stream()
+               if c.entity_path == entity and "time" in c.timeline_names)
+
+
 def published(stderr: bytes, unit: str) -> int:
     """The samples a bridge says it published, from its closing summary line."""
     found = re.search(rf"^{unit}: (\d+) samples", stderr.decode(), re.M)
@@ -61,7 +69,8 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
     out = tmp_path / "fleet.mcap"
-    proc = recorder(out, rec_cfg, "--history", "10000")
+    rrd = tmp_path / "fleet.rrd"
+    proc = recorder(out, rec_cfg, "--history", "10000", "--rrd", str(rrd))
     with Simulator(UNITS, "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a") as a, \
             bridge_process(sim.endpoints[1], bridge_cfg, "--unit", "b") as b:
@@ -83,6 +92,14 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
         assert (np.diff(ticks) == 625).all(), f"{unit}: a hole in the archived samples"
         topics = set(archive.topics())
         assert {f"gx3/{unit}/info", f"gx3/{unit}/status", f"gx3/{unit}/frame"} <= topics
+        assert rerun_rows(rrd, f"/plots/accel/{unit}") == len(ticks), "--rrd lost samples"
+    rendered = tmp_path / "rendered.rrd"
+    done = subprocess.run([GX3 or "gx3", "rrd", str(out), "-o", str(rendered)],
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+    for unit in ("a", "b"):
+        entity = f"/plots/accel/{unit}"
+        assert rerun_rows(rendered, entity) == rerun_rows(rrd, entity)
 
 
 def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
