@@ -163,3 +163,29 @@ def test_replay_of_the_raw_capture_gives_the_live_samples(tmp_path: Path) -> Non
     assert len(a["ticks"]) >= 300
     for name in a:
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view_cfg = zenoh_config(tmp_path / "view.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    rrd = tmp_path / "live.rrd"
+    assert GX3
+    viewer = subprocess.Popen([GX3, "view", "--save", str(rrd), "--zenoh-config",
+                               str(view_cfg)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
+        wait_for(lambda: rrd.exists() and rerun_rows(rrd, "/plots/accel/a") >= 100)
+    viewer.send_signal(signal.SIGINT)
+    _, stderr = viewer.communicate(timeout=30)
+    assert viewer.returncode == 0, stderr.decode()
+    assert rerun_rows(rrd, "/plots/accel/a") >= 100
+    assert "samples shown" in stderr.decode()
+
+
+def test_view_without_a_display_or_sink_says_what_to_do() -> None:
+    assert GX3
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    done = subprocess.run([GX3, "view"], capture_output=True, text=True, timeout=60,
+                          check=False, env=env)
+    assert done.returncode == 2 and "--serve" in done.stderr and "--save" in done.stderr
