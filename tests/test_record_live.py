@@ -7,6 +7,7 @@ ran, with no hole in any unit's ticks, and each unit's info and status.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -189,3 +190,28 @@ def test_view_without_a_display_or_sink_says_what_to_do() -> None:
     done = subprocess.run([GX3, "view"], capture_output=True, text=True, timeout=60,
                           check=False, env=env)
     assert done.returncode == 2 and "--serve" in done.stderr and "--save" in done.stderr
+
+
+def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
+    """Clients that only know the router: a bridge and a recorder, no peer links."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    client = tmp_path / "client.json5"
+    client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
+                                  "scouting": {"multicast": {"enabled": False}}}))
+    assert GX3
+    router = subprocess.Popen([GX3, "router", "--listen", endpoint],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert router.stdout is not None and router.stdout.readline().strip() == b"READY"
+        out = tmp_path / "routed.mcap"
+        proc = recorder(out, client)
+        with Simulator(UNITS[:1], "pty") as sim, \
+                bridge_process(sim.endpoints[0], client, "--unit", "a"):
+            wait_for(lambda: samples_in(out, "a") >= 100)
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    finally:
+        router.send_signal(signal.SIGINT)
+        router.communicate(timeout=30)
+    assert router.returncode == 0
+    assert samples_in(out, "a") >= 100
