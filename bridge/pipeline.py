@@ -153,8 +153,8 @@ class Pipeline:
             try:
                 session = self._open()
             except (PortError, DeviceError) as exc:
-                if backoff == _RETRY_FIRST_S:
-                    self._event("disconnect" if lost_at else "error", detail=str(exc))
+                if backoff == _RETRY_FIRST_S and lost_at is None:
+                    self._event("error", detail=str(exc))  # a lost link was reported then
                 self.counters.state = "waiting"
                 stop.wait(backoff)
                 backoff = min(_RETRY_MAX_S, backoff * 2)

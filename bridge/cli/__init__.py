@@ -2,12 +2,23 @@
 
 from typer.models import CommandInfo
 
-from bridge.cli import archive, bridge, commands, decode, operate, record, router, sim, viz
+from bridge.cli import (
+    archive,
+    bridge,
+    commands,
+    decode,
+    demo,
+    operate,
+    record,
+    router,
+    sim,
+    viz,
+)
 from bridge.cli.common import app
 
 #: Help panels, in the order `gx3 --help` shows them, each with its commands in order.
 PANELS = {
-    "Run a fleet": ("bridge", "record", "view", "router", "sim"),
+    "Run a fleet": ("demo", "bridge", "record", "view", "router", "sim"),
     "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
                        "reset"),
     "Archives": ("export", "replay", "rrd", "repair"),
@@ -31,5 +42,5 @@ def _arrange() -> None:
 
 _arrange()
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "operate", "record", "router",
-           "sim", "viz"]
+__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "operate", "record",
+           "router", "sim", "viz"]

@@ -63,6 +63,31 @@ def _display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def live_recording(recording_id: str, spawn: bool, serve: bool, save: Path | None,
+                   bind: str = "127.0.0.1", grpc_port: int = 9876,
+                   web_port: int = 9090) -> Any:
+    """A Rerun recording streaming to a spawned viewer, a served one, and/or a file;
+    the URLs to open a served one are printed."""
+    import rerun as rr
+
+    recording = rr.RecordingStream("gx3", recording_id=recording_id)
+    sinks: list[Any] = []
+    if spawn:
+        rr.spawn(port=grpc_port, connect=False)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port}/proxy"))
+    if serve:
+        server = rr.GrpcServerSink(bind, grpc_port)
+        sinks.append(server)
+    if save is not None:
+        sinks.append(rr.FileSink(save))
+    recording.set_sinks(*sinks)
+    if serve:
+        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
+        err.print(f"web viewer: http://{bind}:{web_port}/?url={server.uri}\n"
+                  f"native viewer: rerun --connect {server.uri}")
+    return recording
+
+
 @app.command("view")
 def view(
     spawn: Annotated[bool | None, typer.Option(
@@ -94,8 +119,6 @@ def view(
     Spawn a local viewer where there is a display, --serve for a remote or web
     viewer, --save FILE.rrd; any combination.
     """
-    import rerun as rr
-
     from bridge.bus.session import SessionError, open_session
     from bridge.viz.logger import RerunLogger
     from bridge.viz.sources import LiveFeed
@@ -105,21 +128,8 @@ def view(
     if not (spawn or serve or save):
         raise fail("no display here to spawn a viewer: use --serve (remote or web viewer) "
                    "and/or --save FILE.rrd")
-    recording = rr.RecordingStream("gx3", recording_id=time.strftime("live-%Y%m%d-%H%M%S"))
-    sinks: list[Any] = []
-    if spawn:
-        rr.spawn(port=grpc_port, connect=False)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port}/proxy"))
-    if serve:
-        server = rr.GrpcServerSink(bind, grpc_port)
-        sinks.append(server)
-    if save is not None:
-        sinks.append(rr.FileSink(save))
-    recording.set_sinks(*sinks)
-    if serve:
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
-        err.print(f"web viewer: http://{bind}:{web_port}/?url={server.uri}\n"
-                  f"native viewer: rerun --connect {server.uri}")
+    recording = live_recording(time.strftime("live-%Y%m%d-%H%M%S"), spawn, serve, save,
+                               bind, grpc_port, web_port)
     try:
         session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
                                mode=mode)

@@ -181,6 +181,7 @@ class Recorder:
                     "unit": view.name, "alive": view.alive, "rate": view.rate(now),
                     "samples": view.samples, "dropped": s.dropped if s else 0,
                     "checksum_failures": s.checksum_failures if s else 0,
+                    "resyncs": s.resyncs if s else 0, "reconnects": s.reconnects if s else 0,
                     "offset_ms": (s.clock_offset_ns / 1e6) if s else None,
                     "drift_ppm": s.clock_drift_ppm if s else None,
                     "recorded_s": (view.last_ns - view.first_ns) / 1e9,

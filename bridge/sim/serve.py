@@ -254,12 +254,12 @@ class Simulator:
     """
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
-                 port: int = 0, faults: FaultConfig | None = None,
+                 port: int = 0, faults: FaultConfig | list[FaultConfig] | None = None,
                  links: list[Path] | None = None, notify: Notify = _to_stderr,
                  usb: UsbDelivery | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
-        faults = faults or FaultConfig()
+        per_unit = faults if isinstance(faults, list) else [faults or FaultConfig()] * len(configs)
         self.notify = notify
         now = time.monotonic()
         self.slots: list[_Slot] = []
@@ -274,7 +274,7 @@ class Simulator:
                 else:
                     link = TcpLink(host, port + i if port else 0, notify)
                 self.slots.append(_Slot(
-                    unit, link, Faults(faults, config.motion.seed, now), bytearray(),
+                    unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
                     usb=None if usb is None else UsbLink(replace(usb, seed=usb.seed + i), now)))
         except BaseException:
             self._close_links()
