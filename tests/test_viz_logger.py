@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -335,3 +336,14 @@ def test_a_stream_the_caller_owns_stays_open(tmp_path: Path) -> None:
     names = {c.entity_path for c in RrdReader(path).stream()}
     assert {"/plots/accel/a", "/after"} <= names
     assert RrdReader(path).recordings()[0].recording_id == "caller"
+
+
+@pytest.mark.parametrize("footer", [True, False])
+def test_footer_is_the_callers_choice(tmp_path: Path, footer: bool) -> None:
+    path = tmp_path / "footer.rrd"
+    with RerunLogger(path, write_footer=footer) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.2))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert table(read(path), "/plots/accel/a").num_rows == 20
+    assert any("no footer" in str(w.message) for w in caught) is not footer
