@@ -37,7 +37,8 @@ TIME = "time"
 #: Timeline of the unwrapped device timer, ``ticks / 62,500`` s (a duration).
 DEVICE_TIME = "device_time"
 
-#: The GX3-25 case, north (x) x east (y) x down (z) in the sensor frame, in metres.
+#: The GX3-25 case, about 44 x 25 x 11 mm, along the sensor x, y and z axes (the manual gives
+#: no drawing; long side taken as x), in metres.
 BOX_SIZE_M = (0.044, 0.025, 0.011)
 #: Drawn 15 times life size (0.66 x 0.375 x 0.165 m): its half-diagonal, 0.39 m, keeps
 #: neighbours 1 m apart clear of each other in any attitude.
