@@ -14,8 +14,11 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from bridge.bus.codec import record_quantities
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.protocol import convert
+from bridge.protocol.table import DATA_CODES
+from bridge.viz import layout
 from bridge.viz.demo import DEMO_EPOCH_NS, demo_columns
 from bridge.viz.logger import RerunLogger
 
@@ -349,3 +352,22 @@ def test_footer_is_the_callers_choice(tmp_path: Path, footer: bool) -> None:
         warnings.simplefilter("always")
         assert table(read(path), "/plots/accel/a").num_rows == 20
     assert any("no footer" in str(w.message) for w in caught) is not footer
+
+
+@pytest.mark.parametrize("code", sorted(DATA_CODES))
+def test_every_record_type_shows_its_quantities(tmp_path: Path, code: int) -> None:
+    path = tmp_path / "rec.rrd"
+    with RerunLogger(path) as log:
+        log.log_samples("u", code, demo_columns("u", code, 1, 0.1))
+    logged = {c.entity_path for c in RrdReader(path).stream() if c.timeline_names}
+    held = set(record_quantities(code))
+    plotted = {q for q in held if q not in ("m", "temperature")}
+    if "temperature" in held:
+        plotted |= {"mag_temperature", "gyro_temperature"}
+    attitude = bool(held & {"m", "quaternion", "euler"})
+    if attitude:
+        plotted.add("euler")
+    arrows = {layout.ARROWS[q][0] for q in held if q in layout.ARROWS}
+    assert logged == ({f"/plots/{p}/u" for p in plotted}
+                      | ({"/world/u/body"} if attitude else set())
+                      | {f"/world/u/body/{a}" for a in arrows})

@@ -87,8 +87,9 @@ def _vector(name: str, labels: tuple[str, ...] = ("x", "y", "z")) -> Plot:
 
 
 #: Every plot, in the order of the grid. ``euler`` also shows the attitude of records that
-#: send M or Q instead; the temperature codes split into Equation 15's degrees for the
-#: magnetometer and the gyro boards' codes, which the manual gives no scale for.
+#: send M or Q instead (M itself is in the scene); the temperature codes split into
+#: Equation 15's degrees for the magnetometer and the gyro boards' codes, which the manual
+#: says are relative, with no scale.
 PLOTS_TABLE: tuple[Plot, ...] = (
     _vector("accel"),
     _vector("ang_rate"),
@@ -101,6 +102,7 @@ PLOTS_TABLE: tuple[Plot, ...] = (
     _vector("delta_vel"),
     _vector("raw_accel"),
     _vector("raw_ang_rate"),
+    Plot("c", "c, orientation update over 1 ms", tuple(f"c{i}{j}" for i in "123" for j in "123")),
     Plot("mag_temperature", "mag temperature [°C]", ("mag",)),
     Plot("gyro_temperature", "gyro temperatures [A/D code, relative]",
          ("gyro Y/accel X", "gyro X/accel Z,Y", "gyro Z")),
