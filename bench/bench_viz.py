@@ -51,12 +51,12 @@ def batches(units: int, unit_rate: float, batch_s: float, seconds: float
 
 
 def run(todo: list[tuple[str, dict[str, np.ndarray]]], path: Path, units: int,
-        pace_s: float | None) -> dict[str, float]:
+        pace_s: float | None, latency_s: float) -> dict[str, float]:
     """Log every batch (at one batch round per pace_s when pacing); wall and CPU time until
     the file is complete."""
     samples = sum(len(c["ticks"]) for _, c in todo)
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    with RerunLogger(path, [f"imu{i}" for i in range(units)]) as log:
+    with RerunLogger(path, [f"imu{i}" for i in range(units)], latency_s=latency_s) as log:
         for i, (unit, cols) in enumerate(todo):
             if pace_s is not None and i % units == 0:
                 due = wall0 + (i // units) * pace_s
@@ -75,14 +75,16 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=100_000.0, help="samples/s, all units")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--batch-ms", type=float, default=50.0, help="live batch length")
+    ap.add_argument("--latency-s", type=float, default=0.25, help="RerunLogger latency_s")
     args = ap.parse_args()
     unit_rate = args.rate / args.units
     todo = batches(args.units, unit_rate, args.batch_ms / 1000, args.seconds)
     with tempfile.TemporaryDirectory() as tmp:
         for label, pace in (("paced", args.batch_ms / 1000), ("flat out", None)):
-            r = run(todo, Path(tmp) / "bench.rrd", args.units, pace)
+            r = run(todo, Path(tmp) / "bench.rrd", args.units, pace, args.latency_s)
             print(f"{label:8s}: {r['samples']:,.0f} samples (0x{CODE:02X}, {args.units} units x "
-                  f"{unit_rate:,.0f} Hz, {args.batch_ms:g} ms batches) in {r['wall_s']:.2f} s "
+                  f"{unit_rate:,.0f} Hz, {args.batch_ms:g} ms batches, latency "
+                  f"{args.latency_s:g} s) in {r['wall_s']:.2f} s "
                   f"-> {r['rate']:,.0f} samples/s, CPU {r['cpu_s']:.2f} s = "
                   f"{r['cores']:.2f} cores, {r['bytes_per_sample']:.1f} bytes/sample in .rrd")
 

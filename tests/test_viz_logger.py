@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,11 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
+from bridge.bus.codec import record_quantities
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.protocol import convert
+from bridge.protocol.table import DATA_CODES
+from bridge.viz import layout
 from bridge.viz.demo import DEMO_EPOCH_NS, demo_columns
 from bridge.viz.logger import RerunLogger
 
@@ -174,6 +178,7 @@ def test_blueprint_has_the_scene_and_a_view_per_quantity(
     assert latest == expected
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # read while still written
 def test_unit_appearing_later_extends_the_blueprint(tmp_path: Path) -> None:
     path = tmp_path / "late.rrd"
     with RerunLogger(path) as log:
@@ -261,6 +266,7 @@ def test_bad_input_is_one_clear_line(tmp_path: Path) -> None:
             log.log_samples("u", 0x10, cols)
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # read while still written
 def test_batches_are_gathered_then_sent_in_chunks_of_max_rows(tmp_path: Path) -> None:
     path = tmp_path / "gather.rrd"
     cols = demo_columns("u", 0xC2, 1, 1.2)
@@ -335,3 +341,33 @@ def test_a_stream_the_caller_owns_stays_open(tmp_path: Path) -> None:
     names = {c.entity_path for c in RrdReader(path).stream()}
     assert {"/plots/accel/a", "/after"} <= names
     assert RrdReader(path).recordings()[0].recording_id == "caller"
+
+
+@pytest.mark.parametrize("footer", [True, False])
+def test_footer_is_the_callers_choice(tmp_path: Path, footer: bool) -> None:
+    path = tmp_path / "footer.rrd"
+    with RerunLogger(path, write_footer=footer) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.2))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert table(read(path), "/plots/accel/a").num_rows == 20
+    assert any("no footer" in str(w.message) for w in caught) is not footer
+
+
+@pytest.mark.parametrize("code", sorted(DATA_CODES))
+def test_every_record_type_shows_its_quantities(tmp_path: Path, code: int) -> None:
+    path = tmp_path / "rec.rrd"
+    with RerunLogger(path) as log:
+        log.log_samples("u", code, demo_columns("u", code, 1, 0.1))
+    logged = {c.entity_path for c in RrdReader(path).stream() if c.timeline_names}
+    held = set(record_quantities(code))
+    plotted = {q for q in held if q not in ("m", "temperature")}
+    if "temperature" in held:
+        plotted |= {"mag_temperature", "gyro_temperature"}
+    attitude = bool(held & {"m", "quaternion", "euler"})
+    if attitude:
+        plotted.add("euler")
+    arrows = {layout.ARROWS[q][0] for q in held if q in layout.ARROWS}
+    assert logged == ({f"/plots/{p}/u" for p in plotted}
+                      | ({"/world/u/body"} if attitude else set())
+                      | {f"/world/u/body/{a}" for a in arrows})

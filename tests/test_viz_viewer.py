@@ -22,7 +22,7 @@ pytestmark = pytest.mark.skipif(not _ICDS, reason="no Vulkan driver for the head
 def test_demo_recording_shows_in_the_viewer(tmp_path: Path) -> None:
     rrd, png = tmp_path / "demo.rrd", tmp_path / "shot.png"
     write_demo(rrd, seconds=5.0, gap_s=(2.0, 2.5))
-    state = render(rrd, png, at_ns=DEMO_EPOCH_NS + 3 * 10**9, size=(1000, 700), timeout_s=30)
+    state = render(rrd, png, at_ns=DEMO_EPOCH_NS + 3 * 10**9, size=(1000, 700))
     (recording,) = state.recordings
     assert recording.store_id.endswith(":demo")
     assert {t.name for t in recording.timelines} >= {"time", "device_time"}

@@ -37,7 +37,8 @@ TIME = "time"
 #: Timeline of the unwrapped device timer, ``ticks / 62,500`` s (a duration).
 DEVICE_TIME = "device_time"
 
-#: The GX3-25 case, north (x) x east (y) x down (z) in the sensor frame, in metres.
+#: The GX3-25 case, about 44 x 25 x 11 mm, along the sensor x, y and z axes (the manual gives
+#: no drawing; long side taken as x), in metres.
 BOX_SIZE_M = (0.044, 0.025, 0.011)
 #: Drawn 15 times life size (0.66 x 0.375 x 0.165 m): its half-diagonal, 0.39 m, keeps
 #: neighbours 1 m apart clear of each other in any attitude.
@@ -86,8 +87,9 @@ def _vector(name: str, labels: tuple[str, ...] = ("x", "y", "z")) -> Plot:
 
 
 #: Every plot, in the order of the grid. ``euler`` also shows the attitude of records that
-#: send M or Q instead; the temperature codes split into Equation 15's degrees for the
-#: magnetometer and the gyro boards' codes, which the manual gives no scale for.
+#: send M or Q instead (M itself is in the scene); the temperature codes split into
+#: Equation 15's degrees for the magnetometer and the gyro boards' codes, which the manual
+#: says are relative, with no scale.
 PLOTS_TABLE: tuple[Plot, ...] = (
     _vector("accel"),
     _vector("ang_rate"),
@@ -100,6 +102,7 @@ PLOTS_TABLE: tuple[Plot, ...] = (
     _vector("delta_vel"),
     _vector("raw_accel"),
     _vector("raw_ang_rate"),
+    Plot("c", "c, orientation update over 1 ms", tuple(f"c{i}{j}" for i in "123" for j in "123")),
     Plot("mag_temperature", "mag temperature [°C]", ("mag",)),
     Plot("gyro_temperature", "gyro temperatures [A/D code, relative]",
          ("gyro Y/accel X", "gyro X/accel Z,Y", "gyro Z")),

@@ -116,18 +116,22 @@ class RerunLogger:
     appears, so it is in every recording and grows with the fleet; ``window_s`` limits the
     plots to the last so many seconds, for live viewing. Samples reach the recording at
     most ``latency_s`` after they were logged, provided the caller logs or flushes at
-    least that often (a live caller with no data flowing calls ``flush``).
+    least that often (a live caller with no data flowing calls ``flush``). A recorder
+    writing hours of data to a file is better served by latency_s of a few seconds
+    (bigger chunks: a smaller file) and ``write_footer=False`` (Rerun otherwise keeps an
+    index entry per chunk in memory until the file is closed).
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
                  units: Iterable[str] = (), *, application_id: str = "gx3",
                  recording_id: str | None = None, window_s: float | None = None,
-                 latency_s: float = 0.25, max_rows: int = 4096) -> None:
+                 latency_s: float = 0.25, max_rows: int = 4096,
+                 write_footer: bool = True) -> None:
         if isinstance(target, rr.RecordingStream):
             self.recording, self._owned = target, False
         else:
             self.recording = rr.RecordingStream(application_id, recording_id=recording_id)
-            self.recording.save(os.fspath(target))
+            self.recording.save(os.fspath(target), write_footer=write_footer)
             self._owned = True
         self.window_s = window_s
         self.latency_s = latency_s
