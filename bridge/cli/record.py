@@ -115,7 +115,8 @@ def record(
         from bridge.viz.sources import log_messages
 
         try:
-            logger = RerunLogger(rrd, recording_id=path.stem)
+            # long recordings: bigger chunks, and no in-memory index of every chunk
+            logger = RerunLogger(rrd, recording_id=path.stem, latency_s=2.0, write_footer=False)
         except OSError as exc:
             writer.close()
             session.close()
