@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -40,8 +41,10 @@ def rerun_rows(path: Path, entity: str) -> int:
     """Rows logged at ``entity`` on the ``time`` timeline, read with Rerun's own reader."""
     from rerun.chunk import RrdReader
 
-    return sum(c.num_rows for c in RrdReader(path).stream()
-               if c.entity_path == entity and "time" in c.timeline_names)
+    with warnings.catch_warnings():  # files still being written have no footer yet
+        warnings.filterwarnings("ignore", message="RRD file has no footer")
+        return sum(c.num_rows for c in RrdReader(path).stream()
+                   if c.entity_path == entity and "time" in c.timeline_names)
 
 
 def published(stderr: bytes, unit: str) -> int:
