@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import signal
 import socket
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+from procstat import cpu_seconds
 
 from bridge.bus.codec import parse
 from bridge.protocol.table import Flag
@@ -32,13 +32,6 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
-
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def main() -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -22,21 +21,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from procstat import cpu_seconds, peak_rss_mb
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 CODE = 0xCC
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def peak_rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def publish(config: str, units: list[str], rate: float, seconds: float) -> None:

@@ -8,32 +8,18 @@ logger with data shaped exactly like the real thing.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
 import numpy as np
 
 from bridge.bus.codec import decode_batch, encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import Event, Status
+from bridge.protocol.codec import Batch
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.sim.motion import Motion, MotionConfig
 from bridge.viz.logger import RerunLogger
 
 #: 2025-11-01 00:00:00 UTC, in ns: where demo host time starts.
 DEMO_EPOCH_NS = 1_761_955_200_000_000_000
-
-
-@dataclass
-class _Batch:
-    """The RecordBatch face encode_batch needs, over a dict of columns."""
-
-    code: int
-    columns: dict[str, np.ndarray]
-
-    def __len__(self) -> int:
-        return len(self.columns["timer"])
-
-    def __getitem__(self, name: str, /) -> np.ndarray:
-        return self.columns[name]
 
 
 def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float = 100.0,
@@ -50,7 +36,9 @@ def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float
     values = {q: truth[q] for q in record_quantities(code)}
     values["timer"] = (ticks & 0xFFFF_FFFF).astype(np.uint32)
     time_ns = DEMO_EPOCH_NS + np.round(device_s * 1e9 * (1.0 + drift_ppm * 1e-6)).astype(np.int64)
-    payloads = encode_batch(unit, _Batch(code, values), ticks, time_ns, time_ns + 2_000_000)
+    rx_ns = time_ns + 2_000_000
+    batch = Batch(code, values, np.arange(n), rx_ns, False)
+    payloads = encode_batch(unit, batch, ticks, time_ns, rx_ns)
     return decode_batch(unit, code, payloads)
 
 
