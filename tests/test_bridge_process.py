@@ -35,7 +35,15 @@ from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
-GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
+
+def _gx3() -> str:
+    """The installed console script: next to this interpreter, else on PATH."""
+    found = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
+    assert found, "the gx3 console script is not installed"
+    return found
+
+
+GX3 = _gx3()
 FAST = UnitConfig(
     serial="FAST0001", motion=MotionConfig(seed=11),
     stored=Stored(mode_preset=2, continuous_preset=0xC2, baud=921_600,
@@ -151,7 +159,8 @@ def test_status_info_and_refused_commands(network: tuple[Path, Path]) -> None:
         sub.undeclare()
         infos = [r.ok for r in session.get("gx3/slow/info", timeout=5.0) if r.ok is not None]
         refused = [r.err for r in session.get("gx3/slow/command", timeout=5.0,
-                                              payload='{"action": "set_timer"}')]
+                                              payload='{"action": "set_timer"}')
+                   if r.err is not None]
     status = statuses[-1]
     assert status.state == Status.STREAMING and status.connected
     assert status.command == 0xC8 and status.output_rate_hz == 100.0
