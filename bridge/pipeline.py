@@ -115,6 +115,7 @@ class Pipeline:
         self.counters = Counters()
         self.info: UnitInfo | None = None
         self.timeline: Timeline | None = None
+        self.error: Exception | None = None
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
     def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
@@ -137,6 +138,16 @@ class Pipeline:
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> None:
+        """Keep the unit streaming until ``stop``; an unexpected error is kept in
+        ``error`` (and ends the run) so the process can report it and exit."""
+        try:
+            self._run(stop)
+        except Exception as exc:
+            self.error = exc
+            self.counters.state = "stopped"
+            stop.set()
+
+    def _run(self, stop: threading.Event) -> None:
         backoff = _RETRY_FIRST_S
         lost_at: int | None = None
         while not stop.is_set():
@@ -176,6 +187,7 @@ class Pipeline:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
+        session.paced = self._transport() == "uart"
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
@@ -276,8 +288,9 @@ class Pipeline:
         keep = timed.valid
         if not keep.all():
             batch = _take(batch, keep)
-        self.counters.samples += len(batch)
-        self.sink.samples(Samples(batch, timed.ticks[keep], timed.time_ns[keep]))
+        if len(batch):
+            self.counters.samples += len(batch)
+            self.sink.samples(Samples(batch, timed.ticks[keep], timed.time_ns[keep]))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None

@@ -13,10 +13,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.device.session import DeviceError, Session, UnitInfo
+from bridge.protocol.table import STATIONARY_TEST_BITS
 
 Params = dict[str, Any]
-#: The bits of the 0xDA result the manual names (its list is cut short after bit 3).
-STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 
 
 @dataclass(frozen=True)

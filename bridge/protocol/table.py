@@ -46,6 +46,10 @@ class Flag(IntEnum):
 
 
 DEFAULT_FLAGS = Flag.ORIENTATION | Flag.CONING_SCULLING
+
+#: The 0xDA self-test bits the manual names (its list is cut short after bit 3): a set
+#: bit means the function is within specification.
+STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 #: The reply whose ``flags`` set the float byte order of every record after it.
 BYTE_ORDER_REPLY = 0xDB
 

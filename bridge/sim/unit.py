@@ -32,6 +32,7 @@ from bridge.protocol.table import (
     DATA_CODES,
     ERROR_REPLY,
     REPLIES,
+    STATIONARY_TEST_BITS,
     TICKS_PER_SECOND,
     Command,
     Flag,
@@ -51,10 +52,9 @@ URGENT_S = 0.005
 # The manual gives no inter-byte timeout; a partial command older than this is dropped,
 # so that bytes cut short by an unplug do not swallow the next session's first command.
 INTER_BYTE_TIMEOUT_S = 0.1
-# The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
-# and bit 3 (system tick), which an awake unit sets in every mode. The 5 V flag
+# An awake unit sets every self-test bit the manual names, in every mode. The 5 V flag
 # that drops in idle mode has no bit number in the manual.
-STATIONARY_TEST_OK = 0b1001
+STATIONARY_TEST_OK = sum(1 << bit for bit in STATIONARY_TEST_BITS)
 _ORIENTATION_FIELDS = ("m", "c", "euler", "quaternion", "stab_accel", "stab_mag")
 _MAG_FIELDS = ("mag", "stab_mag")
 _RAW_FIELDS = ("raw_accel", "raw_ang_rate", "temperature")
