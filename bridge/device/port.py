@@ -36,6 +36,8 @@ def _describe(url: str, exc: BaseException) -> str:
                 "(then log in again) or use a udev rule")
     if code == errno.EBUSY or "exclusively lock" in text or "Resource temporarily" in text:
         return f"{url}: port is busy: another program has it open (is a bridge already running?)"
+    if "returned no data" in text or code == errno.EIO:
+        return f"{url}: the device went away (cable pulled, or the unit lost power)"
     if code == errno.ECONNREFUSED or "Connection refused" in text:
         return f"{url}: connection refused; is the serial server (or gx3 sim) running?"
     first = text.splitlines()[0] if text else type(exc).__name__

@@ -27,6 +27,7 @@ import numpy as np
 
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
+from bridge.sim.usb import UsbDelivery, UsbLink
 
 _TICK_S = 0.0005
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
@@ -240,6 +241,7 @@ class _Slot:
     state_reported: bool = False
     pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
     power_cycle: bool = False
+    usb: UsbLink | None = None  # the unit's own USB port: bytes reach the host in frames
 
 
 class Simulator:
@@ -252,24 +254,28 @@ class Simulator:
     """
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
-                 port: int = 0, faults: FaultConfig | None = None,
-                 links: list[Path] | None = None, notify: Notify = _to_stderr) -> None:
+                 port: int = 0, faults: FaultConfig | list[FaultConfig] | None = None,
+                 links: list[Path] | None = None, notify: Notify = _to_stderr,
+                 usb: UsbDelivery | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
-        faults = faults or FaultConfig()
+        per_unit = faults if isinstance(faults, list) else [faults or FaultConfig()] * len(configs)
         self.notify = notify
         now = time.monotonic()
         self.slots: list[_Slot] = []
         try:
             for i, config in enumerate(configs):
+                if usb is not None:
+                    config = replace(config, usb=True)
                 unit = SimUnit(config, now)
                 link: Link
                 if transport == "pty":
                     link = PtyLink(unit.baud, links[i] if links else None)
                 else:
                     link = TcpLink(host, port + i if port else 0, notify)
-                self.slots.append(_Slot(unit, link, Faults(faults, config.motion.seed, now),
-                                        bytearray()))
+                self.slots.append(_Slot(
+                    unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
+                    usb=None if usb is None else UsbLink(replace(usb, seed=usb.seed + i), now)))
         except BaseException:
             self._close_links()
             raise
@@ -373,7 +379,13 @@ class Simulator:
                 slot.power_cycle = False
                 slot.unit.power_cycle(now)
                 line = []
-        host = slot.link.host_baud()
+        if slot.usb is not None:  # USB ignores the baud rate: bytes arrive in frames
+            for _, data in line:
+                slot.usb.push(data, now)
+            line = [(0, data) for _, data in slot.usb.reads(now)]
+            host = None
+        else:
+            host = slot.link.host_baud()
         for baud, data in line:
             slot.held += slot.faults.corrupt(reframe(data, baud, host) if host else data)
         if slot.held and not slot.faults.stalled(now):

@@ -52,6 +52,7 @@ URGENT_S = 0.005
 # The manual gives no inter-byte timeout; a partial command older than this is dropped,
 # so that bytes cut short by an unplug do not swallow the next session's first command.
 INTER_BYTE_TIMEOUT_S = 0.1
+USB_LINE_BAUD = 12_000_000
 # An awake unit sets every self-test bit the manual names, in every mode. The 5 V flag
 # that drops in idle mode has no bit number in the manual.
 STATIONARY_TEST_OK = sum(1 << bit for bit in STATIONARY_TEST_BITS)
@@ -80,6 +81,7 @@ class UnitConfig:
     state_file: Path | None = None
     truth_length: int = 100_000
     filter_model: bool = True
+    usb: bool = False  # on its own USB port: the baud rate has no effect on the line
 
     def id_string(self, selector: int) -> str:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
@@ -148,6 +150,12 @@ class _Segment:
         return self.start + len(self.data) / self.rate
 
 
+def _monotonic_to_wall_ns() -> int:
+    """Wall clock minus monotonic clock, from readings taken together (not from a
+    ``now`` captured earlier, which would put every ground-truth time late)."""
+    return time.time_ns() - time.monotonic_ns()
+
+
 class SimUnit:
     """The device model. Not thread-safe: one transport thread drives it."""
 
@@ -160,7 +168,7 @@ class SimUnit:
         self._t0 = now
         self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
                                 config.clock_wander_period_s, config.clock_seed)
-        self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
+        self._wall_offset_ns = _monotonic_to_wall_ns() if wall_ns is None else wall_ns
         self._scale = 1.0 + config.clock_ppm * 1e-6
         self.truth = TruthLog(config.truth_length)
         self.records_skipped = 0
@@ -252,6 +260,11 @@ class SimUnit:
         self._stream_phase = self._cycle_after(self._ready)
 
     @property
+    def line_baud(self) -> int:
+        """The pace of the line: the UART's baud rate, or USB full speed (12 Mbit/s)."""
+        return USB_LINE_BAUD if self.config.usb else self.baud
+
+    @property
     def little_endian(self) -> bool:
         return bool(self.sampling.flags & Flag.LITTLE_ENDIAN_FLOATS)
 
@@ -325,10 +338,10 @@ class SimUnit:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
         if at < self._line_free - 1e-9:
             if skippable:
-                self._plan.append(_Segment(at, b"", self.baud, None))
+                self._plan.append(_Segment(at, b"", self.line_baud, None))
                 return
             at = self._line_free
-        seg = _Segment(at, data, self.baud, truth)
+        seg = _Segment(at, data, self.line_baud, truth)
         self._plan.append(seg)
         self._line_free = seg.end
 
