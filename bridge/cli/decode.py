@@ -12,7 +12,7 @@ import orjson
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-from bridge.cli.common import app, err, fail, parse_reply_code
+from bridge.cli.common import app, err, fail, reply_code
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
@@ -41,8 +41,8 @@ def decode(
     little_endian: Annotated[bool, typer.Option(
         "--little-endian", help="Floats start little-endian (0xDB flag bit 4 set); 0xDB "
         "replies in the capture switch the order from there on.")] = False,
-    expect: Annotated[list[int] | None, typer.Option(
-        "--expect", "-e", metavar="CODE", parser=parse_reply_code,
+    expect: Annotated[list[str] | None, typer.Option(
+        "--expect", "-e", metavar="CODE",
         help="Reply code to look for, e.g. 0xC8 or 0xD4 (repeatable). "
              "Default: every data record. 0xDB replies are always looked for.")] = None,
 ) -> None:
@@ -56,7 +56,8 @@ def decode(
     decoded. From a pipe, records are written as they arrive. Exit status 1 when
     nothing decodes from a non-empty input, 130 on Ctrl-C (after the summary so far).
     """
-    codes = {*(expect or DATA_CODES), BYTE_ORDER_REPLY}
+    codes = {*([reply_code("--expect", c) for c in expect] if expect else DATA_CODES),
+             BYTE_ORDER_REPLY}
     framer = Framer(codes, little_endian=little_endian)
     stream = _open_input(file)
     fd = stream.fileno()

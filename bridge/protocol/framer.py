@@ -202,9 +202,9 @@ class Framer:
                 stats.implausible += 1
             self._lose_step(1)
             pos += 1
-        batches = runs.batches(self._reads)
         del buf[:pos]
         self._base += pos
+        batches = runs.batches(self._reads)
         self._reads.forget_before(self._base)
         return batches
 
