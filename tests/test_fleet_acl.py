@@ -83,5 +83,6 @@ def test_only_operators_reach_the_command_queryable(tmp_path: Path) -> None:
         assert answers(recorder, "gx3/u1/info") == ["id"]
         assert answers(recorder, "gx3/u1/command") == [], "a non-operator sent a command"
         assert answers(operator, "gx3/u1/command") == ["done"]
-        for entity in (sub, info, command):
-            entity.undeclare()
+        sub.undeclare()
+        info.undeclare()
+        command.undeclare()
