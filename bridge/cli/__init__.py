@@ -1,5 +1,12 @@
 """The `gx3` command line: one Typer app, one module per group of commands."""
 
+import signal
+import sys
+
+# Ctrl-C while the commands import (a fraction of a second) ends quietly, not with a
+# traceback; Python's own handler is back before any command runs.
+signal.signal(signal.SIGINT, lambda *_: sys.exit(130))
+
 from typer.models import CommandInfo
 
 from bridge.cli import (
@@ -41,6 +48,7 @@ def _arrange() -> None:
 
 
 _arrange()
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 __all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "operate", "record",
            "router", "sim", "viz"]
