@@ -232,7 +232,7 @@ class Host:
             out += self.port.read(4096)
         return bytes(out)
 
-    def ask(self, command: bytes, length: int, timeout: float = 1.0) -> bytes:
+    def ask(self, command: bytes, length: int, timeout: float = 5.0) -> bytes:
         """Send one command and read its fixed-length reply, all of it or fail."""
         self.send(command)
         reply = self.read(length, timeout)
@@ -240,7 +240,7 @@ class Host:
             f"{hexid(command[0])}: {len(reply)} of {length} bytes: {reply.hex()}")
         return reply
 
-    def ask_settled(self, command: bytes, length: int, within: float = 2.0) -> bytes:
+    def ask_settled(self, command: bytes, length: int, within: float = 10.0) -> bytes:
         """Ask until answered: a unit settling after a wake-up or reset drops what it hears."""
         deadline = time.monotonic() + within
         while True:
@@ -599,7 +599,7 @@ def test_capture_gyro_bias_reports_the_true_bias_after_sampling(transport: str) 
         _, start, _ = host.timer()
         sent = time.monotonic()
         host.send(capture_gyro_bias(200))
-        reply = host.read(19, timeout=2.0)
+        reply = host.read(19, timeout=15.0)
         waited = time.monotonic() - sent
         assert_frame(reply, 0xCD, 19)
         assert waited >= 0.2
