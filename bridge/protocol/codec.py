@@ -203,11 +203,16 @@ def encode_reply(code: int, little_endian: bool = False, **values: Any) -> bytes
     return encode_replies(code, values, 1, little_endian)
 
 
+@functools.cache
+def _decoded_fields(code: int) -> tuple[tuple[str, str], ...]:
+    """(name, native dtype) of each decoded field of a reply."""
+    return tuple((f.name, _native(f)) for f in REPLIES[code].fields if not f.is_pad)
+
+
 def decode_block(code: int, block: np.ndarray, little_endian: bool = False) -> dict[str, Any]:
     """Columns of an (n, length) uint8 block of replies of one type, in native types."""
-    spec = REPLIES[code]
     recs = block.reshape(-1).view(reply_dtype(code, little_endian))
-    return {f.name: recs[f.name].astype(_native(f)) for f in spec.fields if not f.is_pad}
+    return {name: recs[name].astype(native) for name, native in _decoded_fields(code)}
 
 
 @functools.cache

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from functools import cached_property
 from typing import Any
 
 TICKS_PER_SECOND = 62_500
@@ -80,11 +81,12 @@ class Field:
     unit: str = ""
     doc: str = ""
 
-    @property
+    # cached: the framer asks for these for every record it checks
+    @cached_property
     def count(self) -> int:
         return math.prod(self.shape)
 
-    @property
+    @cached_property
     def size(self) -> int:
         return SIZES[self.kind] * self.count
 
@@ -217,12 +219,12 @@ class Command:
     documented: bool = True
     notes: str = ""
 
-    @property
+    @cached_property
     def length(self) -> int:
         """Bytes the host sends."""
         return 1 + len(self.confirm) + sum(f.size for f in self.params)
 
-    @property
+    @cached_property
     def reply_length(self) -> int | None:
         """Bytes of the reply: echo byte, fields, 16-bit checksum."""
         if self.reply is None:
@@ -406,7 +408,7 @@ class ReplySpec:
     name: str
     fields: tuple[Field, ...] = field(default=())
 
-    @property
+    @cached_property
     def length(self) -> int:
         return 3 + sum(f.size for f in self.fields)
 
