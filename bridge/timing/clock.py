@@ -38,7 +38,7 @@ _MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
 _BISECTIONS = 32
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
-_GRID_MARGIN_NS = 20_000  # snap a little before the estimated frame boundary
+_GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
 _BUCKET_TICKS = TICKS_PER_SECOND // 4
 # A serial line's window follows drift through the fit's midpoint; over USB the
 # slope comes from recent staircase corners, and a long window lets a unit that
@@ -161,7 +161,14 @@ class OnlineClock:
         dy = (upper - y_ref).astype(np.float64)
         bias = 0.0
         if self.frame_ns:
-            line = self._frame_fit(upper)
+            bx, by = _bucket_minima(self._x, upper, self._rate)
+            centre = _polygon_centre(bx, by, int(self._x[-1]), self.frame_ns, self._rate)
+            if centre is not None:
+                self._rate = centre[2]
+                self._line = _Line(centre[0], centre[1], centre[2], 0.0)
+                self._spread = int(np.median(self._y - self._line.at(self._x)))
+                return
+            line = self._frame_fit(bx, by)
             if line is not None:
                 x_ref, y_ref, self._rate = line
                 dx = (self._x - x_ref).astype(np.float64)
@@ -178,7 +185,7 @@ class OnlineClock:
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
-    def _frame_fit(self, upper: np.ndarray) -> tuple[int, int, float] | None:
+    def _frame_fit(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
         """The latest whole step of the frame staircase: anchor point and slope.
 
         Snapped to frames, a unit's points form a staircase whose treads follow
@@ -187,7 +194,6 @@ class OnlineClock:
         run along partial treads and are not used; with fewer than two corners the
         slope so far stands.
         """
-        x, y = _bucket_minima(self._x, upper, self._rate)
         corners = _lower_hull(x, y)[1:-1]
         if len(corners) < 2:
             return None
@@ -225,7 +231,53 @@ def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int]
     keep = np.flatnonzero(v == lowest)
     kb = buckets[keep]
     keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
+    keep = keep[1:-1]  # the buckets at the window's ends are partial
     return x[keep].tolist(), y[keep].tolist()
+
+
+def _polygon_centre(x: list[int], y: list[int], now: int, frame: int,
+                    prior: float) -> tuple[int, int, float] | None:
+    """The middle of every line the frame staircase allows, judged at ``now``.
+
+    Each point (read in the frame that carried it) says the line lies at most one
+    frame under it and not above it. When one straight line can meet all of
+    them, the lines that do form a polygon; its extent at ``now`` is the honest
+    uncertainty there, and its middle the estimate: half a frame wide for a unit
+    that has never crossed a frame boundary, narrowing with every crossing. When
+    no straight line fits (the rate wandered within the window), None.
+    """
+    if len(x) < 2:
+        return None
+    dx = np.array(x, np.float64) - now
+    dy = np.array(y, np.float64) - y[-1]
+
+    def width(r: float) -> float:
+        v = dy - r * dx
+        return float(v.max() - v.min())
+
+    lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
+    for _ in range(_BISECTIONS):  # the narrowest band (convex in r)
+        mid = (lo + hi) / 2
+        v = dy - mid * dx
+        if dx[int(np.argmin(v))] > dx[int(np.argmax(v))]:
+            hi = mid
+        else:
+            lo = mid
+    best = (lo + hi) / 2
+    if width(best) > frame:
+        return None
+    edges = []
+    for far in (prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)):
+        inside, outside = best, far
+        for _ in range(_BISECTIONS):
+            mid = (inside + outside) / 2
+            inside, outside = (mid, outside) if width(mid) <= frame else (inside, mid)
+        edges.append(inside)
+    low_rate, high_rate = edges
+    # At ``now`` (after every point) the upper bound rises with the slope, the lower too.
+    top = float(np.min(dy - high_rate * dx))
+    bottom = float(np.max(dy - low_rate * dx)) - frame
+    return now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2
 
 
 def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
