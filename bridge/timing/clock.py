@@ -161,8 +161,8 @@ class OnlineClock:
         dy = (upper - y_ref).astype(np.float64)
         bias = 0.0
         if self.frame_ns:
-            bx, by = _bucket_minima(self._x, upper, self._rate)
-            centre = _polygon_centre(bx, by, int(self._x[-1]), self.frame_ns, self._rate)
+            bx, by = bucket_minima(self._x, upper, self._rate)
+            centre = polygon_centre(bx, by, int(self._x[-1]), self.frame_ns, self._rate)
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)
@@ -174,7 +174,7 @@ class OnlineClock:
                 dx = (self._x - x_ref).astype(np.float64)
                 dy = (upper - y_ref).astype(np.float64)
         elif span >= 2 * TICKS_PER_SECOND:
-            self._rate = _support_slope(dx, dy, self._rate)
+            self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
         if self.frame_ns:
@@ -206,18 +206,28 @@ class OnlineClock:
 
     def _snap(self, new_y: np.ndarray) -> np.ndarray:
         """Receive times moved down to the USB frame that carried them."""
-        f = self.frame_ns
         self._grid *= _GRID_DECAY
-        self._grid += np.bincount((new_y % f) // _GRID_BIN_NS, minlength=len(self._grid))
-        h = self._grid
-        centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
-        edges = np.arange(len(h)) * _GRID_BIN_NS
-        cost = (h * centres).sum() - h.sum() * edges + f * (np.cumsum(h) - h)
-        phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
-        return (self._y - phase) // f * f + phase + _GRID_MARGIN_NS
+        self._grid += grid_histogram(new_y, self.frame_ns)
+        return snap(self._y, self._grid, self.frame_ns)
 
 
-def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
+def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
+    """Receive times folded onto one frame, in 1 us bins."""
+    return np.bincount((y % frame) // _GRID_BIN_NS, minlength=max(1, frame // _GRID_BIN_NS))
+
+
+def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
+    """``y`` moved down to the frame boundary before it, the grid's phase being the
+    edge where receive times crowd in (just after each boundary, latency is least)."""
+    h = histogram.astype(np.float64)
+    centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
+    edges = np.arange(len(h)) * _GRID_BIN_NS
+    cost = (h * centres).sum() - h.sum() * edges + frame * (np.cumsum(h) - h)
+    phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+    return np.asarray((y - phase) // frame * frame + phase + _GRID_MARGIN_NS)
+
+
+def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
     """The earliest-received point of each short stretch of ticks.
 
     Within a quarter second the unit's phase against the frame grid barely moves,
@@ -235,9 +245,9 @@ def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int]
     return x[keep].tolist(), y[keep].tolist()
 
 
-def _polygon_centre(x: list[int], y: list[int], now: int, frame: int,
+def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
                     prior: float) -> tuple[int, int, float] | None:
-    """The middle of every line the frame staircase allows, judged at ``now``.
+    """The middle of every line the frame staircase allows, judged at ticks ``now``.
 
     Each point (read in the frame that carried it) says the line lies at most one
     frame under it and not above it. When one straight line can meet all of
@@ -274,10 +284,22 @@ def _polygon_centre(x: list[int], y: list[int], now: int, frame: int,
             inside, outside = (mid, outside) if width(mid) <= frame else (inside, mid)
         edges.append(inside)
     low_rate, high_rate = edges
-    # At ``now`` (after every point) the upper bound rises with the slope, the lower too.
-    top = float(np.min(dy - high_rate * dx))
-    bottom = float(np.max(dy - low_rate * dx)) - frame
+    top = _extreme(dy, dx, low_rate, high_rate, 1.0)
+    bottom = _extreme(dy, dx, low_rate, high_rate, -1.0) - frame
     return now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2
+
+
+def _extreme(dy: np.ndarray, dx: np.ndarray, lo: float, hi: float, sign: float) -> float:
+    """Over slopes in [lo, hi], the highest upper bound at dx = 0 (``sign`` 1:
+    ``min(dy - r dx)``, concave) or the lowest lower bound (-1: ``max(...)``, convex)."""
+    for _ in range(_BISECTIONS):
+        mid = (lo + hi) / 2
+        v = sign * (dy - mid * dx)
+        rising = dx[int(np.argmin(v))] < 0  # the bound's slope in r at ``mid`` is -dx
+        lo, hi = (mid, hi) if rising == (sign > 0) else (lo, mid)
+    r = (lo + hi) / 2
+    v = dy - r * dx
+    return float(v.min() if sign > 0 else v.max())
 
 
 def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
@@ -293,7 +315,7 @@ def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
     return hull
 
 
-def _support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
+def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     """The slope of the highest line under every point, judged at dx = 0.
 
     ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point
