@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.sim.capture import synthesize, streaming_config
+from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.clock import UnitClock
 from bridge.sim.unit import SimUnit, UnitConfig
 from bridge.sim.usb import UsbDelivery, UsbLink

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
-from bridge.sim.capture import Capture, synthesize, streaming_config
+from bridge.sim.capture import Capture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from bridge.timing import OnlineClock, Timeline

@@ -7,10 +7,10 @@ import numpy as np
 from bridge.protocol.codec import checksum
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES
-from bridge.sim.capture import synthesize, streaming_config
+from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from bridge.timing import TimerUnwrapper
+from bridge.timing import TimerUnwrapper, TimingEvent
 
 PERIOD = 625  # decimation 10
 RX0 = 1_700_000_000_000_000_000
@@ -22,7 +22,7 @@ def _stream(first: int, n: int, t0: int = RX0) -> tuple[np.ndarray, np.ndarray]:
     return (ticks % (1 << 32)).astype(np.uint32), t0 + (ticks - first) * 16_000 + 1_000_000
 
 
-def _kinds(events: list) -> list[str]:
+def _kinds(events: list[TimingEvent]) -> list[str]:
     return [e.kind for e in events]
 
 

@@ -58,7 +58,7 @@ class OfflineClock:
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
         values = np.array([self._solve(x, y, int(a), rate) for a in anchors.tolist()])
         out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
-        return out.astype(np.int64) - self.filter_delay_ns
+        return np.asarray(out, np.int64) - self.filter_delay_ns
 
     def _solve(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
         """The line's value at ticks ``at`` from the widest window that fits."""
