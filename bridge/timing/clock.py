@@ -26,6 +26,7 @@ not on how they are split into ``update`` calls.
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +39,7 @@ _MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
 _BISECTIONS = 32
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
+_PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
 _GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
 _BUCKET_TICKS = TICKS_PER_SECOND // 4
 # A serial line's window follows drift through the fit's midpoint; over USB the
@@ -162,7 +164,7 @@ class OnlineClock:
         bias = 0.0
         if self.frame_ns:
             bx, by = bucket_minima(self._x, upper, self._rate)
-            centre = polygon_centre(bx, by, int(self._x[-1]), self.frame_ns, self._rate)
+            centre = self._centre(bx, by)
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)
@@ -184,6 +186,21 @@ class OnlineClock:
         raw = (self._y - y_ref).astype(np.float64) - self._rate * dx - level
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
+
+    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
+        """``polygon_centre`` at the newest record: over a quarter of the window when
+        that pins the line (a unit whose phase sweeps the frame; wander bends longer
+        windows), else over whichever of a quarter, half or all of it pins it best."""
+        now = int(self._x[-1])
+        best: tuple[float, tuple[int, int, float]] | None = None
+        for part in (4, 2, 1):
+            first = bisect_left(x, now - self._window // part)
+            found = polygon_centre(x[first:], y[first:], now, self.frame_ns, self._rate)
+            if found is not None and (best is None or found[3] < best[0]):
+                best = (found[3], found[:3])
+            if best is not None and best[0] < _PINNED_NS:
+                break
+        return None if best is None else best[1]
 
     def _frame_fit(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
         """The latest whole step of the frame staircase: anchor point and slope.
@@ -246,13 +263,13 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int],
 
 
 def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
-                    prior: float) -> tuple[int, int, float] | None:
+                    prior: float) -> tuple[int, int, float, float] | None:
     """The middle of every line the frame staircase allows, judged at ticks ``now``.
 
     Each point (read in the frame that carried it) says the line lies at most one
     frame under it and not above it. When one straight line can meet all of
     them, the lines that do form a polygon; its extent at ``now`` is the honest
-    uncertainty there, and its middle the estimate: half a frame wide for a unit
+    uncertainty there (returned last), and its middle the estimate: half a frame wide for a unit
     that has never crossed a frame boundary, narrowing with every crossing. When
     no straight line fits (the rate wandered within the window), None.
     """
@@ -286,7 +303,7 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
     low_rate, high_rate = edges
     top = _extreme(dy, dx, low_rate, high_rate, 1.0)
     bottom = _extreme(dy, dx, low_rate, high_rate, -1.0) - frame
-    return now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2
+    return now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom
 
 
 def _extreme(dy: np.ndarray, dx: np.ndarray, lo: float, hi: float, sign: float) -> float:
