@@ -25,5 +25,5 @@ from bridge.timing.offline import OfflineClock
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, Unwrapped
 
-__all__ = ["ClockState", "OfflineClock", "OnlineClock", "Timeline", "TimelineBatch", "TimerUnwrapper",
-           "TimingEvent", "Unwrapped"]
+__all__ = ["ClockState", "OfflineClock", "OnlineClock", "Timeline", "TimelineBatch",
+           "TimerUnwrapper", "TimingEvent", "Unwrapped"]
