@@ -188,19 +188,12 @@ class OnlineClock:
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
     def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
-        """``polygon_centre`` at the newest record: over a quarter of the window when
-        that pins the line (a unit whose phase sweeps the frame; wander bends longer
-        windows), else over whichever of a quarter, half or all of it pins it best."""
+        """``best_centre`` at the newest record over the last quarter, half or whole
+        of the window."""
         now = int(self._x[-1])
-        best: tuple[float, tuple[int, int, float]] | None = None
-        for part in (4, 2, 1):
-            first = bisect_left(x, now - self._window // part)
-            found = polygon_centre(x[first:], y[first:], now, self.frame_ns, self._rate)
-            if found is not None and (best is None or found[3] < best[0]):
-                best = (found[3], found[:3])
-            if best is not None and best[0] < _PINNED_NS:
-                break
-        return None if best is None else best[1]
+        starts = [bisect_left(x, now - self._window // part) for part in (4, 2, 1)]
+        return best_centre(x, y, now, self.frame_ns, self._rate,
+                           [(a, len(x)) for a in starts])
 
     def _frame_fit(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
         """The latest whole step of the frame staircase: anchor point and slope.
@@ -260,6 +253,22 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int],
     keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
     keep = keep[1:-1]  # the buckets at the window's ends are partial
     return x[keep].tolist(), y[keep].tolist()
+
+
+def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
+                spans: list[tuple[int, int]]) -> tuple[int, int, float] | None:
+    """``polygon_centre`` over the shortest span (index range, shortest first) that
+    pins the line at ``at``, else the one that pins it best: a unit whose phase
+    sweeps the frame is pinned by a short span, which wander bends least; a unit
+    that beats slowly needs a long one."""
+    best: tuple[float, tuple[int, int, float]] | None = None
+    for lo, hi in spans:
+        found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior)
+        if found is not None and (best is None or found[3] < best[0]):
+            best = (found[3], found[:3])
+        if best is not None and best[0] < _PINNED_NS:
+            break
+    return None if best is None else best[1]
 
 
 def polygon_centre(x: list[int], y: list[int], now: int, frame: int,

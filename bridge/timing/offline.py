@@ -2,29 +2,32 @@
 
 Online, a record's time can only use what came before it; offline, every record
 has the points on both sides. At anchors a few seconds apart the smoother takes
-the widest window around the anchor over which one straight line fits the frame
-staircase (a long one for a unit whose phase crawls across the frame, a short
-one where the rate wandered) and puts the anchor in the middle of every line
-the points allow; records between anchors are interpolated. Without a frame grid
+the shortest window around the anchor in which the frame staircase pins one
+straight line (a long one for a unit whose phase crawls across the frame, a
+short one where it sweeps the frame and wander would bend a longer line) and
+puts the anchor in the middle of every line the points allow; records between
+anchors are interpolated. Without a frame grid
 (a serial line) each anchor gets the lower envelope's line through its window.
 """
 
 from __future__ import annotations
+
+from bisect import bisect_left
 
 import numpy as np
 import numpy.typing as npt
 
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.timing.clock import (
+    best_centre,
     bucket_minima,
     grid_histogram,
-    polygon_centre,
     snap,
     support_slope,
 )
 from bridge.timing.unwrap import NS_PER_TICK
 
-_WINDOWS_S = (600.0, 300.0, 120.0, 60.0, 30.0)
+_WINDOWS_S = (60.0, 120.0, 300.0, 600.0)  # shortest first
 
 
 class OfflineClock:
@@ -56,26 +59,23 @@ class OfflineClock:
         dx, dy = (x - x0).astype(np.float64), (y - y0).astype(np.float64)
         rate = support_slope(dx, dy, float(NS_PER_TICK)) if len(x) > 1 else float(NS_PER_TICK)
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
-        values = np.array([self._solve(x, y, int(a), rate) for a in anchors.tolist()])
+        bx, by = bucket_minima(x, y, rate) if self.frame_ns else ([], [])
+        values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
         out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
         return np.asarray(out, np.int64) - self.filter_delay_ns
 
-    def _solve(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
-        """The line's value at ticks ``at`` from the widest window that fits."""
-        for window in _WINDOWS_S:
-            half = round(window * TICKS_PER_SECOND / 2)
-            lo, hi = np.searchsorted(x, [at - half, at + half])
-            if hi - lo < 2:
-                continue
-            if self.frame_ns:
-                bx, by = bucket_minima(x[lo:hi], y[lo:hi], rate)
-                centre = polygon_centre(bx, by, at, self.frame_ns, rate)
-                if centre is not None:
-                    return float(centre[1])
-            else:
-                return self._envelope(x[lo:hi], y[lo:hi], at, rate)
-        lo, hi = np.searchsorted(x, [at - half, at + half])
-        return self._envelope(x[max(0, lo - 1) : hi + 1], y[max(0, lo - 1) : hi + 1], at, rate)
+    def _solve(self, x: np.ndarray, y: np.ndarray, bx: list[int], by: list[int], at: int,
+               rate: float) -> float:
+        """The line's value at ticks ``at`` from the window around it that pins it best."""
+        halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
+        if self.frame_ns:
+            spans = [(bisect_left(bx, at - h), bisect_left(bx, at + h)) for h in halves]
+            centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
+            if centre is not None:
+                return float(centre[1])
+        lo, hi = np.searchsorted(x, [at - halves[0], at + halves[0]])
+        lo, hi = max(0, lo - 1), max(hi + 1, lo + 2)
+        return self._envelope(x[lo:hi], y[lo:hi], at, rate)
 
     def _envelope(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
         """The lower envelope's value at ``at``; half a frame under it on USB."""
