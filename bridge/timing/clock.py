@@ -1,23 +1,28 @@
 """Online estimate of the instant each record was sampled, on the host clock.
 
 A record is received after it was sampled, never before: the host time of a read
-is an upper bound on the sample instant of every record in it. The estimator
-keeps a sliding window of (ticks, receive time) points and fits the line
-``host = offset + rate * ticks`` that lies under all of them and is highest in
-the middle of the window (the lower convex hull's supporting edge there), found
-by bisection on the slope. A point that came late (OS latency, a burst after a
-stall) lies above the line and does not move it; the window follows a rate that
-wanders with temperature.
+is an upper bound on the sample instant of every record in it. On a serial line
+the estimator keeps a sliding window of (ticks, receive time) points and fits
+the line ``host = offset + rate * ticks`` that lies under all of them and is
+highest mid-window (the lower convex hull's supporting edge there), found by
+bisection on the slope. Late points (OS latency, a burst after a stall) lie
+above the line and do not move it; the window follows a rate that wanders.
 
 USB adds a quantisation the hull cannot see through: bytes reach the host only
-at 1 ms frame boundaries of the host controller's clock. The frame grid is found
-from the receive times themselves (they cluster just after each boundary), each
-receive time is snapped down to its frame, and the spread of the snapped points
-under one frame tells how much of the frame the unit's phase has covered. A unit
-whose clock beats slowly against the frame clock covers little, and the true
-line then lies anywhere up to a frame under the hull; the estimate takes the
-middle of what is left. With a fast-drifting unit the points cover the whole
-frame and nothing is taken off.
+at the 1 ms frame boundaries of the host controller, so the lowest receive time
+is up to a frame late, and for a unit whose clock beats slowly against the frame
+clock it stays that late for minutes. The frame grid is found from the receive
+times themselves (they crowd in just after each boundary) and each receive time
+is snapped down to its frame. The earliest point of each quarter second was then
+read in the frame that carried it, which bounds the line from both sides: not
+above the point, less than one frame under it. The lines that meet every such
+bound form a polygon; the estimate at the newest record is the middle of its
+extent there. That is half a frame of honest doubt for a unit whose phase has
+never crossed a frame boundary, and a few microseconds once crossings have been
+seen. Wander bends long windows, so the shortest trailing window that pins the
+line is used. When no straight line fits any of them, the slope comes from the
+two latest corners of the frame staircase and half the frame the points have
+not covered is taken off.
 
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,
