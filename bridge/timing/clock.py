@@ -45,6 +45,10 @@ _BISECTIONS = 32
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
 _PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
+# How far the rate may have moved since it was last pinned: crystals drift a few
+# ppm over minutes with temperature.
+_RATE_FLOOR_PPM = 0.5
+_SLEW_PPM_S = 0.1
 _GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
 _BUCKET_TICKS = TICKS_PER_SECOND // 4
 # A serial line's window follows drift through the fit's midpoint; over USB the
@@ -115,6 +119,7 @@ class OnlineClock:
         self._new_y: list[int] = []
         self._line: _Line | None = None
         self._next_fit: int | None = None
+        self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._spread = 0
 
     @property
@@ -192,13 +197,22 @@ class OnlineClock:
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
-    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
+    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float] | None:
         """``best_centre`` at the newest record over the last quarter, half or whole
-        of the window."""
+        of the window. Once a fit has pinned the rate, slopes are only searched as
+        far from it as a crystal's temperature drift can take it since: with a
+        single frame crossing in view, the points alone would allow far more."""
         now = int(self._x[-1])
         starts = [bisect_left(x, now - self._window // part) for part in (4, 2, 1)]
-        return best_centre(x, y, now, self.frame_ns, self._rate,
-                           [(a, len(x)) for a in starts])
+        ppm = _MAX_PPM
+        if self._pinned is not None:
+            ppm = min(_MAX_PPM, _RATE_FLOOR_PPM
+                      + _SLEW_PPM_S * (now - self._pinned) / TICKS_PER_SECOND)
+        centre = best_centre(x, y, now, self.frame_ns, self._rate,
+                             [(a, len(x)) for a in starts], ppm)
+        if centre is not None and centre[3] < _PINNED_NS:
+            self._pinned = now
+        return centre
 
     def _frame_fit(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
         """The latest whole step of the frame staircase: anchor point and slope.
@@ -261,23 +275,25 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int],
 
 
 def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
-                spans: list[tuple[int, int]]) -> tuple[int, int, float] | None:
+                spans: list[tuple[int, int]],
+                ppm: float = _MAX_PPM) -> tuple[int, int, float, float] | None:
     """``polygon_centre`` over the shortest span (index range, shortest first) that
     pins the line at ``at``, else the one that pins it best: a unit whose phase
     sweeps the frame is pinned by a short span, which wander bends least; a unit
-    that beats slowly needs a long one."""
-    best: tuple[float, tuple[int, int, float]] | None = None
+    that beats slowly needs a long one. Slopes are searched within ``ppm`` of
+    ``prior``; the last element returned is the polygon's extent at ``at``."""
+    best: tuple[int, int, float, float] | None = None
     for lo, hi in spans:
-        found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior)
-        if found is not None and (best is None or found[3] < best[0]):
-            best = (found[3], found[:3])
-        if best is not None and best[0] < _PINNED_NS:
+        found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
+        if found is not None and (best is None or found[3] < best[3]):
+            best = found
+        if best is not None and best[3] < _PINNED_NS:
             break
-    return None if best is None else best[1]
+    return best
 
 
-def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
-                    prior: float) -> tuple[int, int, float, float] | None:
+def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: float,
+                   ppm: float = _MAX_PPM) -> tuple[int, int, float, float] | None:
     """The middle of every line the frame staircase allows, judged at ticks ``now``.
 
     Each point (read in the frame that carried it) says the line lies at most one
@@ -296,7 +312,7 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
         v = dy - r * dx
         return float(v.max() - v.min())
 
-    lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
+    lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
     for _ in range(_BISECTIONS):  # the narrowest band (convex in r)
         mid = (lo + hi) / 2
         v = dy - mid * dx
@@ -308,7 +324,7 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int,
     if width(best) > frame:
         return None
     edges = []
-    for far in (prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)):
+    for far in (prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)):
         inside, outside = best, far
         for _ in range(_BISECTIONS):
             mid = (inside + outside) / 2
