@@ -48,6 +48,7 @@ _PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no long
 # How far the rate may have moved since it was last pinned: crystals drift a few
 # ppm over minutes with temperature.
 _RATE_FLOOR_PPM = 0.5
+_PINNED_PPM = 0.5  # the rate counts as known when the allowed slopes are this close
 _SLEW_PPM_S = 0.1
 _GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
 _BUCKET_TICKS = TICKS_PER_SECOND // 4
@@ -197,7 +198,7 @@ class OnlineClock:
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
-    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float] | None:
+    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float, float] | None:
         """``best_centre`` at the newest record over the last quarter, half or whole
         of the window. Once a fit has pinned the rate, slopes are only searched as
         far from it as a crystal's temperature drift can take it since: with a
@@ -210,7 +211,7 @@ class OnlineClock:
                       + _SLEW_PPM_S * (now - self._pinned) / TICKS_PER_SECOND)
         centre = best_centre(x, y, now, self.frame_ns, self._rate,
                              [(a, len(x)) for a in starts], ppm)
-        if centre is not None and centre[3] < _PINNED_NS:
+        if centre is not None and centre[4] < _PINNED_PPM * 1e-6 * NS_PER_TICK:
             self._pinned = now
         return centre
 
@@ -276,13 +277,13 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int],
 
 def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
                 spans: list[tuple[int, int]],
-                ppm: float = _MAX_PPM) -> tuple[int, int, float, float] | None:
+                ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
     """``polygon_centre`` over the shortest span (index range, shortest first) that
     pins the line at ``at``, else the one that pins it best: a unit whose phase
     sweeps the frame is pinned by a short span, which wander bends least; a unit
     that beats slowly needs a long one. Slopes are searched within ``ppm`` of
-    ``prior``; the last element returned is the polygon's extent at ``at``."""
-    best: tuple[int, int, float, float] | None = None
+    ``prior``."""
+    best: tuple[int, int, float, float, float] | None = None
     for lo, hi in spans:
         found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
         if found is not None and (best is None or found[3] < best[3]):
@@ -293,13 +294,14 @@ def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
 
 
 def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: float,
-                   ppm: float = _MAX_PPM) -> tuple[int, int, float, float] | None:
+                   ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
     """The middle of every line the frame staircase allows, judged at ticks ``now``.
 
     Each point (read in the frame that carried it) says the line lies at most one
     frame under it and not above it. When one straight line can meet all of
     them, the lines that do form a polygon; its extent at ``now`` is the honest
-    uncertainty there (returned last), and its middle the estimate: half a frame wide for a unit
+    uncertainty there (returned after the slope, then the slopes' spread), and its
+    middle the estimate: half a frame wide for a unit
     that has never crossed a frame boundary, narrowing with every crossing. When
     no straight line fits (the rate wandered within the window), None.
     """
@@ -333,7 +335,8 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: floa
     low_rate, high_rate = edges
     top = _extreme(dy, dx, low_rate, high_rate, 1.0)
     bottom = _extreme(dy, dx, low_rate, high_rate, -1.0) - frame
-    return now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom
+    return (now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
+            high_rate - low_rate)
 
 
 def _extreme(dy: np.ndarray, dx: np.ndarray, lo: float, hi: float, sign: float) -> float:
