@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bridge.protocol.framer import Framer
 from bridge.protocol.table import CALCULATION_CYCLE_S, REPLIES, Mode
 from bridge.sim.state import Sampling
 from bridge.sim.unit import SimUnit, UnitConfig
@@ -34,10 +35,17 @@ class Capture:
     config: UnitConfig
     usb: UsbDelivery
 
-    @property
-    def true_ns(self) -> np.ndarray:
-        """The instant each record's values describe (after the filter delay)."""
-        return self.truth.get("value_ns", self.truth["time_ns"])
+    def records(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every record's timer and the receive time of the read that completed it,
+        as the framer finds them in the reads: what the bridge feeds the timeline."""
+        framer = Framer(expect=[self.code])
+        timers, rx = [], []
+        for rx_ns, data in zip(self.rx_ns.tolist(), self.data, strict=True):
+            for batch in framer.feed(data):
+                timers.append(batch["timer"])
+                rx.append(np.full(len(batch["timer"]), rx_ns, np.int64))
+        return (np.concatenate(timers).astype(np.uint32) if timers else np.zeros(0, np.uint32),
+                np.concatenate(rx) if rx else np.zeros(0, np.int64))
 
 
 def streaming_config(config: UnitConfig, code: int = 0xC2, decimation: int = 10,
@@ -98,10 +106,10 @@ def synthesize(config: UnitConfig, usb: UsbDelivery, seconds: float,
             reads += link.reads(frame)
             frame += usb.frame_s
     reads += link.reads(end + 1.0)  # what was on its way when the capture stopped
-    truth = unit.truth.arrays()
-    done = len(truth["timer"])
-    if sent != done * size or unit.records_skipped:
-        raise AssertionError(f"capture out of step: {sent} bytes for {done} records")
+    done = sent // size  # a record still leaving the unit at the end has begun its truth
+    truth = {k: v[:done] for k, v in unit.truth.arrays().items()}
+    if sent != done * size or len(truth["timer"]) != done or unit.records_skipped:
+        raise AssertionError(f"capture out of step: {sent} bytes, {done} records")
     return Capture(
         rx_ns=np.array([round(t * 1e9) for t, _ in reads], np.int64) + WALL_NS,
         data=[d for _, d in reads], code=code, truth=truth, config=config, usb=usb)

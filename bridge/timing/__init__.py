@@ -6,14 +6,24 @@
 - ``OnlineClock``: valid (ticks, rx_ns) -> ``time_ns``, the host-clock instant the
   values describe, robust to late delivery, following drift; ``state`` for status.
 - ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns).
+- ``OfflineClock`` (``bridge.timing.offline``): the recorder's second pass, one
+  epoch's (ticks, rx_ns) at once, using records on both sides of each.
+
+What the caller passes: ``period_ticks`` = decimation x 62.5 (None if unknown);
+``filter_delay_ns`` = (M - 1) x 500,000 for filter width M (0xDB); ``floor_ns`` =
+the record's line time on a UART (length x 10 / baud s, in ns), 0 on USB;
+``frame_ns`` = 1,000,000 on USB (full-speed frames), 0 on a UART. A bridge that
+resets the unit, sets its timer or changes its sampling calls
+``expect_discontinuity`` first; a Timeline resets its clock itself on a reset.
 
 All are pure functions of their input sequence: a raw capture replays to the same
 output bit for bit however it is cut into calls.
 """
 
 from bridge.timing.clock import ClockState, OnlineClock
+from bridge.timing.offline import OfflineClock
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, Unwrapped
 
-__all__ = ["ClockState", "OnlineClock", "Timeline", "TimelineBatch", "TimerUnwrapper",
-           "TimingEvent", "Unwrapped"]
+__all__ = ["ClockState", "OfflineClock", "OnlineClock", "Timeline", "TimelineBatch",
+           "TimerUnwrapper", "TimingEvent", "Unwrapped"]

@@ -1,23 +1,28 @@
 """Online estimate of the instant each record was sampled, on the host clock.
 
 A record is received after it was sampled, never before: the host time of a read
-is an upper bound on the sample instant of every record in it. The estimator
-keeps a sliding window of (ticks, receive time) points and fits the line
-``host = offset + rate * ticks`` that lies under all of them and is highest in
-the middle of the window (the lower convex hull's supporting edge there), found
-by bisection on the slope. A point that came late (OS latency, a burst after a
-stall) lies above the line and does not move it; the window follows a rate that
-wanders with temperature.
+is an upper bound on the sample instant of every record in it. On a serial line
+the estimator keeps a sliding window of (ticks, receive time) points and fits
+the line ``host = offset + rate * ticks`` that lies under all of them and is
+highest mid-window (the lower convex hull's supporting edge there), found by
+bisection on the slope. Late points (OS latency, a burst after a stall) lie
+above the line and do not move it; the window follows a rate that wanders.
 
 USB adds a quantisation the hull cannot see through: bytes reach the host only
-at 1 ms frame boundaries of the host controller's clock. The frame grid is found
-from the receive times themselves (they cluster just after each boundary), each
-receive time is snapped down to its frame, and the spread of the snapped points
-under one frame tells how much of the frame the unit's phase has covered. A unit
-whose clock beats slowly against the frame clock covers little, and the true
-line then lies anywhere up to a frame under the hull; the estimate takes the
-middle of what is left. With a fast-drifting unit the points cover the whole
-frame and nothing is taken off.
+at the 1 ms frame boundaries of the host controller, so the lowest receive time
+is up to a frame late, and for a unit whose clock beats slowly against the frame
+clock it stays that late for minutes. The frame grid is found from the receive
+times themselves (they crowd in just after each boundary) and each receive time
+is snapped down to its frame. The earliest point of each quarter second was then
+read in the frame that carried it, which bounds the line from both sides: not
+above the point, less than one frame under it. The lines that meet every such
+bound form a polygon; the estimate at the newest record is the middle of its
+extent there. That is half a frame of honest doubt for a unit whose phase has
+never crossed a frame boundary, and a few microseconds once crossings have been
+seen. Wander bends long windows, so the shortest trailing window that pins the
+line is used. When no straight line fits any of them, the slope comes from the
+two latest corners of the frame staircase and half the frame the points have
+not covered is taken off.
 
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,
@@ -26,6 +31,7 @@ not on how they are split into ``update`` calls.
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +44,13 @@ _MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
 _BISECTIONS = 32
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
-_GRID_MARGIN_NS = 20_000  # snap a little before the estimated frame boundary
+_PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
+# How far the rate may have moved since it was last pinned: crystals drift a few
+# ppm over minutes with temperature.
+_RATE_FLOOR_PPM = 0.5
+_PINNED_PPM = 0.5  # the rate counts as known when the allowed slopes are this close
+_SLEW_PPM_S = 0.1
+_GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
 _BUCKET_TICKS = TICKS_PER_SECOND // 4
 # A serial line's window follows drift through the fit's midpoint; over USB the
 # slope comes from recent staircase corners, and a long window lets a unit that
@@ -108,6 +120,7 @@ class OnlineClock:
         self._new_y: list[int] = []
         self._line: _Line | None = None
         self._next_fit: int | None = None
+        self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._spread = 0
 
     @property
@@ -161,13 +174,20 @@ class OnlineClock:
         dy = (upper - y_ref).astype(np.float64)
         bias = 0.0
         if self.frame_ns:
-            line = self._frame_fit(upper)
+            bx, by = bucket_minima(self._x, upper, self._rate)
+            centre = self._centre(bx, by)
+            if centre is not None:
+                self._rate = centre[2]
+                self._line = _Line(centre[0], centre[1], centre[2], 0.0)
+                self._spread = int(np.median(self._y - self._line.at(self._x)))
+                return
+            line = self._frame_fit(bx, by)
             if line is not None:
                 x_ref, y_ref, self._rate = line
                 dx = (self._x - x_ref).astype(np.float64)
                 dy = (upper - y_ref).astype(np.float64)
         elif span >= 2 * TICKS_PER_SECOND:
-            self._rate = _support_slope(dx, dy, self._rate)
+            self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
         if self.frame_ns:
@@ -178,7 +198,24 @@ class OnlineClock:
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
-    def _frame_fit(self, upper: np.ndarray) -> tuple[int, int, float] | None:
+    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float, float] | None:
+        """``best_centre`` at the newest record over the last quarter, half or whole
+        of the window. Once a fit has pinned the rate, slopes are only searched as
+        far from it as a crystal's temperature drift can take it since: with a
+        single frame crossing in view, the points alone would allow far more."""
+        now = int(self._x[-1])
+        starts = [bisect_left(x, now - self._window // part) for part in (4, 2, 1)]
+        ppm = _MAX_PPM
+        if self._pinned is not None:
+            ppm = min(_MAX_PPM, _RATE_FLOOR_PPM
+                      + _SLEW_PPM_S * (now - self._pinned) / TICKS_PER_SECOND)
+        centre = best_centre(x, y, now, self.frame_ns, self._rate,
+                             [(a, len(x)) for a in starts], ppm)
+        if centre is not None and centre[4] < _PINNED_PPM * 1e-6 * NS_PER_TICK:
+            self._pinned = now
+        return centre
+
+    def _frame_fit(self, x: list[int], y: list[int]) -> tuple[int, int, float] | None:
         """The latest whole step of the frame staircase: anchor point and slope.
 
         Snapped to frames, a unit's points form a staircase whose treads follow
@@ -187,7 +224,6 @@ class OnlineClock:
         run along partial treads and are not used; with fewer than two corners the
         slope so far stands.
         """
-        x, y = _bucket_minima(self._x, upper, self._rate)
         corners = _lower_hull(x, y)[1:-1]
         if len(corners) < 2:
             return None
@@ -200,18 +236,28 @@ class OnlineClock:
 
     def _snap(self, new_y: np.ndarray) -> np.ndarray:
         """Receive times moved down to the USB frame that carried them."""
-        f = self.frame_ns
         self._grid *= _GRID_DECAY
-        self._grid += np.bincount((new_y % f) // _GRID_BIN_NS, minlength=len(self._grid))
-        h = self._grid
-        centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
-        edges = np.arange(len(h)) * _GRID_BIN_NS
-        cost = (h * centres).sum() - h.sum() * edges + f * (np.cumsum(h) - h)
-        phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
-        return (self._y - phase) // f * f + phase + _GRID_MARGIN_NS
+        self._grid += grid_histogram(new_y, self.frame_ns)
+        return snap(self._y, self._grid, self.frame_ns)
 
 
-def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
+def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
+    """Receive times folded onto one frame, in 1 us bins."""
+    return np.bincount((y % frame) // _GRID_BIN_NS, minlength=max(1, frame // _GRID_BIN_NS))
+
+
+def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
+    """``y`` moved down to the frame boundary before it, the grid's phase being the
+    edge where receive times crowd in (just after each boundary, latency is least)."""
+    h = histogram.astype(np.float64)
+    centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
+    edges = np.arange(len(h)) * _GRID_BIN_NS
+    cost = (h * centres).sum() - h.sum() * edges + frame * (np.cumsum(h) - h)
+    phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+    return np.asarray((y - phase) // frame * frame + phase + _GRID_MARGIN_NS)
+
+
+def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
     """The earliest-received point of each short stretch of ticks.
 
     Within a quarter second the unit's phase against the frame grid barely moves,
@@ -225,7 +271,85 @@ def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int]
     keep = np.flatnonzero(v == lowest)
     kb = buckets[keep]
     keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
+    keep = keep[1:-1]  # the buckets at the window's ends are partial
     return x[keep].tolist(), y[keep].tolist()
+
+
+def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
+                spans: list[tuple[int, int]],
+                ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
+    """``polygon_centre`` over the shortest span (index range, shortest first) that
+    pins the line at ``at``, else the one that pins it best: a unit whose phase
+    sweeps the frame is pinned by a short span, which wander bends least; a unit
+    that beats slowly needs a long one. Slopes are searched within ``ppm`` of
+    ``prior``."""
+    best: tuple[int, int, float, float, float] | None = None
+    for lo, hi in spans:
+        found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
+        if found is not None and (best is None or found[3] < best[3]):
+            best = found
+        if best is not None and best[3] < _PINNED_NS:
+            break
+    return best
+
+
+def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: float,
+                   ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
+    """The middle of every line the frame staircase allows, judged at ticks ``now``.
+
+    Each point (read in the frame that carried it) says the line lies at most one
+    frame under it and not above it. When one straight line can meet all of
+    them, the lines that do form a polygon; its extent at ``now`` is the honest
+    uncertainty there (returned after the slope, then the slopes' spread), and its
+    middle the estimate: half a frame wide for a unit
+    that has never crossed a frame boundary, narrowing with every crossing. When
+    no straight line fits (the rate wandered within the window), None.
+    """
+    if len(x) < 2:
+        return None
+    dx = np.array(x, np.float64) - now
+    dy = np.array(y, np.float64) - y[-1]
+
+    def width(r: float) -> float:
+        v = dy - r * dx
+        return float(v.max() - v.min())
+
+    lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
+    for _ in range(_BISECTIONS):  # the narrowest band (convex in r)
+        mid = (lo + hi) / 2
+        v = dy - mid * dx
+        if dx[int(np.argmin(v))] > dx[int(np.argmax(v))]:
+            hi = mid
+        else:
+            lo = mid
+    best = (lo + hi) / 2
+    if width(best) > frame:
+        return None
+    edges = []
+    for far in (prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)):
+        inside, outside = best, far
+        for _ in range(_BISECTIONS):
+            mid = (inside + outside) / 2
+            inside, outside = (mid, outside) if width(mid) <= frame else (inside, mid)
+        edges.append(inside)
+    low_rate, high_rate = edges
+    top = _extreme(dy, dx, low_rate, high_rate, 1.0)
+    bottom = _extreme(dy, dx, low_rate, high_rate, -1.0) - frame
+    return (now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
+            high_rate - low_rate)
+
+
+def _extreme(dy: np.ndarray, dx: np.ndarray, lo: float, hi: float, sign: float) -> float:
+    """Over slopes in [lo, hi], the highest upper bound at dx = 0 (``sign`` 1:
+    ``min(dy - r dx)``, concave) or the lowest lower bound (-1: ``max(...)``, convex)."""
+    for _ in range(_BISECTIONS):
+        mid = (lo + hi) / 2
+        v = sign * (dy - mid * dx)
+        rising = dx[int(np.argmin(v))] < 0  # the bound's slope in r at ``mid`` is -dx
+        lo, hi = (mid, hi) if rising == (sign > 0) else (lo, mid)
+    r = (lo + hi) / 2
+    v = dy - r * dx
+    return float(v.min() if sign > 0 else v.max())
 
 
 def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
@@ -241,7 +365,7 @@ def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
     return hull
 
 
-def _support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
+def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     """The slope of the highest line under every point, judged at dx = 0.
 
     ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point

@@ -174,9 +174,10 @@ class TimerUnwrapper:
             return t
         step = self._advance(ref, t, r)
         if step is not None:
+            held = int(self._candidate is not None)  # arrived, corrupt: not a gap
             self._drop_candidate(out)
             self._fresh = False
-            return self._accept(ref, t, r, step, i, out)
+            return self._accept(ref, t, r, step, i, out, held)
         if self._fresh:
             d = self._continuation(ref, t, r)
             if d is not None:
@@ -193,7 +194,7 @@ class TimerUnwrapper:
                 self._ref = first
                 step = self._advance(first, t, r)
                 assert step is not None
-                value = self._accept(first, t, r, step, i, out, gaps=False)
+                value = self._accept(first, t, r, step, i, out, step[1] - 1)
                 dropped = 1
             else:
                 self._drop_candidate(out)
@@ -231,17 +232,20 @@ class TimerUnwrapper:
         return max(1, (r - ref.rx) // NS_PER_TICK)
 
     def _accept(self, ref: _Anchor, t: int, r: int | None, step: tuple[int, int], i: int,
-                out: Unwrapped, gaps: bool = True) -> int:
+                out: Unwrapped, held: int = 0) -> int:
+        """Take a record ``step`` after ``ref``; ``held`` records in between arrived
+        corrupt (they are glitches, not missing samples)."""
         d, periods = step
+        missing = periods - 1 - held
         value = ref.ticks + d
         wraps = (ref.timer + d) // TIMER_MODULUS
         for _ in range(wraps):
             self.rollovers += 1
             out.events.append(TimingEvent("rollover", i, value, self.rollovers))
-        if gaps and periods > 1 and self.period_ticks is not None:
-            out.events.append(TimingEvent("gap", i, value, periods - 1))
-            out.dropped += periods - 1
-            self.dropped += periods - 1
+        if missing > 0 and self.period_ticks is not None:
+            out.events.append(TimingEvent("gap", i, value, missing))
+            out.dropped += missing
+            self.dropped += missing
         self._ref = _Anchor(t, value, r)
         return value
 

@@ -1,0 +1,84 @@
+"""Re-estimate sample instants over a whole recording (the recorder's second pass).
+
+Online, a record's time can only use what came before it; offline, every record
+has the points on both sides. At anchors a few seconds apart the smoother takes
+the shortest window around the anchor in which the frame staircase pins one
+straight line (a long one for a unit whose phase crawls across the frame, a
+short one where it sweeps the frame and wander would bend a longer line) and
+puts the anchor in the middle of every line the points allow; records between
+anchors are interpolated. Without a frame grid
+(a serial line) each anchor gets the lower envelope's line through its window.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+
+import numpy as np
+import numpy.typing as npt
+
+from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.timing.clock import (
+    best_centre,
+    bucket_minima,
+    grid_histogram,
+    snap,
+    support_slope,
+)
+from bridge.timing.unwrap import NS_PER_TICK
+
+_WINDOWS_S = (60.0, 120.0, 300.0, 600.0)  # shortest first
+
+
+class OfflineClock:
+    """Maps one epoch's unwrapped ticks to host ns using the whole recording.
+
+    Parameters as ``OnlineClock``; ``anchor_s`` is the spacing of solved points.
+    """
+
+    def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
+                 anchor_s: float = 5.0) -> None:
+        if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0 or anchor_s <= 0:
+            raise ValueError("filter_delay_ns, floor_ns, frame_ns must be >= 0, anchor_s > 0")
+        self.filter_delay_ns = int(filter_delay_ns)
+        self.floor_ns = int(floor_ns)
+        self.frame_ns = int(frame_ns)
+        self._anchor = max(1, round(anchor_s * TICKS_PER_SECOND))
+
+    def smooth(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
+        """Sample instants (host ns) of valid records of one epoch, increasing ticks."""
+        x = np.asarray(ticks, np.int64)
+        y = np.asarray(rx_ns, np.int64) - self.floor_ns
+        if x.shape != y.shape:
+            raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
+        if len(x) == 0:
+            return np.zeros(0, np.int64)
+        if self.frame_ns:
+            y = snap(y, grid_histogram(y, self.frame_ns), self.frame_ns)
+        x0, y0 = int(x[0]), int(y[0])
+        dx, dy = (x - x0).astype(np.float64), (y - y0).astype(np.float64)
+        rate = support_slope(dx, dy, float(NS_PER_TICK)) if len(x) > 1 else float(NS_PER_TICK)
+        anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
+        bx, by = bucket_minima(x, y, rate) if self.frame_ns else ([], [])
+        values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
+        out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
+        return np.asarray(out, np.int64) - self.filter_delay_ns
+
+    def _solve(self, x: np.ndarray, y: np.ndarray, bx: list[int], by: list[int], at: int,
+               rate: float) -> float:
+        """The line's value at ticks ``at`` from the window around it that pins it best."""
+        halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
+        if self.frame_ns:
+            spans = [(bisect_left(bx, at - h), bisect_left(bx, at + h)) for h in halves]
+            centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
+            if centre is not None:
+                return float(centre[1])
+        lo, hi = np.searchsorted(x, [at - halves[0], at + halves[0]])
+        lo, hi = max(0, lo - 1), max(hi + 1, lo + 2)
+        return self._envelope(x[lo:hi], y[lo:hi], at, rate)
+
+    def _envelope(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
+        """The lower envelope's value at ``at``; half a frame under it on USB."""
+        dx, dy = (x - at).astype(np.float64), (y - int(y[0])).astype(np.float64)
+        slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
+        return int(y[0]) + float(np.min(dy - slope * dx)) - self.frame_ns / 2

@@ -1,0 +1,118 @@
+"""Timer unwrapping: rollover, reset, gap and glitch, told apart."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bridge.protocol.codec import checksum
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import REPLIES
+from bridge.sim.capture import streaming_config, synthesize
+from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UsbDelivery
+from bridge.timing import TimerUnwrapper, TimingEvent
+
+PERIOD = 625  # decimation 10
+RX0 = 1_700_000_000_000_000_000
+
+
+def _stream(first: int, n: int, t0: int = RX0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` records one period apart from timer ``first`` (wrapping), received 1 ms late."""
+    ticks = first + PERIOD * np.arange(n, dtype=np.int64)
+    return (ticks % (1 << 32)).astype(np.uint32), t0 + (ticks - first) * 16_000 + 1_000_000
+
+
+def _kinds(events: list[TimingEvent]) -> list[str]:
+    return [e.kind for e in events]
+
+
+def test_rollover_keeps_ticks_increasing_across_batches() -> None:
+    timer, rx = _stream((1 << 32) - 3 * PERIOD, 8)
+    u = TimerUnwrapper(PERIOD)
+    a, b = u.update(timer[:2], rx[:2]), u.update(timer[2:], rx[2:])
+    ticks = np.concatenate([a.ticks, b.ticks])
+    assert np.all(np.diff(ticks) == PERIOD) and ticks[-1] > 1 << 32
+    assert _kinds(a.events + b.events) == ["rollover"] and b.events[0].index == 1
+    assert u.rollovers == 1 and u.dropped == 0 and a.valid.all() and b.valid.all()
+
+
+def test_gap_counts_the_missing_samples_from_the_period() -> None:
+    timer, rx = _stream(1000, 20)
+    keep = np.r_[0:5, 9:20]  # records 5..8 never arrived
+    out = TimerUnwrapper(PERIOD).update(timer[keep], rx[keep])
+    assert out.dropped == 4 and _kinds(out.events) == ["gap"]
+    assert out.events[0].index == 5 and out.events[0].count == 4
+    assert np.array_equal(out.ticks, 1000 + PERIOD * keep)
+
+
+def test_reset_is_a_new_epoch_not_a_rollover() -> None:
+    before, rx1 = _stream(90_000_000, 10)
+    after, rx2 = _stream(0, 10, t0=int(rx1[-1]) + 500_000_000)  # 0xFE: restarts near 0
+    u = TimerUnwrapper(PERIOD)
+    out = u.update(np.r_[before, after], np.r_[rx1, rx2])
+    assert _kinds(out.events) == ["reset"] and u.rollovers == 0 and u.resets == 1
+    # Unannounced, the first record of the new epoch cannot be told from a glitch.
+    assert out.valid.tolist() == [True] * 10 + [False] + [True] * 9
+    good = out.ticks[out.valid]
+    assert np.all(np.diff(good) > 0)
+    assert np.all(np.diff(out.ticks[11:]) == PERIOD)
+
+
+def test_announced_reset_loses_nothing() -> None:
+    before, rx1 = _stream(90_000_000, 10)
+    after, rx2 = _stream(12_345, 10, t0=int(rx1[-1]) + 50_000_000)  # 0xD7 timer set
+    u = TimerUnwrapper(PERIOD)
+    u.update(before, rx1)
+    u.expect_discontinuity()
+    out = u.update(after, rx2)
+    assert out.valid.all() and _kinds(out.events) == ["reset"]
+    assert out.ticks[0] > 90_000_000 + 9 * PERIOD and np.all(np.diff(out.ticks) == PERIOD)
+
+
+def test_every_single_bit_flip_of_the_timer_is_refused() -> None:
+    timer, rx = _stream(5_000_000, 3)
+    for bit in range(32):
+        bad = timer.copy()
+        bad[1] ^= np.uint32(1 << bit)
+        out = TimerUnwrapper(PERIOD).update(bad, rx)
+        assert out.valid.tolist() == [True, False, True], bit
+        assert _kinds(out.events) == ["glitch"] and out.events[0].index == 1
+
+
+def _compensating_flip(record: bytes, timer_byte: int) -> bytes:
+    """Flip a clear bit in a timer byte and the same bit, set, in another byte:
+    the additive checksum cannot see it."""
+    data = bytearray(record)
+    for bit in range(8):
+        if not data[timer_byte] >> bit & 1:
+            for other in range(1, timer_byte - 4):
+                if data[other] >> bit & 1:
+                    data[timer_byte] |= 1 << bit
+                    data[other] &= ~(1 << bit) & 0xFF
+                    return bytes(data)
+    raise AssertionError("no compensating pair in this record")
+
+
+def test_corrupt_timer_passing_the_checksum_is_flagged_and_dropped() -> None:
+    capture = synthesize(streaming_config(UnitConfig(), code=0xC2), UsbDelivery(seed=5), 1.0)
+    size = REPLIES[0xC2].length
+    stream = b"".join(capture.data)
+    n = len(stream) // size
+    records = [stream[i * size : (i + 1) * size] for i in range(n)]
+    records[40] = _compensating_flip(records[40], size - 5)  # timer's high-middle byte
+    assert checksum(records[40][:-2]) == int.from_bytes(records[40][-2:], "big")
+    batches = Framer(expect=[0xC2]).feed(b"".join(records))
+    timer = np.concatenate([b["timer"] for b in batches])
+    assert len(timer) == n and timer[40] != capture.truth["timer"][40]  # the framer took it
+    rx = capture.truth["time_ns"][:n] + 2_000_000
+    out = TimerUnwrapper(PERIOD).update(timer, rx)
+    assert out.valid.sum() == n - 1 and not out.valid[40]
+    assert _kinds(out.events) == ["glitch"] and out.dropped == 0
+    assert np.array_equal(out.ticks[out.valid], capture.truth["timer"][:n][out.valid])
+
+
+def test_without_a_period_host_time_still_refuses_a_wild_jump() -> None:
+    timer, rx = _stream(5_000_000, 3)
+    timer[1] ^= np.uint32(1 << 28)
+    out = TimerUnwrapper(None).update(timer, rx)
+    assert out.valid.tolist() == [True, False, True]
