@@ -208,11 +208,11 @@ class Pipeline:
         self.info = info
         # streaming restarts on a new phase of the output lattice: announce it
         self._start_timing(info, discontinuity=True)
+        self.sink.info(info)  # before the first sample: subscribers must know of it first
         if o.poll_hz is None:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
-        self.sink.info(info)
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz")

@@ -20,6 +20,7 @@ from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
 from bridge.pipeline import Pipeline, Samples, UnitEvent
 
+DECLARE_SETTLE_S = 1.0
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
            "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
@@ -123,22 +124,28 @@ class BusSink:
         self._info = info
         if self.unit is None:
             self.unit = check_unit(_name_from_serial(info.ids.get("serial", "")))
-        if self.publisher is None:
-            assert self.pipeline is not None
-            self.publisher = UnitPublisher(
-                self.session, self.unit, prefix=self.prefix,
-                cache_samples=max(1, round(self.cache_s * info.output_hz)),
-                on_command=command_handler(self.pipeline), allow_commands=self.allow_commands)
-            meta = {"unit": self.unit, "port": self.port, "baud": str(info.baud),
-                    "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
-                    "flags": str(info.sampling.get("flags", 0)),
-                    "filter_width": str(info.sampling.get("filter_width", 0)),
-                    "decimation": str(info.sampling.get("decimation", 0)),
-                    "transport": self.pipeline.transport,
-                    "polled": str(self.pipeline.options.poll_hz is not None).lower()}
-            for listener in self._listeners:
-                listener(self.unit, meta)
-        self.publisher.set_info(info_message(self.unit, self.port, info, self.allow_commands))
+        message = info_message(self.unit, self.port, info, self.allow_commands)
+        if self.publisher is not None:
+            self.publisher.set_info(message)
+            return
+        assert self.pipeline is not None
+        self.publisher = UnitPublisher(
+            self.session, self.unit, prefix=self.prefix,
+            cache_samples=max(1, round(self.cache_s * info.output_hz)),
+            on_command=command_handler(self.pipeline), allow_commands=self.allow_commands)
+        self.publisher.set_info(message)
+        meta = {"unit": self.unit, "port": self.port, "baud": str(info.baud),
+                "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
+                "flags": str(info.sampling.get("flags", 0)),
+                "filter_width": str(info.sampling.get("filter_width", 0)),
+                "decimation": str(info.sampling.get("decimation", 0)),
+                "transport": self.pipeline.transport,
+                "polled": str(self.pipeline.options.poll_hz is not None).lower()}
+        for listener in self._listeners:
+            listener(self.unit, meta)
+        # Let the new publisher's declaration reach subscribers that already run (a
+        # recorder) before the first sample, which they would otherwise miss.
+        time.sleep(DECLARE_SETTLE_S)
 
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:

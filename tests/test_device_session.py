@@ -194,3 +194,14 @@ def test_missing_port_is_a_one_line_error(tmp_path: object) -> None:
 def test_busy_port_is_reported_as_busy() -> None:
     with unit() as (_, url), session_on(url), pytest.raises(PortError, match="busy"):
         Port.open(url, 115_200)
+
+
+def test_the_first_streamed_record_is_kept() -> None:
+    """It can arrive in the same read as the 0xC4 reply: the stream starts right there."""
+    config = replace(BASE, stored=Stored(sampling=Sampling(decimation=1, flags=0)))
+    for _ in range(5):
+        with unit(config) as (sim, url), session_on(url) as s:
+            s.quiesce()
+            timers = stream_some(s, 0xC2, 5)
+            sent = sim.units[0].truth.arrays()["timer"]
+        assert timers[:5] == sent[:5].tolist(), "the stream's first record was dropped"

@@ -289,11 +289,16 @@ class Session:
         """0xC4: stream ``code`` without touching the stored continuous preset."""
         if code not in DATA_CODES:
             raise DeviceError(f"0x{code:02X} is not a data record")
-        reply = self.command("set_continuous", command=code)
-        if int(reply["command"]) != code:
-            raise DeviceError(f"the unit refused to stream 0x{code:02X}")
+        # expect the records from now: the first can come in the same read as the reply
         self.streaming = code
-        self._expect()
+        try:
+            reply = self.command("set_continuous", command=code)
+        except DeviceError:
+            self.streaming = None
+            raise
+        if int(reply["command"]) != code:
+            self.streaming = None
+            raise DeviceError(f"the unit refused to stream 0x{code:02X}")
 
     def start_polling(self, code: int) -> None:
         """Receive ``code`` as replies to ``poll`` instead of a continuous stream."""

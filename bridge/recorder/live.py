@@ -25,6 +25,8 @@ from bridge.recorder.archive import ArchiveError, ArchiveWriter
 
 LEAVES = ("imu", "status", "event")
 _QUERY_TIMEOUT_S = 3.0
+_INFO_TRIES = 10
+_INFO_RETRY_S = 0.5
 
 
 @dataclass
@@ -109,16 +111,23 @@ class Recorder:
             self._on_unit(unit, joined)
 
     def _archive_info(self, unit: str) -> None:
-        """A unit that appears gets its Info (identity and settings) into the archive."""
-        try:
-            replies = self.session.get(f"{self.prefix}/{unit}/info", timeout=_QUERY_TIMEOUT_S)
-            for reply in replies:
-                if reply.ok is not None:
-                    self._queue.put(RawMessage(str(reply.ok.key_expr),
-                                               reply.ok.payload.to_bytes(),
-                                               str(reply.ok.encoding)))
-        except zenoh.ZError:
-            return
+        """A unit that appears gets its Info (identity and settings) into the archive; a
+        bridge still bringing its unit up answers "no Info yet", so ask again."""
+        for _ in range(_INFO_TRIES):
+            if self._stop.is_set():
+                return
+            try:
+                replies = self.session.get(f"{self.prefix}/{unit}/info",
+                                           timeout=_QUERY_TIMEOUT_S)
+                answers = [r.ok for r in replies if r.ok is not None]
+            except zenoh.ZError:
+                return
+            for sample in answers:
+                self._queue.put(RawMessage(str(sample.key_expr), sample.payload.to_bytes(),
+                                           str(sample.encoding)))
+            if answers:
+                return
+            self._stop.wait(_INFO_RETRY_S)
 
     def run_once(self, wait_s: float = 0.2) -> None:
         """Write what arrived (waiting up to ``wait_s``); flush when a second has passed."""
