@@ -2,26 +2,46 @@
 
 from __future__ import annotations
 
+import functools
+import itertools
+import math
 import struct
 from collections import Counter
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from bridge.protocol.codec import Batch, encode_reply
+from bridge.protocol.codec import Batch, encode_reply, plausible
 from bridge.protocol.framer import Framer
-from bridge.protocol.table import DATA_CODES, REPLIES, Field
+from bridge.protocol.table import DATA_CODES, REPLIES, SIZES, Field, Flag
 
 DATA = sorted(DATA_CODES)
 PROPERTY = settings(max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+NATIVE = {"f32": np.float32, "u8": np.uint8, "u16": np.uint16, "u32": np.uint32}
 
 # A decoded record as a comparable value: its code and the bytes of every column entry
 # (bytes, so that NaN compares equal to itself).
 Record = tuple[int, tuple[tuple[str, bytes], ...]]
+
+
+@dataclass(frozen=True)
+class Sent:
+    """One reply on the wire and the record decoding it must give."""
+
+    raw: bytes
+    record: Record
+
+
+def sent(code: int, values: dict[str, object], little_endian: bool = False) -> Sent:
+    fields = [f for f in REPLIES[code].fields if not f.is_pad]
+    expected = tuple((f.name, np.asarray(values[f.name], NATIVE[f.kind]).tobytes())
+                     for f in fields)
+    return Sent(encode_reply(code, little_endian, **values), (code, expected))
 
 
 def _inside_f32(bound: float) -> float:
@@ -29,24 +49,35 @@ def _inside_f32(bound: float) -> float:
     return float(np.nextafter(x, np.float32(0)) if abs(float(x)) > abs(bound) else x)
 
 
+def _array(values: list[float], shape: tuple[int, ...]) -> np.ndarray:
+    return np.array(values, np.float32).reshape(shape)
+
+
 def _values(f: Field) -> st.SearchStrategy[object]:
     """Values a unit sends: inside the field's domain (the framer rejects any other, as
-    garbage), NaN included as in idle mode."""
+    garbage), NaN and infinities included as in idle mode."""
     if f.kind == "f32":
-        element = st.floats(_inside_f32(f.lo), _inside_f32(f.hi), width=32,
-                            allow_infinity=False) | st.just(float("nan"))
+        assert f.domain is not None
+        bound = _inside_f32(f.domain[1])
+        element = st.floats(-bound, bound, width=32) | st.sampled_from([math.nan, math.inf])
         return st.lists(element, min_size=f.count, max_size=f.count).map(
-            lambda v, shape=f.shape: np.array(v, np.float32).reshape(shape))
-    if f.name == "timer":
-        return st.integers(0, 0xFFFFFFFF)
-    return st.lists(st.integers(int(f.lo), int(f.hi)), min_size=f.count, max_size=f.count)
+            functools.partial(_array, shape=f.shape))
+    if f.domain_values is not None:
+        return st.sampled_from(sorted(f.domain_values))
+    lo, hi = f.domain or (0, (1 << 8 * SIZES[f.kind]) - 1)
+    element = st.integers(int(lo), int(hi))
+    return st.lists(element, min_size=f.count, max_size=f.count) if f.shape else element
 
 
-def data_record(codes: list[int]) -> st.SearchStrategy[bytes]:
-    """One data record of one of ``codes`` with random in-domain values."""
-    return st.sampled_from(codes).flatmap(lambda code: st.fixed_dictionaries(
-        {f.name: _values(f) for f in REPLIES[code].fields}).map(
-        lambda values, code=code: encode_reply(code, **values)))
+def _reply(code: int, little_endian: bool) -> st.SearchStrategy[Sent]:
+    values = st.fixed_dictionaries(
+        {f.name: _values(f) for f in REPLIES[code].fields if not f.is_pad})
+    return values.map(functools.partial(sent, code, little_endian=little_endian))
+
+
+def replies(codes: list[int], little_endian: bool = False) -> st.SearchStrategy[Sent]:
+    """One reply of one of ``codes`` with random in-domain values."""
+    return st.sampled_from(codes).flatmap(functools.partial(_reply, little_endian=little_endian))
 
 
 def as_records(batches: list[Batch]) -> list[Record]:
@@ -61,11 +92,6 @@ def as_records(batches: list[Batch]) -> list[Record]:
 
 def offsets(batches: list[Batch]) -> list[int]:
     return [int(o) for batch in batches for o in batch.offsets]
-
-
-def record_of(raw: bytes) -> Record:
-    """The framer's view of one intact record, used as the expected value."""
-    return as_records(Framer([raw[0]]).feed(raw))[0]
 
 
 def run(framer: Framer, stream: bytes, cuts: list[int]) -> list[Batch]:
@@ -97,33 +123,35 @@ def test_clean_stream_yields_exactly_the_records_sent(
 ) -> None:
     codes = data.draw(ONE_TYPE if continuous else MIXED, label="codes")
     # Continuous mode streams one type; a long run lets the NumPy fast path take over.
-    raws = data.draw(st.lists(data_record(codes), min_size=1,
-                              max_size=60 if continuous else 30), label="records")
-    stream = b"".join(raws)
+    sends = data.draw(st.lists(replies(codes), min_size=1,
+                               max_size=60 if continuous else 30), label="records")
+    stream = b"".join(s.raw for s in sends)
     expect = codes if continuous else None
     whole = run(Framer(expect), stream, [])
     cuts = data.draw(chunkings(len(stream)), label="cuts")
     chunked = run(Framer(expect), stream, cuts)
-    assert as_records(whole) == [record_of(r) for r in raws]
+    assert as_records(whole) == [s.record for s in sends]
     assert as_records(chunked) == as_records(whole)
-    assert offsets(chunked) == offsets(whole) == list(np.cumsum([0, *map(len, raws)])[:-1])
+    starts = np.cumsum([0, *(len(s.raw) for s in sends)])[:-1].tolist()
+    assert offsets(chunked) == offsets(whole) == starts
 
 
 def test_fast_path_and_byte_scanner_agree_on_a_long_run(monkeypatch: pytest.MonkeyPatch) -> None:
     """One piece takes the NumPy fast path, one byte at a time never can; same records out."""
     rng = np.random.default_rng(7)
     n = 500
-    records = [
-        encode_reply(0xC8, accel=a, ang_rate=w, m=np.eye(3), timer=int(t))
+    sends = [
+        sent(0xC8, {"accel": a, "ang_rate": w, "m": np.eye(3), "timer": int(t)})
         for a, w, t in zip(rng.normal(size=(n, 3)), rng.normal(size=(n, 3)),
                            rng.integers(0, 1 << 32, n), strict=True)]
-    damaged = bytearray(records[300])
+    damaged = bytearray(sends[300].raw)
     damaged[20] ^= 0x10
-    raw = b"".join(records[:300]) + bytes(damaged) + b"".join(records[301:])
+    raw = (b"".join(s.raw for s in sends[:300]) + bytes(damaged)
+           + b"".join(s.raw for s in sends[301:]))
     fast_records = []
     original = Framer._fast
 
-    def spy(self: Framer, *args: object) -> tuple[int, bool]:
+    def spy(self: Framer, *args: Any) -> tuple[int, bool]:
         good, whole = original(self, *args)
         fast_records.append(good)
         return good, whole
@@ -134,7 +162,7 @@ def test_fast_path_and_byte_scanner_agree_on_a_long_run(monkeypatch: pytest.Monk
     fast_records.clear()
     chunked = run(Framer([0xC8]), raw, list(range(1, len(raw))))
     assert fast_records == []
-    assert as_records(whole) == [record_of(r) for i, r in enumerate(records) if i != 300]
+    assert as_records(whole) == [s.record for i, s in enumerate(sends) if i != 300]
     assert as_records(chunked) == as_records(whole)
 
 
@@ -155,13 +183,13 @@ KINDS = ("none", "none", "flip", "drop", "garbage", "cut")
 
 @st.composite
 def damaged_streams(draw: st.DrawFn, codes: list[int]) -> Damaged:
-    raws = draw(st.lists(data_record(codes), min_size=1, max_size=25), label="records")
+    sends = draw(st.lists(replies(codes), min_size=1, max_size=25), label="records")
     stream = bytearray()
     intact: list[Record] = []
     intact_offsets: list[int] = []
-    for raw in raws:
+    for one in sends:
         kind = draw(st.sampled_from(KINDS))
-        size = len(raw)
+        raw, size = one.raw, len(one.raw)
         if kind == "flip":
             bit = draw(st.integers(0, 8 * size - 1))
             damaged = bytearray(raw)
@@ -176,21 +204,34 @@ def damaged_streams(draw: st.DrawFn, codes: list[int]) -> Damaged:
             stream += raw[: size // 2]
         else:
             intact_offsets.append(len(stream))
-            intact.append(record_of(raw))
+            intact.append(one.record)
             stream += raw
             if kind == "garbage":
                 stream += draw(st.binary(min_size=1, max_size=40))
     return Damaged(bytes(stream), intact, intact_offsets)
 
 
-# Deterministic on purpose: misaligned bytes still match a 16-bit checksum by chance (about
-# one window in 65,536, more often on the all-zero records Hypothesis favours) and, rarely,
-# look plausible too; a randomised run would then fail once in a long while.
-@settings(PROPERTY, derandomize=True)
+def impostor(stream: bytes, codes: list[int], intact_offsets: list[int]) -> int | None:
+    """Where bytes that were not sent as a record still pass as one: an expected code, a
+    matching 16-bit sum and plausible values. No framer can tell such a window from a
+    record (the random-bytes test measures how rare it is), so such cases are set aside."""
+    starts = set(intact_offsets)
+    for pos, code in enumerate(stream):
+        size = REPLIES[code].length if code in codes else 0
+        window = stream[pos : pos + size]
+        if (size and pos not in starts and len(window) == size
+                and sum(window[:-2]) % 65_536 == int.from_bytes(window[-2:], "big")
+                and plausible(code, window)):
+            return pos
+    return None
+
+
+@PROPERTY
 @given(data=st.data(), continuous=st.booleans())
 def test_damage_loses_only_the_damaged_records(data: st.DataObject, continuous: bool) -> None:
     codes = data.draw(ONE_TYPE if continuous else MIXED, label="codes")
     case = data.draw(damaged_streams(codes), label="stream")
+    assume(impostor(case.stream, codes, case.intact_offsets) is None)
     cuts = data.draw(chunkings(len(case.stream)), label="cuts")
     expect = codes if continuous else None
     whole = run(Framer(expect), case.stream, [])
@@ -199,6 +240,98 @@ def test_damage_loses_only_the_damaged_records(data: st.DataObject, continuous: 
     assert as_records(whole) == case.intact
     assert offsets(whole) == case.intact_offsets
     assert as_records(chunked) == as_records(whole)
+
+
+def reads_of(stream: bytes, cuts: list[int], t0: int) -> list[tuple[bytes, int]]:
+    """``stream`` as reads ending at ``cuts``, each with a later receive time."""
+    bounds = [0, *cuts, len(stream)]
+    return [(stream[a:b], t0 + 1_000_003 * i)
+            for i, (a, b) in enumerate(itertools.pairwise(bounds))]
+
+
+def replay(framer: Framer, reads: list[tuple[bytes, int]]) -> list[Batch]:
+    out: list[Batch] = []
+    for data, rx_ns in reads:
+        out += framer.feed(data, rx_ns)
+    return out + framer.flush()
+
+
+def timed(batches: list[Batch]) -> list[tuple[int, int, bool, Record]]:
+    """Per record: offset, receive time, byte order and values."""
+    return [(int(o), int(t), b.little_endian, r)
+            for b in batches for o, t, r in zip(b.offsets, b.rx_ns, as_records([b]), strict=True)]
+
+
+@PROPERTY
+@given(data=st.data(), continuous=st.booleans(), t0=st.integers(0, 1 << 62))
+def test_receive_time_is_the_completing_reads_whatever_the_chunking(
+    data: st.DataObject, continuous: bool, t0: int
+) -> None:
+    """A capture replayed with its recorded read times, cut finer or not, times every
+    record as the live run did: by the read that brought its last byte."""
+    codes = data.draw(ONE_TYPE if continuous else MIXED, label="codes")
+    case = data.draw(damaged_streams(codes), label="stream")
+    expect = codes if continuous else None
+    live = reads_of(case.stream, data.draw(chunkings(len(case.stream)), label="reads"), t0)
+    finer = []
+    for chunk, rx_ns in live:
+        cuts = data.draw(chunkings(len(chunk)), label="split")
+        finer += [(piece, rx_ns) for piece, _ in reads_of(chunk, cuts, 0)]
+    got = timed(replay(Framer(expect), live))
+    assert timed(replay(Framer(expect), finer)) == got
+    ends = np.cumsum([len(chunk) for chunk, _ in live])
+    for offset, rx_ns, _, record in got:
+        last = offset + REPLIES[record[0]].length - 1
+        assert rx_ns == live[int(np.searchsorted(ends, last, side="right"))][1]
+
+
+def test_record_held_back_by_a_rescan_keeps_its_reads_time() -> None:
+    """A stray 0xC2 byte before a whole 0xC7 record makes the framer wait for 31 bytes;
+    the 0xC7 record comes out of the next feed but was received with the first."""
+    c7 = frame(0xC7, struct.pack(">3fI", 0, 0, 1.0, 9))
+    framer = Framer()
+    assert framer.feed(b"\xc2" + c7, rx_ns=111) == []
+    (batch,) = framer.feed(bytes(30), rx_ns=222)
+    assert batch.code == 0xC7
+    assert batch.offsets.tolist() == [1]
+    assert batch.rx_ns.tolist() == [111]
+    assert batch.rx_ns.dtype == np.int64
+
+
+def test_partial_record_takes_the_time_of_the_read_that_completes_it() -> None:
+    c7 = frame(0xC7, struct.pack(">3fI", 0, 0, 1.0, 9))
+    framer = Framer()
+    batches = framer.feed(c7 + c7[:5], 10) + framer.feed(c7[5:], 20) + framer.flush()
+    assert [t for b in batches for t in b.rx_ns.tolist()] == [10, 20]
+
+
+def sampling(flags: int) -> bytes:
+    return encode_reply(0xDB, decimation=10, flags=flags, filter_width=15, mag_filter_width=17,
+                        up_compensation=10, north_compensation=10)
+
+
+def test_sampling_settings_reply_switches_float_byte_order_from_the_next_record() -> None:
+    values: dict[str, Any] = {"accel": [0.5, -1.0, 2.0], "ang_rate": [0.0, 0.25, -0.125],
+                              "timer": 7}
+    big, little = encode_reply(0xC2, **values), encode_reply(0xC2, True, **values)
+    stream = (big + sampling(0x13) + little + little + sampling(0x03) + big
+              + sampling(Flag.LITTLE_ENDIAN_FLOATS) + little)
+    for cuts in ([], list(range(1, len(stream)))):
+        batches = run(Framer([0xC2, 0xDB]), stream, cuts)
+        order = [(b.code, b.little_endian) for b in batches for _ in range(len(b))]
+        assert order == [(0xC2, False), (0xDB, False), (0xC2, True), (0xC2, True),
+                         (0xDB, True), (0xC2, False), (0xDB, False), (0xC2, True)]
+        for b in batches:
+            if b.code == 0xC2:
+                assert b["accel"].tolist() == [values["accel"]] * len(b)
+
+
+def test_starting_byte_order_is_the_constructors_and_0xDB_only_counts_when_expected() -> None:
+    little = encode_reply(0xC2, True, accel=[1.0, 2.0, 3.0], ang_rate=[0, 0, 0], timer=1)
+    framer = Framer([0xC2], little_endian=True)
+    (batch,) = framer.feed(little + sampling(0x03) + little)
+    assert batch.little_endian
+    assert batch["accel"].tolist() == [[1.0, 2.0, 3.0]] * 2
 
 
 @PROPERTY
@@ -287,5 +420,43 @@ def test_short_reply_needs_plausible_values_while_resynchronising() -> None:
     # A checksum-correct 0xD4 reply with mode 9 does not exist; after garbage it is refused.
     bogus = frame(0xD4, b"\x09")
     framer = Framer([0xD4])
-    assert framer.feed(b"\x00" + bogus + frame(0xD4, b"\x02")) != []
-    assert framer.stats.records == Counter({0xD4: 1})
+    (batch,) = framer.feed(b"\x00" + bogus + frame(0xD4, b"\x02"))
+    assert batch["mode"].tolist() == [2]
+    assert batch.offsets.tolist() == [1 + len(bogus)]
+    assert framer.stats.implausible == 1
+    assert "implausible: 1;" in framer.stats.summary()
+
+
+def test_replies_real_units_send_are_never_dropped() -> None:
+    """Values outside the settings a unit accepts but inside what it reports: ports 2 and
+    3 (baud 0), firmware before 1.1.27 (compensations 0), idle mode (NaN, raw codes)."""
+    nan3 = [math.nan] * 3
+    stream = (encode_reply(0xD9, port=2, baud=0, config=0)
+              + encode_reply(0xDB, decimation=10, flags=3, filter_width=15, mag_filter_width=17,
+                             up_compensation=0, north_compensation=0)
+              + encode_reply(0xC1, raw_accel=[-2.5, 3e5, 0], raw_ang_rate=[0, 0, 0], timer=1)
+              + encode_reply(0xC2, accel=[math.inf, -math.inf, 0], ang_rate=nan3, timer=2))
+    framer = Framer([0xD9, 0xDB, 0xC1, 0xC2])
+    batches = framer.feed(b"\x00" + stream) + framer.flush()
+    assert [b.code for b in batches] == [0xD9, 0xDB, 0xC1, 0xC2]
+    assert framer.stats.bytes_skipped == 1
+    assert framer.stats.implausible == 0
+
+
+def test_false_records_from_random_bytes() -> None:
+    """10 MB of random bytes (fixed seed), the worst case of a line with no unit on it.
+
+    About 15 of 256 bytes are a data code, and random bytes match a 16-bit checksum once
+    in 65,536 windows: blind, about 9 checksum matches per 10 MB; one expected code, 0.6.
+    The plausibility check must refuse nearly all of them: a few floats in range pass
+    about half the time each, so false records stay below one per 10 MB on average
+    (README: measured over 200 MB). Figures here for this seed: blind 0 false records of
+    6 checksum matches; with 0xC2 expected, 0 of 0. A bound of 2 leaves room for a
+    harmless change of scan order, and fails if the domain check stops working (9)."""
+    data = np.random.default_rng(2024).integers(0, 256, 10_000_000, dtype=np.uint8).tobytes()
+    blind = Framer()
+    false_blind = sum(len(b) for b in blind.feed(data) + blind.flush())
+    assert blind.stats.implausible >= 3  # checksum matches happened and were refused
+    assert false_blind <= 2
+    one = Framer([0xC2])
+    assert sum(len(b) for b in one.feed(data) + one.flush()) <= 1

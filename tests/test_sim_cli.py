@@ -24,6 +24,7 @@ import pytest
 import serial
 import typer.core
 import typer.main
+from typer.testing import CliRunner
 
 from bridge.cli import app
 
@@ -37,6 +38,7 @@ DOCUMENTED_OPTIONS = (
     "--noise-mag", "--gyro-bias", "--decimation", "--flags", "--continuous-preset",
     "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
     "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
+    "--no-filter-model", "--disconnect-power-cycles",
 )
 
 
@@ -74,6 +76,15 @@ def ask(port: serial.SerialBase, command: bytes, length: int, timeout: float = 2
     return bytes(reply)
 
 
+def settle(port: serial.SerialBase, timeout: float = 5.0) -> None:
+    """Wait out the unit's power-up settling (bytes sent during it are lost), then drain."""
+    deadline = time.monotonic() + timeout
+    while not port.read(7) and time.monotonic() < deadline:
+        port.write(b"\xe9")
+    time.sleep(0.05)
+    port.reset_input_buffer()
+
+
 def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
     """Intact records of a stream joined mid-record: sync on two in a row, then walk."""
     for start in range(length):
@@ -91,7 +102,7 @@ def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
 
 
 def timer_of(record: bytes) -> int:
-    return struct.unpack_from(">I", record, len(record) - 6)[0]
+    return int(struct.unpack_from(">I", record, len(record) - 6)[0])
 
 
 class Sim:
@@ -154,6 +165,7 @@ def test_tcp_units_are_distinct_devices(run_sim: Callable[..., Sim]) -> None:
     serials, accels = [], []
     for url in urls:
         with serial.serial_for_url(url, timeout=0.05) as port:
+            settle(port)
             reply = ask(port, b"\xea\x01", 20)
             assert intact(reply, 0xEA, 20) and reply[1] == 1, reply.hex()
             serials.append(reply[2:18])
@@ -172,6 +184,7 @@ def test_pty_endpoint_opens_with_pyserial(run_sim: Callable[..., Sim]) -> None:
     (path,) = sim.endpoints(1)
     assert Path(path).exists(), path
     with serial.Serial(path, 115_200, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xe9", 7) == framed(b"\xe9" + struct.pack(">I", 4242))
 
 
@@ -203,6 +216,7 @@ def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
     sim = run_sim("--tcp", "127.0.0.1:0", "--serial", "SIGTEST")
     (url,) = sim.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert intact(ask(port, b"\xc2", C2_LENGTH), 0xC2, C2_LENGTH)
     code, stderr = sim.stop(sig)
     assert code == 0, stderr
@@ -216,23 +230,24 @@ def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path:
     first = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
     (url,) = first.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xd5\xba\x89\x03", 4) == framed(b"\xd5\x03")
     assert first.stop()[0] == 0
     assert state.exists()
     second = run_sim("--tcp", "127.0.0.1:0", "--state", str(state))
     (url,) = second.endpoints(1)
     with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
         assert ask(port, b"\xd5\xba\x89\x00", 4) == framed(b"\xd5\x03")
         assert ask(port, b"\xd4\xa3\x47\x00", 4) == framed(b"\xd4\x03"), "woke in idle"
     assert second.stop()[0] == 0
 
 
 @pytest.mark.parametrize("args", [
-    ("--tcp", "127.0.0.1:0", "--baud", "9600"),
     ("--pty", "--tcp", "127.0.0.1:0"),
     (),
-    ("--tcp", "127.0.0.1:0", "--continuous-preset", "0x01"),
-], ids=["baud-9600", "both-transports", "no-transport", "preset-not-data"])
+    ("--tcp", "127.0.0.1:0", "--flags", "0x1FFFF"),
+], ids=["both-transports", "no-transport", "flags"])
 def test_bad_arguments_fail_with_one_line(args: tuple[str, ...]) -> None:
     done = subprocess.run([gx3(), "sim", *args], stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=15)
@@ -256,3 +271,118 @@ def test_help_mentions_every_option() -> None:
     missing = [opt for opt in sorted(declared | set(DOCUMENTED_OPTIONS))
                if not re.search(re.escape(opt) + r"(?![\w-])", done.stdout)]
     assert not missing, done.stdout
+
+
+def run_in_process(*args: str) -> tuple[int, str]:
+    """`gx3 sim ARGS` in this process (no unit starts when an option is bad): code, stderr."""
+    result = CliRunner().invoke(app, ["sim", *args])
+    assert not isinstance(result.exception, Exception) or isinstance(
+        result.exception, SystemExit), result.exception
+    return result.exit_code, result.stderr
+
+
+def state_file(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "unit.json"
+    path.write_text(text)
+    return str(path)
+
+
+BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
+    (("--firmware", "-5"), "--firmware"),
+    (("--firmware", "4294967296"), "--firmware"),
+    (("--flags", "0x1FFFF"), "--flags"),
+    (("--flags", "bits"), "--flags"),
+    (("--model-name", "Modèle"), "--model-name"),
+    (("--model-name", "M" * 17), "--model-name"),
+    (("--model-number", "6225\n4220"), "--model-number"),
+    (("--serial", "ABCDEFGHIJKLMNO", "--units", "2"), "--serial"),
+    (("--seed", "-1"), "--seed"),
+    (("--clock-ppm", "nan"), "--clock-ppm"),
+    (("--clock-ppm", "1e9"), "--clock-ppm"),
+    (("--flip-rate", "-0.1"), "--flip-rate"),
+    (("--drop-rate", "1.5"), "--drop-rate"),
+    (("--stall-every", "-1"), "--stall-every"),
+    (("--stall-for", "inf"), "--stall-for"),
+    (("--disconnect-every", "nan"), "--disconnect-every"),
+    (("--disconnect-for", "-2"), "--disconnect-for"),
+    (("--duration", "nan"), "--duration"),
+    (("--duration", "-1"), "--duration"),
+    (("--units", "0"), "--units"),
+    (("--decimation", "0"), "--decimation"),
+    (("--mode-preset", "4"), "--mode-preset"),
+    (("--timer-start", "-1"), "--timer-start"),
+    (("--continuous-preset", "0x01"), "--continuous-preset"),
+    (("--baud", "9600"), "--baud"),
+    (("--noise-gyro", "-1"), "--noise-gyro"),
+]
+
+
+@pytest.mark.parametrize(("args", "option"), BAD_OPTIONS,
+                         ids=[" ".join(args) for args, _ in BAD_OPTIONS])
+def test_every_bad_option_is_named_in_one_line(args: tuple[str, ...], option: str) -> None:
+    code, stderr = run_in_process("--tcp", "127.0.0.1:0", *args)
+    assert code == 2
+    assert stderr.count("\n") == 1 and stderr.startswith(f"error: {option}: "), stderr
+
+
+@pytest.mark.parametrize("tcp", ["127.0.0.1:99999", "127.0.0.1:65535 --units 2", "nohost"])
+def test_a_tcp_port_out_of_range_is_refused(tcp: str) -> None:
+    address, *more = tcp.split()
+    code, stderr = run_in_process("--tcp", address, *more)
+    assert code == 2 and stderr.startswith("error: --tcp: ") and stderr.count("\n") == 1, stderr
+
+
+BAD_STATE = {
+    "not-json": "{",
+    "not-an-object": "[1, 2]",
+    "unknown-field": '{"mode_presett": 1}',
+    "mode-preset": '{"mode_preset": 7}',
+    "continuous-preset": '{"continuous_preset": 1}',
+    "decimation": '{"sampling": {"decimation": 0}}',
+    "filter-width": '{"sampling": {"filter_width": 40}}',
+    "flags": '{"sampling": {"flags": 65536}}',
+    "float-decimation": '{"sampling": {"decimation": 2.5}}',
+    "sampling-shape": '{"sampling": [10]}',
+    "unknown-sampling-field": '{"sampling": {"rate": 10}}',
+    "baud": '{"baud": 9600}',
+    "accel-bias-length": '{"accel_bias": [1, 2]}',
+    "gyro-bias-nan": '{"gyro_bias": [NaN, 0, 0]}',
+    "gyro-bias-text": '{"gyro_bias": ["a", 0, 0]}',
+    "eeprom-address": '{"eeprom": {"4096": 1}}',
+    "eeprom-value": '{"eeprom": {"1": 70000}}',
+    "eeprom-key": '{"eeprom": {"one": 1}}',
+}
+
+
+@pytest.mark.parametrize("text", BAD_STATE.values(), ids=BAD_STATE.keys())
+def test_a_state_file_of_the_wrong_shape_or_range_is_refused(tmp_path: Path, text: str) -> None:
+    code, stderr = run_in_process("--tcp", "127.0.0.1:0", "--state", state_file(tmp_path, text))
+    assert code == 2
+    assert stderr.startswith("error: --state: ") and stderr.count("\n") == 1, stderr
+
+
+def test_a_state_path_that_cannot_be_written_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("")
+    for path in (tmp_path / "file" / "unit.json", tmp_path):
+        code, stderr = run_in_process("--tcp", "127.0.0.1:0", "--state", str(path))
+        assert code == 2 and stderr.startswith("error: --state: "), stderr
+
+
+def test_link_is_refused_with_tcp_and_never_replaces_a_file(tmp_path: Path) -> None:
+    code, stderr = run_in_process("--tcp", "127.0.0.1:0", "--link", str(tmp_path / "imu"))
+    assert code == 2 and stderr.startswith("error: --link: "), stderr
+    precious = tmp_path / "notes.txt"
+    precious.write_text("keep me")
+    code, stderr = run_in_process("--pty", "--link", str(precious))
+    assert code == 2 and stderr.startswith("error: --link: ") and "pty" not in stderr.split(
+        ":")[1], stderr
+    assert precious.read_text() == "keep me"
+    code, stderr = run_in_process("--pty", "--link", str(tmp_path / "missing" / "imu"))
+    assert code == 2 and stderr.startswith("error: --link: cannot make "), stderr
+
+
+def test_help_names_no_command_that_does_not_exist() -> None:
+    result = CliRunner().invoke(app, ["sim", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0
+    assert "gx3 bridge" not in result.output
+    assert "what a serial program opens" in " ".join(result.output.split())

@@ -84,6 +84,10 @@ COMMAND_VECTORS: list[tuple[int, dict[str, Any], bytes]] = [
     (0xD7, {"function": 1, "value": 0x12345678}, b"\xd7\xc1\x29\x01\x12\x34\x56\x78"),
     (0xD9, {"port": 1, "function": 1, "baud": 460_800, "config": 0x02},
      b"\xd9\xc3\x55\x01\x01" + struct.pack(">I", 460_800) + b"\x02\x00"),
+    # Reads: the manual says the unit ignores the other values, so they may be left out.
+    (0xD7, {"function": 0}, b"\xd7\xc1\x29\x00" + bytes(4)),
+    (0xD9, {"port": 1, "function": 0}, b"\xd9\xc3\x55\x01\x00" + bytes(6)),
+    (0xDB, {"function": 0}, b"\xdb\xa8\xb9\x00" + bytes(16)),
     (0xDA, {}, b"\xda"),
     (0xDB, {"function": 1, "decimation": 10, "flags": 0x1003, "filter_width": 15,
             "mag_filter_width": 17, "up_compensation": 10, "north_compensation": 1000},
@@ -190,8 +194,8 @@ def test_data_record(code: int) -> None:
         np.testing.assert_array_equal(decoded[name], want)
     assert int(decoded["timer"]) == 4_294_967_280
     values = {name: SAMPLE[name] for name in names}
-    assert encode_reply(code, timer=0xFFFFFFF0, **{
-        n: np.reshape(v, SHAPES.get(n, (-1,))) for n, v in values.items()}) == raw
+    columns: dict[str, Any] = {n: np.reshape(v, SHAPES.get(n, (-1,))) for n, v in values.items()}
+    assert encode_reply(code, timer=0xFFFFFFF0, **columns) == raw
 
 
 def test_orientation_matrix_is_row_major() -> None:
@@ -269,7 +273,13 @@ SETTINGS_VECTORS: list[tuple[int, bytes, dict[str, Any]]] = [
     (0xD7, frame(0xD7, struct.pack(">I", 0xFFFFFFF0)), {"timer": 4_294_967_280}),
     (0xD9, frame(0xD9, struct.pack(">BIBx", 1, 921_600, 0x02)),
      {"port": 1, "baud": 921_600, "config": 2}),
+    # Ports 2 and 3 are unused on the GX3-25: their settings read back as baud 0.
+    (0xD9, frame(0xD9, struct.pack(">BIBx", 3, 0, 0)), {"port": 3, "baud": 0, "config": 0}),
     (0xDA, frame(0xDA, struct.pack(">I", 0x8000_00FF)), {"test_result": 0x8000_00FF}),
+    # Firmware before 1.1.27 has no up/north compensation and reports 0 for both.
+    (0xDB, frame(0xDB, struct.pack(">HHBBHH6x", 10, 3, 15, 17, 0, 0)),
+     {"decimation": 10, "flags": 3, "filter_width": 15, "mag_filter_width": 17,
+      "up_compensation": 0, "north_compensation": 0}),
     (0xDB, frame(0xDB, struct.pack(">HHBBHH6x", 4, Flag.ORIENTATION | Flag.QUATERNION, 15, 17,
                                     10, 1000)),
      {"decimation": 4, "flags": 0x1001, "filter_width": 15, "mag_filter_width": 17,

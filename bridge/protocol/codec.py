@@ -22,7 +22,6 @@ from bridge.protocol.table import (
     REPLIES,
     Command,
     Field,
-    ReplySpec,
     lookup,
 )
 
@@ -36,6 +35,12 @@ def checksum(data: bytes | bytearray | memoryview) -> int:
     return sum(data) & 0xFFFF
 
 
+def checksum_rows(block: np.ndarray) -> np.ndarray:
+    """``checksum`` of each row of an (n, k) uint8 block, at array speed."""
+    sums: np.ndarray = block.sum(axis=1, dtype=np.uint32)
+    return sums & 0xFFFF
+
+
 def _wire_dtype(f: Field, little_endian: bool) -> str:
     if f.kind == "f32":
         return "<f4" if little_endian else ">f4"
@@ -44,36 +49,34 @@ def _wire_dtype(f: Field, little_endian: bool) -> str:
     return {"u8": "u1", "u16": ">u2", "u32": ">u4"}[f.kind]
 
 
-def _struct_dtype(fields: tuple[Field, ...], little_endian: bool, head: str) -> np.dtype:
-    """A packed dtype of one message: head byte, fields in wire order, (checksum)."""
-    parts: list[tuple[Any, ...]] = [(head, "u1")]
+def _parts(fields: tuple[Field, ...], little_endian: bool) -> list[tuple[Any, ...]]:
+    """Packed dtype entries of message fields in wire order (reserved bytes as voids)."""
+    parts: list[tuple[Any, ...]] = []
     for i, f in enumerate(fields):
         if f.is_pad:
             parts.append((f"_pad{i}", f"V{f.count}"))
         else:
             parts.append((f.name, _wire_dtype(f, little_endian), f.shape))
-    return np.dtype(parts)
+    return parts
 
 
 @functools.cache
-def reply_dtype(code: int, little_endian: bool = False) -> np.dtype:
-    """The packed wire layout of one reply, checksum last."""
+def reply_dtype(code: int, little_endian: bool = False) -> np.dtype[Any]:
+    """The packed wire layout of one reply: echo byte, fields, checksum."""
     spec = REPLIES[code]
-    base = _struct_dtype(spec.fields, little_endian, "code")
-    dtype = np.dtype([*((n, base.fields[n][0]) for n in base.names), ("checksum", ">u2")])
+    dtype = np.dtype([("code", "u1"), *_parts(spec.fields, little_endian),
+                      ("checksum", ">u2")])
     assert dtype.itemsize == spec.length
     return dtype
 
 
 @functools.cache
-def _command_dtype(code: int) -> np.dtype:
+def _command_dtype(code: int) -> np.dtype[Any]:
     cmd = COMMANDS[code]
     parts: list[tuple[Any, ...]] = [("code", "u1")]
     if cmd.confirm:
         parts.append(("confirm", "V" + str(len(cmd.confirm))))
-    base = _struct_dtype(cmd.params, False, "_")
-    parts.extend((n, base.fields[n][0]) for n in base.names[1:])
-    return np.dtype(parts)
+    return np.dtype(parts + _parts(cmd.params, False))
 
 
 def _native(f: Field) -> str:
@@ -108,14 +111,17 @@ def encode_command(command: int | str, /, strict: bool = True, **params: Any) ->
 
     ``strict`` rejects values the unit would clamp or ignore; ``strict=False``
     only requires each value to fit its field (for probing a unit's range rules).
+    Parameters the unit ignores (those of a read, such as 0xDB function 0) may be
+    left out; they are sent as 0.
     """
     cmd = lookup(command)
     if not cmd.documented:
         raise ProtocolError(f"0x{cmd.code:02X} {cmd.name}: the manual gives no byte layout; "
                             "use the vendor's tool for this")
     names = [f.name for f in cmd.params if not f.is_pad]
+    ignored = cmd.ignores(params)
     unknown = set(params) - set(names)
-    missing = [n for n in names if n not in params]
+    missing = [n for n in names if n not in params and n not in ignored]
     if unknown or missing:
         raise ProtocolError(f"0x{cmd.code:02X} {cmd.name} takes "
                             f"{', '.join(names) or 'no parameters'}"
@@ -128,8 +134,8 @@ def encode_command(command: int | str, /, strict: bool = True, **params: Any) ->
     for f in cmd.params:
         if f.is_pad:
             continue
-        value = params[f.name]
-        if strict:
+        value = params.get(f.name, 0)
+        if strict and f.name not in ignored:
             _check_value(cmd, f, value)
         elif f.kind != "f32":
             _check_value(cmd, Field(f.name, f.kind), value)
@@ -188,7 +194,7 @@ def encode_replies(
             value = value.encode("ascii").ljust(16)[:16] if isinstance(value, str) else value
         recs[f.name] = value
     raw = recs.view(np.uint8).reshape(n, spec.length)
-    recs["checksum"] = raw[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
+    recs["checksum"] = checksum_rows(raw[:, :-2])
     return recs.tobytes()
 
 
@@ -206,12 +212,11 @@ def decode_block(code: int, block: np.ndarray, little_endian: bool = False) -> d
 
 @functools.cache
 def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
-    """(unpacker, byte offset, field) for each field of a reply that has a valid domain."""
+    """(unpacker, byte offset, field) for each field of a reply that has a domain."""
     checks = []
     offset = 1
     for f in REPLIES[code].fields:
-        bounded = f.lo is not None or f.hi is not None or f.allowed is not None
-        if bounded and f.kind != "ascii":
+        if f.domain is not None or f.domain_values is not None:
             order = "<" if f.kind == "f32" and little_endian else ">"
             fmt = order + str(f.count) + {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
             checks.append((struct.Struct(fmt), offset, f))
@@ -220,36 +225,40 @@ def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct,
 
 
 def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
-    """Whether every field of one reply lies in its valid domain (NaN allowed).
+    """Whether every field of one reply holds a value a unit can send.
 
     A 16-bit additive checksum matches misaligned or damaged bytes now and then
     (short replies especially), so the framer requires this of every record.
+    NaN and infinities pass in every float field: a unit sends them.
     """
     for unpacker, offset, f in _domain_checks(code, little_endian):
         for v in unpacker.unpack_from(record, offset):
-            if (f.lo is not None and v < f.lo) or (f.hi is not None and v > f.hi):
+            outside = f.domain is not None and not f.domain[0] <= v <= f.domain[1]
+            if outside and (f.kind != "f32" or math.isfinite(v)):
                 return False
-            if f.allowed is not None and v not in f.allowed:
+            if f.domain_values is not None and v not in f.domain_values:
                 return False
     return True
 
 
 @functools.cache
-def _row_checks(code: int, little_endian: bool) -> tuple[list[Any], list[Any]]:
+def _row_checks(
+    code: int, little_endian: bool
+) -> tuple[list[tuple[int, int, np.ndarray]], list[tuple[int, int, np.dtype[Any], Field]]]:
     """``_domain_checks`` grouped for blocks: adjacent float fields form one run, so a
-    data record costs one conversion and two comparisons rather than two per field."""
-    runs: list[list[Any]] = []  # [offset, size, lo per element, hi per element]
-    ints: list[tuple[int, int, np.dtype, Field]] = []
+    data record costs one conversion and a few comparisons rather than per field."""
+    runs: list[tuple[int, int, list[float]]] = []  # offset, size, bound per element
+    ints: list[tuple[int, int, np.dtype[Any], Field]] = []
     for _, offset, f in _domain_checks(code, little_endian):
         if f.kind != "f32":
             ints.append((offset, f.size, np.dtype(_wire_dtype(f, little_endian)), f))
             continue
+        assert f.domain is not None and f.domain[0] == -f.domain[1], "float domains are ±bound"
         if not runs or runs[-1][0] + runs[-1][1] != offset:
-            runs.append([offset, 0, [], []])
-        runs[-1][1] += f.size
-        runs[-1][2] += [-np.inf if f.lo is None else f.lo] * f.count
-        runs[-1][3] += [np.inf if f.hi is None else f.hi] * f.count
-    return [(o, n, np.array(lo), np.array(hi)) for o, n, lo, hi in runs], ints
+            runs.append((offset, 0, []))
+        start, size, bounds = runs[-1]
+        runs[-1] = (start, size + f.size, bounds + [f.domain[1]] * f.count)
+    return [(o, n, np.array(b)) for o, n, b in runs], ints
 
 
 def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) -> np.ndarray:
@@ -257,40 +266,34 @@ def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) ->
     ok = np.ones(len(block), bool)
     floats, ints = _row_checks(code, little_endian)
     wire = np.dtype("<f4" if little_endian else ">f4")
-    for offset, size, lo, hi in floats:
+    for offset, size, bound in floats:
         with np.errstate(invalid="ignore"):  # garbage holds signalling NaNs
-            x = block[:, offset : offset + size].view(wire).astype(np.float64)
-        ok &= ~((x < lo) | (x > hi)).any(axis=1)  # NaN compares false: allowed
+            x = np.abs(block[:, offset : offset + size].view(wire).astype(np.float64))
+        ok &= ~((x > bound) & (x != np.inf)).any(axis=1)  # NaN compares false: allowed
     for offset, size, dtype, f in ints:
         col = block[:, offset : offset + size].view(dtype)
-        if f.lo is not None:
-            ok &= ~(col < f.lo).any(axis=1)
-        if f.hi is not None:
-            ok &= ~(col > f.hi).any(axis=1)
-        if f.allowed is not None:
-            ok &= np.isin(col, sorted(f.allowed)).all(axis=1)
+        if f.domain is not None:
+            ok &= ((col >= f.domain[0]) & (col <= f.domain[1])).all(axis=1)
+        if f.domain_values is not None:
+            ok &= np.isin(col, sorted(f.domain_values)).all(axis=1)
     return ok
 
 
 @dataclass
 class Batch:
-    """n consecutive replies of one type: one array per field, plus stream offsets.
+    """n consecutive replies of one type and float byte order: one array per field.
 
-    ``offsets`` are the byte positions of each record's first byte in the stream
-    the framer was fed, so a caller can map records back to read times.
+    ``offsets`` are the byte positions of each record's first byte in the stream the
+    framer was fed; ``rx_ns`` the receive time of the read that completed each record
+    (its last byte), so a replayed capture times every record as the live run did.
+    ``little_endian`` is the float byte order the records were decoded with.
     """
 
     code: int
     columns: dict[str, np.ndarray]
     offsets: np.ndarray
-
-    @property
-    def spec(self) -> ReplySpec:
-        return REPLIES[self.code]
-
-    @property
-    def name(self) -> str:
-        return self.spec.name
+    rx_ns: np.ndarray
+    little_endian: bool
 
     def __len__(self) -> int:
         return len(self.offsets)
@@ -305,13 +308,3 @@ class Batch:
             for name, col in self.columns.items():
                 out[name] = _py(col[i])
             yield out
-
-
-def json_safe(value: Any) -> Any:
-    """Nested lists with NaN and infinities replaced by None (JSON has no NaN)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, list):
-        return [json_safe(v) for v in value]
-    return value
-

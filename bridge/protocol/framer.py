@@ -9,30 +9,48 @@ step. After losing step the framer advances one byte at a time. Long runs of one
 record type (continuous mode) take a NumPy fast path that checks many records at
 once and falls back to the byte-wise scanner only around corruption; both paths
 accept exactly the same records.
+
+Each chunk comes with its receive time; a record carries the time of the chunk that
+held its last byte, whenever the framer lets it out, so a capture replayed with its
+recorded times gives the live run's records and times whatever the chunking.
 """
 
 from __future__ import annotations
 
 import re
+from bisect import bisect_right
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from bridge.protocol.codec import Batch, decode_block, plausible, plausible_rows
-from bridge.protocol.table import DATA_CODES, REPLIES
+from bridge.protocol.codec import (
+    Batch,
+    checksum,
+    checksum_rows,
+    decode_block,
+    plausible,
+    plausible_rows,
+)
+from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
 
 _MIN_FAST = 8  # records; below this the scanner is cheaper than array set-up
 _MAX_FAST = 1 << 16
+_FLAGS_AT = REPLIES[BYTE_ORDER_REPLY].offset("flags")
 
 
 @dataclass
 class FramerStats:
-    """What the framer saw; ``checksum_failures`` counts candidates with a bad sum."""
+    """What the framer saw.
+
+    ``checksum_failures`` counts candidates with a bad sum, ``implausible`` those
+    whose sum matched but whose values no unit sends (garbage that fits the sum).
+    """
 
     records: Counter[int] = field(default_factory=Counter)
     checksum_failures: int = 0
+    implausible: int = 0
     bytes_skipped: int = 0
     resyncs: int = 0
     bytes_fed: int = 0
@@ -40,29 +58,53 @@ class FramerStats:
     def summary(self) -> str:
         by_type = ", ".join(f"0x{c:02X}×{n}" for c, n in sorted(self.records.items())) or "none"
         return (f"records: {by_type}; checksum failures: {self.checksum_failures}; "
+                f"implausible: {self.implausible}; "
                 f"bytes skipped: {self.bytes_skipped} of {self.bytes_fed}; "
                 f"resyncs: {self.resyncs}")
 
 
-class _Runs:
-    """Accepted records gathered into runs of one type, decoded once per run."""
+class _Reads:
+    """Receive time of every read with bytes still held, by the stream position it ends at."""
 
     def __init__(self) -> None:
-        self.runs: list[tuple[int, list[bytes], list[np.ndarray]]] = []
+        self.ends: list[int] = []
+        self.ns: list[int] = []
 
-    def add(self, code: int, data: bytes, offsets: np.ndarray) -> None:
-        if self.runs and self.runs[-1][0] == code:
-            self.runs[-1][1].append(data)
-            self.runs[-1][2].append(offsets)
+    def add(self, end: int, rx_ns: int) -> None:
+        self.ends.append(end)
+        self.ns.append(rx_ns)
+
+    def times(self, last_bytes: np.ndarray) -> np.ndarray:
+        """The receive time of the read holding each of these stream positions."""
+        index = np.searchsorted(np.array(self.ends, np.int64), last_bytes, side="right")
+        return np.array(self.ns, np.int64)[index]
+
+    def forget_before(self, position: int) -> None:
+        done = bisect_right(self.ends, position)
+        del self.ends[:done], self.ns[:done]
+
+
+class _Runs:
+    """Accepted records gathered into runs of one type and byte order, decoded once per run."""
+
+    def __init__(self) -> None:
+        self.runs: list[tuple[int, bool, list[bytes], list[np.ndarray]]] = []
+
+    def add(self, code: int, little_endian: bool, data: bytes, offsets: np.ndarray) -> None:
+        if self.runs and self.runs[-1][:2] == (code, little_endian):
+            self.runs[-1][2].append(data)
+            self.runs[-1][3].append(offsets)
         else:
-            self.runs.append((code, [data], [offsets]))
+            self.runs.append((code, little_endian, [data], [offsets]))
 
-    def batches(self, little_endian: bool) -> list[Batch]:
+    def batches(self, reads: _Reads) -> list[Batch]:
         out = []
-        for code, chunks, offsets in self.runs:
+        for code, little_endian, chunks, offsets in self.runs:
             block = np.frombuffer(b"".join(chunks), np.uint8)
-            out.append(Batch(code, decode_block(code, block, little_endian),
-                             np.concatenate(offsets)))
+            starts = np.concatenate(offsets)
+            rx_ns = reads.times(starts + (REPLIES[code].length - 1))
+            out.append(Batch(code, decode_block(code, block, little_endian), starts, rx_ns,
+                             little_endian))
         return out
 
 
@@ -71,13 +113,15 @@ class Framer:
 
     ``expect`` names the reply codes that may arrive (a continuous preset, or the
     replies to commands in flight, plus 0x21 for errors); by default it runs
-    blind over every data record.
+    blind over every data record. ``little_endian`` is the float byte order to start
+    with; an accepted 0xDB reply sets it for the records after it.
     """
 
     def __init__(self, expect: Iterable[int] | None = None, little_endian: bool = False) -> None:
         self.little_endian = little_endian
         self.stats = FramerStats()
         self._buf = bytearray()
+        self._reads = _Reads()
         self._base = 0
         self._locked = False
         self._chunk = 256
@@ -91,7 +135,8 @@ class Framer:
         if unknown:
             raise ValueError(f"no reply starts with {', '.join(unknown)}")
         self._lengths = {c: REPLIES[c].length for c in codes}
-        self._header = re.compile(b"[" + b"".join(re.escape(bytes((c,))) for c in codes) + b"]")
+        self._header = re.compile(b"[" + b"".join(re.escape(bytes((c,))) for c in codes) + b"]"
+                                  if codes else b"(?!)")  # nothing expected: skip every byte
 
     @property
     def expected(self) -> frozenset[int]:
@@ -102,10 +147,12 @@ class Framer:
         """Bytes held back waiting for the rest of a possible record."""
         return len(self._buf)
 
-    def feed(self, data: bytes | bytearray | memoryview) -> list[Batch]:
-        """Take the next chunk; return the records completed by it."""
-        self.stats.bytes_fed += len(data)
-        self._buf += data
+    def feed(self, data: bytes | bytearray | memoryview, rx_ns: int = 0) -> list[Batch]:
+        """Take the next read, received at ``rx_ns``; return the records decided so far."""
+        if len(data):
+            self.stats.bytes_fed += len(data)
+            self._buf += data
+            self._reads.add(self._base + len(self._buf), rx_ns)
         return self._scan(final=False)
 
     def flush(self) -> list[Batch]:
@@ -132,25 +179,34 @@ class Framer:
                 self._lose_step(1)
                 pos += 1
                 continue
-            if fast and self._locked and (n - pos) // size >= _MIN_FAST:
+            # A 0xDB reply changes how the next record decodes: the scanner takes it.
+            if (fast and self._locked and code != BYTE_ORDER_REPLY
+                    and (n - pos) // size >= _MIN_FAST):
                 good, fast = self._fast(buf, pos, code, size, runs)
                 pos += good * size
                 continue
             rec = bytes(buf[pos : pos + size])
-            if (sum(rec[:-2]) & 0xFFFF) != (rec[-2] << 8 | rec[-1]):
+            if checksum(rec[:-2]) != (rec[-2] << 8 | rec[-1]):
                 stats.checksum_failures += 1
             elif plausible(code, rec, self.little_endian):
-                runs.add(code, rec, np.array([self._base + pos], np.int64))
+                runs.add(code, self.little_endian, rec, np.array([self._base + pos], np.int64))
                 stats.records[code] += 1
+                if code == BYTE_ORDER_REPLY:
+                    flags = rec[_FLAGS_AT] << 8 | rec[_FLAGS_AT + 1]
+                    self.little_endian = bool(flags & Flag.LITTLE_ENDIAN_FLOATS)
                 self._locked = True
                 fast = True
                 pos += size
                 continue
+            else:
+                stats.implausible += 1
             self._lose_step(1)
             pos += 1
+        batches = runs.batches(self._reads)
         del buf[:pos]
         self._base += pos
-        return runs.batches(self.little_endian)
+        self._reads.forget_before(self._base)
+        return batches
 
     def _checked_from(self, start: int, code: int, size: int) -> np.ndarray | None:
         """The checks already made on the records at ``start``, if a block covered them.
@@ -184,9 +240,8 @@ class Framer:
         if ok is None:
             count = min(self._chunk, (len(buf) - pos) // size)
             block = np.frombuffer(buf, np.uint8, count * size, pos).reshape(count, size)
-            sums = block[:, :-2].sum(axis=1, dtype=np.uint32) & 0xFFFF
             wire = block[:, -2].astype(np.uint32) << 8 | block[:, -1]
-            ok = (sums == wire) & (block[:, 0] == code)
+            ok = (checksum_rows(block[:, :-2]) == wire) & (block[:, 0] == code)
             ok &= plausible_rows(code, block, self.little_endian)
             del block
             self._checked = (start, code, self.little_endian, ok)
@@ -197,7 +252,7 @@ class Framer:
         if fresh:
             self._chunk = min(_MAX_FAST, self._chunk * 2) if good == len(ok) else max(64, 2 * good)
         if good:
-            runs.add(code, bytes(buf[pos : pos + good * size]),
+            runs.add(code, self.little_endian, bytes(buf[pos : pos + good * size]),
                      self._base + pos + size * np.arange(good, dtype=np.int64))
             self.stats.records[code] += good
         return good, good == len(ok)

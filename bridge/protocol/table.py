@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Any
 
 TICKS_PER_SECOND = 62_500
 CALCULATION_CYCLE_S = 0.001  # the unit samples, filters and answers once per 1 ms cycle
@@ -46,6 +47,12 @@ class Flag(IntEnum):
 
 DEFAULT_FLAGS = Flag.ORIENTATION | Flag.CONING_SCULLING
 
+#: The 0xDA self-test bits the manual names (its list is cut short after bit 3): a set
+#: bit means the function is within specification.
+STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
+#: The reply whose ``flags`` set the float byte order of every record after it.
+BYTE_ORDER_REPLY = 0xDB
+
 SIZES = {"u8": 1, "u16": 2, "u32": 4, "f32": 4, "ascii": 16, "pad": 1}
 
 
@@ -53,11 +60,13 @@ SIZES = {"u8": 1, "u16": 2, "u32": 4, "f32": 4, "ascii": 16, "pad": 1}
 class Field:
     """One wire field.
 
-    ``lo``/``hi`` bound the valid values (the unit clamps settings into them; the
-    framer rejects implausible replies outside them while resynchronising);
-    ``allowed`` is a set the unit ignores values outside of. ``shape`` makes a
-    vector or row-major matrix of ``kind`` elements. ``pad`` fields are reserved
-    bytes, sent as zero and not decoded.
+    Two kinds of bounds, for two purposes. A parameter carries the unit's rules: it
+    clamps a setting into ``lo``..``hi`` and ignores one outside ``allowed`` (the
+    encoder refuses both). A reply field carries what a unit can send: ``domain``
+    (floats: anything non-finite too, as in idle mode or with NaN not suppressed) or
+    ``domain_values``; the framer takes a candidate with anything else for garbage
+    that matched the checksum. ``shape`` makes a vector or row-major matrix of
+    ``kind`` elements. ``pad`` fields are reserved bytes, sent as zero, not decoded.
     """
 
     name: str
@@ -66,6 +75,8 @@ class Field:
     lo: float | None = None
     hi: float | None = None
     allowed: frozenset[int] | None = None
+    domain: tuple[float, float] | None = None
+    domain_values: frozenset[int] | None = None
     unit: str = ""
     doc: str = ""
 
@@ -88,10 +99,12 @@ def pad(n: int) -> Field:
 
 
 def _vec(name: str, bound: float, unit: str, doc: str, shape: tuple[int, ...] = (3,)) -> Field:
-    return Field(name, "f32", shape, -bound, bound, unit=unit, doc=doc)
+    return Field(name, "f32", shape, domain=(-bound, bound), unit=unit, doc=doc)
 
 
-_PHYSICAL = 1e6  # far beyond any sensor range; garbage floats mostly exceed it
+# Far beyond any sensor range (and any 17-bit raw code); random bytes read as a float
+# exceed it about 43 % of the time, so a few floats make garbage implausible.
+_PHYSICAL = 1e6
 _UNIT = 1.001  # rotation matrix and quaternion elements, with float32 rounding
 _ANGLE = math.pi + 1e-3
 
@@ -99,8 +112,9 @@ _ANGLE = math.pi + 1e-3
 QUANTITIES: dict[str, Field] = {
     f.name: f
     for f in (
-        Field("raw_accel", "f32", (3,), 0, 131_071, None, "A/D code", "raw accelerometer codes"),
-        Field("raw_ang_rate", "f32", (3,), 0, 131_071, None, "A/D code", "raw gyro codes"),
+        # In idle mode raw codes are "undetermined": any finite value within the loose bound.
+        _vec("raw_accel", _PHYSICAL, "A/D code", "raw accelerometer codes"),
+        _vec("raw_ang_rate", _PHYSICAL, "A/D code", "raw gyro codes"),
         _vec("accel", _PHYSICAL, "g", "specific force, sensor frame"),
         _vec("stab_accel", _PHYSICAL, "g", "gyro-stabilised gravity estimate, sensor frame"),
         _vec("ang_rate", _PHYSICAL, "rad/s", "angular rate, sensor frame"),
@@ -114,24 +128,27 @@ QUANTITIES: dict[str, Field] = {
         _vec("quaternion", _UNIT, "", "q0 (scalar), q1, q2, q3; earth to sensor", (4,)),
         _vec("accel_bias", _PHYSICAL, "g", "bias subtracted from accel"),
         _vec("gyro_bias", _PHYSICAL, "rad/s", "bias subtracted from ang_rate"),
-        Field("temperature", "u16", (4,), 0, 4095, None, "A/D code",
-              "mag, gyro Y/accel X, gyro X/accel Z,Y, gyro Z (12-bit)"),
+        Field("temperature", "u16", (4,), domain=(0, 4095), unit="A/D code",
+              doc="mag, gyro Y/accel X, gyro X/accel Z,Y, gyro Z (12-bit)"),
         Field("timer", "u32", unit="tick", doc="62,500 ticks per second, unsigned, wraps"),
-        Field("command", "u8", allowed=None, doc="continuous command byte (0: none)"),
+        Field("command", "u8", doc="continuous command byte (0: none)"),
         Field("quantity", "u16", doc="1 accel bias, 2 gyro bias, 0xFFFF none"),
-        Field("mode", "u8", lo=1, hi=5, doc="1 active, 2 continuous, 3 idle, 4 sleep, 5 deep"),
-        Field("mode_preset", "u8", lo=1, hi=3, doc="mode entered on power-up or wake"),
+        Field("mode", "u8", domain=(1, 5), doc="1 active, 2 continuous, 3 idle, 4 sleep, 5 deep"),
+        Field("mode_preset", "u8", domain=(1, 3), doc="mode entered on power-up or wake"),
         Field("continuous_preset", "u8", doc="data command used in continuous mode (0: none)"),
-        Field("port", "u8", lo=1, hi=3, doc="1 UART1 (host), 2 and 3 unused on the GX3-25"),
-        Field("baud", "u32", allowed=frozenset(BAUD_RATES), unit="bit/s"),
+        Field("port", "u8", domain=(1, 3), doc="1 UART1 (host), 2 and 3 unused on the GX3-25"),
+        Field("baud", "u32", domain_values=frozenset({0, *BAUD_RATES}), unit="bit/s",
+              doc="0 for the unused ports 2 and 3"),
         Field("config", "u8", doc="bit 1: UART enabled"),
         Field("test_result", "u32", doc="stationary self-test flags, set bit = in spec"),
-        Field("decimation", "u16", lo=1, hi=1000, doc="output rate = 1000 Hz / decimation"),
+        Field("decimation", "u16", domain=(1, 1000), doc="output rate = 1000 Hz / decimation"),
         Field("flags", "u16", doc="data-conditioning bits (see Flag)"),
-        Field("filter_width", "u8", lo=1, hi=32, doc="gyro/accel moving-average width"),
-        Field("mag_filter_width", "u8", lo=1, hi=32, doc="magnetometer moving-average width"),
-        Field("up_compensation", "u16", lo=1, hi=1000, unit="s", doc="gravity correction"),
-        Field("north_compensation", "u16", lo=1, hi=1000, unit="s", doc="north correction"),
+        Field("filter_width", "u8", domain=(1, 32), doc="gyro/accel moving-average width"),
+        Field("mag_filter_width", "u8", domain=(1, 32), doc="magnetometer moving-average width"),
+        Field("up_compensation", "u16", domain=(0, 1000), unit="s",
+              doc="gravity correction (0 from firmware before 1.1.27)"),
+        Field("north_compensation", "u16", domain=(0, 1000), unit="s",
+              doc="north correction (0 from firmware before 1.1.27)"),
         Field("word", "u16", doc="EEPROM word"),
         Field("firmware", "u32", doc="firmware version number"),
         Field("selector", "u8", doc="device ID string selector echoed (0xFF: unknown)"),
@@ -145,14 +162,45 @@ def q(*names: str) -> tuple[Field, ...]:
     return tuple(QUANTITIES[n] for n in names)
 
 
+#: Firmware version numbers as 0xE9 reports them: 1127 is 1.1.27.
+FIRMWARE_1_1_27 = 1127
+
+
+@dataclass(frozen=True)
+class When:
+    """A condition on one parameter: its value is in ``values`` (``param`` None: always).
+
+    ``before_firmware`` limits it to firmware older than that version number; with the
+    firmware unknown it holds, the stricter assumption.
+    """
+
+    param: str | None = None
+    values: frozenset[int] = frozenset()
+    before_firmware: int | None = None
+
+    def holds(self, params: dict[str, Any], firmware: int | None = None) -> bool:
+        if (self.before_firmware is not None and firmware is not None
+                and firmware >= self.before_firmware):
+            return False
+        return self.param is None or params.get(self.param) in self.values
+
+
+ALWAYS = (When(),)
+
+
+def when(param: str, *values: int, before_firmware: int | None = None) -> When:
+    return When(param, frozenset(values), before_firmware)
+
+
 @dataclass(frozen=True)
 class Command:
     """One command of the Command Set Summary.
 
     ``confirm`` are the fixed bytes after the command byte; a unit answers a
     mismatch with the error reply. ``reply`` is ``None`` for commands that never
-    answer. ``silent_when``/``persists_when`` name a (parameter, value) that
-    suppresses the reply / writes non-volatile memory.
+    answer. ``persists_when``: any of these makes it write non-volatile memory;
+    ``silent_when``: the unit does not reply; ``ignored_when``: the unit ignores the
+    parameters named in ``ignored``, so they may be left out (sent as 0).
     """
 
     code: int
@@ -162,9 +210,10 @@ class Command:
     params: tuple[Field, ...] = ()
     reply: tuple[Field, ...] | None = ()
     data: bool = False
-    persists: bool = False
-    persists_when: tuple[str, int] | None = None
-    silent_when: tuple[str, int] | None = None
+    persists_when: tuple[When, ...] = ()
+    silent_when: When | None = None
+    ignored_when: When | None = None
+    ignored: tuple[str, ...] = ()
     documented: bool = True
     notes: str = ""
 
@@ -180,22 +229,24 @@ class Command:
             return None
         return 3 + sum(f.size for f in self.reply)
 
-    def changes_nonvolatile(self, params: dict[str, int]) -> bool:
-        """Whether sending this with ``params`` writes the unit's non-volatile memory."""
-        if self.persists:
-            return True
-        if self.persists_when is None:
-            return False
-        key, value = self.persists_when
-        return params.get(key) == value
+    def changes_nonvolatile(self, params: dict[str, Any], firmware: int | None = None) -> bool:
+        """Whether sending this with ``params`` writes the unit's non-volatile memory.
 
-    def replies(self, params: dict[str, int]) -> bool:
+        ``firmware`` is the 0xE9 version number (1127 for 1.1.27); unknown (None)
+        assumes the older, stricter rules.
+        """
+        return any(rule.holds(params, firmware) for rule in self.persists_when)
+
+    def replies(self, params: dict[str, Any]) -> bool:
         if self.reply is None:
             return False
-        if self.silent_when is None:
-            return True
-        key, value = self.silent_when
-        return params.get(key) != value
+        return self.silent_when is None or not self.silent_when.holds(params)
+
+    def ignores(self, params: dict[str, Any]) -> tuple[str, ...]:
+        """The parameters the unit ignores when sent with ``params``."""
+        if self.ignored_when is not None and self.ignored_when.holds(params):
+            return self.ignored
+        return ()
 
 
 _DATA = (
@@ -225,6 +276,7 @@ _DATA = (
 
 DATA_CODES: frozenset[int] = frozenset(code for code, *_ in _DATA)
 _CONTINUOUS_ALLOWED = frozenset({0}) | DATA_CODES
+_SETTINGS_READ = when("function", 0)
 _FUNCTION_RW = frozenset({0, 1, 2})
 _REALIGN = frozenset(range(1, 101)) | {255}
 
@@ -255,7 +307,7 @@ _SETTINGS: tuple[Command, ...] = (
     Command(0xD0, "transfer_to_nonvolatile", "Transfer Quantity to Non-Volatile Memory",
             b"\xc1\x29",
             (_u16("quantity", doc="1 accel bias, 2 gyro bias", allowed=frozenset({1, 2})),),
-            q("quantity", "timer"), persists=True,
+            q("quantity", "timer"), persists_when=(when("quantity", 1, 2),),
             notes="Any other quantity does nothing and is answered with 0xFFFF."),
     Command(0xD4, "mode", "Mode", b"\xa3\x47",
             (_u8("mode", frozenset(range(6)), doc="0 read, 1 active, 2 continuous, 3 idle, "
@@ -265,15 +317,16 @@ _SETTINGS: tuple[Command, ...] = (
     Command(0xD5, "mode_preset", "Mode Preset", b"\xba\x89",
             (_u8("mode_preset", frozenset(range(4)), doc="0 read, 1 active, 2 continuous, "
                  "3 idle"),),
-            q("mode_preset"), persists=True),
+            q("mode_preset"), persists_when=(when("mode_preset", 1, 2, 3),),
+            notes="0 reads the preset and stores nothing."),
     Command(0xD6, "continuous_preset", "Continuous Preset", b"\xc6\x6b",
             (_u8("continuous_preset", _CONTINUOUS_ALLOWED, doc="data command, 0 reads"),),
-            q("continuous_preset"), persists=True,
+            q("continuous_preset"), persists_when=(when("continuous_preset", *DATA_CODES),),
             notes="0 or a non-data command stores nothing and returns the stored value."),
     Command(0xD7, "timer", "Timer", b"\xc1\x29",
             (_u8("function", frozenset({0, 1, 2}), doc="0 read, 1 set timer, 2 set PPS seconds"),
              Field("value", "u32", doc="new timer or PPS value")),
-            q("timer")),
+            q("timer"), ignored_when=_SETTINGS_READ, ignored=("value",)),
     Command(0xD9, "comms_settings", "Communications Settings", b"\xc3\x55",
             (_u8("port", frozenset({1, 2, 3}), doc="1 UART1"),
              _u8("function", _FUNCTION_RW, doc="0 read, 1 set, 2 set and store"),
@@ -281,8 +334,10 @@ _SETTINGS: tuple[Command, ...] = (
              _u8("config", doc="bit 1: UART enabled (UART1 cannot be disabled)"),
              pad(1)),
             (QUANTITIES["port"], QUANTITIES["baud"], QUANTITIES["config"], pad(1)),
-            persists_when=("function", 2),
-            notes="The reply is sent at the old rate; the new rate applies after it."),
+            persists_when=(when("function", 2),),
+            ignored_when=_SETTINGS_READ, ignored=("baud", "config"),
+            notes="The reply is sent at the old rate; the new rate applies after it. "
+                  "Ports 2 and 3 reply with baud 0."),
     Command(0xDA, "stationary_test", "Stationary Test", b"", (), q("test_result")),
     Command(0xDB, "sampling_settings", "Sampling Settings", b"\xa8\xb9",
             (_u8("function", frozenset({0, 1, 2, 3}), doc="0 read, 1 set, 2 set and store, "
@@ -296,18 +351,24 @@ _SETTINGS: tuple[Command, ...] = (
              pad(6)),
             (*q("decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
                 "north_compensation"), pad(6)),
-            persists_when=("function", 2), silent_when=("function", 3)),
+            persists_when=(when("function", 2),
+                           when("function", 1, before_firmware=FIRMWARE_1_1_27)),
+            silent_when=when("function", 3), ignored_when=_SETTINGS_READ,
+            ignored=("decimation", "flags", "filter_width", "mag_filter_width",
+                     "up_compensation", "north_compensation"),
+            notes="Firmware before 1.1.27 stores with function 1 too, and replies 0 for "
+                  "the compensations."),
     Command(0xDD, "realign_up_north", "Realign Up and North", b"\x54\x4c",
             (_u8("function", frozenset({0, 3}), doc="0 realign, 3 realign without reply"),
              _u8("up_realign", _REALIGN, doc="1-100 tenths of a second, 255 skip"),
              _u8("north_realign", _REALIGN, doc="1-100 tenths of a second, 255 skip"),
              pad(4)),
-            (pad(4),), silent_when=("function", 3),
+            (pad(4),), silent_when=when("function", 3),
             notes="The 4 reply bytes are undetermined; they are not decoded."),
     Command(0xE4, "write_eeprom", "Write Word to EEPROM", b"\xc1\x29\x00",
             (_u16("address", doc="user words 0x0000-0x00EF and 0x0400-0x042F"),
              _u16("value")),
-            q("word"), persists=True,
+            q("word"), persists_when=ALWAYS,
             notes="The fixed 0x00 after the confirmation is checked like it."),
     Command(0xE5, "read_eeprom", "Read Word from EEPROM", b"\x00",
             (_u16("address", doc="user words 0x0000-0x00EF and 0x0400-0x042F"),),
@@ -318,10 +379,10 @@ _SETTINGS: tuple[Command, ...] = (
                  "3 options, 4 lot"),),
             q("selector", "text")),
     Command(0xFA, "stop_continuous", "Stop Continuous Mode", b"\x75\xb4", (), None),
-    Command(0xFD, "firmware_update", "Firmware Update", b"", (), None, persists=True,
+    Command(0xFD, "firmware_update", "Firmware Update", b"", (), None, persists_when=ALWAYS,
             documented=False,
             notes="The manual gives no layout; it is listed, never encoded."),
-    Command(0xFE, "device_reset", "Device Reset", b"\x9e\x3a", (), None, persists=True,
+    Command(0xFE, "device_reset", "Device Reset", b"\x9e\x3a", (), None, persists_when=ALWAYS,
             notes="Listed as state-changing: a reset loses every volatile setting."),
 )
 
@@ -348,6 +409,15 @@ class ReplySpec:
     @property
     def length(self) -> int:
         return 3 + sum(f.size for f in self.fields)
+
+    def offset(self, name: str) -> int:
+        """Byte position of field ``name`` in the reply (the echo byte is at 0)."""
+        at = 1
+        for f in self.fields:
+            if f.name == name:
+                return at
+            at += f.size
+        raise KeyError(f"0x{self.code:02X} {self.name} has no field {name!r}")
 
 
 #: Every reply a unit can send, by its first byte: the echoed command, or 0x21.

@@ -86,6 +86,13 @@ def _time_keyed_normals(seed: int, t: FloatArray, count: int) -> FloatArray:
     return np.concatenate([radius * np.cos(angle), radius * np.sin(angle)], axis=1)[:, :count]
 
 
+def _times(t: npt.ArrayLike) -> FloatArray:
+    times: FloatArray = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    if times.ndim != 1:
+        raise ValueError(f"t must be one-dimensional, got shape {times.shape}")
+    return times
+
+
 class Motion:
     """Analytic trajectory of one simulated unit, sampled on demand at any device times.
 
@@ -135,7 +142,8 @@ class Motion:
     def linear_accel_earth(self, t: npt.ArrayLike) -> FloatArray:
         """Kinematic acceleration of the unit in the earth (NED) frame [g], shape t.shape + (3,)."""
         phase = self._lin_phase + self._lin_omega * np.asarray(t, dtype=np.float64)[..., None, None]
-        return np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
+        accel: FloatArray = np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
+        return accel
 
     def _kinematics(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """True M, body rate [rad/s] and specific force [g] at times t, shape (n,)."""
@@ -160,18 +168,33 @@ class Motion:
             n += 1
         return n
 
-    def sample(self, t: npt.ArrayLike, period: float) -> dict[str, np.ndarray]:
+    def _noise(self, t: FloatArray, gain: tuple[float, float, float]) -> FloatArray:
+        """(n, 9) accel, gyro and mag noise at t, each sigma times its gain."""
+        cfg = self.config
+        sigma = np.repeat([cfg.noise_accel_g * gain[0], cfg.noise_gyro_rad_s * gain[1],
+                           cfg.noise_mag_gauss * gain[2]], 3)
+        return sigma * _time_keyed_normals(cfg.seed, t, 9) if sigma.any() else np.zeros((1, 9))
+
+    def magnetometer(self, t: npt.ArrayLike, gain: float = 1.0) -> FloatArray:
+        """The mag reading alone at times t, (n, 3): what ``sample`` gives, at less cost."""
+        t = _times(t)
+        m = convert.euler_to_m(self.euler_and_rates(t)[0])
+        field: FloatArray = m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64)
+        noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
+        return field + noise
+
+    def sample(self, t: npt.ArrayLike, period: float,
+               noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
         """Everything the unit can report at device times t [s], shape (n,).
 
         period is the output sample period [s]: DeltaAng and DeltaVel integrate over
         [t - period, t] by Gauss-Legendre quadrature, and C spans the last 1 ms
         calculation cycle. All arrays are float64 except temperature, which holds the
         uint16 A/D codes the device sends. Biases and noise affect only the sensor
-        readings (accel, ang_rate, mag, deltas, raw codes), never M or C.
+        readings (accel, ang_rate, mag, deltas, raw codes), never M or C. noise_gain
+        scales the accel, gyro and mag noise (a filter averaging M samples: 1/sqrt(M)).
         """
-        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        if t.ndim != 1:
-            raise ValueError(f"t must be one-dimensional, got shape {t.shape}")
+        t = _times(t)
         if not period > 0.0:
             raise ValueError(f"period must be positive, got {period}")
         cfg = self.config
@@ -189,8 +212,7 @@ class Motion:
         m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])  # for C
         stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
 
-        sigma = np.repeat([cfg.noise_accel_g, cfg.noise_gyro_rad_s, cfg.noise_mag_gauss], 3)
-        noise = sigma * _time_keyed_normals(cfg.seed, t, 9) if sigma.any() else np.zeros((1, 9))
+        noise = self._noise(t, noise_gain)
         accel = force + accel_bias + noise[:, 0:3]
         ang_rate = rate + gyro_bias + noise[:, 3:6]
         return {

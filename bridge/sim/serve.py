@@ -14,10 +14,12 @@ import errno
 import os
 import selectors
 import socket
+import sys
 import termios
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,19 +27,28 @@ import numpy as np
 
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
+from bridge.sim.usb import UsbDelivery, UsbLink
 
 _TICK_S = 0.0005
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
     9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600) if hasattr(termios, f"B{b}")}
 
 
+Notify = Callable[[str], None]
+
+
+def _to_stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+class LinkError(Exception):
+    """A --link path that cannot be made or would replace something that is not ours."""
+
+
 class Link:
     """One unit's end of a host connection."""
 
     url: str
-
-    def read(self) -> bytes:
-        raise NotImplementedError
 
     def write(self, data: bytes) -> int:
         """Write what the host side can take now; return the bytes lost (host not reading)."""
@@ -49,7 +60,8 @@ class Link:
     def selectables(self) -> list[int | socket.socket]:
         raise NotImplementedError
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
+        """What arrived on ``obj``, one of ``selectables``."""
         raise NotImplementedError
 
     def unplug(self) -> None:
@@ -63,11 +75,18 @@ class Link:
 
 
 class PtyLink(Link):
-    """A pseudo-terminal; ``link`` is a stable symlink that survives unplug/plug."""
+    """A pseudo-terminal; ``link`` is a stable symlink that survives unplug/plug.
+
+    The symlink only ever replaces a stale one to a pty (an earlier run's), and is
+    removed on close.
+    """
 
     def __init__(self, baud: int, link: Path | None = None) -> None:
         self.link = link
         self.baud = baud
+        if link is not None and (link.exists() or link.is_symlink()) and not _ours(link):
+            raise LinkError(f"{link} exists and is not a link to a pty; remove it or choose "
+                            "another path")
         self._open()
 
     def _open(self) -> None:
@@ -82,15 +101,19 @@ class PtyLink(Link):
         self.path = os.ttyname(self.slave)
         if self.link is not None:
             tmp = self.link.with_name(self.link.name + ".new")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(self.path)
-            os.replace(tmp, self.link)
+            try:
+                tmp.unlink(missing_ok=True)
+                tmp.symlink_to(self.path)
+                os.replace(tmp, self.link)
+            except OSError as exc:
+                self._close_fds()
+                raise LinkError(f"cannot make {self.link}: {exc.strerror or exc}") from None
         self.url = str(self.link or self.path)
 
     def selectables(self) -> list[int | socket.socket]:
         return [self.master]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         try:
             return os.read(self.master, 4096)
         except OSError:
@@ -114,22 +137,33 @@ class PtyLink(Link):
             return None
 
     def unplug(self) -> None:
-        self.close()
+        self._close_fds()
 
     def plug(self) -> None:
         self._open()
 
-    def close(self) -> None:
+    def _close_fds(self) -> None:
         for fd in (self.master, self.slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
         self.master = self.slave = -1
 
+    def close(self) -> None:
+        self._close_fds()
+        if self.link is not None and self.link.is_symlink() and _ours(self.link):
+            self.link.unlink(missing_ok=True)
+
+
+def _ours(link: Path) -> bool:
+    """A symlink to a pty, as this emulator makes (maybe left by a run that was killed)."""
+    return link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
+
 
 class TcpLink(Link):
-    """A TCP port serving one host at a time (a later one replaces the earlier)."""
+    """A TCP port serving one host at a time: a second client is closed at once."""
 
-    def __init__(self, host: str, port: int) -> None:
+    def __init__(self, host: str, port: int, notify: Notify = _to_stderr) -> None:
+        self.notify = notify
         self.server = socket.create_server((host, port), reuse_port=False)
         self.server.setblocking(False)
         bound_host, bound_port = self.server.getsockname()[:2]
@@ -138,19 +172,25 @@ class TcpLink(Link):
         self.unplugged = False
 
     def selectables(self) -> list[int | socket.socket]:
-        return [self.server] + ([self.client] if self.client else [])
+        return [self.server] if self.client is None else [self.server, self.client]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         if obj is self.server:
             with contextlib.suppress(BlockingIOError):
-                conn, _ = self.server.accept()
+                conn, peer = self.server.accept()
                 if self.unplugged:
                     conn.close()
                     return b""
-                self._drop_client()
+                if self.client is not None:
+                    conn.close()
+                    self.notify(f"{self.url}: refused a second client from "
+                                f"{peer[0]}:{peer[1]}; one host at a time")
+                    return b""
                 conn.setblocking(False)
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self.client = conn
+            return b""
+        if not isinstance(obj, socket.socket):
             return b""
         try:
             data = obj.recv(4096)
@@ -198,33 +238,44 @@ class _Slot:
     held: bytearray
     lost: int = 0
     plugged: bool = True
+    state_reported: bool = False
+    pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
+    power_cycle: bool = False
+    usb: UsbLink | None = None  # the unit's own USB port: bytes reach the host in frames
 
 
 class Simulator:
     """N units, each on its own pty or TCP port, run by one background thread.
 
-    Use as a context manager; ``endpoints`` are what ``gx3 bridge --port`` takes,
-    ``units`` expose each unit's state and ground truth.
+    Use as a context manager; ``endpoints`` are what a serial program opens (pyserial
+    takes the socket:// URLs), ``units`` expose each unit's state and ground truth.
+    ``notify`` gets one-line notices (a refused client, a state file that cannot be
+    written) that must not stop the units.
     """
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
-                 port: int = 0, faults: FaultConfig | None = None,
-                 links: list[Path] | None = None) -> None:
+                 port: int = 0, faults: FaultConfig | list[FaultConfig] | None = None,
+                 links: list[Path] | None = None, notify: Notify = _to_stderr,
+                 usb: UsbDelivery | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
-        faults = faults or FaultConfig()
+        per_unit = faults if isinstance(faults, list) else [faults or FaultConfig()] * len(configs)
+        self.notify = notify
         now = time.monotonic()
         self.slots: list[_Slot] = []
         try:
             for i, config in enumerate(configs):
+                if usb is not None:
+                    config = replace(config, usb=True)
                 unit = SimUnit(config, now)
                 link: Link
                 if transport == "pty":
                     link = PtyLink(unit.baud, links[i] if links else None)
                 else:
-                    link = TcpLink(host, port + i if port else 0)
-                self.slots.append(_Slot(unit, link, Faults(faults, config.motion.seed, now),
-                                        bytearray()))
+                    link = TcpLink(host, port + i if port else 0, notify)
+                self.slots.append(_Slot(
+                    unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
+                    usb=None if usb is None else UsbLink(replace(usb, seed=usb.seed + i), now)))
         except BaseException:
             self._close_links()
             raise
@@ -297,6 +348,13 @@ class Simulator:
                     sel.unregister(fd)
                 sel.register(obj, selectors.EVENT_READ, slot)
 
+    def unplug(self, index: int, seconds: float, power_cycle: bool = False) -> None:
+        """Pull unit ``index``'s cable for ``seconds``, as a test or a demo does on purpose;
+        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug."""
+        slot = self.slots[index]
+        slot.power_cycle = power_cycle
+        slot.pulled_until = time.monotonic() + seconds
+
     @staticmethod
     def _as_unit_hears(slot: _Slot, data: bytes) -> bytes:
         host = slot.link.host_baud()
@@ -304,7 +362,11 @@ class Simulator:
 
     def _pump(self, slot: _Slot, now: float) -> None:
         line = slot.unit.poll_line(now)
-        if slot.faults.outage(now):
+        if slot.unit.state_error is not None and not slot.state_reported:
+            slot.state_reported = True
+            self.notify(f"{slot.unit.config.serial}: cannot save non-volatile memory "
+                        f"({slot.unit.state_error}); running on, changes kept until exit")
+        if slot.faults.outage(now) or now < slot.pulled_until:
             if slot.plugged:
                 slot.link.unplug()
                 slot.plugged = False
@@ -313,7 +375,17 @@ class Simulator:
         if not slot.plugged:
             slot.link.plug()
             slot.plugged = True
-        host = slot.link.host_baud()
+            if slot.faults.config.disconnect_power_cycles or slot.power_cycle:
+                slot.power_cycle = False
+                slot.unit.power_cycle(now)
+                line = []
+        if slot.usb is not None:  # USB ignores the baud rate: bytes arrive in frames
+            for _, data in line:
+                slot.usb.push(data, now)
+            line = [(0, data) for _, data in slot.usb.reads(now)]
+            host = None
+        else:
+            host = slot.link.host_baud()
         for baud, data in line:
             slot.held += slot.faults.corrupt(reframe(data, baud, host) if host else data)
         if slot.held and not slot.faults.stalled(now):

@@ -32,6 +32,7 @@ from bridge.protocol.table import (
     DATA_CODES,
     ERROR_REPLY,
     REPLIES,
+    STATIONARY_TEST_BITS,
     TICKS_PER_SECOND,
     Command,
     Flag,
@@ -40,7 +41,7 @@ from bridge.protocol.table import (
 from bridge.sim import state
 from bridge.sim.clock import UnitClock
 from bridge.sim.motion import Motion, MotionConfig
-from bridge.sim.state import Sampling, Stored
+from bridge.sim.state import USER_EEPROM, Sampling, Stored
 
 _HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, counted in halves
 # Continuous records are computed in vectorised blocks up to LOOKAHEAD_S ahead.
@@ -48,11 +49,13 @@ _HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, coun
 # itself only when less than URGENT_S is left.
 LOOKAHEAD_S = 0.1
 URGENT_S = 0.005
-USER_EEPROM = (range(0x0000, 0x00F0), range(0x0400, 0x0430))
-# The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
-# and bit 3 (system tick), which an awake unit sets in every mode. The 5 V flag
+# The manual gives no inter-byte timeout; a partial command older than this is dropped,
+# so that bytes cut short by an unplug do not swallow the next session's first command.
+INTER_BYTE_TIMEOUT_S = 0.1
+USB_LINE_BAUD = 12_000_000
+# An awake unit sets every self-test bit the manual names, in every mode. The 5 V flag
 # that drops in idle mode has no bit number in the manual.
-STATIONARY_TEST_OK = 0b1001
+STATIONARY_TEST_OK = sum(1 << bit for bit in STATIONARY_TEST_BITS)
 _ORIENTATION_FIELDS = ("m", "c", "euler", "quaternion", "stab_accel", "stab_mag")
 _MAG_FIELDS = ("mag", "stab_mag")
 _RAW_FIELDS = ("raw_accel", "raw_ang_rate", "temperature")
@@ -77,14 +80,18 @@ class UnitConfig:
     stored: Stored = field(default_factory=Stored)
     state_file: Path | None = None
     truth_length: int = 100_000
+    filter_model: bool = True
+    usb: bool = False  # on its own USB port: the baud rate has no effect on the line
 
     def id_string(self, selector: int) -> str:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
 
 
-#: One record's truth: sample instant (host wall clock, ns), device time (s), timer,
-#: record type, true attitude quaternion (scalar first, earth to sensor).
-TruthRow = tuple[int, float, int, int, np.ndarray]
+#: One record's truth: its cycle's instant (host wall clock, ns), the instant its accel,
+#: gyro and attitude values describe (ns, earlier by the filter delay), device time of
+#: the cycle (s), timer, record type, and the true attitude quaternion at the values'
+#: instant (scalar first, earth to sensor).
+TruthRow = tuple[int, int, float, int, int, np.ndarray]
 
 
 class TruthLog:
@@ -96,8 +103,9 @@ class TruthLog:
     """
 
     def __init__(self, capacity: int) -> None:
-        self._columns = {
+        self._columns: dict[str, np.ndarray] = {
             "time_ns": np.zeros(capacity, np.int64),
+            "value_ns": np.zeros(capacity, np.int64),
             "device_s": np.zeros(capacity),
             "timer": np.zeros(capacity, np.uint32),
             "code": np.zeros(capacity, np.uint8),
@@ -142,6 +150,12 @@ class _Segment:
         return self.start + len(self.data) / self.rate
 
 
+def _monotonic_to_wall_ns() -> int:
+    """Wall clock minus monotonic clock, from readings taken together (not from a
+    ``now`` captured earlier, which would put every ground-truth time late)."""
+    return time.time_ns() - time.monotonic_ns()
+
+
 class SimUnit:
     """The device model. Not thread-safe: one transport thread drives it."""
 
@@ -154,7 +168,7 @@ class SimUnit:
         self._t0 = now
         self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
                                 config.clock_wander_period_s, config.clock_seed)
-        self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
+        self._wall_offset_ns = _monotonic_to_wall_ns() if wall_ns is None else wall_ns
         self._scale = 1.0 + config.clock_ppm * 1e-6
         self.truth = TruthLog(config.truth_length)
         self.records_skipped = 0
@@ -162,13 +176,14 @@ class SimUnit:
         self._plan: deque[_Segment] = deque()
         self._line_free = now
         self._sent_until = now
-        self._replan = False
         self._new_phase = False
         self._inbox = bytearray()
+        self._last_byte = now
         self._queue: deque[tuple[float, bytes]] = deque()
         self._busy_until = now
-        self.pps_seconds = 0
-        self._boot(now, config.timer_start, ready=now)
+        self._sleep_timer = 0
+        self.state_error: OSError | None = None
+        self._restart(now, config.timer_start)
 
     # --- clock -------------------------------------------------------------------------
     @overload
@@ -189,13 +204,17 @@ class SimUnit:
             return self._clock.host(device)
         return self._t0 + device / self._scale
 
+    def _host_times(self, device: np.ndarray) -> np.ndarray:
+        """``host_time`` at many instants: its arithmetic takes arrays as they are."""
+        return np.asarray(self.host_time(device))
+
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(self.device_time(host) / CALCULATION_CYCLE_S - 1e-9)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - 1e-9)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
-        return round(self.device_time(host) / CALCULATION_CYCLE_S)
+        return round(float(self.device_time(host)) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
@@ -208,6 +227,19 @@ class SimUnit:
         self._timer_value = value
 
     # --- state -------------------------------------------------------------------------
+    def power_cycle(self, now: float) -> None:
+        """Power returns at ``now`` (a USB-powered unit replugged): it boots from scratch."""
+        self._plan.clear()
+        self._line_free = self._sent_until = self._busy_until = now
+        self._restart(now, 0)
+
+    def _restart(self, at: float, timer_value: int) -> None:
+        """Power-on or reset: input is dropped, output starts after Equation 1's settling."""
+        self._inbox.clear()
+        self._queue.clear()
+        self._boot(at, timer_value,
+                   at + float(wake_time_seconds(self.stored.sampling.filter_width)))
+
     def _boot(self, host: float, timer_value: int, ready: float) -> None:
         """Power-up, reset or wake from deep sleep: RAM reloads from non-volatile memory."""
         self._set_timer(host, timer_value)
@@ -228,6 +260,11 @@ class SimUnit:
         self._stream_phase = self._cycle_after(self._ready)
 
     @property
+    def line_baud(self) -> int:
+        """The pace of the line: the UART's baud rate, or USB full speed (12 Mbit/s)."""
+        return USB_LINE_BAUD if self.config.usb else self.baud
+
+    @property
     def little_endian(self) -> bool:
         return bool(self.sampling.flags & Flag.LITTLE_ENDIAN_FLOATS)
 
@@ -236,17 +273,25 @@ class SimUnit:
         return self.sampling.decimation * CALCULATION_CYCLE_S
 
     def _persist(self, **changes: Any) -> None:
+        """Keep the change; a file that cannot be written is kept in ``state_error``, once."""
         self.stored = replace(self.stored, **changes)
-        state.save(self.config.state_file, self.stored)
+        try:
+            state.save(self.config.state_file, self.stored)
+        except OSError as exc:
+            if self.state_error is None:
+                self.state_error = exc
 
     # --- transport interface -------------------------------------------------------------
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host, arrived at host time ``now``."""
-        if now < self._ready:
+        if now < self._ready or not data:
             return
         if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
             self._wake_up(now)
             return
+        if now - self._last_byte > INTER_BYTE_TIMEOUT_S:
+            self._inbox.clear()
+        self._last_byte = now
         self._inbox += data
         while self._inbox:
             size = command_length(self._inbox[0])
@@ -293,10 +338,10 @@ class SimUnit:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
         if at < self._line_free - 1e-9:
             if skippable:
-                self._plan.append(_Segment(at, b"", self.baud, None))
+                self._plan.append(_Segment(at, b"", self.line_baud, None))
                 return
             at = self._line_free
-        seg = _Segment(at, data, self.baud, truth)
+        seg = _Segment(at, data, self.line_baud, truth)
         self._plan.append(seg)
         self._line_free = seg.end
 
@@ -348,29 +393,54 @@ class SimUnit:
         code = self.continuous_command
         records, truths = self._records(code, cycles)
         size = REPLIES[code].length
-        for i, at in enumerate(self.host_time(cycles * CALCULATION_CYCLE_S)):
-            self._schedule(float(at), records[i * size : (i + 1) * size], truths[i], skippable=True)
+        for i, at in enumerate(self._host_times(cycles * CALCULATION_CYCLE_S).tolist()):
+            self._schedule(at, records[i * size : (i + 1) * size], truths[i], skippable=True)
         self._stream_from = float(self.host_time((cycles[-1] + 1) * CALCULATION_CYCLE_S))
 
     def _start_stream(self, code: int, at: float) -> None:
         """Stream ``code`` from the first cycle after this command's reply."""
-        self._changed(at)
         self.mode = Mode.CONTINUOUS
         self.continuous_command = code
         self._new_phase = True
 
+    def filter_delays(self) -> tuple[float, float]:
+        """Seconds by which accel/gyro-derived and magnetometer values lag their cycle.
+
+        A moving average of M samples at 1 kHz delays by exactly (M - 1)/2 ms at every
+        frequency; its amplitude response (Equations 2-5) at the motion model's
+        <= 0.5 Hz is 1 within 1e-4 for any width up to 32, so the filter is modelled
+        as that time shift alone, and noise as white noise averaged over M samples.
+        """
+        if not self.config.filter_model:
+            return 0.0, 0.0
+        s = self.sampling
+        return ((s.filter_width - 1) / 2 * CALCULATION_CYCLE_S,
+                (s.mag_filter_width - 1) / 2 * CALCULATION_CYCLE_S)
+
+    def _sample(self, device: np.ndarray, period: float, mag: bool) -> dict[str, np.ndarray]:
+        """The motion as the unit's filters see it at the end of cycles at ``device``."""
+        if not self.config.filter_model:
+            return self.motion.sample(device, period)
+        delay, mag_delay = self.filter_delays()
+        widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
+        gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
+        sample = self.motion.sample(device - delay, period, gain)
+        if mag and mag_delay != delay:
+            sample["mag"] = self.motion.magnetometer(device - mag_delay, gain[2])
+        return sample
+
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
         device = cycles * CALCULATION_CYCLE_S
-        sample = self.motion.sample(device, self.period)
+        names = [f.name for f in REPLIES[code].fields if f.name != "timer"]
+        sample = self._sample(device, self.period, "mag" in names)
         timers = self.timer_at(cycles)
-        columns = {"timer": timers}
-        for f in REPLIES[code].fields:
-            if f.name != "timer":
-                columns[f.name] = self._reported(f.name, sample)
+        columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
-        wall = (self.host_time(device) * 1e9 + self._wall_offset_ns).astype(np.int64)
-        truths = list(zip(wall.tolist(), device.tolist(), timers.tolist(), [code] * len(cycles),
+        wall = self._host_times(device) * 1e9 + self._wall_offset_ns
+        valued = self._host_times(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
+        truths = list(zip(wall.astype(np.int64).tolist(), valued.astype(np.int64).tolist(),
+                          device.tolist(), timers.tolist(), [code] * len(cycles),
                           sample["quaternion"], strict=True))
         return data, truths
 
@@ -396,6 +466,21 @@ class SimUnit:
 
     # --- commands ------------------------------------------------------------------------
     def _execute(self, raw: bytes, at: float) -> None:
+        """Act on one command at the end of cycle ``at``, as the manual has it in every mode.
+
+        Records planned for later cycles are planned again after the reply, so that a
+        reply leaves at once and in timer order with the records around it.
+        """
+        self._cancel_after(at)
+        self._reply(raw, at)
+        if self._new_phase:
+            self._stream_from = self._line_free
+            self._stream_phase = self._cycle_after(self._stream_from)
+        else:
+            self._stream_from = self.host_time((self._cycle_at(at) + 1) * CALCULATION_CYCLE_S)
+        self._new_phase = False
+
+    def _reply(self, raw: bytes, at: float) -> None:
         parsed = parse_command(raw)
         cmd = parsed.command
         if not parsed.confirmed:
@@ -410,28 +495,17 @@ class SimUnit:
         values = handler(at, **_normalise(cmd, parsed.params))
         if values is not None and cmd.replies(parsed.params):
             self._schedule(at, encode_reply(cmd.code, self.little_endian, **values))
-        if self._replan:
-            self._stream_from = self._line_free if self._new_phase else at
-            if self._new_phase:
-                self._stream_phase = self._cycle_after(self._stream_from)
-            self._replan = self._new_phase = False
 
     def _reply_data(self, code: int, at: float) -> None:
         cycle = np.array([self._cycle_after(at)])
         data, truths = self._records(code, cycle)
         self._schedule(at, data, truths[0])
 
-    def _changed(self, at: float) -> None:
-        """State changes at ``at``: drop the output planned after it and plan again."""
-        self._cancel_after(at)
-        self._replan = True
-
     def _timer_now(self, at: float) -> int:
         return int(self.timer_at(self._cycle_at(at)))
 
     def _do_set_continuous(self, at: float, command: int | None) -> dict[str, Any]:
         if command == 0:
-            self._changed(at)
             self.mode = Mode.ACTIVE
             self.continuous_command = 0
         elif command is not None:
@@ -439,12 +513,10 @@ class SimUnit:
         return {"command": self.continuous_command, "timer": self._timer_now(at)}
 
     def _do_write_accel_bias(self, at: float, accel_bias: list[float]) -> dict[str, Any]:
-        self._changed(at)
         self.accel_bias = np.array(accel_bias, dtype=np.float32).astype(np.float64)
         return {"accel_bias": self.accel_bias, "timer": self._timer_now(at)}
 
     def _do_write_gyro_bias(self, at: float, gyro_bias: list[float]) -> dict[str, Any]:
-        self._changed(at)
         self.gyro_bias = np.array(gyro_bias, dtype=np.float32).astype(np.float64)
         return {"gyro_bias": self.gyro_bias, "timer": self._timer_now(at)}
 
@@ -454,8 +526,7 @@ class SimUnit:
         start = self._cycle_after(at)
         device = np.arange(start, start + n) * CALCULATION_CYCLE_S
         done = self.host_time(device[-1] + CALCULATION_CYCLE_S)
-        self._changed(at)
-        self.gyro_bias = self.motion.sample(device, CALCULATION_CYCLE_S)["ang_rate"].mean(axis=0)
+        self.gyro_bias = self._sample(device, CALCULATION_CYCLE_S, False)["ang_rate"].mean(axis=0)
         self._busy_until = max(self._busy_until, done)
         values = {"gyro_bias": self.gyro_bias, "timer": self._timer_now(done)}
         self._schedule(done, encode_reply(0xCD, self.little_endian, **values))
@@ -469,8 +540,13 @@ class SimUnit:
                 "timer": self._timer_now(at)}
 
     def _do_mode(self, at: float, mode: int | None) -> dict[str, Any]:
+        if mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
+            # The clocks stop: the timer holds, and what the host sent after the
+            # sleep command is dropped without waking the unit.
+            self._sleep_timer = self._timer_now(at)
+            self._inbox.clear()
+            self._queue.clear()
         if mode in (Mode.ACTIVE, Mode.IDLE, Mode.SLEEP, Mode.DEEP_SLEEP):
-            self._changed(at)
             self.mode = Mode(mode)
         elif mode == Mode.CONTINUOUS and self.stored.continuous_preset in DATA_CODES:
             self._start_stream(self.stored.continuous_preset, at)
@@ -478,10 +554,11 @@ class SimUnit:
 
     def _wake_up(self, now: float) -> None:
         """Any byte wakes a sleeping unit into its preset mode after the settling time."""
-        ready = now + wake_time_seconds(self.sampling.filter_width)
+        ready = now + float(wake_time_seconds(self.sampling.filter_width))
         if self.mode == Mode.DEEP_SLEEP:
             self._boot(now, 0, ready)
         else:
+            self._set_timer(now, self._sleep_timer)
             self._ready = ready
             self._wake(Mode(self.stored.mode_preset))
 
@@ -497,10 +574,8 @@ class SimUnit:
 
     def _do_timer(self, at: float, function: int | None, value: int) -> dict[str, Any]:
         if function == 1:
-            self._changed(at)
             self._set_timer(at, value)
         elif function == 2:
-            self.pps_seconds = value
             return {"timer": value}
         return {"timer": self._timer_now(at)}
 
@@ -509,7 +584,6 @@ class SimUnit:
         if port not in (None, 1):
             return {"port": port, "baud": 0, "config": 0}
         if function in (1, 2) and baud is not None:
-            self._changed(at)
             self._schedule(at, encode_reply(0xD9, port=1, baud=baud, config=0x02))
             self.baud = baud
             if function == 2:
@@ -526,7 +600,6 @@ class SimUnit:
             merged = {k: current[k] if v is None else v for k, v in new.items()}
             if merged["flags"] & (Flag.ORIENTATION | Flag.QUATERNION):
                 merged["decimation"] = max(2, merged["decimation"])
-            self._changed(at)
             self._new_phase = merged["decimation"] != self.sampling.decimation
             self.sampling = Sampling(**merged)
             if function == 2:
@@ -555,14 +628,10 @@ class SimUnit:
         return {"selector": selector, "text": self.config.id_string(selector)}
 
     def _do_stop_continuous(self, at: float) -> None:
-        self._changed(at)
         self.mode = Mode.ACTIVE
 
     def _do_device_reset(self, at: float) -> None:
-        self._changed(at)
-        self._inbox.clear()
-        self._queue.clear()
-        self._boot(at, 0, at + wake_time_seconds(self.stored.sampling.filter_width))
+        self._restart(at, 0)
 
 
 def _normalise(cmd: Command, params: dict[str, Any]) -> dict[str, Any]:

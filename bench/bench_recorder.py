@@ -1,0 +1,137 @@
+"""`gx3 record` under a fleet's load: UNITS units at RATE Hz for SECONDS into one archive.
+
+Load generators (PROCS processes, each publishing a share of the units through the
+same UnitPublisher a bridge uses, 10 records per put burst as a USB read delivers
+them) feed one `gx3 record` process. Reports the recorder's CPU and peak memory,
+the bytes per sample on disk, and the samples lost (published minus archived).
+
+    python bench/bench_recorder.py --units 100 --rate 1000 --seconds 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from procstat import cpu_seconds, peak_rss_mb
+
+CODE = 0xCC
+
+
+
+
+def publish(config: str, units: list[str], rate: float, seconds: float) -> None:
+    """One load generator: its units publish ``rate`` Hz each, in bursts of 10."""
+    from bridge.bus.publish import UnitPublisher
+    from bridge.bus.session import open_session
+    from bridge.protocol.codec import Batch, encode_replies
+    from bridge.protocol.table import REPLIES
+
+    spec = REPLIES[CODE]
+    burst = 10
+    columns = {f.name: np.zeros((burst, *f.shape), np.float32) for f in spec.fields
+               if f.name != "timer"}
+    columns["timer"] = np.zeros(burst, np.uint32)
+    block = np.frombuffer(encode_replies(CODE, columns, burst), np.uint8)
+    from bridge.protocol.codec import decode_block
+    decoded = decode_block(CODE, block.reshape(burst, -1))
+    with open_session(config) as session:
+        pubs = [UnitPublisher(session, u, cache_samples=int(rate * 5)) for u in units]
+        print("READY", flush=True)
+        sys.stdin.readline()
+        t0 = time.monotonic()
+        n = 0
+        while n < rate * seconds:
+            due = t0 + (n + burst) / rate
+            time.sleep(max(0.0, due - time.monotonic()))
+            ticks = np.arange(n, n + burst, dtype=np.int64) * 62
+            now = time.time_ns()
+            rx = np.full(burst, now, np.int64)
+            batch = Batch(CODE, {**decoded, "timer": ticks.astype(np.uint32)},
+                          np.arange(burst), rx, False)
+            for pub in pubs:
+                pub.publish_samples(batch, ticks, rx)
+            n += burst
+        print(f"PUBLISHED {n * len(pubs)}", flush=True)
+        sys.stdin.readline()
+        for pub in pubs:
+            pub.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--units", type=int, default=100)
+    parser.add_argument("--rate", type=float, default=1000.0)
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--procs", type=int, default=4)
+    parser.add_argument("--publish", nargs="*", help=argparse.SUPPRESS)
+    parser.add_argument("--config", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.publish is not None:
+        publish(args.config, args.publish, args.rate, args.seconds)
+        return
+    gx3 = str(Path(sys.executable).parent / "gx3")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
+    with tempfile.TemporaryDirectory() as tmp:
+        rec_cfg, pub_cfg = Path(tmp, "rec.json5"), Path(tmp, "pub.json5")
+        rec_cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
+                                       "scouting": scouting}))
+        pub_cfg.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
+                                       "scouting": scouting}))
+        out = Path(tmp, "load.mcap")
+        recorder = subprocess.Popen([gx3, "record", "-o", str(out), "--zenoh-config",
+                                     str(rec_cfg), "--quiet"])
+        time.sleep(2.0)
+        names = [f"u{i:03d}" for i in range(args.units)]
+        gens = [subprocess.Popen([sys.executable, __file__, "--config", str(pub_cfg),
+                                  "--rate", str(args.rate), "--seconds", str(args.seconds),
+                                  "--publish", *names[i :: args.procs]],
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                for i in range(args.procs)]
+        for g in gens:
+            assert g.stdout is not None and g.stdout.readline().strip() == "READY"
+        time.sleep(2.0)
+        cpu0, wall0 = cpu_seconds(recorder.pid), time.monotonic()
+        for g in gens:
+            assert g.stdin is not None
+            g.stdin.write("go\n")
+            g.stdin.flush()
+        published = 0
+        for g in gens:
+            assert g.stdout is not None
+            published += int(g.stdout.readline().split()[1])
+        time.sleep(3.0)
+        cpu1, wall1 = cpu_seconds(recorder.pid), time.monotonic()
+        rss = peak_rss_mb(recorder.pid)
+        recorder.send_signal(signal.SIGINT)
+        recorder.wait(timeout=120)
+        for g in gens:
+            assert g.stdin is not None
+            g.stdin.write("done\n")
+            g.stdin.close()
+            g.wait(timeout=60)
+        from bridge.recorder.read import read_archive
+
+        archive = read_archive(out)
+        archived = sum(len(b) for b in archive.samples())
+        size = out.stat().st_size
+    print(f"{args.units} units x {args.rate:g} Hz for {args.seconds:g} s "
+          f"({args.units * args.rate:,.0f} samples/s offered)")
+    print(f"published {published:,}, archived {archived:,}, lost {published - archived:,}")
+    print(f"recorder CPU {100 * (cpu1 - cpu0) / (wall1 - wall0):.0f} % of one core, "
+          f"peak memory {rss:.0f} MiB, {size / max(1, archived):.1f} bytes per sample on disk")
+
+
+if __name__ == "__main__":
+    main()

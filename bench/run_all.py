@@ -1,0 +1,73 @@
+"""Run every benchmark and print the README's performance table (Markdown).
+
+Each benchmark runs as its own process, one after another, so they do not compete
+for the machine; the table gives each one's command and the lines it reported.
+``--quick`` runs shorter versions (for trying the runner, not for the README).
+
+    python bench/run_all.py > /tmp/bench.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+#: (what, script and arguments, quick arguments)
+BENCHMARKS: tuple[tuple[str, list[str], list[str]], ...] = (
+    ("codec: framing and decoding", ["bench_codec.py"], ["bench_codec.py"]),
+    ("gx3 decode", ["bench_decode.py"], ["bench_decode.py"]),
+    ("emulator: 16 units at 1 kHz", ["bench_sim.py", "--units", "16", "--seconds", "10"],
+     ["bench_sim.py", "--units", "4", "--seconds", "3"]),
+    ("clock model against truth", ["bench_timing.py"], ["bench_timing.py"]),
+    ("Zenoh publishing", ["bench_bus.py"], ["bench_bus.py"]),
+    ("one bridge at 1 kHz, 0xCC", ["bench_bridge.py", "--seconds", "30"],
+     ["bench_bridge.py", "--seconds", "5"]),
+    ("archive writing and export", ["bench_archive.py"], ["bench_archive.py"]),
+    ("recorder: 100 units at 1 kHz",
+     ["bench_recorder.py", "--units", "100", "--rate", "1000", "--seconds", "60"],
+     ["bench_recorder.py", "--units", "10", "--rate", "1000", "--seconds", "5"]),
+    ("Rerun logging", ["bench_viz.py"], ["bench_viz.py"]),
+    ("fleet: 16 bridges at 1 kHz into one recorder",
+     ["bench_fleet.py", "--units", "16", "--rate", "1000", "--seconds", "60"],
+     ["bench_fleet.py", "--units", "2", "--rate", "100", "--seconds", "5"]),
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="Shorter runs.")
+    parser.add_argument("--only", action="append", default=[], metavar="SCRIPT",
+                        help="Run only this benchmark script (repeatable).")
+    args = parser.parse_args()
+    rows = []
+    for what, full, quick in BENCHMARKS:
+        argv = quick if args.quick else full
+        if args.only and argv[0] not in args.only:
+            continue
+        if not (HERE / argv[0]).exists():
+            continue
+        command = "python bench/" + " ".join(argv)
+        print(f"running {command} …", file=sys.stderr, flush=True)
+        started = time.monotonic()
+        done = subprocess.run([sys.executable, str(HERE / argv[0]), *argv[1:]],
+                              capture_output=True, text=True, check=False)
+        took = time.monotonic() - started
+        lines = [line for line in done.stdout.splitlines() if line.strip()]
+        if done.returncode != 0:
+            lines.append(f"FAILED (exit {done.returncode}): "
+                         + (done.stderr.strip().splitlines() or ["?"])[-1])
+        rows.append((what, command, lines, took))
+    print("| benchmark | command | figures |")
+    print("|---|---|---|")
+    for what, command, lines, took in rows:
+        figures = "<br>".join(line.replace("|", "\\|") for line in lines)
+        print(f"| {what} ({took:.0f} s) | `{command}` | {figures} |")
+
+
+if __name__ == "__main__":
+    main()

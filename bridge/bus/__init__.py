@@ -1,0 +1,1 @@
+"""Zenoh side of the bridge: keys, protobuf messages, sessions, publishing, subscribing."""

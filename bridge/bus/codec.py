@@ -1,0 +1,194 @@
+"""ImuSample bytes in bulk: one NumPy record per message, byte-identical to protobuf.
+
+Every ImuSample of one record type from one unit has one layout (schemas/gx3.proto
+makes the header fixed-width with explicit presence and the quantities packed
+fixed-width arrays), so n samples are one structured array: tags and lengths are
+constant bytes, the values are columns. Encoding or decoding a batch is then a
+few array copies instead of n protobuf objects. tests/test_bus_codec.py checks
+the bytes against the protobuf library for every record type.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, cast
+
+import numpy as np
+from google.protobuf.descriptor import FieldDescriptor
+from google.protobuf.message import DecodeError
+
+from bridge.bus import gx3_pb2
+from bridge.bus.gx3_pb2 import ImuSample
+from bridge.protocol.table import DATA_CODES, QUANTITIES, REPLIES
+
+#: Columns every sample carries besides its quantities.
+HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns")
+_FIELDS = ImuSample.DESCRIPTOR.fields_by_name
+_NUMPY = {FieldDescriptor.TYPE_FIXED32: "<u4", FieldDescriptor.TYPE_SFIXED64: "<i8",
+          FieldDescriptor.TYPE_FLOAT: "<f4"}
+_WIRE_TYPE = {"<u4": 5, "<f4": 5, "<i8": 1}
+_LENGTH_DELIMITED = 2
+
+
+class RecordBatch(Protocol):
+    """What publishing needs of a block of decoded records (bridge.protocol.codec.Batch)."""
+
+    code: int
+    rx_ns: np.ndarray  # host receive time of the read that completed each record
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, name: str, /) -> np.ndarray: ...
+
+
+def record_quantities(code: int) -> tuple[str, ...]:
+    """The quantities a data record of ``code`` holds, in wire order."""
+    if code not in DATA_CODES:
+        raise ValueError(f"0x{code:02X} is not a data record; data records are "
+                         + ", ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
+    return tuple(f.name for f in REPLIES[code].fields if f.name != "timer")
+
+
+def elements(name: str) -> int:
+    """The element count schemas/gx3.proto declares for a quantity field."""
+    # the generated stub types extensions as plain FieldDescriptors
+    return int(_FIELDS[name].GetOptions().Extensions[cast(Any, gx3_pb2.elements)])
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while value >= 0x80:
+        out.append(value & 0x7F | 0x80)
+        value >>= 7
+    out.append(value)
+    return bytes(out)
+
+
+def _tag(name: str, wire_type: int) -> bytes:
+    return _varint(_FIELDS[name].number << 3 | wire_type)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The byte layout of the ImuSample messages of one record type from one unit."""
+
+    unit: str
+    code: int
+    quantities: tuple[str, ...]
+    dtype: np.dtype
+    template: np.ndarray  # one record: every tag and length set, values zero
+    const_mask: np.ndarray  # per byte: True where the byte is a tag or a length
+
+    @property
+    def size(self) -> int:
+        return int(self.dtype.itemsize)
+
+
+@functools.cache
+def layout(code: int, unit: str) -> Layout:
+    """The message layout of record type ``code`` published by ``unit``."""
+    # protobuf writes fields in field-number order, not in the record's wire order
+    quantities = tuple(sorted(record_quantities(code), key=lambda q: _FIELDS[q].number))
+    name = unit.encode()
+    parts: list[tuple[Any, ...]] = []
+    consts: dict[str, bytes] = {}
+
+    def const(key: str, raw: bytes) -> None:
+        parts.append((key, f"V{len(raw)}"))
+        consts[key] = raw
+
+    const("_unit", _tag("unit", _LENGTH_DELIMITED) + _varint(len(name)) + name)
+    for col in HEADER:
+        kind = _NUMPY[_FIELDS[col].type]
+        const(f"_{col}", _tag(col, _WIRE_TYPE[kind]))
+        parts.append((col, kind))
+    for q in quantities:
+        count = elements(q)
+        kind = _NUMPY[_FIELDS[q].type]
+        const(f"_{q}", _tag(q, _LENGTH_DELIMITED) + _varint(4 * count))
+        parts.append((q, kind, (count,)))
+    dtype = np.dtype(parts)
+    template = np.zeros(1, dtype)
+    mask = np.zeros(dtype.itemsize, bool)
+    for key, raw in consts.items():
+        template[key] = np.void(raw)
+        offset = dtype.fields[key][1]  # type: ignore[index]
+        mask[offset : offset + len(raw)] = True
+    template["command"] = code
+    mask[dtype.fields["command"][1] : dtype.fields["command"][1] + 4] = True  # type: ignore[index]
+    return Layout(unit, code, quantities, dtype, template, mask)
+
+
+def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
+                 rx_ns: np.ndarray) -> list[bytes]:
+    """One serialized ImuSample per record of ``batch``: what protobuf would produce."""
+    lay = layout(batch.code, unit)
+    recs = np.frombuffer(bytearray(lay.template.tobytes() * len(batch)), lay.dtype)
+    recs["timer"] = batch["timer"]
+    recs["ticks"] = ticks
+    recs["time_ns"] = time_ns
+    recs["rx_ns"] = rx_ns
+    for q in lay.quantities:
+        recs[q] = np.reshape(batch[q], (len(batch), -1))
+    buf = recs.tobytes()
+    size = lay.size
+    return [buf[i : i + size] for i in range(0, len(buf), size)]
+
+
+def peek(payload: bytes) -> tuple[str, int]:
+    """(unit, command) of a serialized ImuSample, read from its first bytes when it has
+    the bulk layout, else by parsing it."""
+    if payload[:1] == b"\x0a" and len(payload) > 2 and payload[1] < 0x80:
+        end = 2 + payload[1]
+        if payload[end : end + 1] == b"\x15" and len(payload) >= end + 5:
+            return payload[2:end].decode(), int.from_bytes(payload[end + 1 : end + 5], "little")
+    msg = parse(payload)
+    return msg.unit, msg.command
+
+
+def parse(payload: bytes) -> ImuSample:
+    """One ImuSample, with a one-line error for bytes that are not one."""
+    try:
+        return ImuSample.FromString(payload)
+    except DecodeError as exc:
+        raise ValueError(f"not a gx3.v1.ImuSample ({len(payload)} bytes): {exc}") from None
+
+
+def decode_batch(unit: str, code: int, payloads: Sequence[bytes]) -> dict[str, np.ndarray]:
+    """Columns (header and quantities, shaped as in the command table) of serialized
+    ImuSamples of one unit and record type.
+
+    Messages in the bulk layout are read as one array; any other valid encoding of the
+    same message (another producer's field order, say) is parsed one by one.
+    """
+    lay = layout(code, unit)
+    n = len(payloads)
+    recs = np.zeros(n, lay.dtype)
+    fits = np.array([len(p) == lay.size for p in payloads], bool)
+    if fits.any():
+        raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
+                            np.uint8).reshape(-1, lay.size)
+        const = lay.template.view(np.uint8)[lay.const_mask]
+        good = (raw[:, lay.const_mask] == const).all(axis=1)
+        idx = np.flatnonzero(fits)
+        recs[idx[good]] = raw[good].reshape(-1).view(lay.dtype)
+        fits[idx[~good]] = False
+    for i in np.flatnonzero(~fits).tolist():
+        msg = parse(payloads[i])
+        if msg.unit != unit or msg.command != code:
+            raise ValueError(f"sample {i} is from {msg.unit!r} 0x{msg.command:02X}, "
+                             f"not {unit!r} 0x{code:02X}")
+        for col in HEADER:
+            recs[col][i] = getattr(msg, col)
+        for q in lay.quantities:
+            values = getattr(msg, q)
+            if len(values) == elements(q):
+                recs[q][i] = values
+            elif recs[q].dtype.kind == "f":
+                recs[q][i] = np.nan
+    columns = {name: np.ascontiguousarray(recs[name]) for name in HEADER}
+    for q in lay.quantities:
+        columns[q] = np.ascontiguousarray(recs[q]).reshape(n, *QUANTITIES[q].shape)
+    return columns

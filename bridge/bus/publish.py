@@ -1,0 +1,157 @@
+"""Everything one bridge declares on Zenoh for its unit.
+
+Data keys use BLOCK congestion control and RELIABLE reliability: telemetry is
+never dropped silently. They go through zenoh.ext's advanced publisher, whose
+cache lets a subscriber that lost its link for a moment recover the samples,
+and whose heartbeat lets it count exactly what it could not recover.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import zenoh
+from zenoh.ext import (
+    AdvancedPublisher,
+    CacheConfig,
+    MissDetectionConfig,
+    declare_advanced_publisher,
+)
+
+from bridge.bus.codec import RecordBatch, encode_batch
+from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
+
+#: Default imu cache: five seconds at the unit's top rate of 1 kHz.
+CACHE_SAMPLES = 5000
+HEARTBEAT_S = 0.5
+REFUSAL = ("commands are disabled on this bridge: restart it with --allow-commands "
+           "to let operators act on the unit over Zenoh")
+
+#: An operator command handler: command text in, one-line result out; raising
+#: ValueError answers the query with that error.
+CommandHandler = Callable[[str], str]
+
+
+class UnitPublisher:
+    """The imu, status and event publishers, info and command queryables and the
+    liveliness token of one unit, declared together and undeclared together.
+
+    The session stays the caller's; use as a context manager or call ``close``.
+    """
+
+    def __init__(self, session: zenoh.Session, unit: str, *, prefix: str = PREFIX,
+                 cache_samples: int = CACHE_SAMPLES, heartbeat_s: float = HEARTBEAT_S,
+                 on_command: CommandHandler | None = None, allow_commands: bool = False,
+                 raw: bool = False) -> None:
+        self.keys = UnitKeys(unit, prefix)
+        self.unit = unit
+        self.published = 0
+        self._info: bytes | None = None
+        self._on_command = on_command if allow_commands else None
+        self._lock = threading.Lock()
+        self._closed = False
+        self._declared: list[Any] = []
+        try:
+            self._imu = self._advanced(session, "imu", cache_samples, heartbeat_s)
+            self._status = self._advanced(session, "status", 1, heartbeat_s)
+            self._event = self._advanced(session, "event", 100, heartbeat_s)
+            self._raw = self._advanced(session, "raw", 100, heartbeat_s) if raw else None
+            self._declared.append(session.declare_queryable(self.keys.info, self._answer_info))
+            self._declared.append(session.declare_queryable(self.keys.command,
+                                                            self._answer_command))
+            self._declared.append(session.liveliness().declare_token(self.keys.alive))
+        except BaseException:
+            self.close()
+            raise
+
+    def _advanced(self, session: zenoh.Session, leaf: str, cache: int,
+                  heartbeat_s: float) -> AdvancedPublisher:
+        pub = declare_advanced_publisher(
+            session, getattr(self.keys, leaf), encoding=ENCODINGS[leaf],
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            reliability=zenoh.Reliability.RELIABLE,
+            cache=CacheConfig(max_samples=cache),
+            sample_miss_detection=MissDetectionConfig(heartbeat=heartbeat_s,
+                                                      sporadic_heartbeat=None),
+            publisher_detection=True)
+        self._declared.append(pub)
+        return pub
+
+    def publish_samples(self, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
+                        rx_ns: np.ndarray | None = None) -> int:
+        """One ImuSample per record of ``batch``; ``rx_ns`` defaults to ``batch.rx_ns``.
+
+        ``ticks`` (unwrapped timer) and ``time_ns`` (host-clock estimate with the
+        filter delay taken out) are per record, from the timing model.
+        """
+        payloads = encode_batch(self.unit, batch, ticks, time_ns,
+                                batch.rx_ns if rx_ns is None else rx_ns)
+        put = self._imu.put
+        for payload in payloads:
+            put(payload)
+        self.published += len(payloads)
+        return len(payloads)
+
+    def publish_status(self, status: Status) -> None:
+        self._status.put(self._own(status).SerializeToString())
+
+    def publish_event(self, event: Event) -> None:
+        self._event.put(self._own(event).SerializeToString())
+
+    def publish_raw(self, data: bytes, rx_ns: int) -> None:
+        """The bytes of one read, with its host receive time (int64 LE ns) as attachment."""
+        if self._raw is None:
+            raise ValueError("this UnitPublisher was declared without raw=True")
+        self._raw.put(data, attachment=int(rx_ns).to_bytes(8, "little", signed=True))
+
+    def set_info(self, info: Info) -> None:
+        """What the info queryable answers from now on."""
+        self._info = self._own(info).SerializeToString()
+
+    def _own(self, message: Any) -> Any:
+        if not message.unit:
+            message.unit = self.unit
+        elif message.unit != self.unit:
+            raise ValueError(f"a {type(message).__name__} of unit {message.unit!r} cannot go out "
+                             f"on the publisher of unit {self.unit!r}")
+        return message
+
+    def _answer_info(self, query: zenoh.Query) -> None:
+        if self._info is None:
+            query.reply_err(f"{self.unit}: no Info yet, the unit is still being brought up")
+        else:
+            query.reply(self.keys.info, self._info, encoding=ENCODINGS["info"])
+
+    def _answer_command(self, query: zenoh.Query) -> None:
+        if self._on_command is None:
+            query.reply_err(f"{self.unit}: {REFUSAL}")
+            return
+        text = query.payload.to_string() if query.payload is not None else str(query.parameters)
+        try:
+            result = self._on_command(text)
+        except ValueError as exc:
+            query.reply_err(f"{self.unit}: {exc}")
+            return
+        query.reply(self.keys.command, result, encoding=ENCODINGS["command"])
+
+    def close(self) -> None:
+        """Undeclare everything (the liveliness token goes first); safe to call twice."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        for entity in reversed(self._declared):
+            entity.undeclare()
+        self._declared.clear()
+
+    def __enter__(self) -> UnitPublisher:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()

@@ -1,0 +1,97 @@
+"""Zenoh sessions from a JSON5 file and command-line flags, with one-line errors.
+
+The file carries whatever the user's network needs (TLS, ACLs, routers, scouting);
+``--connect``/``--listen``/``--mode`` override it for the common cases. Zenoh's
+own errors name Rust source files and dump parser state: ``condense`` keeps the
+part a user can act on.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zenoh
+
+MODES = ("peer", "client", "router")
+
+
+class SessionError(RuntimeError):
+    """A Zenoh configuration or session that cannot be used; the message says why."""
+
+
+def condense(exc: BaseException) -> str:
+    """The actionable part of a Zenoh error, on one line."""
+    text = re.sub(r"\s*at /\S+?\.rs:\d+\.?", "", str(exc))
+    msg = re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)
+    where = re.search(r"line: (\d+), column: (\d+)", text)
+    pest = re.search(r"-->\s*(\d+):(\d+).*?=\s*(.*)", text, re.S)
+    if msg:
+        text = msg.group(1).replace('\\"', '"')
+        if where and "line" not in text:
+            text += f" (line {where.group(1)}, column {where.group(2)})"
+    elif pest:
+        text = f"{pest.group(3)} (line {pest.group(1)}, column {pest.group(2)})"
+    text = " ".join(text.split()).rstrip(".")
+    return text if len(text) <= 400 else text[:397] + "..."
+
+
+@dataclass(frozen=True)
+class ZenohOptions:
+    """Where a session's configuration comes from: a file, then flags over it."""
+
+    config_file: str | Path | None = None
+    connect: Sequence[str] = field(default=())
+    listen: Sequence[str] = field(default=())
+    mode: str | None = None
+    multicast_scouting: bool | None = None
+
+    def config(self) -> zenoh.Config:
+        """The zenoh.Config these options describe, or a SessionError saying what is wrong."""
+        if self.config_file is not None:
+            path = Path(self.config_file)
+            if not path.is_file():
+                raise SessionError(f"zenoh config {path}: no such file")
+            try:
+                config = zenoh.Config.from_file(str(path))
+            except zenoh.ZError as exc:
+                raise SessionError(f"zenoh config {path}: {condense(exc)}") from None
+        else:
+            config = zenoh.Config()
+        if self.mode is not None:
+            if self.mode not in MODES:
+                raise SessionError(f"--mode {self.mode!r}: use one of {', '.join(MODES)}")
+            config.insert_json5("mode", json.dumps(self.mode))
+        for flag, key, endpoints in (("--connect", "connect/endpoints", self.connect),
+                                     ("--listen", "listen/endpoints", self.listen)):
+            if endpoints:
+                try:
+                    config.insert_json5(key, json.dumps(list(endpoints)))
+                except zenoh.ZError as exc:
+                    raise SessionError(f"{flag} {' '.join(endpoints)}: {condense(exc)} "
+                                       "(e.g. tcp/192.168.1.10:7447)") from None
+        if self.multicast_scouting is not None:
+            config.insert_json5("scouting/multicast/enabled",
+                                json.dumps(self.multicast_scouting))
+        return config
+
+    def open(self) -> zenoh.Session:
+        """A session, or a SessionError naming what failed (endpoint, router)."""
+        config = self.config()
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as exc:
+            hint = ""
+            if "Unable to connect" in str(exc):
+                hint = " (is the router or peer running and reachable?)"
+            raise SessionError(f"zenoh session: {condense(exc)}{hint}") from None
+
+
+def open_session(config_file: str | Path | None = None, *, connect: Sequence[str] = (),
+                 listen: Sequence[str] = (), mode: str | None = None,
+                 multicast_scouting: bool | None = None) -> zenoh.Session:
+    """Open a session from ``--zenoh-config FILE`` and the ``--connect/--listen/--mode`` flags."""
+    return ZenohOptions(config_file, connect, listen, mode, multicast_scouting).open()

@@ -1,0 +1,236 @@
+"""Subscribing to gx3 keys from an application: typed samples, NumPy batches or raw bytes.
+
+An advanced subscriber with recovery: after a short link loss the samples come back
+from the publisher's cache, in order; what cannot come back is counted in
+``misses`` (and passed to ``on_miss``), never silently bridged.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Generic, Literal, TypedDict, TypeVar, Unpack, overload
+
+import numpy as np
+import zenoh
+from zenoh.ext import HistoryConfig, Miss, RecoveryConfig, declare_advanced_subscriber
+
+from bridge.bus.codec import decode_batch, parse, peek
+from bridge.bus.gx3_pb2 import ImuSample
+from bridge.bus.keys import PREFIX, fleet
+from bridge.bus.session import ZenohOptions, condense
+
+T = TypeVar("T")
+_POLL_S = 0.1  # how often a blocked delivery re-checks for close
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """One message as it came: for archiving the very bytes (MCAP) or other types."""
+
+    key: str
+    payload: bytes
+    encoding: str
+
+
+@dataclass(frozen=True)
+class SampleBatch:
+    """Consecutive samples of one unit and record type, as columns.
+
+    ``columns`` holds each quantity (shaped as in the command table, e.g. m is
+    (n, 3, 3)) and command, timer, ticks, time_ns, rx_ns.
+    """
+
+    unit: str
+    code: int
+    columns: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.columns["ticks"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+
+class Subscription(Generic[T]):
+    """A context-managed iterator over what arrives on a key expression.
+
+    Iteration blocks until something arrives; with ``idle_timeout`` it ends after
+    that many seconds of silence. ``close`` (or leaving the ``with``) undeclares
+    the subscriber and closes the session if this subscription opened it.
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, convert: Callable[[list[RawMessage]],
+                 list[T]], *, own_session: bool, history: int, max_batch: int,
+                 queue_size: int, idle_timeout: float | None,
+                 on_miss: Callable[[str, int], None] | None) -> None:
+        self.key = key
+        self.misses = 0
+        self.received = 0
+        self._session = session if own_session else None
+        self._convert = convert
+        self._max_batch = max_batch
+        self._idle_timeout = idle_timeout
+        self._on_miss = on_miss
+        self._queue: queue.Queue[RawMessage] = queue.Queue(queue_size)
+        self._closed = threading.Event()
+        self._lock = threading.Lock()
+        self._pending: list[T] = []
+        try:
+            self._sub = declare_advanced_subscriber(
+                session, key, self._deliver,
+                history=HistoryConfig(detect_late_publishers=True, max_samples=history)
+                if history else None,
+                recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
+            self._listener = self._sub.sample_miss_listener(self._missed)
+        except BaseException:
+            if self._session is not None:
+                self._session.close()
+            raise
+
+    def _deliver(self, sample: zenoh.Sample) -> None:
+        """Zenoh's callback: queue the message; a full queue holds Zenoh back (BLOCK)."""
+        msg = RawMessage(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
+        while not self._closed.is_set():
+            try:
+                self._queue.put(msg, timeout=_POLL_S)
+                return
+            except queue.Full:
+                continue
+
+    def _missed(self, miss: Miss) -> None:
+        with self._lock:
+            self.misses += miss.nb
+        if self._on_miss is not None:
+            self._on_miss(str(miss.source), miss.nb)
+
+    def _take(self, timeout: float | None) -> list[RawMessage]:
+        """What has arrived: at least one message, or none after ``timeout`` or close."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self._closed.is_set():
+            wait = _POLL_S if deadline is None else min(_POLL_S, deadline - time.monotonic())
+            if wait <= 0:
+                return []
+            try:
+                first = self._queue.get(timeout=wait)
+            except queue.Empty:
+                continue
+            got = [first]
+            while len(got) < self._max_batch:
+                try:
+                    got.append(self._queue.get_nowait())
+                except queue.Empty:
+                    break
+            return got
+        return []
+
+    def get(self, timeout: float | None = None) -> T | None:
+        """The next item, or None after ``timeout`` seconds (or once closed)."""
+        if not self._pending:
+            raw = self._take(timeout)
+            self.received += len(raw)
+            self._pending = self._convert(raw)
+        return self._pending.pop(0) if self._pending else None
+
+    def __iter__(self) -> Iterator[T]:
+        while True:
+            item = self.get(self._idle_timeout)
+            if item is None:
+                return
+            yield item
+
+    def close(self) -> None:
+        """Undeclare, release a blocked Zenoh callback, close an owned session."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        self._listener.undeclare()
+        self._sub.undeclare()
+        if self._session is not None:
+            self._session.close()
+
+    def __enter__(self) -> Subscription[T]:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _samples(raw: list[RawMessage]) -> list[ImuSample]:
+    return [parse(m.payload) for m in raw]
+
+
+def _batches(raw: list[RawMessage]) -> list[SampleBatch]:
+    groups: dict[tuple[str, int], list[bytes]] = {}
+    for m in raw:
+        groups.setdefault(peek(m.payload), []).append(m.payload)
+    return [SampleBatch(unit, code, decode_batch(unit, code, payloads))
+            for (unit, code), payloads in groups.items()]
+
+
+def _raw(raw: list[RawMessage]) -> list[RawMessage]:
+    return raw
+
+
+class SubscribeOptions(TypedDict, total=False):
+    """The keyword arguments of ``subscribe`` besides ``output``."""
+
+    session: zenoh.Session | None
+    zenoh_config: str | Path | None
+    connect: Sequence[str]
+    listen: Sequence[str]
+    mode: str | None
+    multicast_scouting: bool | None
+    history: int
+    on_miss: Callable[[str, int], None] | None
+    idle_timeout: float | None
+    max_batch: int
+    queue_size: int
+
+
+@overload
+def subscribe(key: str = ..., *, output: Literal["samples"] = ...,
+              **options: Unpack[SubscribeOptions]) -> Subscription[ImuSample]: ...
+@overload
+def subscribe(key: str = ..., *, output: Literal["batches"],
+              **options: Unpack[SubscribeOptions]) -> Subscription[SampleBatch]: ...
+@overload
+def subscribe(key: str = ..., *, output: Literal["raw"],
+              **options: Unpack[SubscribeOptions]) -> Subscription[RawMessage]: ...
+def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
+              session: zenoh.Session | None = None, zenoh_config: str | Path | None = None,
+              connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str | None = None,
+              multicast_scouting: bool | None = None, history: int = 0,
+              on_miss: Callable[[str, int], None] | None = None,
+              idle_timeout: float | None = None, max_batch: int = 1000,
+              queue_size: int = 100_000) -> Subscription[Any]:
+    """Subscribe to ``key`` (default every unit's samples, ``gx3/*/imu``).
+
+    ``output``: "samples" yields gx3.v1.ImuSample messages, "batches" yields a
+    SampleBatch per unit and record type of what arrived together, "raw" yields
+    RawMessage (key, payload bytes, encoding) for any key. Pass a ``session``, or
+    let the subscription open (and close) its own from ``zenoh_config`` and the
+    connect/listen/mode/multicast_scouting flags. ``history`` asks each publisher's cache for that
+    many past samples; ``on_miss(source, n)`` hears of samples that could not be
+    recovered (``misses`` keeps the total).
+    """
+    converters: dict[str, Callable[[list[RawMessage]], list[Any]]] = {
+        "samples": _samples, "batches": _batches, "raw": _raw}
+    if output not in converters:
+        raise ValueError(f"output {output!r}: use one of {', '.join(converters)}")
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        raise ValueError(f"key expression {key!r}: {condense(exc)}") from None
+    own = session is None
+    if session is None:
+        session = ZenohOptions(zenoh_config, connect, listen, mode, multicast_scouting).open()
+    return Subscription(session, key, converters[output], own_session=own, history=history,
+                        max_batch=max_batch, queue_size=queue_size, idle_timeout=idle_timeout,
+                        on_miss=on_miss)

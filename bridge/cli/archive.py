@@ -1,0 +1,121 @@
+"""`gx3 repair` and `gx3 export`: make an unfinished archive whole, turn one into a table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
+
+from bridge.cli.common import app, err, fail, parse_code
+from bridge.recorder.archive import ArchiveError
+from bridge.recorder.export import (
+    align_table,
+    check_format,
+    event_table,
+    parse_time,
+    sample_table,
+    write_table,
+)
+from bridge.recorder.read import Archive, ArchiveReadError, describe_problem, read_archive
+from bridge.recorder.repair import repair as repair_archive
+
+
+def _read(path: Path) -> Archive:
+    """Read an archive with progress on a terminal; warn once when it was cut short."""
+    size = path.stat().st_size if path.is_file() else None
+    progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
+                        transient=True, disable=not err.is_terminal)
+    with progress:
+        task = progress.add_task("read", total=size)
+        archive = read_archive(path, lambda done: progress.update(task, completed=done))
+    if not archive.message_count:
+        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
+                         "; is it an archive written by gx3?")
+    problem = describe_problem(archive)
+    if problem:
+        err.print(f"[yellow]warning:[/] {problem}; `gx3 repair` makes a finished copy")
+    return archive
+
+
+@app.command()
+def repair(
+    file: Annotated[Path, typer.Argument(help="Archive whose recorder did not finish it.")],
+    output: Annotated[Path | None, typer.Option(
+        "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap).")] = None,
+) -> None:
+    """Rebuild a finished, indexed archive from one cut short (a killed recorder, a full
+    disk): every schema, channel, metadata record and message up to the last complete
+    chunk is copied; what follows is dropped and counted."""
+    try:
+        report = repair_archive(file, output)
+    except (ArchiveReadError, ArchiveError) as exc:
+        raise fail(str(exc)) from None
+    typer.echo(report.text())
+
+
+@app.command()
+def export(
+    archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
+    output: Annotated[Path, typer.Option(
+        "--output", "-o", help="Table to write: .parquet or .csv.")],
+    unit: Annotated[list[str] | None, typer.Option(
+        "--unit", "-u", help="Only this unit (repeatable). Default: every unit.")] = None,
+    record_type: Annotated[list[str] | None, typer.Option(
+        "--type", "-t", metavar="CODE",
+        help="Only records of this command, e.g. 0xCC (repeatable).")] = None,
+    start: Annotated[str | None, typer.Option(
+        help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
+             "from the first sample.")] = None,
+    end: Annotated[str | None, typer.Option(
+        help="End instant (exclusive), as --start.")] = None,
+    align: Annotated[float | None, typer.Option(
+        metavar="RATE",
+        help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
+             "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
+             "empty inside gaps.")] = None,
+    events: Annotated[Path | None, typer.Option(
+        help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
+             "its time to this .parquet or .csv file.")] = None,
+) -> None:
+    """Export samples to Parquet or CSV: one row per sample with unit, command, timer,
+    ticks, time_ns, live_time_ns, rx_ns and flat quantity columns (accel_x .. accel_z,
+    m11 .. m33, roll pitch yaw, q0 .. q3, temperature_0 .. temperature_3, ...), NaN
+    where a record lacks a quantity; rows in time order. M maps earth (north-east-down)
+    to sensor; the quaternion is scalar first."""
+    try:
+        check_format(output)
+        if events is not None:
+            check_format(events)
+        codes = [parse_code(c) for c in record_type] if record_type else None
+        lo = parse_time(start) if start else None
+        hi = parse_time(end) if end else None
+        data = _read(archive)
+        first = data.first_sample_ns() or 0
+        lo_ns = lo.resolve(first) if lo else None
+        hi_ns = hi.resolve(first) if hi else None
+        table = sample_table(data, unit, codes, lo_ns, hi_ns)
+        rows = len(table["time_ns"])
+        if not rows:
+            raise ValueError(f"{archive}: no samples match (units: "
+                             f"{', '.join(data.units()) or 'none'}); check --unit, --type, "
+                             "--start and --end")
+        n_units = len(set(table["unit"].tolist()))
+        if align is not None:
+            table = align_table(table, align)
+            msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} samples "
+                   f"of {n_units} units to {output}")
+        else:
+            msg = f"wrote {rows} samples of {n_units} units to {output}"
+        write_table(table, output)
+        if events is not None:
+            ev = event_table(data, unit, lo_ns, hi_ns)
+            write_table(ev, events)
+            msg += f"; {len(ev['time_ns'])} events to {events}"
+    except (ArchiveReadError, ArchiveError, ValueError, typer.BadParameter) as exc:
+        raise fail(str(exc)) from None
+    except OSError as exc:
+        raise fail(f"cannot write the export ({exc.strerror or exc}); "
+                   "choose a writable path") from None
+    err.print(msg)

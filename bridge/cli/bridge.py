@@ -1,0 +1,180 @@
+"""`gx3 bridge`: one process per unit, every sample typed, timed and on Zenoh."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from bridge.cli.common import app, err, fail, parse_code
+from bridge.cli.operate import BaudOpt, PortOpt, parse_baud
+from bridge.protocol.table import BAUD_RATES, DATA_CODES
+
+ZenohConfigOpt = Annotated[Path | None, typer.Option(
+    "--zenoh-config", metavar="FILE",
+    help="Zenoh JSON5 configuration (mode, endpoints, scouting, TLS, access control); "
+         "the flags below override it. Default: Zenoh's own (a peer that finds others by "
+         "multicast scouting). configs/ has examples.")]
+ConnectOpt = Annotated[list[str] | None, typer.Option(
+    "--connect", metavar="ENDPOINT", help="Zenoh endpoint to connect to, e.g. "
+    "tcp/192.168.1.10:7447 (repeatable).")]
+ListenOpt = Annotated[list[str] | None, typer.Option(
+    "--listen", metavar="ENDPOINT", help="Zenoh endpoint to listen on, e.g. "
+    "tcp/0.0.0.0:7447 (repeatable).")]
+ModeOpt = Annotated[str | None, typer.Option(
+    "--mode", metavar="peer|client", help="Zenoh session mode.")]
+PrefixOpt = Annotated[str, typer.Option(help="First chunk of every key.")]
+
+
+@app.command("bridge")
+def run_bridge(
+    port: PortOpt,
+    baud: BaudOpt = "115200",
+    unit: Annotated[str | None, typer.Option(
+        help="Unit name in the keys (gx3/NAME/imu). Default: the unit's serial number.")] = None,
+    prefix: PrefixOpt = "gx3",
+    record: Annotated[str | None, typer.Option(
+        help="Record to stream, e.g. 0xCC. Default: the unit's continuous preset, else "
+             "0xCC (accel, ang_rate, mag, M).")] = None,
+    decimation: Annotated[int | None, typer.Option(
+        min=1, max=1000, help="Set the output rate to 1000 Hz / N (not stored unless "
+                              "--persist).")] = None,
+    flags: Annotated[str | None, typer.Option(
+        help="Set the 0xDB data-conditioning flags, e.g. 0x1003 for quaternions.")] = None,
+    filter_width: Annotated[int | None, typer.Option(
+        min=1, max=32, help="Set the accel/gyro filter width.")] = None,
+    mag_filter_width: Annotated[int | None, typer.Option(
+        min=1, max=32, help="Set the magnetometer filter width.")] = None,
+    new_baud: Annotated[int | None, typer.Option(
+        help="Switch the unit's UART to this rate after bring-up (reply checked at the "
+             "old rate; falls back if the unit stops answering).")] = None,
+    persist: Annotated[bool, typer.Option(
+        "--persist", help="Store the settings asked for above in the unit's non-volatile "
+                          "memory (needed on firmware before 1.1.27 for any change).")] = False,
+    poll: Annotated[float | None, typer.Option(
+        min=0.1, max=1000, metavar="HZ",
+        help="Ask for each record at this rate instead of continuous mode.")] = None,
+    transport: Annotated[str, typer.Option(
+        metavar="auto|uart|usb",
+        help="Link between unit and host, for the latency floor the clock model takes "
+             "out: uart (line time of each record at the baud rate), usb (the unit's own "
+             "USB port), auto (usb for /dev/ttyACM*).")] = "auto",
+    capture: Annotated[Path | None, typer.Option(
+        metavar="FILE.mcap", help="Also record every read raw, with its receive time.")] = None,
+    allow_commands: Annotated[bool, typer.Option(
+        "--allow-commands", help="Carry out operator commands that arrive over Zenoh "
+                                 "(gx3 configure --unit …); refused otherwise.")] = False,
+    cache: Annotated[float, typer.Option(
+        min=0.0, metavar="SECONDS",
+        help="Seconds of samples kept for subscribers that lose their link.")] = 10.0,
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    mode: ModeOpt = None,
+    duration: Annotated[float | None, typer.Option(
+        min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print errors only.")] = False,
+) -> None:
+    """Bridge one unit onto Zenoh: bring it up, stream, time every sample, publish.
+
+    Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
+    status (once a second), event (gaps, resets, rollovers, reconnects), the info
+    queryable and a liveliness token. Keeps streaming through pulled cables and
+    resets. Ctrl-C or SIGTERM stop continuous mode and close the port.
+    """
+    from bridge.bus.keys import BadName, check_prefix, check_unit
+    from bridge.pipeline import Options, Pipeline
+    from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
+
+    code = parse_code(record) if record else None
+    if code is not None and code not in DATA_CODES:
+        raise fail(f"--record 0x{code:02X} is not a data record; use one of "
+                   + " ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
+    if new_baud is not None and new_baud not in BAUD_RATES:
+        raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))
+    if transport not in ("auto", "uart", "usb"):
+        raise fail(f"--transport {transport!r}: use auto, uart or usb")
+    try:
+        check_prefix(prefix)
+        if unit is not None:
+            check_unit(unit)
+    except BadName as exc:
+        raise fail(str(exc)) from None
+    options = Options(url=port, baud=parse_baud(baud), record=code, decimation=decimation,
+                      flags=parse_code(flags) if flags else None, filter_width=filter_width,
+                      mag_filter_width=mag_filter_width, new_baud=new_baud, persist=persist,
+                      poll_hz=poll, transport=transport)
+    stop = threading.Event()
+
+    def _stop(*_: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    from bridge.bus.session import SessionError, open_session
+    from bridge.service import BusSink
+
+    try:
+        bus = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
+    except SessionError as exc:
+        raise fail(str(exc)) from None
+    writer: list[RawCaptureWriter] = []
+    early: list[tuple[bytes, int]] = []  # reads before the unit's name is known
+
+    def on_read(data: bytes, rx_ns: int) -> None:
+        if capture is None:
+            return
+        if not writer:
+            early.append((data, rx_ns))
+            return
+        try:
+            for item in early:
+                writer[0].write(*item)
+            early.clear()
+            writer[0].write(data, rx_ns)
+        except CaptureError as exc:
+            err.print(f"[yellow]capture stopped:[/] {exc}")
+            writer.clear()
+
+    with bus:
+        sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet)
+        pipeline = Pipeline(options, sink, on_read=on_read)
+        sink.attach(pipeline)
+        if capture is not None:
+            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta))
+        worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
+        worker.start()
+        deadline = None if duration is None else time.monotonic() + duration
+        try:
+            while worker.is_alive() and not stop.is_set():
+                if deadline is not None and time.monotonic() >= deadline:
+                    stop.set()
+                stop.wait(0.2)
+        finally:
+            stop.set()
+            worker.join()
+            sink.close()
+            for w in writer:
+                w.close()
+    if pipeline.error is not None:
+        raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
+                   f"{pipeline.error}", 1)
+    if not quiet:
+        err.print(sink.summary())
+
+
+def _open_capture(writer: list[Any], path: Path, prefix: str, unit: str,
+                  metadata: dict[str, str]) -> None:
+    """Open the raw capture once the unit's name is known (its first bring-up)."""
+    from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
+
+    if writer:
+        return
+    try:
+        writer.append(RawCaptureWriter(path, prefix, unit, metadata))
+    except CaptureError as exc:
+        err.print(f"[red]error:[/] {exc}")

@@ -1,0 +1,264 @@
+"""Operator actions on a unit: `gx3 info`, `configure`, `capture-bias`, `set-timer`,
+`stationary-test`, `reset`.
+
+Each works on a port directly (``--port``), or on running bridges over Zenoh
+(``--unit NAME``, or a key expression such as ``'*'`` for the whole fleet) where
+the bridge was started with ``--allow-commands``. A lasting change asks for
+confirmation first (or takes ``--yes``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from bridge.cli.common import app, err, fail, parse_code
+from bridge.device.actions import ACTIONS, run_action
+from bridge.device.port import Port, PortError
+from bridge.device.session import DeviceError, Session, find_baud
+from bridge.protocol.table import BAUD_RATES
+
+PortOpt = Annotated[str, typer.Option(
+    "--port", "-p", metavar="PORT",
+    help="Device path or pyserial URL: /dev/ttyACM0, a pty, socket://HOST:PORT, "
+         "rfc2217://HOST:PORT.")]
+TargetPortOpt = Annotated[str | None, typer.Option(
+    "--port", "-p", metavar="PORT",
+    help="Act on the unit on this port: device path or pyserial URL (/dev/ttyACM0, a "
+         "pty, socket://HOST:PORT, rfc2217://HOST:PORT).")]
+UnitOpt = Annotated[str | None, typer.Option(
+    "--unit", "-u", metavar="NAME|KEYEXPR",
+    help="Instead of --port: act through running bridges over Zenoh; a unit name, or a "
+         "key expression chunk such as '*' for every unit.")]
+PrefixOpt = Annotated[str, typer.Option(help="Key prefix of the bridges (with --unit).")]
+ZenohConfigOpt = Annotated[str | None, typer.Option(
+    "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration (with --unit).")]
+ConnectOpt = Annotated[list[str] | None, typer.Option(
+    "--connect", metavar="ENDPOINT",
+    help="Zenoh endpoint to connect to, e.g. tcp/10.0.0.2:7447 (with --unit; repeatable).")]
+BaudOpt = Annotated[str, typer.Option(
+    "--baud", metavar="RATE|auto",
+    help="Baud rate the unit talks at now (115200 from the factory); auto tries the "
+         "manual's rates.")]
+YesOpt = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before a lasting "
+                                      "change.")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
+
+
+def parse_baud(text: str) -> int | None:
+    """A baud rate the unit supports, or None for auto."""
+    if text == "auto":
+        return None
+    if not text.isdigit() or int(text) not in BAUD_RATES:
+        raise typer.BadParameter(f"--baud {text!r}: use auto or one of "
+                                 + ", ".join(str(b) for b in BAUD_RATES))
+    return int(text)
+
+
+def _confirm(name: str, params: dict[str, Any], yes: bool) -> bool:
+    if not ACTIONS[name].persists(params) or yes:
+        return True
+    if not sys.stdin.isatty():
+        raise fail(f"{name} makes a lasting change to the unit; add --yes to confirm")
+    return typer.confirm(f"{ACTIONS[name].summary}: this is a lasting change to the unit. "
+                         "Continue?", default=False)
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where an action goes: a port, or bridges over Zenoh."""
+
+    port: str | None
+    baud: str
+    unit: str | None
+    prefix: str
+    zenoh_config: str | None
+    connect: list[str] | None
+
+
+def _run(target: Target, name: str, params: dict[str, Any], yes: bool, as_json: bool) -> None:
+    if (target.port is None) == (target.unit is None):
+        raise fail("give either --port (a unit on a serial port) or --unit (running bridges "
+                   "over Zenoh)")
+    if not _confirm(name, params, yes):
+        raise fail("cancelled; nothing was sent", 1)
+    if target.unit is not None:
+        _run_remote(target, name, params, as_json)
+        return
+    assert target.port is not None
+    _run_local(target.port, target.baud, name, params, as_json)
+
+
+def _run_remote(target: Target, name: str, params: dict[str, Any], as_json: bool) -> None:
+    from bridge.bus.remote import RemoteError, ask_units
+
+    try:
+        results = ask_units(target.prefix, target.unit or "*", name, params,
+                            zenoh_config=target.zenoh_config, connect=target.connect or [])
+    except RemoteError as exc:
+        raise fail(str(exc), 1) from None
+    failed = False
+    for unit, ok, result in results:
+        if not as_json:
+            Console().print(f"[bold]{unit}[/]")
+        if ok:
+            show(result, as_json)
+        else:
+            failed = True
+            err.print(f"[red]{unit}:[/] {result.get('error', result)}")
+    if failed:
+        raise typer.Exit(1)
+
+
+def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
+               as_json: bool) -> None:
+    baud = parse_baud(baud_text)
+    try:
+        port = find_baud(port_url, 115_200)[0] if baud is None else Port.open(port_url, baud)
+    except (PortError, DeviceError) as exc:
+        raise fail(str(exc)) from None
+    try:
+        session = Session(port)
+        session.quiesce()
+        info = session.identify()
+        result = run_action(name, session, info, params, confirmed=True)
+    except (PortError, DeviceError) as exc:
+        raise fail(str(exc), 1) from None
+    finally:
+        port.close()
+    show(result, as_json)
+
+
+def show(result: dict[str, Any], as_json: bool) -> None:
+    """A result for people (a two-column table) or for programs (JSON)."""
+    if as_json:
+        sys.stdout.write(json.dumps(result) + "\n")
+        return
+    table = Table(show_header=False, box=None, pad_edge=False)
+    for key, value in result.items():
+        text = ", ".join(f"{k}={v}" for k, v in value.items()) if isinstance(value, dict) \
+            else str(value)
+        table.add_row(f"[bold]{key}[/]", text)
+    Console().print(table)
+
+
+@app.command()
+def info(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+         prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+         connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
+    """Read a unit's firmware, ID strings, sampling settings and presets (changes nothing)."""
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "info", {}, True, as_json)
+
+
+@app.command()
+def configure(
+    port: TargetPortOpt = None,
+    baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    decimation: Annotated[int | None, typer.Option(
+        min=1, max=1000, help="Output rate = 1000 Hz / N.")] = None,
+    flags: Annotated[str | None, typer.Option(
+        help="0xDB data-conditioning flags, e.g. 0x0003 (bit 4: little-endian floats, "
+             "bit 12: quaternion).")] = None,
+    filter_width: Annotated[int | None, typer.Option(
+        min=1, max=32, help="Accel/gyro moving-average width (delay (N-1)/2 ms).")] = None,
+    mag_filter_width: Annotated[int | None, typer.Option(
+        min=1, max=32, help="Magnetometer moving-average width.")] = None,
+    up_compensation: Annotated[int | None, typer.Option(
+        min=1, max=1000, help="Gravity correction time constant, s.")] = None,
+    north_compensation: Annotated[int | None, typer.Option(
+        min=1, max=1000, help="North correction time constant, s.")] = None,
+    new_baud: Annotated[int | None, typer.Option(
+        help="Switch the UART to this rate (115200, 230400, 460800, 921600).")] = None,
+    mode_preset: Annotated[int | None, typer.Option(
+        min=1, max=3, help="Stored wake-up mode: 1 active, 2 continuous, 3 idle "
+                           "(lasting).")] = None,
+    continuous_preset: Annotated[str | None, typer.Option(
+        help="Stored continuous record, e.g. 0xCC (lasting).")] = None,
+    persist: Annotated[bool, typer.Option(
+        "--persist", help="Store sampling/baud changes in non-volatile memory.")] = False,
+    yes: YesOpt = False,
+    as_json: JsonOpt = False,
+) -> None:
+    """Change sampling settings, the baud rate or the stored presets.
+
+    Sampling and baud changes are temporary unless --persist (on firmware before
+    1.1.27 any sampling change is stored: that needs --persist too). Presets are
+    always stored. Lasting changes ask for confirmation.
+    """
+    if new_baud is not None and new_baud not in BAUD_RATES:
+        raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))
+    params: dict[str, Any] = {
+        "decimation": decimation, "flags": parse_code(flags) if flags else None,
+        "filter_width": filter_width, "mag_filter_width": mag_filter_width,
+        "up_compensation": up_compensation, "north_compensation": north_compensation,
+        "baud": new_baud, "mode_preset": mode_preset,
+        "continuous_preset": parse_code(continuous_preset) if continuous_preset else None,
+        "persist": persist,
+    }
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "configure", params, yes,
+         as_json)
+
+
+@app.command("capture-bias")
+def capture_bias(
+    port: TargetPortOpt = None,
+    baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    sampling_ms: Annotated[int, typer.Option(
+        min=1, max=65_535, help="Averaging time, ms (the manual advises 10000-30000).")] = 10_000,
+    persist: Annotated[bool, typer.Option(
+        "--persist", help="Store the captured bias in non-volatile memory (0xD0).")] = False,
+    yes: YesOpt = False,
+    as_json: JsonOpt = False,
+) -> None:
+    """Capture the gyro bias (0xCD): keep the unit perfectly still while it samples."""
+    err.print(f"[dim]sampling for {sampling_ms / 1000:g} s: keep the unit still…[/]")
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "capture_bias",
+         {"sampling_ms": sampling_ms, "persist": persist}, yes, as_json)
+
+
+@app.command("set-timer")
+def set_timer(
+    port: TargetPortOpt = None,
+    baud: BaudOpt = "115200",
+    unit: UnitOpt = None,
+    prefix: PrefixOpt = "gx3",
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    value: Annotated[int, typer.Option(min=0, max=0xFFFF_FFFF,
+                                       help="New timer value, ticks.")] = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Restart the unit's timer at a value (0xD7; not stored)."""
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "set_timer",
+         {"value": value}, True, as_json)
+
+
+@app.command("stationary-test")
+def stationary_test(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+                    prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+                    connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
+    """Run the self-test (0xDA) on a still unit and print its flags."""
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "stationary_test", {}, True,
+         as_json)
+
+
+@app.command()
+def reset(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
+          prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
+          connect: ConnectOpt = None, yes: YesOpt = False, as_json: JsonOpt = False) -> None:
+    """Soft-reset the unit (0xFE): it restarts from its stored settings."""
+    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "reset", {}, yes, as_json)

@@ -1,0 +1,264 @@
+"""`gx3 demo`: the whole product on one machine, no sensor needed.
+
+An emulated fleet on real pseudo-terminals (different clock errors; one unit
+crosses the timer rollover, one suffers corruption and an unplug), one `gx3 bridge`
+OS process per unit, Zenoh on loopback (peers, or a `gx3 router`), and the recorder
+in this process writing the MCAP archive and the Rerun recording, with a live
+dashboard. Everything it starts, it stops; what it made stays in the output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import IO, Any
+
+from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
+from bridge.sim.faults import FaultConfig
+from bridge.sim.motion import MotionConfig
+from bridge.sim.serve import Simulator
+from bridge.sim.state import Sampling, Stored
+from bridge.sim.unit import UnitConfig
+
+CLOCK_PPM = (42.0, -27.0, 85.0, -63.0, 12.0, -95.0, 55.0, -8.0)
+ORIENTATION_RECORDS = frozenset({0xC5, 0xC6, 0xC8, 0xCC, 0xCE, 0xCF, 0xD2, 0xDF})
+STARTUP_TIMEOUT_S = 60.0
+
+
+class DemoError(RuntimeError):
+    """The demo cannot run as asked; the message says why."""
+
+
+@dataclass
+class DemoUnit:
+    name: str
+    config: UnitConfig
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    unplug: bool = False
+    notes: list[str] = field(default_factory=list)
+
+
+def line_baud(code: int, rate_hz: float) -> int:
+    """The slowest baud rate that carries ``rate_hz`` records of ``code`` with a margin."""
+    need = REPLIES[code].length * 10 * rate_hz * 1.25
+    for baud in BAUD_RATES:
+        if baud >= need:
+            return baud
+    raise DemoError(f"0x{code:02X} at {rate_hz:g} Hz needs {need:,.0f} baud, more than a "
+                    f"UART carries ({BAUD_RATES[-1]:,}); lower --rate")
+
+
+def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[DemoUnit]:
+    """``count`` units: clock errors of tens of ppm; unit 2 (or the only one) crosses the
+    rollover halfway, the last suffers bit flips and an unplug."""
+    if code not in DATA_CODES:
+        raise DemoError(f"--record-type 0x{code:02X} is not a data record")
+    decimation = round(1000 / rate_hz)
+    if not 1 <= decimation <= 1000:
+        raise DemoError(f"--rate {rate_hz:g}: use 1 to 1000 Hz")
+    if code in ORIENTATION_RECORDS and decimation < 2:
+        raise DemoError(f"0x{code:02X} needs the orientation filter, which runs up to 500 Hz; "
+                        "lower --rate or pick a record without orientation (e.g. 0xC2)")
+    baud = line_baud(code, 1000 / decimation)
+    flags = int(Flag.ORIENTATION | Flag.CONING_SCULLING | (Flag.QUATERNION if code == 0xDF
+                                                            else 0))
+    stored = Stored(mode_preset=2, continuous_preset=code, baud=baud,
+                    sampling=Sampling(decimation=decimation, flags=flags))
+    units = []
+    for i in range(count):
+        config = UnitConfig(serial=f"DEMO-{i + 1}", clock_ppm=CLOCK_PPM[i % len(CLOCK_PPM)],
+                            clock_wander_ppm=2.0, clock_seed=i,
+                            motion=MotionConfig(seed=100 + i), stored=stored)
+        unit = DemoUnit(f"imu{i + 1}", config)
+        units.append(unit)
+    rolling = units[min(1, count - 1)]
+    ticks_to_wrap = round((duration_s / 2 + 5.0) * 62_500)
+    rolling.config = replace(rolling.config, timer_start=(1 << 32) - ticks_to_wrap)
+    rolling.notes.append("timer rollover")
+    faulty = units[-1]
+    faulty.faults = FaultConfig(bit_flip_rate=2e-4)
+    faulty.unplug = True
+    faulty.notes.append("bit flips, unplug")
+    return units
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def write_config(path: Path, mode: str, listen: list[str], connect: list[str]) -> Path:
+    """A Zenoh session on loopback only, multicast scouting off."""
+    path.write_text(json.dumps({
+        "mode": mode, "listen": {"endpoints": listen}, "connect": {"endpoints": connect},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": mode != "client"}},
+    }, indent=1) + "\n")
+    return path
+
+
+def gx3_executable() -> list[str]:
+    """This installation's `gx3`, run with this interpreter."""
+    beside = Path(sys.executable).parent / "gx3"
+    return [str(beside)] if beside.exists() else [sys.executable, "-m", "bridge"]
+
+
+@dataclass
+class Processes:
+    """Child processes, stopped by SIGINT (then killed) in reverse order."""
+
+    children: list[tuple[str, subprocess.Popen[bytes], IO[bytes]]] = field(default_factory=list)
+
+    def start(self, name: str, args: list[str], log: Path) -> subprocess.Popen[bytes]:
+        out = log.open("wb")
+        proc = subprocess.Popen([*gx3_executable(), *args], stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL)
+        self.children.append((name, proc, out))
+        return proc
+
+    def failed(self) -> list[str]:
+        return [name for name, proc, _ in self.children if proc.poll() not in (None, 0)]
+
+    def stop(self) -> None:
+        for _, proc, _ in reversed(self.children):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for _, proc, out in reversed(self.children):
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            out.close()
+
+
+@dataclass
+class Demo:
+    """Runs the demo; ``show(rows, elapsed)`` draws the dashboard."""
+
+    output: Path
+    units: list[DemoUnit]
+    duration_s: float
+    router: bool = False
+    viewer: Any = None  # a Rerun recording to mirror the live data into
+    show: Callable[[list[dict[str, Any]], float], None] = lambda rows, elapsed: None
+    stop: threading.Event = field(default_factory=threading.Event)
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def archive(self) -> Path:
+        return self.output / "demo.mcap"
+
+    @property
+    def rrd(self) -> Path:
+        return self.output / "demo.rrd"
+
+    def run(self) -> None:
+        from bridge.bus.session import open_session
+        from bridge.recorder.archive import ArchiveWriter
+        from bridge.recorder.live import Recorder
+        from bridge.viz.logger import RerunLogger
+        from bridge.viz.sources import log_messages
+
+        self.output.mkdir(parents=True, exist_ok=True)
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        procs = Processes()
+        if self.router:
+            mode = "client"
+            procs.start("router", ["router", "--listen", endpoint],
+                        self.output / "router.log")
+            recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [],
+                                        [endpoint])
+        else:
+            mode = "peer"
+            recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [endpoint],
+                                        [])
+        bridge_cfg = write_config(self.output / "zenoh-bridges.json5", mode, [], [endpoint])
+        links = [self.output / f"{u.name}.tty" for u in self.units]
+        loggers = [RerunLogger(self.rrd, [u.name for u in self.units], recording_id="demo")]
+        if self.viewer is not None:
+            loggers.append(RerunLogger(self.viewer, [u.name for u in self.units], window_s=30))
+        session = None
+        try:
+            if self.router:
+                time.sleep(0.5)  # the router's port opens as it starts
+            session = open_session(recorder_cfg)
+            writer = ArchiveWriter(self.archive)
+
+            def to_rerun(messages: list[Any]) -> None:
+                for logger in loggers:
+                    log_messages(logger, messages, "gx3")
+
+            recorder = Recorder(session, writer, on_written=to_rerun)
+            with Simulator([u.config for u in self.units], "pty", links=links,
+                           faults=[u.faults for u in self.units]) as sim:
+                for unit, link in zip(self.units, links, strict=True):
+                    procs.start(unit.name, ["bridge", "--port", str(link), "--baud",
+                                            str(unit.config.stored.baud), "--unit", unit.name,
+                                            "--zenoh-config", str(bridge_cfg), "--quiet"],
+                                self.output / f"{unit.name}.log")
+                self._stream(sim, recorder, procs)
+                procs.stop()
+                recorder.run_once(1.0)
+            recorder.close()
+            writer.close()
+        finally:
+            procs.stop()
+            for logger in loggers:
+                logger.close()
+            if session is not None:
+                session.close()
+
+    def _stream(self, sim: Simulator, recorder: Any, procs: Processes) -> None:
+        """Wait for every unit to stream, then run for the duration (unplugging one)."""
+        started = time.monotonic()
+        streaming_since: float | None = None
+        unplugged = False
+        while not self.stop.is_set():
+            recorder.run_once(0.25)
+            if recorder.error is not None:
+                raise DemoError(str(recorder.error))
+            broken = procs.failed()
+            if broken:
+                raise DemoError(f"{', '.join(broken)} stopped; see its log in {self.output}")
+            self.rows = recorder.snapshot()
+            now = time.monotonic()
+            live = {r["unit"] for r in self.rows if r["samples"] > 0}
+            if streaming_since is None:
+                if live >= {u.name for u in self.units}:
+                    streaming_since = now
+                elif now - started > STARTUP_TIMEOUT_S:
+                    raise DemoError("the bridges did not start streaming within "
+                                    f"{STARTUP_TIMEOUT_S:.0f} s; see the logs in {self.output}")
+            else:
+                elapsed = now - streaming_since
+                if not unplugged and elapsed >= 0.3 * self.duration_s:
+                    unplugged = True
+                    for i, unit in enumerate(self.units):
+                        if unit.unplug:
+                            sim.unplug(i, max(1.0, 0.1 * self.duration_s))
+                if elapsed >= self.duration_s:
+                    break
+            self.show(self.rows, 0.0 if streaming_since is None else now - streaming_since)
+
+    def summary(self) -> list[dict[str, Any]]:
+        """Per unit: what arrived, what went wrong, and the drift found against the truth."""
+        by_name = {r["unit"]: r for r in self.rows}
+        out = []
+        for unit in self.units:
+            r = by_name.get(unit.name, {})
+            out.append({"unit": unit.name, "samples": r.get("samples", 0),
+                        "dropped": r.get("dropped", 0),
+                        "checksum_failures": r.get("checksum_failures", 0),
+                        "resyncs": r.get("resyncs", 0), "reconnects": r.get("reconnects", 0),
+                        "drift_ppm": r.get("drift_ppm"), "true_ppm": unit.config.clock_ppm,
+                        "notes": ", ".join(unit.notes)})
+        return out

@@ -1,0 +1,124 @@
+"""Open a unit's byte transport and read from it with honest receive times.
+
+Any pyserial URL or device path works: a real tty, a pty, ``socket://``, ``rfc2217://``.
+Reads are non-blocking behind ``select`` where the transport has a file descriptor,
+so the receive time stamped on a read is the moment its bytes were handed over,
+not the end of a read timeout (pyserial's socket ``read(n)`` otherwise waits for n
+bytes or the timeout, which would smear every stamp by up to the timeout).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import select
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import serial
+
+_READ_SIZE = 1 << 16
+
+
+class PortError(OSError):
+    """The port cannot be used; the message says why and what to do, in one line."""
+
+
+def _describe(url: str, exc: BaseException) -> str:
+    text = str(exc)
+    code = getattr(exc, "errno", None)
+    if code == errno.ENOENT or "No such file" in text:
+        return f"{url}: no such port; check the cable and the device name (ls /dev/tty*)"
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
+        return (f"{url}: permission denied; add your user to the 'dialout' group "
+                "(then log in again) or use a udev rule")
+    if code == errno.EBUSY or "exclusively lock" in text or "Resource temporarily" in text:
+        return f"{url}: port is busy: another program has it open (is a bridge already running?)"
+    if "returned no data" in text or code == errno.EIO:
+        return f"{url}: the device went away (cable pulled, or the unit lost power)"
+    if code == errno.ECONNREFUSED or "Connection refused" in text:
+        return f"{url}: connection refused; is the serial server (or gx3 sim) running?"
+    first = text.splitlines()[0] if text else type(exc).__name__
+    return f"{url}: {first}"
+
+
+@dataclass
+class Port:
+    """One open transport. ``baud`` is what the host side is set to."""
+
+    url: str
+    raw: Any
+
+    @classmethod
+    def open(cls, url: str, baud: int) -> Port:
+        """Open ``url`` at ``baud``; exclusive, so a second bridge gets a clear 'busy'."""
+        kwargs: dict[str, Any] = {"baudrate": baud, "timeout": 0, "write_timeout": 2.0}
+        if "://" not in url:
+            kwargs["exclusive"] = True
+        try:
+            raw = serial.serial_for_url(url, **kwargs)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortError(_describe(url, exc)) from None
+        return cls(url, raw)
+
+    @property
+    def baud(self) -> int:
+        return int(self.raw.baudrate)
+
+    @baud.setter
+    def baud(self, value: int) -> None:
+        try:
+            self.raw.baudrate = value
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortError(_describe(self.url, exc)) from None
+
+    def _fileno(self) -> int | None:
+        try:
+            return int(self.raw.fileno())
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return None
+
+    def read(self, wait_s: float) -> tuple[bytes, int]:
+        """Bytes that arrived within ``wait_s``, and the host time (ns) they were read.
+
+        Raises PortError when the transport is gone (cable pulled, server closed).
+        """
+        fd = self._fileno()
+        try:
+            if fd is not None:
+                ready, _, _ = select.select([fd], [], [], wait_s)
+                if not ready:
+                    return b"", time.time_ns()
+                data = self.raw.read(_READ_SIZE)
+                rx_ns = time.time_ns()
+                if not data:
+                    raise PortError(f"{self.url}: the device went away (cable pulled?)")
+                return bytes(data), rx_ns
+            self.raw.timeout = wait_s
+            data = self.raw.read(max(1, self.raw.in_waiting))
+            if data and self.raw.in_waiting:
+                data += self.raw.read(self.raw.in_waiting)
+            return bytes(data), time.time_ns()
+        except PortError:
+            raise
+        except (serial.SerialException, OSError) as exc:
+            raise PortError(_describe(self.url, exc)) from None
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.raw.write(data)
+            self.raw.flush()
+        except (serial.SerialException, OSError) as exc:
+            raise PortError(_describe(self.url, exc)) from None
+
+    def close(self) -> None:
+        with contextlib.suppress(serial.SerialException, OSError):
+            self.raw.close()
+
+
+def is_usb_cdc(url: str) -> bool:
+    """A USB CDC-ACM device (the GX3's own USB port): no UART between unit and host."""
+    name = os.path.basename(os.path.realpath(url)) if "://" not in url else ""
+    return name.startswith("ttyACM")

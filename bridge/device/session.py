@@ -1,0 +1,351 @@
+"""A session with one unit: bring-up, commands with timeouts and retries, streaming.
+
+One thread owns the port. Commands can be sent while the unit streams: the framer
+then expects the stream's records, the command's reply and the error reply, and
+every data record that arrives while waiting is kept for the next ``read``, so a
+command never costs a sample.
+
+Nothing that writes the unit's non-volatile memory is sent unless the caller says
+so for that exact command (``persist=True``); the command table decides what
+persists, taking the firmware into account (DESIGN.md, "Safety of commands").
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge.device.port import Port, PortError
+from bridge.protocol.codec import Batch, encode_command
+from bridge.protocol.convert import wake_time_seconds
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import (
+    BAUD_RATES,
+    DATA_CODES,
+    ERROR_CODE,
+    REPLIES,
+    TICKS_PER_SECOND,
+    Flag,
+    lookup,
+)
+
+#: Record streamed when the unit has no continuous preset: accel, ang_rate, mag and M.
+DEFAULT_RECORD = 0xCC
+ID_FIELDS = ("model_number", "serial", "model_name", "options", "lot")
+_QUIET_S = 0.05  # silence that ends a drain
+_DRAIN_MAX_S = 1.0
+_MAX_SETTLE_S = float(wake_time_seconds(32)) + 0.02  # Equation 1 at the widest filter
+
+
+class DeviceError(Exception):
+    """A unit did not do what was asked; the message says what and what to try."""
+
+
+class CommandTimeout(DeviceError):
+    """No reply within the timeout, after every retry."""
+
+
+class CommandRejected(DeviceError):
+    """The unit answered 21 00 21: it did not accept the confirmation bytes."""
+
+
+class PersistRefused(DeviceError):
+    """The command would write non-volatile memory and the caller did not ask for that."""
+
+
+@dataclass
+class UnitInfo:
+    """What bring-up learned about the unit."""
+
+    firmware: int
+    ids: dict[str, str]
+    sampling: dict[str, int]
+    baud: int
+    continuous_preset: int
+    record: int = 0
+    bring_up_ns: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def firmware_text(self) -> str:
+        """1127 -> '1.1.27', as the manual writes versions."""
+        major, rest = divmod(self.firmware, 1000)
+        minor, patch = divmod(rest, 100)
+        return f"{major}.{minor}.{patch}"
+
+    @property
+    def little_endian(self) -> bool:
+        return bool(self.sampling.get("flags", 0) & Flag.LITTLE_ENDIAN_FLOATS)
+
+    @property
+    def output_hz(self) -> float:
+        return 1000.0 / max(1, self.sampling.get("decimation", 1))
+
+    @property
+    def period_ticks(self) -> float:
+        """The output period in timer ticks: decimation x 62.5."""
+        return TICKS_PER_SECOND * max(1, self.sampling.get("decimation", 1)) / 1000
+
+
+def _line_time(nbytes: int, baud: int) -> float:
+    return nbytes * 10.0 / baud
+
+
+class Session:
+    """One unit on one open port. Not thread-safe: one thread drives it."""
+
+    def __init__(self, port: Port, firmware: int | None = None) -> None:
+        self.port = port
+        self.firmware = firmware
+        self.framer = Framer(expect=())
+        self.streaming: int | None = None  # the record ``read`` returns: streamed or polled
+        self.polling = False
+        self.paced = False  # bytes come at the UART's line rate (not in USB packets)
+        self.on_read: Callable[[bytes, int], None] | None = None  # raw capture hook
+        self._backlog: list[Batch] = []
+        self.bytes_read = 0
+
+    # --- reading -----------------------------------------------------------------------
+    def _expect(self, *extra: int) -> None:
+        codes = set(extra)
+        if self.streaming is not None:
+            codes.add(self.streaming)
+        self.framer.expect(codes)
+
+    def _read(self, wait_s: float) -> list[Batch]:
+        data, rx_ns = self.port.read(wait_s)
+        if not data:
+            return []
+        self.bytes_read += len(data)
+        if self.on_read is not None:
+            self.on_read(data, rx_ns)
+        return self.framer.feed(data, rx_ns)
+
+    def read(self, wait_s: float = 0.05) -> list[Batch]:
+        """Data records of the stream that arrived within ``wait_s`` (or while a command
+        waited for its reply).
+
+        On a UART (``paced``) a record cut in two by a read is not waited for byte by
+        byte: the rest cannot arrive before its line time, so the session sleeps that
+        long first, which halves the wake-ups and adds no latency.
+        """
+        out, self._backlog = self._backlog, []
+        if not out and self.paced and self.streaming is not None and self.framer.pending:
+            rest = REPLIES[self.streaming].length - self.framer.pending
+            if rest > 0:
+                time.sleep(min(wait_s, _line_time(rest, self.port.baud)))
+        out += [b for b in self._read(0.0 if out else wait_s) if b.code == self.streaming]
+        return out
+
+    def drain(self, quiet_s: float = _QUIET_S, limit_s: float = _DRAIN_MAX_S) -> int:
+        """Discard input until the line has been quiet for ``quiet_s``; bytes discarded."""
+        dropped = 0
+        deadline = time.monotonic() + limit_s
+        while time.monotonic() < deadline:
+            data, _ = self.port.read(quiet_s)
+            if not data:
+                break
+            dropped += len(data)
+        self.framer = Framer(expect=(), little_endian=self.framer.little_endian)
+        return dropped
+
+    # --- commands ----------------------------------------------------------------------
+    def send(self, name: str, persist: bool = False, **params: Any) -> None:
+        """Send a command without waiting for a reply (0xFA, 0xFE, or function 3)."""
+        self._guard(name, params, persist)
+        self.port.write(encode_command(name, **params))
+
+    def _guard(self, name: str, params: dict[str, Any], persist: bool) -> None:
+        cmd = lookup(name)
+        if cmd.changes_nonvolatile(params, self.firmware) and not persist:
+            raise PersistRefused(
+                f"0x{cmd.code:02X} {cmd.name} with {params} would write the unit's non-volatile "
+                "memory; ask for that change explicitly (--persist) if you mean it")
+
+    def command(self, name: str, *, timeout: float | None = None, retries: int = 2,
+                persist: bool = False, **params: Any) -> dict[str, Any]:
+        """Send a command and return its decoded reply fields.
+
+        Raises CommandRejected on the error reply and CommandTimeout when no reply came
+        after ``retries`` further attempts.
+        """
+        cmd = lookup(name)
+        if cmd.data and cmd.code == self.streaming:
+            raise DeviceError(f"0x{cmd.code:02X} is the record being received; stop "
+                              "streaming or polling it first")
+        self._guard(name, params, persist)
+        if timeout is None:
+            timeout = 0.25 + _line_time(2 * (cmd.reply_length or 0) + 200, self.port.baud)
+        return self.transact(encode_command(name, **params), cmd.code, timeout, retries)
+
+    def transact(self, raw: bytes, code: int, timeout: float = 0.5,
+                 retries: int = 0) -> dict[str, Any]:
+        """Write ``raw`` and wait for the reply starting with ``code`` (no safety check:
+        for bytes built by hand, e.g. to probe a unit)."""
+        self._expect(code, ERROR_CODE)
+        try:
+            for _ in range(retries + 1):
+                self.port.write(raw)
+                reply = self._await(code, timeout)
+                if reply is not None:
+                    return reply
+        finally:
+            self._expect()
+        name = REPLIES[code].name if code in REPLIES else "reply"
+        raise CommandTimeout(
+            f"no reply to 0x{code:02X} {name} from {self.port.url} at {self.port.baud} "
+            f"baud after {retries + 1} tries; check the cable, the baud rate (--baud, or "
+            "--baud auto) and that the unit is powered")
+
+    def _await(self, code: int, timeout: float) -> dict[str, Any] | None:
+        """The reply to ``code``; stream records that come meanwhile go to the backlog."""
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            reply: dict[str, Any] | None = None
+            for batch in self._read(min(left, 0.05)):
+                if batch.code == ERROR_CODE:
+                    raise CommandRejected(
+                        f"the unit answered 0x{code:02X} with the error reply 21 00 21 "
+                        "(confirmation bytes not accepted)")
+                if batch.code == code and batch.code != self.streaming and reply is None:
+                    reply = _first_record(batch)
+                elif batch.code == self.streaming:
+                    self._backlog.append(batch)
+            if reply is not None:
+                return reply
+        return None
+
+    # --- bring-up ----------------------------------------------------------------------
+    def quiesce(self) -> int:
+        """Stop continuous output and wait out a wake-up: 0xFA, settle, 0xFA, drain.
+
+        The first byte wakes a sleeping unit and is lost in its settling time
+        (Equation 1); a unit that wakes into continuous mode is stopped by the second.
+        """
+        self.streaming = None
+        self.send("stop_continuous")
+        time.sleep(_MAX_SETTLE_S)
+        self.send("stop_continuous")
+        return self.drain()
+
+    def identify(self) -> UnitInfo:
+        """Firmware, every ID string, sampling settings, baud and continuous preset."""
+        firmware = int(self.command("firmware_version")["firmware"])
+        self.firmware = firmware
+        ids = {}
+        for selector, key in enumerate(ID_FIELDS):
+            ids[key] = str(self.command("device_id", selector=selector)["text"])
+        sampling = self.command("sampling_settings", function=0)
+        preset = int(self.command("continuous_preset", continuous_preset=0)["continuous_preset"])
+        return UnitInfo(firmware=firmware, ids=ids,
+                        sampling={k: int(v) for k, v in sampling.items()},
+                        baud=self.port.baud, continuous_preset=preset,
+                        bring_up_ns=time.time_ns())
+
+    def apply_sampling(self, info: UnitInfo, persist: bool = False,
+                       **changes: int | None) -> None:
+        """Change sampling settings (function 1, or 2 to store them); ``info`` follows."""
+        wanted = {k: v for k, v in changes.items() if v is not None}
+        if not wanted:
+            return
+        merged = {**info.sampling, **wanted}
+        params = {k: merged[k] for k in ("decimation", "flags", "filter_width",
+                                         "mag_filter_width", "up_compensation",
+                                         "north_compensation")}
+        params["up_compensation"] = max(1, params["up_compensation"])
+        params["north_compensation"] = max(1, params["north_compensation"])
+        reply = self.command("sampling_settings", persist=persist,
+                             function=2 if persist else 1, **params)
+        info.sampling = {k: int(v) for k, v in reply.items()}
+        for key, value in wanted.items():
+            if info.sampling.get(key) != value:
+                info.notes.append(f"the unit set {key} to {info.sampling.get(key)}, "
+                                  f"not {value} (its range rules)")
+
+    def change_baud(self, info: UnitInfo, baud: int, persist: bool = False) -> None:
+        """0xD9: verify the reply at the old rate, then switch; fall back if the unit is lost."""
+        old = self.port.baud
+        if baud == old:
+            return
+        reply = self.command("comms_settings", persist=persist, port=1,
+                             function=2 if persist else 1, baud=baud, config=0x02)
+        if int(reply["baud"]) != baud:
+            raise DeviceError(f"the unit kept {reply['baud']} baud instead of {baud}")
+        time.sleep(_line_time(64, old) + 0.01)
+        self.port.baud = baud
+        self.drain(quiet_s=0.02, limit_s=0.2)
+        try:
+            self.command("firmware_version", retries=3)
+        except CommandTimeout:
+            self.port.baud = old
+            self.drain(quiet_s=0.02, limit_s=0.2)
+            self.command("firmware_version", retries=3)
+            raise DeviceError(f"the unit stopped answering at {baud} baud; back at {old}") from None
+        info.baud = baud
+
+    def start_streaming(self, code: int) -> None:
+        """0xC4: stream ``code`` without touching the stored continuous preset."""
+        if code not in DATA_CODES:
+            raise DeviceError(f"0x{code:02X} is not a data record")
+        reply = self.command("set_continuous", command=code)
+        if int(reply["command"]) != code:
+            raise DeviceError(f"the unit refused to stream 0x{code:02X}")
+        self.streaming = code
+        self._expect()
+
+    def start_polling(self, code: int) -> None:
+        """Receive ``code`` as replies to ``poll`` instead of a continuous stream."""
+        if code not in DATA_CODES:
+            raise DeviceError(f"0x{code:02X} is not a data record")
+        self.streaming, self.polling = code, True
+        self._expect()
+
+    def poll(self) -> None:
+        """Ask for one record of the polled type; it arrives through ``read``."""
+        assert self.polling and self.streaming is not None
+        self.port.write(bytes((self.streaming,)))
+
+    def stop_streaming(self) -> None:
+        """0xFA twice (the first may be lost in a record), leaving the port open."""
+        if self.polling:
+            self.streaming, self.polling = None, False
+            return
+        self.streaming = None
+        self.send("stop_continuous")
+        time.sleep(0.01)
+        self.send("stop_continuous")
+        self._expect()
+
+
+def _first_record(batch: Batch) -> dict[str, Any]:
+    """The fields of a batch's first record as plain Python values."""
+    out: dict[str, Any] = {}
+    for name, column in batch.columns.items():
+        value = column[0].tolist()
+        out[name] = value.decode("ascii", "replace").rstrip("\x00 ") \
+            if isinstance(value, bytes) else value
+    return out
+
+
+def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> tuple[Port, int]:
+    """Open ``url`` at the rate a unit answers 0xE9 on, trying ``first`` then the others."""
+    order = [first, *[b for b in candidates if b != first]]
+    port = Port.open(url, order[0])
+    try:
+        for baud in order:
+            port.baud = baud
+            session = Session(port)
+            session.quiesce()
+            try:
+                session.command("firmware_version", timeout=0.3, retries=1)
+                return port, baud
+            except DeviceError:
+                continue
+    except PortError:
+        port.close()
+        raise
+    port.close()
+    raise DeviceError(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
+                      "check the cable and the unit's power")

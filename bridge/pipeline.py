@@ -1,0 +1,315 @@
+"""One unit from serial bytes to timed samples, kept alive through faults.
+
+The pipeline owns the port: it brings the unit up, streams (or polls), unwraps the
+timer, maps ticks to host time, and hands every sample, event and status to a
+``Sink`` (the Zenoh publisher in ``gx3 bridge``; a list in tests). A pulled cable
+or a silent unit is reported, retried with backoff, and followed by a fresh
+bring-up when the unit is back, so a restarted or power-cycled unit resumes alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from bridge.device.port import Port, PortError, is_usb_cdc
+from bridge.device.session import (
+    DEFAULT_RECORD,
+    DeviceError,
+    Session,
+    UnitInfo,
+    find_baud,
+)
+from bridge.protocol.codec import Batch
+from bridge.timing.stream import Settings, StreamTiming
+
+_RETRY_FIRST_S = 0.2
+_RETRY_MAX_S = 5.0
+
+
+@dataclass(frozen=True)
+class Options:
+    """What the operator asked of the bridge; None leaves the unit's own setting."""
+
+    url: str
+    baud: int | None = 115_200  # None: find it
+    record: int | None = None
+    decimation: int | None = None
+    flags: int | None = None
+    filter_width: int | None = None
+    mag_filter_width: int | None = None
+    new_baud: int | None = None
+    persist: bool = False
+    poll_hz: float | None = None
+    transport: str = "auto"  # uart, usb or auto (usb for ttyACM devices)
+    silence_s: float = 1.0
+
+
+@dataclass
+class Samples:
+    """One run of records of one type, with their device and host times."""
+
+    batch: Batch
+    ticks: np.ndarray
+    time_ns: np.ndarray
+
+
+@dataclass
+class UnitEvent:
+    kind: str
+    time_ns: int
+    ticks: int = 0
+    count: int = 0
+    detail: str = ""
+
+
+@dataclass
+class Counters:
+    """Running totals for status."""
+
+    samples: int = 0
+    dropped: int = 0
+    glitches: int = 0
+    reconnects: int = 0
+    checksum_failures: int = 0
+    implausible: int = 0
+    bytes_skipped: int = 0
+    resyncs: int = 0
+    state: str = "starting"
+    window: list[tuple[float, int]] = field(default_factory=list)
+
+    def rate(self, now: float) -> float:
+        """Samples per second over the last few seconds."""
+        self.window = [(t, n) for t, n in self.window if now - t <= 5.0] + [(now, self.samples)]
+        (t0, n0), (t1, n1) = self.window[0], self.window[-1]
+        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+
+
+class Sink(Protocol):
+    def info(self, info: UnitInfo) -> None: ...
+    def samples(self, samples: Samples) -> None: ...
+    def event(self, event: UnitEvent) -> None: ...
+    def status(self, status: dict[str, Any]) -> None: ...
+
+
+Action = Callable[[Session, UnitInfo], dict[str, Any]]
+
+
+class Pipeline:
+    """Run one unit until ``stop`` is set. ``submit`` queues operator actions that run
+    between reads, on the port's own thread."""
+
+    def __init__(self, options: Options, sink: Sink,
+                 on_read: Callable[[bytes, int], None] | None = None) -> None:
+        self.options = options
+        self.sink = sink
+        self.on_read = on_read
+        self.counters = Counters()
+        self.info: UnitInfo | None = None
+        self.timing = StreamTiming()
+        self.error: Exception | None = None
+        self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
+
+    def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
+               ) -> dict[str, Any]:
+        """Run ``action(session, info)`` on the pipeline's thread; its result or error.
+
+        ``effect`` says what the action did to the stream: "reconfigure" (settings
+        changed: timing follows them) or "restart" (the unit resets: bring it up again).
+        """
+        done: queue.Queue[Any] = queue.Queue(maxsize=1)
+        self._actions.put((action, effect, done))
+        try:
+            result = done.get(timeout=timeout)
+        except queue.Empty:
+            raise TimeoutError(f"the unit did not finish the command within {timeout:g} s") \
+                from None
+        if isinstance(result, BaseException):
+            raise result
+        return dict(result)
+
+    # --- lifecycle -----------------------------------------------------------------------
+    def run(self, stop: threading.Event) -> None:
+        """Keep the unit streaming until ``stop``; an unexpected error is kept in
+        ``error`` (and ends the run) so the process can report it and exit."""
+        try:
+            self._run(stop)
+        except Exception as exc:
+            self.error = exc
+            self.counters.state = "stopped"
+            stop.set()
+
+    def _run(self, stop: threading.Event) -> None:
+        backoff = _RETRY_FIRST_S
+        lost_at: int | None = None
+        while not stop.is_set():
+            try:
+                session = self._open()
+            except (PortError, DeviceError) as exc:
+                if backoff == _RETRY_FIRST_S and lost_at is None:
+                    self._event("error", detail=str(exc))  # a lost link was reported then
+                self.counters.state = "waiting"
+                stop.wait(backoff)
+                backoff = min(_RETRY_MAX_S, backoff * 2)
+                continue
+            backoff = _RETRY_FIRST_S
+            try:
+                self._bring_up(session)
+                if lost_at is not None:
+                    self.counters.reconnects += 1
+                    gap = (time.time_ns() - lost_at) / 1e9
+                    self._event("reconnect", detail=f"back after {gap:.1f} s")
+                lost_at = None
+                self._stream(session, stop)
+            except _Restart:
+                self.counters.state = "bring-up"
+            except (PortError, DeviceError) as exc:
+                lost_at = lost_at or time.time_ns()
+                self.counters.state = "lost"
+                self._event("disconnect", detail=str(exc))
+            finally:
+                self._close(session, clean=stop.is_set())
+        self.counters.state = "stopped"
+
+    def _open(self) -> Session:
+        o = self.options
+        if o.baud is None:
+            port, _ = find_baud(o.url, 115_200)
+        else:
+            port = Port.open(o.url, o.baud)
+        session = Session(port)
+        session.on_read = self.on_read
+        session.paced = self.transport == "uart"
+        return session
+
+    def _close(self, session: Session, clean: bool) -> None:
+        if clean:
+            with contextlib.suppress(PortError, DeviceError):
+                session.stop_streaming()
+        session.port.close()
+
+    def _bring_up(self, session: Session) -> None:
+        o = self.options
+        self.counters.state = "bring-up"
+        session.quiesce()
+        info = session.identify()
+        session.apply_sampling(info, o.persist, decimation=o.decimation, flags=o.flags,
+                               filter_width=o.filter_width, mag_filter_width=o.mag_filter_width)
+        if o.new_baud is not None:
+            session.change_baud(info, o.new_baud, o.persist)
+        info.record = o.record or info.continuous_preset or DEFAULT_RECORD
+        self.info = info
+        # streaming restarts on a new phase of the output lattice: announce it
+        self._start_timing(info, discontinuity=True)
+        if o.poll_hz is None:
+            session.start_streaming(info.record)
+        else:
+            session.start_polling(info.record)
+        self.sink.info(info)
+        self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
+                    f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz")
+        self.counters.state = "streaming" if o.poll_hz is None else "polling"
+
+    def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
+        self.timing.configure(Settings(
+            record=info.record, decimation=max(1, info.sampling.get("decimation", 1)),
+            filter_width=max(1, info.sampling.get("filter_width", 1)), baud=info.baud,
+            transport=self.transport, polled=self.options.poll_hz is not None),
+            restarted=discontinuity)
+
+    @property
+    def transport(self) -> str:
+        """The link to the unit: "uart", or "usb" (its own USB port, /dev/ttyACM*)."""
+        transport = self.options.transport
+        if transport == "auto":
+            transport = "usb" if is_usb_cdc(self.options.url) else "uart"
+        return transport
+
+    def _stream(self, session: Session, stop: threading.Event) -> None:
+        assert self.info is not None
+        last_data = time.monotonic()
+        next_status = time.monotonic() + 1.0
+        next_poll = time.monotonic()
+        poll_hz = self.options.poll_hz
+        while not stop.is_set():
+            self._run_actions(session)
+            wait = 0.05
+            if poll_hz is not None:
+                if time.monotonic() >= next_poll:
+                    next_poll = max(next_poll + 1.0 / poll_hz, time.monotonic())
+                    session.poll()
+                wait = max(0.0, min(wait, next_poll - time.monotonic()))
+            batches = session.read(wait)
+            now = time.monotonic()
+            if batches:
+                last_data = now
+                for batch in batches:
+                    self._process(batch)
+            elif now - last_data > self.options.silence_s:
+                raise DeviceError(f"{self.options.url}: the unit fell silent for "
+                                  f"{now - last_data:.1f} s")
+            if now >= next_status:
+                next_status += 1.0
+                self._status(session)
+
+    def _process(self, batch: Batch) -> None:
+        timed = self.timing.process(batch)
+        for ev in timed.events:
+            self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
+        self.counters.glitches += sum(ev.kind == "glitch" for ev in timed.events)
+        self.counters.dropped += timed.dropped
+        if len(timed.batch):
+            self.counters.samples += len(timed.batch)
+            self.sink.samples(Samples(timed.batch, timed.ticks, timed.time_ns))
+
+    def _run_actions(self, session: Session) -> None:
+        assert self.info is not None
+        while True:
+            try:
+                action, effect, done = self._actions.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                result = action(session, self.info)
+            except (DeviceError, PortError, ValueError) as exc:
+                done.put(exc)
+                self._event("command", detail=f"refused: {exc}")
+                continue
+            done.put(result)
+            self._event("command", detail=f"{effect}: {result}"[:200])
+            if effect == "restart":
+                raise _Restart
+            if effect in ("reconfigure", "discontinuity"):
+                self._start_timing(self.info, discontinuity=True)
+                self.sink.info(self.info)
+
+    def _status(self, session: Session) -> None:
+        c = self.counters
+        stats = session.framer.stats
+        c.checksum_failures = stats.checksum_failures
+        c.implausible = stats.implausible
+        c.bytes_skipped = stats.bytes_skipped
+        c.resyncs = stats.resyncs
+        clock = self.timing.state
+        self.sink.status({
+            "state": c.state, "samples": c.samples, "samples_per_s": c.rate(time.monotonic()),
+            "dropped": c.dropped, "glitches": c.glitches, "reconnects": c.reconnects,
+            "checksum_failures": c.checksum_failures, "implausible": c.implausible,
+            "bytes_skipped": c.bytes_skipped, "resyncs": c.resyncs,
+            "clock": clock,
+        })
+
+    def _event(self, kind: str, ticks: int = 0, count: int = 0, detail: str = "") -> None:
+        self.sink.event(UnitEvent(kind, time.time_ns(), ticks, count, detail))
+
+
+class _Restart(Exception):
+    """The unit was reset on purpose: bring it up again, no disconnect to report."""

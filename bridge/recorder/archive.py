@@ -1,0 +1,370 @@
+"""The archive of record: one MCAP file (or numbered files) holding every unit's messages.
+
+Layout (DESIGN.md, "Archives"):
+
+- Data channels carry the very protobuf bytes from Zenoh; topic = the Zenoh key
+  (``gx3/u1/imu``, ``gx3/u1/status``, ``gx3/u1/event``, ``gx3/u1/info``), message
+  encoding ``protobuf``, schema = schemas/gx3.proto as a FileDescriptorSet (with
+  google/protobuf/descriptor.proto), named by the full message name.
+- Log time of an ImuSample is its ``time_ns`` (every viewer's timeline is the instant
+  the values describe); publish time is the recorder's receive time. Status, Event and
+  Info are logged at their own time (``time_ns``, ``bring_up_time_ns``), or at the
+  receive time when that is unset.
+- ``<prefix>/<unit>/frame``: ``foxglove.FrameTransform`` world (NED) -> unit, the
+  sensor-to-earth rotation Mᵀ, from records that carry an attitude (m, quaternion or
+  Euler), at most ``frame_rate_hz`` per unit (the full-rate attitude stays in the imu
+  channel; a viewer gains nothing from more transforms than it draws).
+- Raw captures (``<prefix>/<unit>/raw``) keep their receive time as log time,
+  octet-stream, no schema, as bridge/recorder/rawcapture.py writes them.
+- Chunked (1 MiB), zstd, indexed, with a summary; flushed at least once a second, so a
+  killed recorder loses at most that second and the file still opens with read.py.
+"""
+
+from __future__ import annotations
+
+import functools
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, TypeVar
+
+import numpy as np
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from google.protobuf.message import DecodeError, Message
+from mcap.writer import CompressionType, Writer
+
+from bridge.bus.codec import decode_batch, parse, record_quantities
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
+from bridge.protocol.table import DATA_CODES
+from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
+from bridge.recorder.rawcapture import RAW_ENCODING
+
+T = TypeVar("T")
+PROTOBUF = "protobuf"
+FRAME_LEAF = "frame"
+FLUSH_EVERY_S = 1.0
+LIBRARY = "gx3-bridge"
+PROFILE = "gx3"
+
+#: Message type of each key leaf, and the field that holds its time.
+MESSAGES: dict[str, tuple[type[Message], str]] = {
+    "imu": (ImuSample, "time_ns"),
+    "status": (Status, "time_ns"),
+    "event": (Event, "time_ns"),
+    "info": (Info, "bring_up_time_ns"),
+}
+
+
+class ArchiveError(OSError):
+    """The archive cannot be written; the message names the file and the cause."""
+
+
+def descriptor_set(message_class: type[Message]) -> bytes:
+    """A FileDescriptorSet of the message's .proto file and everything it imports."""
+    fds = FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: Any) -> None:
+        for dep in fd.dependencies:
+            if dep.name not in seen:
+                seen.add(dep.name)
+                add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(message_class.DESCRIPTOR.file)
+    return fds.SerializeToString()
+
+
+def frame_topic(prefix: str, unit: str) -> str:
+    return f"{prefix}/{unit}/{FRAME_LEAF}"
+
+
+def numbered(path: Path, index: int) -> Path:
+    """The ``index``-th file (from 1) of a recording split into several."""
+    return path.with_name(f"{path.stem}_{index:04d}{path.suffix}")
+
+
+@functools.cache
+def _header(unit: str) -> struct.Struct:
+    """The fixed header of the bulk ImuSample layout: unit, command, timer, ticks, time_ns."""
+    return struct.Struct(f"<BB{len(unit.encode())}sBIBIBqBq")
+
+
+_HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
+
+
+def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
+    """(unit, command, time_ns) of a serialized ImuSample: from its fixed header when it
+    has the bulk layout (a few hundred ns), else by parsing it."""
+    head = _header(unit)
+    if len(payload) >= head.size:
+        t0, n, name, t1, command, t2, _, t3, _, t4, time_ns = head.unpack_from(payload)
+        if (t0, t1, t2, t3, t4) == _HEADER_TAGS and n == len(name) and n < 0x80:
+            return name.decode(errors="replace"), command, time_ns
+    msg = parse(payload)
+    return msg.unit, msg.command, msg.time_ns
+
+
+@dataclass
+class _File:
+    """One open MCAP file and the ids registered in it."""
+
+    path: Path
+    stream: IO[bytes]
+    writer: Writer
+    opened_ns: int | None = None
+    schemas: dict[str, int] = field(default_factory=dict)
+    channels: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Frames:
+    """Attitude samples of one unit and record type waiting to become FrameTransforms."""
+
+    unit: str
+    sample_unit: str
+    code: int
+    payloads: list[bytes] = field(default_factory=list)
+    receive_ns: list[int] = field(default_factory=list)
+
+
+class ArchiveWriter:
+    """Write Zenoh messages (key, payload bytes, receive time) into an MCAP archive.
+
+    Units and message types get their channels on first sight. ``split_bytes`` or
+    ``split_seconds`` (of receive time) start a new numbered file (``run_0001.mcap``,
+    ``run_0002.mcap``, ...) when the current one reaches that size or age. Call
+    ``tick()`` at least once a second while no messages arrive, so the last ones reach
+    the disk; ``close()`` finishes the file with its summary and index.
+    """
+
+    def __init__(self, path: Path, *, prefix: str = PREFIX, chunk_size: int = 1 << 20,
+                 split_bytes: int | None = None, split_seconds: float | None = None,
+                 frames: bool = True, frame_rate_hz: float | None = 25.0,
+                 frame_spacing: float = 0.5,
+                 metadata: dict[str, str] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.path = Path(path)
+        self.prefix = check_prefix(prefix)
+        self.chunk_size = chunk_size
+        self.split_bytes = split_bytes
+        self.split_ns = None if split_seconds is None else int(split_seconds * 1e9)
+        self.frames = frames
+        self.frame_period_ns = int(1e9 / frame_rate_hz) if frame_rate_hz else 0
+        self.frame_spacing = frame_spacing
+        self.metadata = dict(metadata or {})
+        self.paths: list[Path] = []
+        self.messages = 0
+        self._clock = clock
+        self._flushed = clock()
+        self._slots: dict[str, int] = {}
+        self._frame_due: dict[str, int] = {}
+        self._routes: dict[str, tuple[str, str]] = {}
+        self._splits = split_bytes is not None or split_seconds is not None
+        self._pending: dict[tuple[str, str, int], _Frames] = {}
+        self._sequence: dict[str, int] = {}
+        self._broken: ArchiveError | None = None
+        self._file: _File | None = None
+        self._open()
+
+    # -- files ---------------------------------------------------------------------------
+
+    def _open(self) -> None:
+        path = numbered(self.path, len(self.paths) + 1) if self._splits else self.path
+        try:
+            stream: IO[bytes] = path.open("wb")
+        except OSError as exc:
+            raise self._fail(path, exc, opening=True) from None
+        writer = Writer(stream, chunk_size=self.chunk_size, compression=CompressionType.ZSTD)
+        self._file = _File(path, stream, writer)
+        self.paths.append(path)
+        self._guard(writer.start, PROFILE, LIBRARY)
+        meta = {"prefix": self.prefix, "file_index": str(len(self.paths)),
+                "frame_convention": "world = north-east-down; FrameTransform rotation = "
+                                    "sensor-to-earth (M transposed), quaternion x y z w",
+                **self.metadata}
+        self._guard(writer.add_metadata, "gx3.archive", meta)
+        self._guard(stream.flush)  # a file killed in its first second still opens
+
+    def _fail(self, path: Path, exc: OSError, opening: bool = False) -> ArchiveError:
+        why = exc.strerror or str(exc)
+        if opening:
+            return ArchiveError(f"{path}: cannot write the archive ({why}); "
+                                "choose a writable path")
+        self._broken = ArchiveError(f"{path}: {why}; the archive stops here "
+                                    "(what was written stays readable)")
+        return self._broken
+
+    def _guard(self, call: Callable[..., T], *args: Any) -> T:
+        if self._broken is not None:
+            raise self._broken
+        try:
+            return call(*args)
+        except OSError as exc:
+            assert self._file is not None
+            raise self._fail(self._file.path, exc) from None
+
+    def _register(self, topic: str, unit: str, leaf: str) -> int:
+        """The channel of ``topic`` in the current file, registered on first sight."""
+        f = self._current()
+        if leaf == "raw":
+            schema_id, encoding = 0, RAW_ENCODING
+            meta = {"unit": unit, "zenoh_encoding": ENCODINGS["raw"]}
+        else:
+            cls = FRAME_CLASS if leaf == FRAME_LEAF else MESSAGES[leaf][0]
+            name = cls.DESCRIPTOR.full_name
+            schema_id = f.schemas.get(name, 0)
+            if not schema_id:
+                schema_id = self._guard(f.writer.register_schema, name, PROTOBUF,
+                                        descriptor_set(cls))
+                f.schemas[name] = schema_id
+            encoding = PROTOBUF
+            meta = {"unit": unit}
+            if leaf in ENCODINGS:
+                meta["zenoh_encoding"] = ENCODINGS[leaf]
+        if leaf == "imu":
+            self._slots.setdefault(unit, len(self._slots))
+        cid = self._guard(f.writer.register_channel, topic, encoding, schema_id, meta)
+        f.channels[topic] = cid
+        return cid
+
+    def _current(self) -> _File:
+        if self._file is None:
+            raise ArchiveError(f"{self.path}: the archive is closed")
+        return self._file
+
+    def _add(self, topic: str, unit: str, leaf: str, log_ns: int, data: bytes,
+             receive_ns: int) -> None:
+        f = self._current()
+        cid = f.channels.get(topic) or self._register(topic, unit, leaf)
+        seq = self._sequence.get(topic, 0)
+        self._sequence[topic] = seq + 1
+        try:
+            f.writer.add_message(cid, log_ns, data, receive_ns, seq)
+        except OSError as exc:
+            raise self._fail(f.path, exc) from None
+        self.messages += 1
+
+    def _route(self, key: str) -> tuple[str, str]:
+        """(unit, leaf) of a key, checked once per key."""
+        unit = unit_of(key, self.prefix)
+        leaf = key[len(self.prefix) + len(unit) + 2:]
+        if leaf not in MESSAGES and leaf != "raw":
+            raise ValueError(f"{key}: no archive channel for '{leaf}'; archived leaves are "
+                             + ", ".join([*MESSAGES, "raw"]))
+        self._routes[key] = unit, leaf
+        return unit, leaf
+
+    # -- writing -------------------------------------------------------------------------
+
+    def write(self, key: str, payload: bytes, receive_ns: int | None = None) -> None:
+        """One message as it came from Zenoh (or one raw read), received at ``receive_ns``
+        (host ns; now when omitted)."""
+        if self._broken is not None:
+            raise self._broken
+        rx = time.time_ns() if receive_ns is None else receive_ns
+        unit, leaf = self._routes.get(key) or self._route(key)
+        if self._splits:
+            self._maybe_split(rx)
+        if leaf == "imu":
+            sample_unit, code, log_ns = stamp(unit, payload)
+            if self.frames:
+                due = self._frame_due.get(unit)
+                if due is None or log_ns >= due or log_ns < due - 2 * self.frame_period_ns:
+                    self._queue_frame(unit, sample_unit, code, log_ns, payload, rx)
+        elif leaf == "raw":
+            log_ns = rx
+        else:
+            cls, time_field = MESSAGES[leaf]
+            try:
+                log_ns = getattr(cls.FromString(payload), time_field) or rx
+            except DecodeError:
+                raise ValueError(f"{key}: payload is not a {cls.DESCRIPTOR.full_name} "
+                                 f"({len(payload)} bytes)") from None
+        self._add(key, unit, leaf, log_ns, payload, rx)
+        if self._clock() - self._flushed >= FLUSH_EVERY_S:
+            self.flush()
+
+    def _queue_frame(self, unit: str, sample_unit: str, code: int, log_ns: int,
+                     payload: bytes, rx: int) -> None:
+        if code not in DATA_CODES or not has_attitude(record_quantities(code)):
+            return  # the bytes are archived all the same
+        try:  # a malformed sample gets no frame, and cannot spoil its group's bulk decode
+            decode_batch(sample_unit, code, [payload])
+        except ValueError:
+            return
+        # at most one frame per period per unit; time going back (a reset) starts again
+        self._frame_due[unit] = log_ns + self.frame_period_ns
+        group = self._pending.get((unit, sample_unit, code))
+        if group is None:
+            group = self._pending[(unit, sample_unit, code)] = _Frames(unit, sample_unit, code)
+        group.payloads.append(payload)
+        group.receive_ns.append(rx)
+
+    def _write_frames(self) -> None:
+        """Turn queued attitude samples into FrameTransforms, in bulk."""
+        pending, self._pending = self._pending, {}
+        for g in pending.values():
+            cols = decode_batch(g.sample_unit, g.code, g.payloads)
+            xyzw = sensor_to_earth(cols)
+            ok = np.isfinite(xyzw).all(axis=1)
+            times = cols["time_ns"][ok]
+            frames = frame_messages(g.unit, self._slots[g.unit], times, xyzw[ok],
+                                    self.frame_spacing)
+            topic = frame_topic(self.prefix, g.unit)
+            rx = np.asarray(g.receive_ns)[ok].tolist()
+            for t, data, r in zip(times.tolist(), frames, rx, strict=True):
+                self._add(topic, g.unit, FRAME_LEAF, t, data, r)
+
+    def _maybe_split(self, rx: int) -> None:
+        f = self._current()
+        if f.opened_ns is None:
+            f.opened_ns = rx
+        old = self.split_ns is not None and rx - f.opened_ns >= self.split_ns
+        if old or (self.split_bytes is not None and f.stream.tell() >= self.split_bytes):
+            self._roll()
+
+    def _roll(self) -> None:
+        self._finish()
+        self._open()
+
+    def flush(self) -> None:
+        """Close the open chunk and hand everything to the OS (a crash keeps it)."""
+        self._write_frames()
+        self._guard(self._current().writer.flush)
+        self._flushed = self._clock()
+
+    def tick(self) -> None:
+        """Flush if the last flush is a second old: call this while messages pause."""
+        if self._file is not None and self._clock() - self._flushed >= FLUSH_EVERY_S:
+            self.flush()
+
+    def _finish(self) -> None:
+        f = self._current()
+        try:
+            if self._broken is None:
+                self._write_frames()
+                self._guard(f.writer.finish)
+        finally:
+            self._file = None
+            try:
+                f.stream.close()
+            except OSError as exc:
+                if self._broken is None:
+                    raise self._fail(f.path, exc) from None
+
+    def close(self) -> None:
+        """Finish the file (summary and index); safe to call twice, and after an error."""
+        if self._file is not None:
+            self._finish()
+
+    def __enter__(self) -> ArchiveWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()

@@ -1,0 +1,275 @@
+"""Archive to table: one row per sample, flat quantity columns, for pandas, R, spreadsheets.
+
+Columns: ``unit``, ``command``, ``timer``, ``ticks``, ``time_ns`` (the best estimate of
+the sample instant: the live estimate unless a re-estimate is given), ``live_time_ns``
+(as the bridge published it), ``rx_ns`` (host receive time), then each quantity any
+exported record holds, flattened as DESIGN.md names them (``accel_x``, ``m11`` ..
+``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN where a record lacks it.
+Temperatures are A/D codes stored as float32 (exact) so they can be NaN too. Rows are
+in ``time_ns`` order across units. Orientation columns keep the manual's convention:
+M maps earth (NED) to sensor, the quaternion is scalar first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from bridge.bus.codec import HEADER, elements
+from bridge.bus.gx3_pb2 import Event, ImuSample
+from bridge.protocol.convert import (
+    euler_to_quaternion,
+    m_to_quaternion,
+    quaternion_to_euler,
+    quaternion_to_m,
+)
+from bridge.recorder.read import Archive, Samples
+
+#: Offline re-estimate of sample times for one unit: (ticks, rx_ns) -> time_ns, all in
+#: arrival order, int64 ns.
+ReEstimate = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+#: Quantity fields of ImuSample in schema order (the column order of an export).
+QUANTITY_ORDER = tuple(f.name for f in ImuSample.DESCRIPTOR.fields if f.name not in HEADER
+                       and f.name != "unit")
+_SUFFIX = {"euler": ("roll", "pitch", "yaw")}
+FORMATS = (".parquet", ".csv")
+
+
+def flat_names(quantity: str, elements: int) -> list[str]:
+    """Flat column names of a quantity: accel_x.., m11..m33, roll pitch yaw, q0..q3."""
+    if quantity in _SUFFIX:
+        return list(_SUFFIX[quantity])
+    if quantity == "quaternion":
+        return [f"q{i}" for i in range(elements)]
+    if elements == 9:
+        return [f"{quantity}{r}{c}" for r in range(1, 4) for c in range(1, 4)]
+    if elements == 3:
+        return [f"{quantity}_{axis}" for axis in "xyz"]
+    return [f"{quantity}_{i}" for i in range(elements)]
+
+
+@dataclass(frozen=True)
+class TimeBound:
+    """A --start/--end bound: absolute host time in ns, or seconds from the first sample."""
+
+    ns: int
+    relative: bool
+
+    def resolve(self, first_ns: int) -> int:
+        return first_ns + self.ns if self.relative else self.ns
+
+
+def parse_time(text: str) -> TimeBound:
+    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start)."""
+    try:
+        return TimeBound(round(float(text) * 1e9), relative=True)
+    except ValueError:
+        pass
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z nor "
+                         "seconds from the start such as 12.5") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=UTC)
+    delta = when - datetime(1970, 1, 1, tzinfo=UTC)
+    return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
+                     + delta.microseconds * 1000, relative=False)
+
+
+def _unit_times(blocks: Sequence[Samples], re_estimate: ReEstimate | None) -> list[np.ndarray]:
+    """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
+    live = [b.columns["time_ns"] for b in blocks]
+    if re_estimate is None:
+        return live
+    ticks = np.concatenate([b.columns["ticks"] for b in blocks])
+    rx = np.concatenate([b.columns["rx_ns"] for b in blocks])
+    order = np.argsort(rx, kind="stable")
+    estimate = np.empty(len(rx), np.int64)
+    estimate[order] = np.asarray(re_estimate(ticks[order], rx[order]), np.int64)
+    return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
+
+
+def sample_table(archive: Archive, units: Iterable[str] | None = None,
+                 codes: Iterable[int] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None,
+                 re_estimate: ReEstimate | None = None) -> dict[str, np.ndarray]:
+    """Columns of the export: one row per sample, in time order, with ``start_ns <=
+    time_ns < end_ns``."""
+    blocks = archive.samples(units, codes)
+    by_unit: dict[str, list[Samples]] = {}
+    for b in blocks:
+        by_unit.setdefault(b.unit, []).append(b)
+    times = {u: _unit_times(bs, re_estimate) for u, bs in by_unit.items()}
+    unit_names = sorted(by_unit)
+    ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
+    time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)
+    keep = np.ones(len(time_ns), bool)
+    if start_ns is not None:
+        keep &= time_ns >= start_ns
+    if end_ns is not None:
+        keep &= time_ns < end_ns
+    present = [q for q in QUANTITY_ORDER if any(q in b.columns for b, _ in ordered)]
+    columns: dict[str, np.ndarray] = {
+        "unit": np.concatenate([np.full(len(b), unit_names.index(b.unit), np.int32)
+                                for b, _ in ordered]) if ordered else np.zeros(0, np.int32),
+        "command": _cat(ordered, "command", np.uint8),
+        "timer": _cat(ordered, "timer", np.uint32),
+        "ticks": _cat(ordered, "ticks", np.int64),
+        "time_ns": time_ns,
+        "live_time_ns": _cat(ordered, "time_ns", np.int64),
+        "rx_ns": _cat(ordered, "rx_ns", np.int64),
+    }
+    for q in present:
+        width = next(int(np.prod(b.columns[q].shape[1:])) for b, _ in ordered if q in b.columns)
+        flat = np.full((len(time_ns), width), np.nan, np.float32)
+        at = 0
+        for b, _ in ordered:
+            if q in b.columns:
+                flat[at : at + len(b)] = b.columns[q].reshape(len(b), width)
+            at += len(b)
+        for i, name in enumerate(flat_names(q, width)):
+            columns[name] = flat[:, i]
+    order = np.flatnonzero(keep)
+    order = order[np.lexsort((columns["unit"][order], time_ns[order]))]
+    out = {k: v[order] for k, v in columns.items()}
+    out["unit"] = np.asarray(unit_names, dtype=str)[out["unit"]] if unit_names \
+        else np.zeros(0, str)
+    return out
+
+
+def _cat(ordered: list[tuple[Samples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
+    if not ordered:
+        return np.zeros(0, dtype)
+    return np.concatenate([b.columns[name] for b, _ in ordered]).astype(dtype)
+
+
+def event_table(archive: Archive, units: Iterable[str] | None = None,
+                start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
+    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time."""
+    lo = -(1 << 63) if start_ns is None else start_ns
+    hi = (1 << 63) - 1 if end_ns is None else end_ns
+    rows = [(u, e) for u, e in archive.events(units) if lo <= e.time_ns < hi]
+    return {
+        "unit": np.array([u for u, _ in rows], str),
+        "time_ns": np.array([e.time_ns for _, e in rows], np.int64),
+        "ticks": np.array([e.ticks for _, e in rows], np.int64),
+        "kind": np.array([Event.Kind.Name(e.kind) for _, e in rows], str),
+        "count": np.array([e.count for _, e in rows], np.uint64),
+        "detail": np.array([e.detail for _, e in rows], str),
+    }
+
+
+def check_format(path: Path) -> str:
+    """The output format named by the file's extension, or a one-line error."""
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
+                         "name the file .parquet or .csv")
+    return suffix
+
+
+def write_table(columns: dict[str, np.ndarray], path: Path) -> None:
+    """Write columns as Parquet (zstd) or CSV, chosen by the extension."""
+    suffix = check_format(path)
+    arrays = {}
+    for name, col in columns.items():
+        if col.dtype.kind in "OU":  # names: stored once per file, not once per row
+            arrays[name] = pa.array(col.astype(str), pa.string()).dictionary_encode()
+        else:
+            arrays[name] = pa.array(col)
+    table = pa.table(arrays)
+    if suffix == ".parquet":
+        pq.write_table(table, path, compression="zstd")
+    else:
+        pa_csv.write_csv(table, path)
+
+
+# -- aligning units on one time grid ---------------------------------------------------------
+
+#: Neighbouring samples further apart than this many typical periods are a gap: no value
+#: is made up between them.
+GAP_PERIODS = 1.5
+_TO_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "m": lambda v: m_to_quaternion(v.reshape(-1, 3, 3)),
+    "quaternion": lambda v: v,
+    "euler": euler_to_quaternion,
+}
+_FROM_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "m": lambda q: quaternion_to_m(q).reshape(-1, 9),
+    "quaternion": lambda q: q,
+    "euler": quaternion_to_euler,
+}
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Spherical interpolation of (n, 4) unit quaternions, the short way round."""
+    q0 = q0 / np.linalg.norm(q0, axis=1, keepdims=True)
+    q1 = q1 / np.linalg.norm(q1, axis=1, keepdims=True)
+    dot = np.sum(q0 * q1, axis=1)
+    q1 = np.where(dot[:, None] < 0, -q1, q1)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    sin = np.sin(theta)
+    small = sin < 1e-9
+    safe = np.where(small, 1.0, sin)
+    a = np.where(small, 1.0 - w, np.sin((1.0 - w) * theta) / safe)
+    b = np.where(small, w, np.sin(w * theta) / safe)
+    out: np.ndarray = a[:, None] * q0 + b[:, None] * q1
+    return out
+
+
+def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str) -> np.ndarray:
+    """``values`` (n, k) at sample times ``t`` on ``grid``: linear for vectors, slerp for
+    orientation (m, quaternion, euler); NaN outside the samples and inside gaps."""
+    out = np.full((len(grid), values.shape[1]), np.nan)
+    if len(t) < 2:
+        exact = np.isin(grid, t)
+        out[exact] = values[:1]
+        return out
+    period = float(np.median(np.diff(t)))
+    i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 2)
+    span = (t[i + 1] - t[i]).astype(np.float64)
+    w = (grid - t[i]) / np.where(span > 0, span, 1.0)
+    ok = (grid >= t[0]) & (grid <= t[-1]) & (span <= GAP_PERIODS * period)
+    ok |= grid == t[i]  # a sample exactly on the grid is always kept
+    lo, hi, w = values[i[ok]].astype(np.float64), values[i[ok] + 1].astype(np.float64), w[ok]
+    if quantity in _TO_QUATERNION:
+        to_q, from_q = _TO_QUATERNION[quantity], _FROM_QUATERNION[quantity]
+        out[ok] = from_q(_slerp(to_q(lo), to_q(hi), w))
+    else:
+        out[ok] = lo + w[:, None] * (hi - lo)
+    return out
+
+
+def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
+    """One row per instant of a grid at ``rate_hz`` (on multiples of the period since the
+    epoch), one column per unit and quantity column, named ``<unit>/<column>``."""
+    if not rate_hz > 0:
+        raise ValueError(f"--align {rate_hz}: give a positive rate in Hz, e.g. 100")
+    step = round(1e9 / rate_hz)
+    times = table["time_ns"]
+    grid = np.arange(-(-int(times.min()) // step) * step, int(times.max()) + 1, step,
+                     dtype=np.int64)
+    out: dict[str, np.ndarray] = {"time_ns": grid}
+    groups = [(q, flat_names(q, elements(q))) for q in QUANTITY_ORDER]
+    for unit in sorted(set(table["unit"].tolist())):
+        rows = table["unit"] == unit
+        for q, names in groups:
+            if names[0] not in table:
+                continue
+            values = np.stack([table[n][rows] for n in names], axis=1)
+            have = np.isfinite(values).all(axis=1)
+            if not have.any():
+                continue
+            aligned = resample(times[rows][have], values[have], grid, q)
+            for k, name in enumerate(names):
+                out[f"{unit}/{name}"] = aligned[:, k].astype(np.float32)
+    return out

@@ -1,0 +1,81 @@
+"""Raw captures: the exact bytes read from a unit, with the host time of each read.
+
+DESIGN.md's format: MCAP messages on topic ``<prefix>/<unit>/raw``, log time = host
+receive time in ns, data = the bytes of that read, encoding
+``application/octet-stream``, no schema. Replaying one through the pipeline gives
+what the live run gave, because framing and timing are pure functions of
+(bytes, receive times). The file is flushed at least once a second, so a crash
+loses at most that second, and a full disk stops the capture, never the bridge.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any, TypeVar
+
+from mcap.writer import CompressionType, Writer
+
+T = TypeVar("T")
+RAW_ENCODING = "application/octet-stream"
+FLUSH_EVERY_S = 1.0
+
+
+class CaptureError(OSError):
+    """The capture file cannot be written; the message names it and the cause."""
+
+
+def raw_topic(prefix: str, unit: str) -> str:
+    return f"{prefix}/{unit}/raw"
+
+
+class RawCaptureWriter:
+    """Append reads to an MCAP raw capture; ``metadata`` describes the unit and link."""
+
+    def __init__(self, path: Path, prefix: str, unit: str,
+                 metadata: dict[str, str] | None = None) -> None:
+        self.path = path
+        try:
+            self._file: IO[bytes] = path.open("wb")
+        except OSError as exc:
+            raise CaptureError(f"{path}: cannot write the capture ({exc.strerror}); "
+                               "choose a writable path") from None
+        self._writer = Writer(self._file, chunk_size=256 * 1024,
+                              compression=CompressionType.ZSTD)
+        self._guard(self._writer.start, "gx3-raw", "gx3-bridge")
+        self._channel = self._guard(self._writer.register_channel, raw_topic(prefix, unit),
+                                    RAW_ENCODING, 0, {"unit": unit})
+        if metadata:
+            self._guard(self._writer.add_metadata, "gx3.capture", dict(metadata))
+        self._sequence = 0
+        self._flushed = time.monotonic()
+        self.reads = 0
+        self.bytes = 0
+
+    def _guard(self, call: Callable[..., T], *args: Any) -> T:
+        try:
+            return call(*args)
+        except OSError as exc:
+            raise CaptureError(f"{self.path}: {exc.strerror or exc}; the capture stops here "
+                               "(what was written stays readable)") from None
+
+    def write(self, data: bytes, rx_ns: int) -> None:
+        """One read's bytes, stamped with its receive time."""
+        self._guard(self._writer.add_message, self._channel, rx_ns, data, rx_ns, self._sequence)
+        self._sequence += 1
+        self.reads += 1
+        self.bytes += len(data)
+        now = time.monotonic()
+        if now - self._flushed >= FLUSH_EVERY_S:
+            self._flushed = now
+            self._guard(self._writer.flush)
+
+    def close(self) -> None:
+        """Finish the file (summary and index); safe to call twice."""
+        if self._file.closed:
+            return
+        try:
+            self._guard(self._writer.finish)
+        finally:
+            self._file.close()

@@ -1,0 +1,84 @@
+"""Rebuild a finished, indexed archive from one whose writer never finished.
+
+A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
+half-written chunk at the end. Tools that seek (``make_reader``, most viewers) refuse
+it. Repair copies what read.py can read (schemas, channels, every message of the
+complete chunks, metadata, attachments) into a new file with chunk index and summary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.writer import CompressionType, Writer
+
+from bridge.recorder.archive import ArchiveError
+from bridge.recorder.read import Archive, ArchiveReadError, read_archive
+
+
+@dataclass(frozen=True)
+class RepairReport:
+    """What a repair kept and what it could not."""
+
+    source: Path
+    output: Path
+    messages: int
+    channels: int
+    chunks: int
+    dropped_bytes: int
+    was_complete: bool
+    problem: str | None
+
+    def text(self) -> str:
+        state = "was already complete" if self.was_complete else \
+            f"was not finished ({self.problem})"
+        return (f"{self.source} {state}: recovered {self.messages} messages on "
+                f"{self.channels} channels from {self.chunks} chunks, dropped "
+                f"{self.dropped_bytes} bytes; wrote {self.output}")
+
+
+def default_output(source: Path) -> Path:
+    return source.with_name(f"{source.stem}.repaired{source.suffix or '.mcap'}")
+
+
+def repair(source: Path, output: Path | None = None) -> RepairReport:
+    """Copy the readable part of ``source`` into a finished archive at ``output``."""
+    source = Path(source)
+    output = default_output(source) if output is None else Path(output)
+    archive = read_archive(source)
+    if output.resolve() == source.resolve():
+        raise ArchiveReadError(f"{output}: the output would overwrite the file being "
+                               "repaired; choose another path with -o")
+    try:
+        with output.open("wb") as stream:
+            _copy(archive, Writer(stream, compression=CompressionType.ZSTD))
+    except OSError as exc:
+        raise ArchiveError(f"{output}: cannot write the repaired archive "
+                           f"({exc.strerror or exc}); choose a writable path") from None
+    return RepairReport(source, output, archive.message_count, len(archive.channels),
+                        archive.chunks, archive.dropped_bytes, archive.complete,
+                        archive.problem)
+
+
+def _copy(archive: Archive, writer: Writer) -> None:
+    header = archive.header
+    writer.start(header.profile if header else "", header.library if header else "")
+    schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data)
+                  for sid, s in archive.schemas.items()}
+    channel_ids = {cid: writer.register_channel(c.topic, c.message_encoding,
+                                                schema_ids.get(c.schema_id, 0), c.metadata)
+                   for cid, c in archive.channels.items()}
+    for meta in archive.metadata:
+        writer.add_metadata(meta.name, meta.metadata)
+    for att in archive.attachments:
+        writer.add_attachment(att.create_time, att.log_time, att.name, att.media_type,
+                              att.data)
+    for block in archive.blocks:
+        for ch, log, pub, seq, start, length in zip(
+                block.channel.tolist(), block.log_time.tolist(), block.publish_time.tolist(),
+                block.sequence.tolist(), block.start.tolist(), block.length.tolist(),
+                strict=True):
+            writer.add_message(channel_ids[ch], log, block.data[start : start + length],
+                               pub, seq)
+    writer.finish()  # type: ignore[no-untyped-call]

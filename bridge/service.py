@@ -1,0 +1,183 @@
+"""The `gx3 bridge` process: one unit's pipeline published on Zenoh.
+
+The pipeline (device -> timing) hands samples, events, status and info to a
+``BusSink``, which turns them into the gx3.v1 messages and publishes them under
+the unit's keys; a raw capture, when asked for, records every read beside it.
+Operator commands that reach the unit's command queryable run on the
+pipeline's thread, only when the bridge was started with ``--allow-commands``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from importlib.metadata import version
+from typing import Any
+
+from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.device.actions import ACTIONS, run_action
+from bridge.device.session import DeviceError, Session, UnitInfo
+from bridge.pipeline import Pipeline, Samples, UnitEvent
+
+_STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
+           "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
+           "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
+           "stopped": Status.STOPPED}
+_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
+          "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
+          "error": Event.DISCONNECT, "resync": Event.RESYNC, "bring_up": Event.BRING_UP,
+          "command": Event.COMMAND}
+
+
+def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool) -> Info:
+    s = info.sampling
+    return Info(
+        unit=unit, port=port, baud=info.baud, firmware=info.firmware,
+        firmware_text=info.firmware_text, decimation=s.get("decimation", 0),
+        flags=s.get("flags", 0), filter_width=s.get("filter_width", 0),
+        mag_filter_width=s.get("mag_filter_width", 0),
+        up_compensation=s.get("up_compensation", 0),
+        north_compensation=s.get("north_compensation", 0), command=info.record,
+        mode=2, bring_up_time_ns=info.bring_up_ns, bridge_version=version("gx3-bridge"),
+        allow_commands=allow_commands, output_rate_hz=info.output_hz, **info.ids)
+
+
+def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
+    clock = status.get("clock")
+    msg = Status(
+        unit=unit, time_ns=time.time_ns(), connected=status["state"] in ("streaming", "polling"),
+        state=_STATES.get(status["state"], Status.STATE_UNSPECIFIED),
+        samples_per_s=status["samples_per_s"], port=port,
+        **{k: status[k] for k in ("samples", "dropped", "checksum_failures", "implausible",
+                                  "bytes_skipped", "resyncs", "reconnects", "glitches")})
+    if info is not None:
+        msg.command = info.record
+        msg.output_rate_hz = info.output_hz
+        msg.baud = info.baud
+    if clock is not None:
+        msg.clock_offset_ns = int(clock.offset_ns)
+        msg.clock_drift_ppm = float(clock.drift_ppm)
+        msg.clock_spread_ns = float(clock.spread_ns)
+    return msg
+
+
+def event_message(unit: str, event: UnitEvent) -> Event:
+    return Event(unit=unit, time_ns=event.time_ns, ticks=event.ticks,
+                 kind=_KINDS.get(event.kind, Event.KIND_UNSPECIFIED),
+                 count=event.count or 1, detail=event.detail)
+
+
+def command_handler(pipeline: Pipeline) -> Callable[[str], str]:
+    """What the unit's command queryable answers (only on a bridge started with
+    --allow-commands): a JSON request ``{"action": NAME, "params": {...}, "confirm":
+    bool}`` in, the JSON result out; a ValueError becomes the query's error reply."""
+    def handle(text: str) -> str:
+        try:
+            request = json.loads(text or "{}")
+            name = str(request.get("action", ""))
+            params = dict(request.get("params") or {})
+            confirm = bool(request.get("confirm"))
+        except (ValueError, AttributeError, TypeError):
+            raise ValueError("the request is not a JSON object with an action") from None
+        if name not in ACTIONS:
+            raise ValueError(f"unknown action {name!r}; known: {', '.join(ACTIONS)}")
+
+        def action(session: Session, info: UnitInfo) -> dict[str, Any]:
+            return run_action(name, session, info, params, confirm)
+
+        try:
+            return json.dumps(pipeline.submit(action, ACTIONS[name].effect))
+        except (DeviceError, TimeoutError) as exc:
+            raise ValueError(str(exc)) from None
+    return handle
+
+
+class BusSink:
+    """Publishes what the pipeline produces under the unit's keys.
+
+    The unit's name is known only after its first bring-up (its serial number,
+    unless the operator named it), so the publisher is declared then; listeners
+    registered with ``on_unit`` learn the name and the unit's description.
+    """
+
+    def __init__(self, session: Any, prefix: str, unit: str | None, port: str,
+                 allow_commands: bool, cache_s: float, quiet: bool = False) -> None:
+        self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
+        self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
+        self.publisher: Any = None
+        self.pipeline: Pipeline | None = None
+        self._info: UnitInfo | None = None
+        self._listeners: list[Callable[[str, dict[str, str]], None]] = []
+
+    def attach(self, pipeline: Pipeline) -> None:
+        self.pipeline = pipeline
+
+    def on_unit(self, listener: Callable[[str, dict[str, str]], None]) -> None:
+        self._listeners.append(listener)
+
+    def info(self, info: UnitInfo) -> None:
+        from bridge.bus.keys import check_unit
+        from bridge.bus.publish import UnitPublisher
+
+        self._info = info
+        if self.unit is None:
+            self.unit = check_unit(_name_from_serial(info.ids.get("serial", "")))
+        if self.publisher is None:
+            assert self.pipeline is not None
+            self.publisher = UnitPublisher(
+                self.session, self.unit, prefix=self.prefix,
+                cache_samples=max(1, round(self.cache_s * info.output_hz)),
+                on_command=command_handler(self.pipeline), allow_commands=self.allow_commands)
+            meta = {"unit": self.unit, "port": self.port, "baud": str(info.baud),
+                    "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
+                    "flags": str(info.sampling.get("flags", 0)),
+                    "filter_width": str(info.sampling.get("filter_width", 0)),
+                    "decimation": str(info.sampling.get("decimation", 0)),
+                    "transport": self.pipeline.transport,
+                    "polled": str(self.pipeline.options.poll_hz is not None).lower()}
+            for listener in self._listeners:
+                listener(self.unit, meta)
+        self.publisher.set_info(info_message(self.unit, self.port, info, self.allow_commands))
+
+    def samples(self, samples: Samples) -> None:
+        if self.publisher is not None:
+            self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
+
+    def event(self, event: UnitEvent) -> None:
+        if not self.quiet or event.kind in ("disconnect", "error"):
+            _print_event(event)
+        if self.publisher is not None and self.unit is not None:
+            self.publisher.publish_event(event_message(self.unit, event))
+
+    def status(self, status: dict[str, Any]) -> None:
+        if self.publisher is not None and self.unit is not None:
+            self.publisher.publish_status(status_message(self.unit, self.port, self._info,
+                                                         status))
+
+    def close(self) -> None:
+        if self.publisher is not None:
+            self.publisher.close()
+            self.publisher = None
+
+    def summary(self) -> str:
+        """The closing line: totals as the pipeline ends (not the last 1 Hz status)."""
+        if self.pipeline is None or self.unit is None:
+            return f"{self.port}: no unit brought up"
+        c = self.pipeline.counters
+        return (f"{self.unit}: {c.samples} samples, {c.dropped} dropped, "
+                f"{c.reconnects} reconnects, {c.checksum_failures} checksum failures")
+
+
+def _name_from_serial(serial: str) -> str:
+    """A key-safe unit name from a serial number ("gx3-unit" when it has none)."""
+    name = "".join(c if c.isalnum() or c in "-_." else "-" for c in serial.strip())
+    return name or "gx3-unit"
+
+
+def _print_event(event: UnitEvent) -> None:
+    from bridge.cli.common import err
+
+    stamp = time.strftime("%H:%M:%S", time.localtime(event.time_ns / 1e9))
+    count = f" ({event.count})" if event.count > 1 else ""
+    err.print(f"[dim]{stamp}[/] [bold]{event.kind}[/]{count} {event.detail}".rstrip())

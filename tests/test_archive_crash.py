@@ -1,0 +1,72 @@
+"""A recorder killed with SIGKILL loses at most about its last second of messages."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from bridge.recorder.read import read_archive
+from bridge.recorder.repair import repair
+
+# Writes 0xCC samples at about 2 kHz, stamped with the wall clock, and reports on stdout
+# how many it has written, and when (monotonic), every 50 ms.
+_WRITER = """
+import sys, time
+import numpy as np
+from pathlib import Path
+from bridge.bus.codec import encode_batch
+from tests.test_archive_writer import synthetic_batch
+batch = synthetic_batch(0xCC, 100, 1)
+from bridge.recorder.archive import ArchiveWriter
+writer = ArchiveWriter(Path(sys.argv[1]))
+n = 0
+last = time.monotonic()
+while True:
+    now = time.time_ns()
+    t = now + np.arange(100, dtype=np.int64)
+    for p, ti in zip(encode_batch("u1", batch, np.arange(n, n + 100), t, t), t.tolist()):
+        writer.write("gx3/u1/imu", p, ti)
+    n += 100
+    time.sleep(0.05)
+    print(n, time.monotonic(), flush=True)
+"""
+
+
+def test_sigkill_keeps_everything_older_than_about_a_second(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE,
+                            text=True, cwd=Path(__file__).parent.parent)
+    progress: list[tuple[int, float]] = []
+    try:
+        assert proc.stdout is not None
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            count, when = line.split()
+            progress.append((int(count), float(when)))
+            if progress[-1][1] - progress[0][1] >= 3.5:
+                break
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        if proc.stdout is not None:
+            proc.stdout.close()
+    assert progress and progress[-1][1] - progress[0][1] >= 3.5, progress
+    last_seen = progress[-1][1]
+    # what the writer had written 2 s before its last report (1 s flush plus wide margin)
+    safe = max(n for n, when in progress if when <= last_seen - 2.0)
+    archive = read_archive(path)
+    assert not archive.complete
+    got = archive.messages("gx3/u1/imu")
+    assert len(got) >= safe, (len(got), safe, progress[-1][0])
+    assert len(got) <= progress[-1][0] + 100
+    ticks = archive.samples()[0].columns["ticks"]
+    assert ticks.tolist() == list(range(len(got)))  # a prefix, nothing missing
+    report = repair(path, tmp_path / "fixed.mcap")
+    assert report.messages == archive.message_count
+    assert read_archive(report.output).complete

@@ -1,0 +1,399 @@
+"""The archive writer: Zenoh bytes per key, sample-time log times, schemas a standard decoder
+reads, per-unit FrameTransforms with the true attitude, numbered splits, clear write errors."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from mcap.reader import make_reader
+
+from bridge.bus.codec import encode_batch
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.protocol.codec import Batch
+from bridge.protocol.convert import euler_to_m, euler_to_quaternion
+from bridge.protocol.table import REPLIES
+from bridge.recorder.archive import ArchiveError, ArchiveWriter, numbered
+from bridge.recorder.read import read_archive
+
+T0 = 1_763_000_000_000_000_000
+PERIOD = 10_000_000  # 100 Hz
+LATENCY = 3_000_000
+
+
+def synthetic_batch(code: int, n: int, seed: int, euler: np.ndarray | None = None) -> Batch:
+    """n records of ``code`` with random values; attitude fields follow ``euler`` if given."""
+    rng = np.random.default_rng(seed)
+    columns: dict[str, np.ndarray] = {}
+    for f in REPLIES[code].fields:
+        if f.name == "timer":
+            columns["timer"] = (np.arange(n, dtype=np.uint32) * 625 + seed).astype(np.uint32)
+        elif f.kind == "u16":
+            columns[f.name] = rng.integers(0, 4096, (n, *f.shape)).astype(np.uint16)
+        else:
+            columns[f.name] = rng.normal(0, 1, (n, *f.shape)).astype(np.float32)
+    if euler is not None:
+        attitude = {"m": euler_to_m(euler), "quaternion": euler_to_quaternion(euler),
+                    "euler": euler}
+        for name, values in attitude.items():
+            if name in columns:
+                columns[name] = values.astype(np.float32)
+    return Batch(code, columns, np.arange(n), np.zeros(n, np.int64), False)
+
+
+@dataclass
+class Written:
+    """What a test wrote: per topic (log time, receive time, payload), and the batches."""
+
+    messages: dict[str, list[tuple[int, int, bytes]]] = field(default_factory=dict)
+    batches: dict[str, Batch] = field(default_factory=dict)
+    times: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def add(self, topic: str, log_ns: int, rx: int, payload: bytes) -> None:
+        self.messages.setdefault(topic, []).append((log_ns, rx, payload))
+
+
+#: unit -> (record type, samples, first sample index): u2 appears mid-run, u3 has no attitude
+FLEET = {"u1": (0xCC, 300, 0), "u2": (0xDF, 200, 60), "u3": (0xC2, 150, 10)}
+
+
+def write_fleet(path: Path, **options: object) -> Written:
+    """Three units at 100 Hz, with status each second, events, info and one raw read."""
+    written = Written()
+    feed: list[tuple[int, str, bytes, int]] = []  # (receive ns, key, payload, log ns)
+    for k, (unit, (code, n, first)) in enumerate(FLEET.items()):
+        euler = np.stack([np.linspace(0, 1, n), np.linspace(0, -0.5, n),
+                          np.linspace(-3, 3, n)], axis=1)
+        batch = synthetic_batch(code, n, k + 1, euler)
+        time_ns = T0 + (first + np.arange(n, dtype=np.int64)) * PERIOD + k * 1000
+        rx = time_ns + LATENCY
+        payloads = encode_batch(unit, batch, np.arange(n, dtype=np.int64) * 625, time_ns, rx)
+        written.batches[unit] = batch
+        written.times[unit] = time_ns
+        for p, t, r in zip(payloads, time_ns.tolist(), (rx + 500).tolist(), strict=True):
+            feed.append((r, f"gx3/{unit}/imu", p, t))
+        for s in range(0, n, 100):
+            t = int(time_ns[s])
+            status = Status(unit=unit, time_ns=t, samples=s, connected=True).SerializeToString()
+            feed.append((t + 1, f"gx3/{unit}/status", status, t))
+        gap = Event(unit=unit, time_ns=int(time_ns[n // 2]), ticks=625 * (n // 2),
+                    kind=Event.GAP, count=3, detail="3 records missing")
+        feed.append((int(time_ns[n // 2]) + 2, f"gx3/{unit}/event", gap.SerializeToString(),
+                     int(time_ns[n // 2])))
+        info = Info(unit=unit, model_name="3DM-GX3-25", bring_up_time_ns=int(time_ns[0]) - 5)
+        feed.append((int(time_ns[0]) - 4, f"gx3/{unit}/info", info.SerializeToString(),
+                     int(time_ns[0]) - 5))
+    feed.append((T0 + 7, "gx3/u1/raw", b"\xcc\x00\x01raw bytes", T0 + 7))
+    feed.sort(key=lambda f: f[0])
+    with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
+        for receive_ns, key, payload, log_ns in feed:
+            writer.write(key, payload, receive_ns)
+            written.add(key, log_ns, receive_ns, payload)
+    return written
+
+
+def rotation(xyzw: np.ndarray) -> np.ndarray:
+    """Hamilton rotation matrix of an x, y, z, w quaternion (textbook formula)."""
+    x, y, z, w = xyzw / np.linalg.norm(xyzw)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_data_channels_hold_the_zenoh_bytes_logged_at_sample_time(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.mcap"
+    written = write_fleet(path)
+    archive = read_archive(path)
+    assert archive.complete and archive.dropped_bytes == 0
+    assert archive.units() == ["u1", "u2", "u3"]
+    for topic, expected in written.messages.items():
+        got = archive.messages(topic)
+        order = sorted(range(len(expected)), key=lambda i: expected[i][0])
+        assert got.payloads == [expected[i][2] for i in order], topic
+        assert got.log_time.tolist() == [expected[i][0] for i in order], topic
+        assert got.publish_time.tolist() == [expected[i][1] for i in order], topic
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes and summary.statistics
+        schemas = {s.id: s for s in summary.schemas.values()}
+        for ch in summary.channels.values():
+            kind = ch.topic.rsplit("/", 1)[1]
+            if kind == "raw":
+                assert ch.schema_id == 0
+                assert ch.message_encoding == "application/octet-stream"
+                continue
+            assert ch.message_encoding == "protobuf"
+            assert schemas[ch.schema_id].encoding == "protobuf"
+            assert schemas[ch.schema_id].name == {
+                "imu": "gx3.v1.ImuSample", "status": "gx3.v1.Status", "event": "gx3.v1.Event",
+                "info": "gx3.v1.Info", "frame": "foxglove.FrameTransform"}[kind]
+        assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
+
+
+_STANDARD_DECODE = """
+import json, sys
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+out = {}
+with open(sys.argv[1], "rb") as f:
+    reader = make_reader(f, decoder_factories=[DecoderFactory()])
+    topics = [c.topic for c in reader.get_summary().channels.values()
+              if c.message_encoding == "protobuf"]
+    for schema, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+        row = out.setdefault(channel.topic, [])
+        if schema.name == "gx3.v1.ImuSample":
+            row.append([decoded.unit, decoded.command, decoded.time_ns, message.log_time,
+                        list(decoded.accel) or list(decoded.quaternion)])
+        elif schema.name == "foxglove.FrameTransform":
+            row.append([decoded.child_frame_id, decoded.parent_frame_id])
+        else:
+            row.append([decoded.unit, schema.name])
+leaked = sorted(m for m in sys.modules if m == "bridge" or m.startswith("bridge."))
+print(json.dumps({"topics": out, "leaked": leaked}))
+"""
+
+
+def test_a_standard_protobuf_decoder_reads_the_archive_from_its_embedded_schemas(
+        tmp_path: Path) -> None:
+    path = tmp_path / "fleet.mcap"
+    written = write_fleet(path)
+    result = subprocess.run([sys.executable, "-c", _STANDARD_DECODE, str(path)],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    decoded = json.loads(result.stdout)
+    assert decoded["leaked"] == []
+    topics = decoded["topics"]
+    for unit, (code, n, _) in FLEET.items():
+        rows = topics[f"gx3/{unit}/imu"]
+        assert len(rows) == n
+        assert all(r[0] == unit and r[1] == code and r[2] == r[3] for r in rows)
+        assert [r[2] for r in rows] == written.times[unit].tolist()
+        first = "quaternion" if code == 0xDF else "accel"
+        np.testing.assert_array_equal(np.array([r[4] for r in rows], np.float32),
+                                      written.batches[unit][first])
+        assert topics[f"gx3/{unit}/status"][0] == [unit, "gx3.v1.Status"]
+        assert topics[f"gx3/{unit}/info"] == [[unit, "gx3.v1.Info"]]
+    assert {r[0] for r in topics["gx3/u1/frame"]} == {"u1"}
+    assert {r[1] for r in topics["gx3/u2/frame"]} == {"world"}
+    assert "gx3/u3/frame" not in topics  # 0xC2 carries no attitude
+
+
+# roll +90° (right side down), pitch +30° (nose up), yaw +90° (nose east): each a rotation
+# about one axis, so a transposed matrix or a wxyz/xyzw mix-up cannot pass.
+ATTITUDES = {
+    "roll": ([np.pi / 2, 0.0, 0.0], {1: [0.0, 0.0, 1.0], 0: [1.0, 0.0, 0.0]}),
+    "pitch": ([0.0, np.pi / 6, 0.0], {0: [np.cos(np.pi / 6), 0.0, -np.sin(np.pi / 6)]}),
+    "yaw": ([0.0, 0.0, np.pi / 2], {0: [0.0, 1.0, 0.0], 1: [-1.0, 0.0, 0.0]}),
+}
+
+
+def write_attitudes(path: Path, code: int, **options: object) -> None:
+    with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
+        for k, (name, (euler, _)) in enumerate(ATTITUDES.items()):
+            batch = synthetic_batch(code, 5, k, np.tile(euler, (5, 1)))
+            t = T0 + np.arange(5, dtype=np.int64) * PERIOD
+            for i, p in enumerate(encode_batch(name, batch, np.arange(5), t, t)):
+                writer.write(f"gx3/{name}/imu", p, int(t[i]) + LATENCY)
+
+
+@pytest.mark.parametrize("code", [0xC5, 0xDF, 0xCE], ids=["m", "quaternion", "euler"])
+def test_frame_transform_rotates_sensor_axes_into_ned(tmp_path: Path, code: int) -> None:
+    path = tmp_path / "attitude.mcap"
+    write_attitudes(path, code)
+    archive = read_archive(path)
+    for slot, (unit, (euler, axes)) in enumerate(ATTITUDES.items()):
+        frames = archive.messages(f"gx3/{unit}/frame")
+        assert len(frames) == 5
+        for payload in frames.payloads:
+            msg = FrameTransform.FromString(payload)
+            assert (msg.parent_frame_id, msg.child_frame_id) == ("world", unit)
+            assert (msg.translation.x, msg.translation.y, msg.translation.z) == (0, 0.5 * slot, 0)
+            r = rotation(np.array([msg.rotation.x, msg.rotation.y, msg.rotation.z,
+                                   msg.rotation.w]))
+            np.testing.assert_allclose(r, euler_to_m(euler).T, atol=1e-6)
+            for axis, ned in axes.items():  # the sensor axis, seen in north-east-down
+                np.testing.assert_allclose(r[:, axis], ned, atol=1e-6)
+        assert frames.log_time.tolist() == (T0 + np.arange(5) * PERIOD).tolist()
+
+
+def test_rerun_reads_the_frames_as_the_true_attitude(tmp_path: Path) -> None:
+    from rerun.chunk import McapReader
+
+    path = tmp_path / "attitude.mcap"
+    write_attitudes(path, 0xC5)
+    seen = set()
+    for chunk in McapReader(path, include_topic_regex=[".*/frame"]).stream():
+        batch = chunk.to_record_batch()
+        if "Transform3D:quaternion" not in batch.schema.names:
+            continue
+        unit = batch.column("Transform3D:child_frame")[0].as_py()[0]
+        euler = ATTITUDES[unit][0]
+        for q in batch.column("Transform3D:quaternion").to_pylist():
+            np.testing.assert_allclose(rotation(np.array(q[0])), euler_to_m(euler).T,
+                                       atol=1e-6)
+        seen.add(unit)
+    assert seen == set(ATTITUDES)
+
+
+def test_frames_are_decimated_to_the_frame_rate(tmp_path: Path) -> None:
+    path = tmp_path / "fast.mcap"
+    with ArchiveWriter(path, frame_rate_hz=50) as writer:
+        batch = synthetic_batch(0xC8, 1000, 3)
+        t = T0 + np.arange(1000, dtype=np.int64) * 1_000_000  # 1 kHz for 1 s
+        for p, ti in zip(encode_batch("u", batch, np.arange(1000), t, t), t.tolist(),
+                         strict=True):
+            writer.write("gx3/u/imu", p, ti)
+    frames = read_archive(path).messages("gx3/u/frame")
+    assert len(frames) == 50
+    assert set(np.diff(frames.log_time).tolist()) == {20_000_000}
+
+
+def test_split_by_size_gives_numbered_files_that_each_open(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    written = write_fleet(path, split_bytes=30_000, chunk_size=8_000)
+    files = sorted(tmp_path.glob("run_*.mcap"))
+    assert len(files) >= 3 and files[0] == numbered(path, 1) and not path.exists()
+    topics: dict[str, list[bytes]] = {}
+    for f in files:
+        archive = read_archive(f)
+        assert archive.complete
+        for topic in archive.topics():
+            topics.setdefault(topic, []).extend(archive.messages(topic).payloads)
+        with f.open("rb") as stream:
+            assert make_reader(stream).get_summary() is not None
+    for topic, expected in written.messages.items():
+        assert sorted(topics[topic]) == sorted(p for _, _, p in expected)
+    slots = {FrameTransform.FromString(p).translation.y for f in files
+             for p in read_archive(f).messages("gx3/u2/frame").payloads}
+    assert slots == {1.0}  # u2 is the third unit seen, and keeps its place across files
+
+
+def test_split_by_duration_of_receive_time(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    write_fleet(path, split_seconds=1.0)
+    # the feed spans 2.6 s of receive time
+    assert [f.name for f in sorted(tmp_path.glob("run_*.mcap"))] == [
+        "run_0001.mcap", "run_0002.mcap", "run_0003.mcap"]
+
+
+def test_unwritable_path_is_a_one_line_error(tmp_path: Path) -> None:
+    for bad in (tmp_path / "missing" / "a.mcap", tmp_path):
+        with pytest.raises(ArchiveError) as info:
+            ArchiveWriter(bad)
+        assert str(bad) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_unknown_keys_and_bad_payloads_are_refused(tmp_path: Path) -> None:
+    with ArchiveWriter(tmp_path / "a.mcap") as writer:
+        with pytest.raises(ValueError, match="no archive channel for 'command'"):
+            writer.write("gx3/u1/command", b"x", 1)
+        with pytest.raises(ValueError, match="not of the form"):
+            writer.write("other/u1/imu", b"x", 1)
+        with pytest.raises(ValueError, match=r"not a gx3\.v1\.Status"):
+            writer.write("gx3/u1/status", b"\xff\xff\xff", 1)
+    with pytest.raises(ArchiveError, match="closed"):
+        writer.write("gx3/u1/raw", b"x", 1)
+
+
+_FULL_DISK = """
+import sys
+import numpy as np
+from pathlib import Path
+from bridge.bus.codec import encode_batch
+from bridge.recorder.archive import ArchiveError, ArchiveWriter
+from tests.test_archive_writer import T0, synthetic_batch
+batch = synthetic_batch(0xCC, 20000, 1)
+t = T0 + np.arange(20000, dtype=np.int64) * 1_000_000
+payloads = encode_batch("u1", batch, np.arange(20000), t, t)
+writer = ArchiveWriter(Path(sys.argv[1]), chunk_size=16_000)
+n = 0
+try:
+    for p, ti in zip(payloads, t.tolist()):
+        writer.write("gx3/u1/imu", p, ti)
+        n += 1
+        if n % 500 == 0:
+            writer.flush()
+except ArchiveError as exc:
+    print(n, exc)
+writer.close()
+"""
+
+
+def _limit_file_size() -> None:
+    import resource
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))
+
+
+def test_a_full_disk_stops_the_archive_with_one_line_and_keeps_it_readable(
+        tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    result = subprocess.run([sys.executable, "-c", _FULL_DISK, str(path)], capture_output=True,
+                            text=True, timeout=120, preexec_fn=_limit_file_size,
+                            cwd=Path(__file__).parent.parent)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    written, message = result.stdout.strip().split(" ", 1)
+    assert message.startswith(f"{path}: File too large; the archive stops here")
+    assert "\n" not in message
+    archive = read_archive(path)
+    assert not archive.complete
+    got = archive.messages("gx3/u1/imu")
+    assert 1000 <= len(got) <= int(written)
+    assert got.log_time.tolist() == (T0 + np.arange(len(got)) * 1_000_000).tolist()
+
+
+def test_tick_flushes_a_second_after_the_last_flush_while_messages_pause(
+        tmp_path: Path) -> None:
+    now = [0.0]
+    path = tmp_path / "idle.mcap"
+    writer = ArchiveWriter(path, clock=lambda: now[0])
+    batch = synthetic_batch(0xC2, 3, 1)
+    t = T0 + np.arange(3, dtype=np.int64) * PERIOD
+    for p, ti in zip(encode_batch("u1", batch, np.arange(3), t, t), t.tolist(), strict=True):
+        writer.write("gx3/u1/imu", p, ti)
+    now[0] = 0.9
+    writer.tick()
+    assert read_archive(path).message_count == 0  # still in the open chunk
+    now[0] = 1.0
+    writer.tick()
+    on_disk = read_archive(path)
+    assert on_disk.message_count == 3 and not on_disk.complete
+    writer.close()
+    writer.close()
+    assert read_archive(path).complete
+
+
+def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: Path) -> None:
+    m = euler_to_m(np.array([0.0, 0.0, 0.3])).reshape(-1).tolist()
+    # m before the header fields (another producer's order), a unit name unlike the key's
+    head = ImuSample(unit="other", command=0xC5, timer=1, ticks=1, time_ns=T0 + 5, rx_ns=T0 + 9)
+    reordered = ImuSample(m=m).SerializeToString() + head.SerializeToString()
+    # the bulk header, then an m field cut short: archived, but it gets no frame
+    cut = ImuSample(unit="u1", command=0xC5, timer=2, ticks=2, time_ns=T0 + 6,
+                    rx_ns=T0 + 9).SerializeToString() + b"\x82\x01\x24" + bytes(10)
+    path = tmp_path / "odd.mcap"
+    with ArchiveWriter(path, frame_rate_hz=None) as writer:
+        writer.write("gx3/u1/imu", reordered, T0 + 10)
+        writer.write("gx3/u1/imu", cut, T0 + 11)
+        with pytest.raises(ValueError, match=r"not a gx3\.v1\.ImuSample"):
+            writer.write("gx3/u1/imu", b"\xff" * 8, T0 + 12)
+    archive = read_archive(path)
+    imu = archive.messages("gx3/u1/imu")
+    assert imu.payloads == [reordered, cut] and imu.log_time.tolist() == [T0 + 5, T0 + 6]
+    frames = archive.messages("gx3/u1/frame")
+    assert len(frames) == 1 and frames.log_time[0] == T0 + 5
+    frame = FrameTransform.FromString(frames.payloads[0])
+    assert frame.child_frame_id == "u1"
+    q = np.array([frame.rotation.x, frame.rotation.y, frame.rotation.z, frame.rotation.w])
+    np.testing.assert_allclose(rotation(q), np.reshape(m, (3, 3)).T, atol=1e-6)

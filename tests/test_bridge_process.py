@@ -1,0 +1,247 @@
+"""`gx3 bridge` as users run it: an OS process between an emulated unit and Zenoh.
+
+The unit is the emulator on a real pty; the bridge is the installed console script;
+the subscriber is the public ``bridge.subscribe`` API in this process, on loopback
+with multicast scouting off. What is checked is what a fleet user relies on:
+every sample of a 1 kHz unit arrives in order and equals the unit's ground truth,
+status and info are published, commands are refused unless allowed, and a killed
+bridge's liveliness token goes away while a restarted one picks up again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from bridge.bus.gx3_pb2 import Info, Status
+from bridge.bus.subscribe import SampleBatch, subscribe
+from bridge.protocol.table import Flag
+from bridge.sim.motion import MotionConfig
+from bridge.sim.serve import Simulator
+from bridge.sim.state import Sampling, Stored
+from bridge.sim.unit import UnitConfig
+
+
+def _gx3() -> str:
+    """The installed console script: next to this interpreter, else on PATH."""
+    found = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
+    assert found, "the gx3 console script is not installed"
+    return found
+
+
+GX3 = _gx3()
+FAST = UnitConfig(
+    serial="FAST0001", motion=MotionConfig(seed=11),
+    stored=Stored(mode_preset=2, continuous_preset=0xC2, baud=921_600,
+                  sampling=Sampling(decimation=1, flags=int(Flag.CONING_SCULLING))))
+SLOW = replace(FAST, serial="SLOW0001",
+               stored=Stored(mode_preset=2, continuous_preset=0xC8))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def zenoh_config(path: Path, listen: list[str] | None = None,
+                 connect: list[str] | None = None) -> Path:
+    """A peer on loopback with multicast scouting off, as every test session is."""
+    path.write_text(json.dumps({
+        "mode": "peer", "listen": {"endpoints": listen or []},
+        "connect": {"endpoints": connect or []},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}}))
+    return path
+
+
+@contextmanager
+def bridge_process(port: str, cfg: Path, *args: str) -> Iterator[subprocess.Popen[bytes]]:
+    assert GX3, "the gx3 console script is not installed next to this interpreter"
+    proc = subprocess.Popen([GX3, "bridge", "--port", port, "--zenoh-config", str(cfg),
+                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+@pytest.fixture
+def network(tmp_path: Path) -> tuple[Path, Path]:
+    """A config for the bridge (listening) and one for the test's sessions (connecting)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    return (zenoh_config(tmp_path / "bridge.json5", listen=[endpoint]),
+            zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
+def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
+        network: tuple[Path, Path]) -> None:
+    bridge_cfg, client_cfg = network
+    seconds = 10.0
+    with Simulator([FAST], "pty") as sim, \
+            subscribe("gx3/fast/imu", output="batches", zenoh_config=client_cfg,
+                      history=20_000) as sub, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600", "--unit", "fast"):
+        batches: list[SampleBatch] = []
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            batch = sub.get(timeout=1.0)
+            if batch is not None:
+                batches.append(batch)
+                ticks = batches[-1]["ticks"]
+                if ticks[-1] - batches[0]["ticks"][0] >= seconds * 62_500:
+                    break
+        unit = sim.units[0]
+        truth = unit.truth.arrays()
+        delay, period = unit.filter_delays()[0], unit.period
+        misses = sub.misses
+    ticks = np.concatenate([b["ticks"] for b in batches])
+    timer = np.concatenate([b["timer"] for b in batches])
+    accel = np.concatenate([b["accel"] for b in batches])
+    assert ticks[-1] - ticks[0] >= seconds * 62_500, "not 10 s of samples"
+    steps = np.diff(ticks)
+    assert set(steps.tolist()) <= {62, 63}, f"missing or repeated samples: {np.unique(steps)}"
+    assert misses == 0
+    # the published records are exactly the records the unit sent, in order
+    start = int(np.flatnonzero(truth["timer"] == timer[0])[0])
+    assert (truth["timer"][start : start + len(timer)] == timer).all()
+    # and their values are what the unit measured: the motion at each record's
+    # instant, as its moving-average filter delays it
+    device_s = truth["device_s"][start : start + len(timer)]
+    expected = unit.motion.sample(device_s - delay, period)["accel"].astype(np.float32)
+    assert np.unique(accel[:, 0]).size > 0.9 * len(accel), "a moving unit's records differ"
+    np.testing.assert_array_equal(accel, expected)
+
+
+def test_status_info_and_refused_commands(network: tuple[Path, Path]) -> None:
+    bridge_cfg, client_cfg = network
+    with Simulator([SLOW], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow"), \
+            zenoh.open(zenoh.Config.from_file(str(client_cfg))) as session:
+        statuses: list[Status] = []
+
+        def on_status(sample: zenoh.Sample) -> None:
+            msg = Status()
+            msg.ParseFromString(sample.payload.to_bytes())
+            statuses.append(msg)
+
+        sub = session.declare_subscriber("gx3/slow/status", on_status)
+        wait_for(lambda: len(statuses) >= 3 and statuses[-1].samples > 100)
+        sub.undeclare()
+        infos = [r.ok for r in session.get("gx3/slow/info", timeout=5.0) if r.ok is not None]
+        refused = [r.err for r in session.get("gx3/slow/command", timeout=5.0,
+                                              payload='{"action": "set_timer"}')
+                   if r.err is not None]
+    status = statuses[-1]
+    assert status.state == Status.STREAMING and status.connected
+    assert status.command == 0xC8 and status.output_rate_hz == 100.0
+    assert 80 <= status.samples_per_s <= 120
+    assert status.dropped == 0 and status.checksum_failures == 0
+    info = Info()
+    info.ParseFromString(infos[0].payload.to_bytes())
+    assert info.serial == "SLOW0001" and info.firmware_text == "1.1.27"
+    assert info.decimation == 10 and not info.allow_commands
+    assert refused and "--allow-commands" in refused[0].payload.to_string()
+
+
+def test_operator_commands_over_zenoh(network: tuple[Path, Path]) -> None:
+    bridge_cfg, client_cfg = network
+    with Simulator([SLOW], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow",
+                           "--allow-commands"):
+        def gx3(*args: str) -> subprocess.CompletedProcess[str]:
+            assert GX3
+            return subprocess.run([GX3, *args, "--unit", "slow", "--zenoh-config",
+                                   str(client_cfg), "--json"], capture_output=True, text=True,
+                                  timeout=60, check=False)
+
+        wait_for(lambda: gx3("info").returncode == 0)
+        info = json.loads(gx3("info").stdout)
+        timer = gx3("set-timer", "--value", "1000")
+        test = gx3("stationary-test")
+        reset = subprocess.run([GX3, "reset", "--unit", "slow", "--zenoh-config",
+                                str(client_cfg)], capture_output=True, text=True, timeout=60,
+                               check=False, stdin=subprocess.DEVNULL)
+    assert info["serial"] == "SLOW0001"
+    assert timer.returncode == 0 and json.loads(timer.stdout)["timer"] >= 1000
+    assert test.returncode == 0 and json.loads(test.stdout)["flags"]["system_tick"]
+    assert reset.returncode != 0 and "--yes" in reset.stderr, "a reset must be confirmed"
+
+
+def test_killed_bridge_goes_away_and_a_new_one_picks_up(network: tuple[Path, Path]) -> None:
+    bridge_cfg, client_cfg = network
+    with Simulator([SLOW], "pty") as sim, \
+            zenoh.open(zenoh.Config.from_file(str(client_cfg))) as session:
+        events: list[str] = []
+        token = session.liveliness().declare_subscriber(
+            "gx3/*/alive", lambda s: events.append(str(s.kind)), history=True)
+        with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow") as first:
+            wait_for(lambda: events.count("SampleKind.PUT") == 1)
+            os.kill(first.pid, signal.SIGKILL)
+            first.wait(timeout=10)
+            wait_for(lambda: "SampleKind.DELETE" in events)
+        with subscribe("gx3/slow/imu", output="batches", zenoh_config=client_cfg) as sub, \
+                bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow"):
+            wait_for(lambda: events.count("SampleKind.PUT") == 2)
+            got = sub.get(timeout=20.0)
+        token.undeclare()
+    assert got is not None and len(got) > 0
+
+
+def test_sigint_stops_continuous_mode_and_capture_holds_every_read(
+        network: tuple[Path, Path], tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    bridge_cfg, client_cfg = network
+    capture = tmp_path / "raw.mcap"
+    with Simulator([SLOW], "pty") as sim, \
+            subscribe("gx3/slow/imu", output="batches", zenoh_config=client_cfg) as sub:
+        with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow", "--capture",
+                            str(capture)) as proc:
+            got = 0
+            while got < 150:
+                batch = sub.get(timeout=20.0)
+                assert batch is not None, "no samples"
+                got += len(batch)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=20) == 0
+        assert sim.units[0].mode == 1, "the unit was left streaming"
+    with capture.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        topics = {c.topic for c in summary.channels.values()}
+        reads = [(m.log_time, m.data) for _, _, m in reader.iter_messages()]
+    assert topics == {"gx3/slow/raw"}
+    data = b"".join(d for _, d in reads)
+    assert data.count(bytes((0xC8,))) >= 150, "the capture lacks the streamed records"
+    assert all(b[0] <= a[0] for a, b in zip(reads[1:], reads, strict=False))

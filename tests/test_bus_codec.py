@@ -1,0 +1,131 @@
+"""Bulk ImuSample encoding gives protobuf's bytes, one length per record type, and decodes back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bridge.bus.codec import (
+    HEADER,
+    decode_batch,
+    encode_batch,
+    layout,
+    peek,
+    record_quantities,
+)
+from bridge.bus.gx3_pb2 import ImuSample
+from bridge.protocol.codec import Batch, decode_block, encode_replies
+from bridge.protocol.table import DATA_CODES, REPLIES
+
+CODES = sorted(DATA_CODES)
+
+
+def wire_batch(code: int, n: int, seed: int) -> Batch:
+    """n records of ``code`` as the framer hands them out, through the wire codec."""
+    rng = np.random.default_rng(seed)
+    columns: dict[str, np.ndarray] = {}
+    for f in REPLIES[code].fields:
+        if f.kind == "f32":
+            values = rng.normal(0, 3, (n, *f.shape)).astype(np.float32)
+            values.reshape(n, -1)[0, 0] = np.nan  # idle units send NaN
+            columns[f.name] = values
+        elif f.name == "timer":
+            columns[f.name] = np.array([0, 2**32 - 1, *range(1, n - 1)], np.uint32)
+        else:
+            columns[f.name] = rng.integers(0, 4096, (n, *f.shape)).astype(np.uint16)
+    raw = encode_replies(code, columns, n)
+    block = np.frombuffer(raw, np.uint8).reshape(n, -1)
+    offsets = np.arange(n) * REPLIES[code].length
+    return Batch(code, decode_block(code, block), offsets, np.zeros(n, np.int64), False)
+
+
+def times(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ticks = np.array([0, -1, 2**40, *range(n - 3)], np.int64)
+    time_ns = 1_763_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 1_000_000
+    return ticks, time_ns, time_ns + 2_500_000
+
+
+def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.ndarray,
+              rx_ns: np.ndarray) -> ImuSample:
+    """The message built field by field with the protobuf library."""
+    return ImuSample(unit=unit, command=batch.code, timer=int(batch["timer"][i]),
+                     ticks=int(ticks[i]), time_ns=int(time_ns[i]), rx_ns=int(rx_ns[i]),
+                     **{q: batch[q][i].reshape(-1).tolist() for q in record_quantities(batch.code)})
+
+
+@pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
+def test_bulk_encoding_is_byte_identical_to_protobuf(code: int) -> None:
+    batch = wire_batch(code, 6, code)
+    ticks, time_ns, rx_ns = times(6)
+    encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns)
+    assert len(encoded) == 6
+    for i, payload in enumerate(encoded):
+        assert payload == reference("imu-0.a", batch, i, ticks, time_ns, rx_ns).SerializeToString()
+        assert peek(payload) == ("imu-0.a", code)
+
+
+@pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
+def test_round_trip_through_protobuf_gives_the_columns_back(code: int) -> None:
+    batch = wire_batch(code, 5, code + 1)
+    ticks, time_ns, rx_ns = times(5)
+    encoded = encode_batch("u1", batch, ticks, time_ns, rx_ns)
+    parsed = [ImuSample.FromString(p) for p in encoded]
+    assert [m.command for m in parsed] == [code] * 5
+    assert [m.ticks for m in parsed] == ticks.tolist()
+    assert [m.rx_ns for m in parsed] == rx_ns.tolist()
+    filled = {f.name for f, _ in parsed[0].ListFields()}
+    assert filled == {"unit", *HEADER, *record_quantities(code)}, "a record fills what it has"
+    columns = decode_batch("u1", code, encoded)
+    expected = {"command": np.full(5, code), "timer": batch["timer"], "ticks": ticks,
+                "time_ns": time_ns, "rx_ns": rx_ns}
+    for name, want in expected.items():
+        np.testing.assert_array_equal(columns[name], want, err_msg=name)
+    for q in record_quantities(code):
+        assert columns[q].shape == batch[q].shape, q
+        np.testing.assert_array_equal(columns[q], batch[q], err_msg=q)  # NaN == NaN here
+
+
+@pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
+def test_every_message_of_one_record_type_has_one_length(code: int) -> None:
+    lengths = set()
+    for seed in range(3):
+        batch = wire_batch(code, 4, seed)
+        ticks, time_ns, rx_ns = times(4)
+        lengths |= {len(p) for p in encode_batch("imu0", batch, ticks * seed, time_ns * seed,
+                                                 rx_ns)}
+        zeros = Batch(code, {k: np.zeros_like(v) for k, v in batch.columns.items()},
+                      batch.offsets, batch.rx_ns, False)
+        lengths |= {len(p) for p in encode_batch("imu0", zeros, ticks * 0, time_ns * 0,
+                                                 rx_ns * 0)}
+    assert lengths == {layout(code, "imu0").size}
+
+
+def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
+    """A producer that writes fields in another order (here: quantities first) is still read."""
+    code = 0xC8
+    batch = wire_batch(code, 3, 7)
+    ticks, time_ns, rx_ns = times(3)
+    ours = encode_batch("imu0", batch, ticks, time_ns, rx_ns)
+    theirs = []
+    for i in range(3):
+        full = reference("imu0", batch, i, ticks, time_ns, rx_ns)
+        head = ImuSample(unit="imu0", command=code, timer=full.timer, ticks=full.ticks,
+                         time_ns=full.time_ns, rx_ns=full.rx_ns)
+        body = ImuSample(accel=full.accel, ang_rate=full.ang_rate, m=full.m)
+        theirs.append(body.SerializeToString() + head.SerializeToString())  # protobuf merges
+    assert [len(p) for p in theirs] == [len(p) for p in ours] and theirs != ours
+    assert peek(theirs[0]) == ("imu0", code)
+    mixed = decode_batch("imu0", code, [ours[0], theirs[1], ours[2]])
+    reference_columns = decode_batch("imu0", code, ours)
+    for name, col in reference_columns.items():
+        np.testing.assert_array_equal(mixed[name], col, err_msg=name)
+
+
+def test_a_sample_of_another_unit_or_garbage_is_a_clear_error() -> None:
+    payload = encode_batch("imu0", wire_batch(0xC2, 3, 0), *times(3))[0]
+    with pytest.raises(ValueError, match="is from 'imu0' 0xC2, not 'imu1' 0xC2"):
+        decode_batch("imu1", 0xC2, [payload])
+    with pytest.raises(ValueError, match=r"not a gx3.v1.ImuSample \(3 bytes\)"):
+        peek(b"\xff\xff\xff")
+    with pytest.raises(ValueError, match="0xD4 is not a data record"):
+        record_quantities(0xD4)

@@ -1,0 +1,76 @@
+"""`gx3 export --align`: units sampled at other instants and rates land on one grid, vectors
+linearly, attitude by slerp, and nothing is invented inside a gap."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from bridge.bus.codec import encode_batch
+from bridge.protocol.convert import euler_to_m
+from bridge.recorder.archive import ArchiveWriter
+from bridge.recorder.export import align_table, sample_table
+from bridge.recorder.read import read_archive
+from tests.test_archive_writer import T0, synthetic_batch
+from tests.test_export import gx3
+
+YAW_RATE = 0.5  # rad/s
+ACCEL_RATE = 0.25  # g/s
+
+
+def write_two_units(path: Path) -> None:
+    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing."""
+    with ArchiveWriter(path) as writer:
+        for unit, period, offset, gap in (("u1", 10_000_000, 3_000_000, None),
+                                          ("u2", 25_000_000, 11_000_000, (40, 52))):
+            n = 2_000_000_000 // period
+            keep = np.ones(n, bool)
+            if gap:
+                keep[gap[0] : gap[1]] = False
+            t = T0 + offset + np.arange(n, dtype=np.int64) * period
+            s = (t - T0) / 1e9
+            euler = np.stack([np.zeros(n), np.zeros(n), -1.0 + YAW_RATE * s], axis=1)
+            batch = synthetic_batch(0xC8, n, 1, euler)
+            batch.columns["accel"][:, 0] = ACCEL_RATE * s
+            payloads = encode_batch(unit, batch, np.arange(n), t, t)
+            for i in np.flatnonzero(keep).tolist():
+                writer.write(f"gx3/{unit}/imu", payloads[i], int(t[i]))
+
+
+def test_aligned_rows_interpolate_vectors_and_attitude_and_leave_gaps_empty(
+        tmp_path: Path) -> None:
+    path = tmp_path / "two.mcap"
+    write_two_units(path)
+    out = tmp_path / "aligned.parquet"
+    result = gx3("export", path, "-o", out, "--align", "50")
+    assert result.returncode == 0, result.stderr
+    table = pq.read_table(out)
+    grid = np.array(table.column("time_ns").to_pylist())
+    assert np.all(np.diff(grid) == 20_000_000) and grid[0] % 20_000_000 == 0
+    assert "u1/accel_x" in table.column_names and "u2/m33" in table.column_names
+    s = (grid - T0) / 1e9
+    for unit, first, last in (("u1", 0.003, 1.993), ("u2", 0.011, 1.986)):
+        acc = np.array(table.column(f"{unit}/accel_x").to_pylist(), float)
+        m = np.stack([np.array(table.column(f"{unit}/m{r}{c}").to_pylist(), float)
+                      for r in "123" for c in "123"], axis=1).reshape(-1, 3, 3)
+        inside = (s >= first) & (s <= last)
+        if unit == "u2":  # samples 40..51 missing: 1.011 s .. 1.311 s has no data
+            gap = (s > 0.011 + 39 * 0.025) & (s < 0.011 + 52 * 0.025)
+            assert gap.sum() >= 10
+            assert np.isnan(acc[gap]).all() and np.isnan(m[gap]).all()
+            inside &= ~gap
+        assert np.isnan(acc[~inside]).all()
+        np.testing.assert_allclose(acc[inside], ACCEL_RATE * s[inside], atol=1e-6)
+        yaw = -1.0 + YAW_RATE * s[inside]
+        truth = euler_to_m(np.stack([0 * yaw, 0 * yaw, yaw], axis=1))
+        np.testing.assert_allclose(m[inside], truth, atol=2e-6)
+
+
+def test_align_refuses_a_rate_that_is_not_positive(tmp_path: Path) -> None:
+    path = tmp_path / "two.mcap"
+    write_two_units(path)
+    with pytest.raises(ValueError, match="positive rate"):
+        align_table(sample_table(read_archive(path)), 0.0)

@@ -1,0 +1,201 @@
+"""The unit pipeline against the emulator over a real pty: samples, events, status.
+
+A sink that keeps everything in lists stands in for Zenoh here (the bus has its own
+tests); what is checked is what a subscriber relies on: every record once, ticks
+that keep increasing across the rollover, gaps and reconnects reported, and
+operator actions that run while streaming.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bridge.device.actions import run_action
+from bridge.device.session import Session, UnitInfo
+from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
+from bridge.sim.motion import MotionConfig
+from bridge.sim.serve import Simulator
+from bridge.sim.state import Stored
+from bridge.sim.unit import UnitConfig
+
+STREAMING = Stored(mode_preset=2, continuous_preset=0xC2)
+BASE = UnitConfig(serial="PIPE0001", motion=MotionConfig(seed=5, static=True), stored=STREAMING)
+
+
+@dataclass
+class ListSink:
+    infos: list[UnitInfo] = field(default_factory=list)
+    batches: list[Samples] = field(default_factory=list)
+    events: list[UnitEvent] = field(default_factory=list)
+    statuses: list[dict[str, Any]] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def info(self, info: UnitInfo) -> None:
+        self.infos.append(info)
+
+    def samples(self, samples: Samples) -> None:
+        with self.lock:
+            self.batches.append(samples)
+
+    def event(self, event: UnitEvent) -> None:
+        self.events.append(event)
+
+    def status(self, status: dict[str, Any]) -> None:
+        self.statuses.append(status)
+
+    def column(self, name: str) -> np.ndarray:
+        with self.lock:
+            parts = [getattr(s, name) if name in ("ticks", "time_ns") else
+                     s.batch.rx_ns if name == "rx_ns" else s.batch[name] for s in self.batches]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def kinds(self) -> list[str]:
+        return [e.kind for e in self.events]
+
+
+@contextmanager
+def running(config: UnitConfig, link: Path | None = None,
+            **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
+    """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
+    (the kernel may give a replugged pty another number, as udev rules prevent for real)."""
+    with Simulator([config], "pty", links=[link] if link else None) as sim:
+        sink = ListSink()
+        pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
+        stop = threading.Event()
+        worker = threading.Thread(target=pipeline.run, args=(stop,))
+        worker.start()
+        try:
+            yield sim, pipeline, sink
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+            assert not worker.is_alive(), "the pipeline did not stop"
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def test_every_record_once_with_increasing_ticks() -> None:
+    with running(BASE) as (sim, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 150)
+    ticks = sink.column("ticks")
+    assert (np.diff(ticks) == 625).all(), "a record was lost, doubled or out of order"
+    assert sink.infos[0].ids["serial"] == "PIPE0001" and sink.infos[0].record == 0xC2
+    assert sink.kinds()[0] == "bring_up"
+    sent = sim.units[0].truth.arrays()["timer"]
+    got = sink.column("timer")
+    start = int(np.flatnonzero(sent == got[0])[0])
+    assert (sent[start : start + len(got)] == got).all()
+
+
+def test_ticks_keep_increasing_across_the_rollover() -> None:
+    config = replace(BASE, timer_start=(1 << 32) - 62_500)  # rolls over after ~1 s
+    with running(config) as (_, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 250)
+    ticks, timers = sink.column("ticks"), sink.column("timer")
+    assert (np.diff(ticks) == 625).all()
+    assert (np.diff(timers.astype(np.int64)) < 0).sum() == 1, "the timer did not wrap"
+    assert "rollover" in sink.kinds()
+
+
+def test_time_is_on_the_host_clock_and_monotonic() -> None:
+    with running(BASE) as (_, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 200)
+    t = sink.column("time_ns")
+    assert (np.diff(t) > 0).all()
+    assert abs(int(t[-1]) - time.time_ns()) < 5e9
+
+
+def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 50)
+        sim.unplug(0, 1.5)
+        wait_for(lambda: "reconnect" in sink.kinds())
+        before = len(sink.column("ticks"))
+        wait_for(lambda: len(sink.column("ticks")) >= before + 50)
+    kinds = sink.kinds()
+    assert kinds.index("disconnect") < kinds.index("reconnect")
+    assert "gap" in kinds, kinds
+    gap = next(e for e in sink.events if e.kind == "gap")
+    assert gap.count >= 100, "1.5 s at 100 Hz unplugged should miss ~150 samples"
+    assert (np.diff(sink.column("ticks")) > 0).all()
+
+
+def test_power_cycled_unit_is_a_reset(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 50)
+        sim.unplug(0, 1.0, power_cycle=True)
+        wait_for(lambda: "reconnect" in sink.kinds())
+        before = len(sink.column("ticks"))
+        wait_for(lambda: len(sink.column("ticks")) >= before + 50)
+    assert "reset" in sink.kinds()
+    assert (np.diff(sink.column("ticks")) > 0).all()
+
+
+def test_operator_action_while_streaming() -> None:
+    with running(BASE) as (sim, pipeline, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 20)
+
+        def info(session: Session, unit: UnitInfo) -> dict[str, Any]:
+            return run_action("info", session, unit, {}, confirmed=False)
+
+        result = pipeline.submit(info)
+        n = len(sink.column("ticks"))
+        wait_for(lambda: len(sink.column("ticks")) >= n + 20)
+    sent = sim.units[0].truth.arrays()["timer"]  # the pipeline has stopped: all in
+    assert result["serial"] == "PIPE0001"
+    got = sink.column("timer")
+    start = int(np.flatnonzero(sent == got[0])[0])
+    assert (sent[start : start + len(got)] == got).all(), "a record the unit sent was lost"
+    assert (np.diff(sink.column("ticks")) % 625 == 0).all()
+
+
+@pytest.mark.parametrize("poll_hz", [50.0])
+def test_polling_at_a_fixed_rate(poll_hz: float) -> None:
+    config = replace(BASE, stored=Stored())
+    with running(config, poll_hz=poll_hz, record=0xC2) as (_, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 40)
+    ticks = sink.column("ticks")
+    assert (np.diff(ticks) > 0).all()
+    rate = 62_500 * (len(ticks) - 1) / (ticks[-1] - ticks[0])
+    assert 0.5 * poll_hz < rate < 1.5 * poll_hz
+
+
+def test_time_on_a_usb_unit_is_the_instant_the_values_describe() -> None:
+    """1 ms USB frames, OS latency and stalls on top, a 15-wide filter (7 ms delay):
+    time_ns must land on the instant the values describe, not on their arrival."""
+    from bridge.sim.usb import UsbDelivery
+
+    with Simulator([BASE], "pty", usb=UsbDelivery(stall_every_s=2.0, seed=3)) as sim:
+        sink = ListSink()
+        pipeline = Pipeline(Options(url=sim.endpoints[0], transport="usb"), sink)
+        stop = threading.Event()
+        worker = threading.Thread(target=pipeline.run, args=(stop,))
+        worker.start()
+        try:
+            wait_for(lambda: len(sink.column("ticks")) >= 800, timeout=60)
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+        truth = sim.units[0].truth.arrays()
+    timer, time_ns = sink.column("timer"), sink.column("time_ns")
+    index = {int(t): i for i, t in enumerate(truth["timer"])}
+    rows = np.array([index[int(t)] for t in timer])
+    error_ms = (time_ns - truth["value_ns"][rows]) / 1e6
+    late = error_ms[len(error_ms) // 2 :]  # after the model has settled
+    assert abs(float(np.median(late))) < 1.0, f"median error {np.median(late):.2f} ms"
+    arrival_ms = (sink.column("rx_ns") - truth["value_ns"][rows]) / 1e6
+    assert float(np.median(arrival_ms)) > 7.0, "the filter delay should show in arrivals"
