@@ -60,7 +60,7 @@ def test_capture_is_deterministic_and_matches_its_truth() -> None:
     a, b = synthesize(config, usb, 6.0), synthesize(config, usb, 6.0)
     assert np.array_equal(a.rx_ns, b.rx_ns) and a.data == b.data
     timer, rx = a.records()
-    assert np.array_equal(timer, a.truth["timer"]) and len(timer) >= 600
+    assert np.array_equal(timer, a.truth["timer"]) and len(timer) > 550
     late = rx - a.truth["time_ns"]
     assert late.min() > 0  # USB delivers late, never early
     assert late.max() > 5_000_000  # and a stall delivers a burst late
