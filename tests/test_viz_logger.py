@@ -145,8 +145,8 @@ def test_status_figures(fleet: tuple[Path, dict[str, Any]]) -> None:
     offset = table(store, "/plots/clock_offset/imu0")
     assert np.allclose(np.array(offset.column(
         "/plots/clock_offset/imu0:Scalars:scalars").to_pylist())[:, 0], [0, 0.001, 0.002])
-    # device time is the clock model's inverse: (time - offset) / (1 + drift)
-    expected = np.round((np.arange(3) * 10**9 - 1000 * np.arange(3)) / (1 + 20e-6))
+    # device time is the clock model's inverse: (time - offset) * (1 + drift)
+    expected = np.round((np.arange(3) * 10**9 - 1000 * np.arange(3)) * (1 + 20e-6))
     assert np.array_equal(ns(offset.column("device_time")), expected.astype(np.int64))
     dropped = table(store, "/plots/dropped/imu0").column("/plots/dropped/imu0:Scalars:scalars")
     assert np.array(dropped.to_pylist())[:, 0].tolist() == [0, 3, 6]

@@ -64,8 +64,9 @@ _GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
 
 @dataclass(frozen=True)
 class ClockState:
-    """The model for status: host minus nominal device time at the latest record,
-    the device clock's rate error, the median latency above the fit, points used."""
+    """The model for status: host minus nominal device time at the latest record, the
+    device clock's rate error against the host's (ppm; positive: the unit's clock runs
+    fast), the median latency above the fit, points used."""
 
     offset_ns: int
     drift_ppm: float
@@ -130,7 +131,7 @@ class OnlineClock:
             return ClockState(0, 0.0, 0, 0)
         x = int(self._x[-1])
         offset = int(line.at(np.array([x]))[0]) - x * NS_PER_TICK
-        return ClockState(offset, (line.rate / NS_PER_TICK - 1.0) * 1e6, self._spread,
+        return ClockState(offset, (NS_PER_TICK / line.rate - 1.0) * 1e6, self._spread,
                           len(self._x))
 
     def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:

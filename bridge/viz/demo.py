@@ -25,8 +25,8 @@ DEMO_EPOCH_NS = 1_761_955_200_000_000_000
 def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float = 100.0,
                  start_s: float = 0.0, drift_ppm: float = 0.0) -> dict[str, np.ndarray]:
     """``seconds`` of one unit's ``code`` records from ``start_s`` of device time on, as
-    decode_batch returns them; time_ns is device time scaled by 1 + drift_ppm * 1e-6, as in
-    the Status clock model."""
+    decode_batch returns them; time_ns is device time divided by 1 + drift_ppm * 1e-6 (a
+    unit whose clock runs fast by drift_ppm), as in the Status clock model."""
     n = round(seconds * rate_hz)
     ticks = round(start_s * TICKS_PER_SECOND) + np.arange(n, dtype=np.int64) * round(
         TICKS_PER_SECOND / rate_hz)
@@ -35,7 +35,7 @@ def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float
                                 noise_mag_gauss=0.001)).sample(device_s, 1.0 / rate_hz)
     values = {q: truth[q] for q in record_quantities(code)}
     values["timer"] = (ticks & 0xFFFF_FFFF).astype(np.uint32)
-    time_ns = DEMO_EPOCH_NS + np.round(device_s * 1e9 * (1.0 + drift_ppm * 1e-6)).astype(np.int64)
+    time_ns = DEMO_EPOCH_NS + np.round(device_s * 1e9 / (1.0 + drift_ppm * 1e-6)).astype(np.int64)
     rx_ns = time_ns + 2_000_000
     batch = Batch(code, values, np.arange(n), rx_ns, False)
     payloads = encode_batch(unit, batch, ticks, time_ns, rx_ns)
@@ -55,7 +55,7 @@ def _statuses(unit: str, code: int, seed: int, drift: float, rate_hz: float,
     for s in range(1, int(device_s[-1]) + 1):
         before = device_s < s
         out.append(Status(
-            unit=unit, time_ns=DEMO_EPOCH_NS + round(s * 1e9 * (1 + drift * 1e-6)),
+            unit=unit, time_ns=DEMO_EPOCH_NS + round(s * 1e9 / (1 + drift * 1e-6)),
             connected=True, state=Status.STREAMING, command=code, output_rate_hz=rate_hz,
             samples_per_s=float(kept[before & (device_s >= s - 1)].sum()),
             samples=int(kept[before].sum()), dropped=int((~kept)[before].sum()),

@@ -210,7 +210,7 @@ class RerunLogger:
             "clock_offset": np.where(modelled, (offset - first) / 1e6, np.nan),
             "clock_drift": np.where(modelled, drift, np.nan),
         }
-        device_ns = np.round((time_ns - offset) / (1.0 + drift * 1e-6)).astype(np.int64)
+        device_ns = np.round((time_ns - offset) * (1.0 + drift * 1e-6)).astype(np.int64)
         for plot, values in series.items():
             self._style(plot, unit, index)
             self._send_split(layout.plot_path(plot, unit), time_ns, device_ns, modelled,
