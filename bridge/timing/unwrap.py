@@ -34,6 +34,7 @@ HOST_SLACK_NS = 500_000_000
 #: time (receive latency on both sides of the outage, and a stalled read).
 CONTINUATION_SLACK_S = 0.1
 _LATTICE_TOLERANCE = 0.5  # ticks: each timer value is rounded to the nearest half up
+_SCALAR_BATCH = 16  # records; below this plain integers beat NumPy's cost per call
 
 
 @dataclass(frozen=True)
@@ -132,6 +133,8 @@ class TimerUnwrapper:
         ref = self._ref
         if ref is None or self._candidate is not None or self._fresh or not len(timers):
             return None
+        if len(timers) <= _SCALAR_BATCH:
+            return self._fast_scalar(ref, timers.tolist(), None if rx is None else rx.tolist())
         d = np.diff(timers, prepend=ref.timer) % TIMER_MODULUS
         ok = d > 0
         if self.period_ticks is not None:
@@ -150,6 +153,37 @@ class TimerUnwrapper:
                             None if rx is None else int(rx[-1]))
         self._last_ticks = int(ticks[-1])
         return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events)
+
+    def _fast_scalar(self, ref: _Anchor, timers: list[int],
+                     rx: list[int] | None) -> Unwrapped | None:
+        """``_fast`` for a few records (a live bridge gets one or two a read), in plain
+        integers: the same rules without NumPy's fixed cost per call."""
+        period, slack = self.period_ticks, HOST_SLACK_NS // NS_PER_TICK
+        prev_t, prev_rx, value = ref.timer, ref.rx, ref.ticks
+        ticks: list[int] = []
+        wrapped: list[int] = []
+        for i, t in enumerate(timers):
+            d = (t - prev_t) % TIMER_MODULUS
+            if d <= 0 or (period is not None and abs(d - period) > _LATTICE_TOLERANCE):
+                return None
+            if rx is not None:
+                if prev_rx is not None:
+                    host = (rx[i] - prev_rx) // NS_PER_TICK
+                    if d > host + slack or host > TIMER_MODULUS // 2:
+                        return None
+                prev_rx = rx[i]
+            value += d
+            if t < prev_t:
+                wrapped.append(i)
+            ticks.append(value)
+            prev_t = t
+        events = []
+        for i in wrapped:
+            self.rollovers += 1
+            events.append(TimingEvent("rollover", i, ticks[i], self.rollovers))
+        self._ref = _Anchor(timers[-1], value, None if rx is None else rx[-1])
+        self._last_ticks = value
+        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events)
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
         n = len(timers)
