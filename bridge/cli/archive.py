@@ -59,24 +59,24 @@ def repair(
 def export(
     archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", help="Table to write: .parquet or .csv.")],
+        "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv.")],
     unit: Annotated[list[str] | None, typer.Option(
-        "--unit", "-u", help="Only this unit (repeatable). Default: every unit.")] = None,
+        "--unit", "-u", metavar="NAME", help="Only this unit (repeatable). Default: every unit.")] = None,
     record_type: Annotated[list[str] | None, typer.Option(
         "--type", "-t", metavar="CODE",
         help="Only records of this command, e.g. 0xCC (repeatable).")] = None,
     start: Annotated[str | None, typer.Option(
-        help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
+        metavar="TIME", help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
              "from the first sample.")] = None,
     end: Annotated[str | None, typer.Option(
-        help="End instant (exclusive), as --start.")] = None,
+        metavar="TIME", help="End instant (exclusive), as --start.")] = None,
     align: Annotated[float | None, typer.Option(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
              "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
              "empty inside gaps.")] = None,
     events: Annotated[Path | None, typer.Option(
-        help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
+        metavar="FILE", help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
 ) -> None:
     """Export samples to Parquet or CSV: one row per sample with unit, command, timer,
