@@ -61,12 +61,14 @@ def export(
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv.")],
     unit: Annotated[list[str] | None, typer.Option(
-        "--unit", "-u", metavar="NAME", help="Only this unit (repeatable). Default: every unit.")] = None,
+        "--unit", "-u", metavar="NAME",
+        help="Only this unit (repeatable). Default: every unit.")] = None,
     record_type: Annotated[list[str] | None, typer.Option(
         "--type", "-t", metavar="CODE",
         help="Only records of this command, e.g. 0xCC (repeatable).")] = None,
     start: Annotated[str | None, typer.Option(
-        metavar="TIME", help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
+        metavar="TIME",
+        help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
              "from the first sample.")] = None,
     end: Annotated[str | None, typer.Option(
         metavar="TIME", help="End instant (exclusive), as --start.")] = None,
@@ -76,7 +78,8 @@ def export(
              "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
              "empty inside gaps.")] = None,
     events: Annotated[Path | None, typer.Option(
-        metavar="FILE", help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
+        metavar="FILE",
+        help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
 ) -> None:
     """Export samples to Parquet or CSV: one row per sample with unit, command, timer,
