@@ -13,6 +13,7 @@ does not grow with N, fed in one piece it holds a copy of the stream and its col
 from __future__ import annotations
 
 import argparse
+import functools
 import gc
 import time
 import tracemalloc
@@ -100,7 +101,7 @@ class Row:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--records", type=int, default=1_000_000)
     n = parser.parse_args().records
 
@@ -115,10 +116,11 @@ def main() -> None:
     rows = []
     for name, code, data, want in cases:
         for feed, chunk in (("64 KiB", CHUNK), ("1 piece", None)):
-            seconds, got = best_time(lambda d=data, c=code, k=chunk: frame_all(d, c, k))
+            run = functools.partial(frame_all, data, code, chunk)
+            seconds, got = best_time(run)
             if got != want:
                 raise SystemExit(f"{name}, {feed}: framed {got:,} records, expected {want:,}")
-            peak = peak_memory(lambda d=data, c=code, k=chunk: frame_all(d, c, k))
+            peak = peak_memory(run)
             rows.append(Row(name, feed, got, seconds, len(data), peak))
 
     print(f"{n:,} records per stream, best of {REPEATS}; MB = 10^6 bytes of input")

@@ -29,7 +29,7 @@ from bridge.device.session import (
 )
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
-from bridge.timing import OnlineClock, TimerUnwrapper
+from bridge.timing import Timeline
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
@@ -114,7 +114,8 @@ class Pipeline:
         self.on_read = on_read
         self.counters = Counters()
         self.info: UnitInfo | None = None
-        self.clock: OnlineClock | None = None
+        self.timeline: Timeline | None = None
+        self.error: Exception | None = None
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
     def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
@@ -137,6 +138,16 @@ class Pipeline:
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> None:
+        """Keep the unit streaming until ``stop``; an unexpected error is kept in
+        ``error`` (and ends the run) so the process can report it and exit."""
+        try:
+            self._run(stop)
+        except Exception as exc:
+            self.error = exc
+            self.counters.state = "stopped"
+            stop.set()
+
+    def _run(self, stop: threading.Event) -> None:
         backoff = _RETRY_FIRST_S
         lost_at: int | None = None
         while not stop.is_set():
@@ -176,6 +187,7 @@ class Pipeline:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
+        session.paced = self._transport() == "uart"
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
@@ -195,7 +207,8 @@ class Pipeline:
             session.change_baud(info, o.new_baud, o.persist)
         info.record = o.record or info.continuous_preset or DEFAULT_RECORD
         self.info = info
-        self._start_timing(info)
+        # streaming restarts on a new phase of the output lattice: announce it
+        self._start_timing(info, discontinuity=True)
         if o.poll_hz is None:
             session.start_streaming(info.record)
         else:
@@ -206,23 +219,33 @@ class Pipeline:
                     f"0x{info.record:02X} at {info.output_hz:g} Hz")
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
 
-    def _start_timing(self, info: UnitInfo) -> None:
+    def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
+        """One timeline for the pipeline's life: ticks keep increasing across reconnects
+        (a gap or a reset is for the unwrapper to find); settings changes update it."""
         # Polled records come on whatever cycle the request reached: no output period.
         period = None if self.options.poll_hz is not None else info.period_ticks
-        self.unwrap = TimerUnwrapper(period)
-        self.clock = OnlineClock(filter_delay_ns=self._filter_delay_ns(info),
-                                 floor_ns=self._floor_ns(info))
+        transport = self._transport()
+        if self.timeline is None:
+            self.timeline = Timeline(period, frame_ns=1_000_000 if transport == "usb" else 0)
+        elif discontinuity or period != self.timeline.unwrapper.period_ticks:
+            self.timeline.expect_discontinuity(period)
+        self.timeline.clock.filter_delay_ns = self._filter_delay_ns(info)
+        self.timeline.clock.floor_ns = self._floor_ns(info, transport)
 
     @staticmethod
     def _filter_delay_ns(info: UnitInfo) -> int:
         """The moving average of width M delays the values by (M-1)/2 ms (DESIGN.md)."""
         return (info.sampling.get("filter_width", 1) - 1) * 500_000
 
-    def _floor_ns(self, info: UnitInfo) -> int:
-        """The least time a record can take to reach us: its line time on a UART."""
+    def _transport(self) -> str:
         transport = self.options.transport
         if transport == "auto":
             transport = "usb" if is_usb_cdc(self.options.url) else "uart"
+        return transport
+
+    @staticmethod
+    def _floor_ns(info: UnitInfo, transport: str) -> int:
+        """The least time a record can take to reach us: its line time on a UART."""
         if transport == "usb":
             return 0
         return round(REPLIES[info.record].length * 10 / info.baud * 1e9)
@@ -255,21 +278,19 @@ class Pipeline:
                 self._status(session)
 
     def _process(self, batch: Batch) -> None:
-        assert self.clock is not None
-        unwrapped = self.unwrap.update(batch["timer"], batch.rx_ns)
-        for ev in unwrapped.events:
+        assert self.timeline is not None
+        timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        for ev in timed.events:
             self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
-            if ev.kind == "reset":
-                self.clock.reset()
-        keep = unwrapped.valid
+            if ev.kind == "glitch":
+                self.counters.glitches += 1
+        self.counters.dropped += timed.dropped
+        keep = timed.valid
         if not keep.all():
-            self.counters.glitches += int((~keep).sum())
             batch = _take(batch, keep)
-        ticks = unwrapped.ticks[keep]
-        time_ns = self.clock.update(ticks, batch.rx_ns)
-        self.counters.samples += len(ticks)
-        self.counters.dropped = self.unwrap.dropped
-        self.sink.samples(Samples(batch, ticks, time_ns))
+        if len(batch):
+            self.counters.samples += len(batch)
+            self.sink.samples(Samples(batch, timed.ticks[keep], timed.time_ns[keep]))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None
@@ -288,8 +309,8 @@ class Pipeline:
             self._event("command", detail=f"{effect}: {result}"[:200])
             if effect == "restart":
                 raise _Restart
-            if effect == "reconfigure":
-                self._start_timing(self.info)
+            if effect in ("reconfigure", "discontinuity"):
+                self._start_timing(self.info, discontinuity=True)
                 self.sink.info(self.info)
 
     def _status(self, session: Session) -> None:
@@ -299,7 +320,7 @@ class Pipeline:
         c.implausible = stats.implausible
         c.bytes_skipped = stats.bytes_skipped
         c.resyncs = stats.resyncs
-        clock = self.clock.state if self.clock else None
+        clock = self.timeline.state if self.timeline else None
         self.sink.status({
             "state": c.state, "samples": c.samples, "samples_per_s": c.rate(time.monotonic()),
             "dropped": c.dropped, "glitches": c.glitches, "reconnects": c.reconnects,

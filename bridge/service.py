@@ -109,7 +109,6 @@ class BusSink:
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
-        self.last_status: dict[str, Any] = {}
 
     def attach(self, pipeline: Pipeline) -> None:
         self.pipeline = pipeline
@@ -150,7 +149,6 @@ class BusSink:
             self.publisher.publish_event(event_message(self.unit, event))
 
     def status(self, status: dict[str, Any]) -> None:
-        self.last_status = status
         if self.publisher is not None and self.unit is not None:
             self.publisher.publish_status(status_message(self.unit, self.port, self._info,
                                                          status))
@@ -161,11 +159,12 @@ class BusSink:
             self.publisher = None
 
     def summary(self) -> str:
-        s = self.last_status
-        if not s:
+        """The closing line: totals as the pipeline ends (not the last 1 Hz status)."""
+        if self.pipeline is None or self.unit is None:
             return f"{self.port}: no unit brought up"
-        return (f"{self.unit}: {s['samples']} samples, {s['dropped']} dropped, "
-                f"{s['reconnects']} reconnects, {s['checksum_failures']} checksum failures")
+        c = self.pipeline.counters
+        return (f"{self.unit}: {c.samples} samples, {c.dropped} dropped, "
+                f"{c.reconnects} reconnects, {c.checksum_failures} checksum failures")
 
 
 def _name_from_serial(serial: str) -> str:

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from bridge.bus.subscribe import SampleBatch, subscribe
 
 from bridge.bus.gx3_pb2 import Info, Status
+from bridge.bus.subscribe import SampleBatch, subscribe
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -112,7 +112,9 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
                 ticks = batches[-1]["ticks"]
                 if ticks[-1] - batches[0]["ticks"][0] >= seconds * 62_500:
                     break
-        truth = sim.units[0].truth.arrays()
+        unit = sim.units[0]
+        truth = unit.truth.arrays()
+        delay, period = unit.filter_delays()[0], unit.period
         misses = sub.misses
     ticks = np.concatenate([b["ticks"] for b in batches])
     timer = np.concatenate([b["timer"] for b in batches])
@@ -124,9 +126,12 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
     # the published records are exactly the records the unit sent, in order
     start = int(np.flatnonzero(truth["timer"] == timer[0])[0])
     assert (truth["timer"][start : start + len(timer)] == timer).all()
-    # and their values are the unit's: a moving unit, so every record differs
-    assert np.unique(accel[:, 0]).size > 0.9 * len(accel)
-    assert np.allclose(np.linalg.norm(accel, axis=1), 1.0, atol=0.35)
+    # and their values are what the unit measured: the motion at each record's
+    # instant, as its moving-average filter delays it
+    device_s = truth["device_s"][start : start + len(timer)]
+    expected = unit.motion.sample(device_s - delay, period)["accel"].astype(np.float32)
+    assert np.unique(accel[:, 0]).size > 0.9 * len(accel), "a moving unit's records differ"
+    np.testing.assert_array_equal(accel, expected)
 
 
 def test_status_info_and_refused_commands(network: tuple[Path, Path]) -> None:
@@ -201,3 +206,33 @@ def test_killed_bridge_goes_away_and_a_new_one_picks_up(network: tuple[Path, Pat
             got = sub.get(timeout=20.0)
         token.undeclare()
     assert got is not None and len(got) > 0
+
+
+def test_sigint_stops_continuous_mode_and_capture_holds_every_read(
+        network: tuple[Path, Path], tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    bridge_cfg, client_cfg = network
+    capture = tmp_path / "raw.mcap"
+    with Simulator([SLOW], "pty") as sim, \
+            subscribe("gx3/slow/imu", output="batches", zenoh_config=client_cfg) as sub:
+        with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow", "--capture",
+                            str(capture)) as proc:
+            got = 0
+            while got < 150:
+                batch = sub.get(timeout=20.0)
+                assert batch is not None, "no samples"
+                got += len(batch)
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=20) == 0
+        assert sim.units[0].mode == 1, "the unit was left streaming"
+    with capture.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        topics = {c.topic for c in summary.channels.values()}
+        reads = [(m.log_time, m.data) for _, _, m in reader.iter_messages()]
+    assert topics == {"gx3/slow/raw"}
+    data = b"".join(d for _, d in reads)
+    assert data.count(bytes((0xC8,))) >= 150, "the capture lacks the streamed records"
+    assert all(b[0] <= a[0] for a, b in zip(reads[1:], reads, strict=False))

@@ -35,7 +35,8 @@ def wire_batch(code: int, n: int, seed: int) -> Batch:
             columns[f.name] = rng.integers(0, 4096, (n, *f.shape)).astype(np.uint16)
     raw = encode_replies(code, columns, n)
     block = np.frombuffer(raw, np.uint8).reshape(n, -1)
-    return Batch(code, decode_block(code, block), np.arange(n) * REPLIES[code].length)
+    offsets = np.arange(n) * REPLIES[code].length
+    return Batch(code, decode_block(code, block), offsets, np.zeros(n, np.int64), False)
 
 
 def times(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -93,7 +94,7 @@ def test_every_message_of_one_record_type_has_one_length(code: int) -> None:
         lengths |= {len(p) for p in encode_batch("imu0", batch, ticks * seed, time_ns * seed,
                                                  rx_ns)}
         zeros = Batch(code, {k: np.zeros_like(v) for k, v in batch.columns.items()},
-                      batch.offsets)
+                      batch.offsets, batch.rx_ns, False)
         lengths |= {len(p) for p in encode_batch("imu0", zeros, ticks * 0, time_ns * 0,
                                                  rx_ns * 0)}
     assert lengths == {layout(code, "imu0").size}

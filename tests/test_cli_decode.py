@@ -4,22 +4,30 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
+import select
 import shutil
+import signal
 import struct
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pytest
+
+from bridge.protocol.table import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[1]
 GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
 
 
-def gx3(*args: str, stdin: bytes = b"") -> subprocess.CompletedProcess[bytes]:
+def gx3(*args: str, stdin: bytes = b"", columns: int = 80) -> subprocess.CompletedProcess[bytes]:
     assert GX3, "the gx3 console script is not installed next to this interpreter"
-    return subprocess.run([GX3, *args], input=stdin, capture_output=True, timeout=60, check=False)
+    env = {**os.environ, "COLUMNS": str(columns)}
+    return subprocess.run([GX3, *args], input=stdin, capture_output=True, timeout=60,
+                          check=False, env=env)
 
 
 def frame(code: int, payload: bytes) -> bytes:
@@ -27,10 +35,9 @@ def frame(code: int, payload: bytes) -> bytes:
     return body + struct.pack(">H", sum(body) % 65_536)
 
 
-NAN = struct.pack(">f", math.nan)
 C2 = frame(0xC2, struct.pack(">6fI", 0.5, -1.0, 2.0, 0.0, 0.25, -0.125, 0xFFFFFFF0))
 C8 = frame(0xC8, struct.pack(">6f9fI", 1, 0, 0, 0, 0, 1, *(k / 16 for k in range(1, 10)), 7))
-CB_NAN = frame(0xCB, struct.pack(">6f", 0, 0, -1, 0, 0, 0) + NAN * 3 + struct.pack(">I", 8))
+CB_NAN = frame(0xCB, struct.pack(">6f3fI", 0, 0, -1, 0, 0, 0, math.nan, math.inf, -math.inf, 8))
 D1 = frame(0xD1, struct.pack(">4HI", 2700, 2800, 2900, 3000, 9))
 DF = frame(0xDF, struct.pack(">4fI", 1, 0, 0, 0, 10))
 CAPTURE = b"\x00\xff" + C2 + C8 + CB_NAN + D1 + DF
@@ -42,7 +49,7 @@ EXPECTED: list[dict[str, Any]] = [
      "m": [[1 / 16, 2 / 16, 3 / 16], [4 / 16, 5 / 16, 6 / 16], [7 / 16, 8 / 16, 9 / 16]],
      "timer": 7},
     {"command": 0xCB, "accel": [0.0, 0.0, -1.0], "ang_rate": [0.0, 0.0, 0.0],
-     "mag": [None, None, None], "timer": 8},
+     "mag": [None, None, None], "timer": 8},  # NaN, inf, -inf
     {"command": 0xD1, "temperature": [2700, 2800, 2900, 3000], "timer": 9},
     {"command": 0xDF, "quaternion": [1.0, 0.0, 0.0, 0.0], "timer": 10},
 ]
@@ -74,20 +81,68 @@ def test_summary_is_one_line_on_stderr(capture: Path) -> None:
                        f"bytes skipped: 2 of {len(CAPTURE)}; resyncs: 0")
 
 
-def test_decode_reads_stdin(capture: Path) -> None:
+def test_decode_reads_stdin() -> None:
     done = gx3("decode", "-", stdin=CAPTURE)
     assert done.returncode == 0
-    assert done.stdout == gx3("decode", str(capture)).stdout
+    assert lines(done.stdout) == EXPECTED
+
+
+def test_floats_come_out_exactly_as_the_float32_sent() -> None:
+    """Values that are not round in binary must read back as the very float32 sent."""
+    values = (0.1, -0.2, 1e-5, 3.4e5, -1.17549435e-38, 9.80665)
+    done = gx3("decode", "-", stdin=frame(0xC2, struct.pack(">6fI", *values, 1)))
+    (record,) = lines(done.stdout)
+    sent = struct.unpack(">6f", struct.pack(">6f", *values))
+    assert tuple(record["accel"] + record["ang_rate"]) == sent
+
+
+# Not round in binary: read in the wrong byte order, these floats are far out of range.
+ODD = (0.1, -0.2, 0.3, 1.1, 2.2, 3.3)
+LE_C2 = frame(0xC2, struct.pack("<6f", *ODD) + struct.pack(">I", 5))
+BE_C2 = frame(0xC2, struct.pack(">6fI", *ODD, 5))
+LE_VALUES = list(struct.unpack("<6f", LE_C2[1:25]))
 
 
 def test_little_endian_floats(tmp_path: Path) -> None:
-    raw = frame(0xC2, struct.pack("<6f", 0.5, -1.0, 2.0, 0.0, 0.25, -0.125)
-                + struct.pack(">I", 0xFFFFFFF0))
     path = tmp_path / "le.bin"
-    path.write_bytes(raw * 2)
+    path.write_bytes(LE_C2 * 2)
     done = gx3("decode", "--little-endian", str(path))
     assert done.returncode == 0
-    assert lines(done.stdout) == [EXPECTED[0], EXPECTED[0]]
+    assert [r["accel"] + r["ang_rate"] for r in lines(done.stdout)] == [LE_VALUES] * 2
+
+
+def sampling_settings(flags: int) -> bytes:
+    return frame(0xDB, struct.pack(">HHBBHH6x", 10, flags, 15, 17, 10, 10))
+
+
+def test_decode_follows_byte_order_changes_in_the_capture() -> None:
+    capture = C2 + sampling_settings(0x13) + LE_C2 + sampling_settings(0x03) + C2
+    done = gx3("decode", "-", stdin=capture)
+    assert done.returncode == 0
+    decoded = lines(done.stdout)
+    assert [r["command"] for r in decoded] == [0xC2, 0xDB, 0xC2, 0xDB, 0xC2]
+    assert decoded[2]["accel"] + decoded[2]["ang_rate"] == LE_VALUES
+    assert decoded[0] == decoded[4] == EXPECTED[0]
+
+
+@pytest.mark.parametrize(("capture", "flags", "hint"), [
+    (LE_C2 * 3, [], "try --little-endian"),
+    (BE_C2 * 3, ["--little-endian"], "try without --little-endian"),
+], ids=["little-read-as-big", "big-read-as-little"])
+def test_nothing_decoded_fails_with_a_byte_order_hint_that_works(
+    capture: bytes, flags: list[str], hint: str
+) -> None:
+    done = gx3("decode", *flags, "-", stdin=capture)
+    assert done.returncode == 1
+    assert done.stdout == b""
+    summary, error = done.stderr.decode().splitlines()
+    assert summary.startswith("records: none;")
+    assert error.startswith("error: no record decoded, but 3 did with floats")
+    assert error.endswith(hint)
+    other = [] if flags else ["--little-endian"]
+    retried = gx3("decode", *other, "-", stdin=capture)
+    assert retried.returncode == 0
+    assert len(lines(retried.stdout)) == 3
 
 
 def test_expect_selects_settings_replies(tmp_path: Path) -> None:
@@ -101,8 +156,10 @@ def test_expect_selects_settings_replies(tmp_path: Path) -> None:
 def test_expect_rejects_a_code_no_reply_starts_with(capture: Path) -> None:
     done = gx3("decode", "--expect", "0x99", str(capture))
     assert done.returncode == 2
-    assert b"0x99" in done.stderr
-    assert b"Traceback" not in done.stderr
+    text = done.stderr.decode()
+    assert "--expect" in text
+    assert "no reply starts with 0x99" in text
+    assert "Traceback" not in text
 
 
 @pytest.mark.parametrize("name", ["missing.bin", "run[/a] [bold]x.bin"])
@@ -118,23 +175,106 @@ def test_missing_file_is_a_one_line_error(tmp_path: Path, name: str) -> None:
     assert str(path) in text
 
 
-@pytest.mark.parametrize("content", [b"", b"\x00\x01\x02garbage\xff" * 50, C8[:40], C2 + C8[:40]],
-                         ids=["empty", "garbage", "truncated", "record-then-truncated"])
-def test_truncated_or_garbage_file_exits_zero_with_a_summary(
-    tmp_path: Path, content: bytes
-) -> None:
+@pytest.mark.parametrize("content", [C2 + C8[:40], C8[:40] + C2], ids=["then-cut", "cut-then"])
+def test_truncated_record_is_skipped_and_counted(tmp_path: Path, content: bytes) -> None:
     path = tmp_path / "bad.bin"
     path.write_bytes(content)
     done = gx3("decode", str(path))
     assert done.returncode == 0
-    decoded = lines(done.stdout)
-    assert decoded == ([EXPECTED[0]] if content.startswith(C2) else [])
+    assert lines(done.stdout) == [EXPECTED[0]]
     (summary,) = done.stderr.decode().splitlines()
-    assert summary.startswith("records: ")
+    assert "bytes skipped: 40 of" in summary
+
+
+def test_empty_input_is_not_an_error() -> None:
+    done = gx3("decode", "-")
+    assert done.returncode == 0
+    assert done.stderr.decode().startswith("records: none;")
+
+
+@pytest.mark.parametrize("content", [b"\x00\x01\x02garbage\xff" * 50, C8[:40]],
+                         ids=["garbage", "truncated"])
+def test_nothing_decoded_from_garbage_exits_1(content: bytes) -> None:
+    done = gx3("decode", "-", stdin=content)
+    assert done.returncode == 1
+    assert done.stdout == b""
+    summary, error = done.stderr.decode().splitlines()
     assert f"of {len(content)};" in summary
+    assert error.startswith("error: no record decoded: ")
+    assert "little-endian" not in error
+
+
+def read_line(stream: IO[bytes], timeout: float = 30.0) -> bytes:
+    """One line from a child's pipe, or fail after ``timeout`` seconds (generous)."""
+    ready, _, _ = select.select([stream], [], [], timeout)
+    assert ready, f"no output within {timeout} s"
+    return stream.readline()
+
+
+def test_records_leave_as_they_arrive_on_a_live_pipe() -> None:
+    """The first record is written while the writer keeps the pipe open."""
+    assert GX3
+    with subprocess.Popen([GX3, "decode", "-"], stdin=subprocess.PIPE,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0) as proc:
+        assert proc.stdin and proc.stdout and proc.stderr
+        proc.stdin.write(C2)
+        proc.stdin.flush()
+        assert json.loads(read_line(proc.stdout)) == EXPECTED[0]
+        proc.stdin.write(C8)
+        proc.stdin.flush()
+        assert json.loads(read_line(proc.stdout)) == EXPECTED[1]
+        proc.stdin.close()
+        assert proc.wait(timeout=60) == 0
+        assert proc.stderr.read().decode().startswith("records: 0xC2×1, 0xC8×1;")
+
+
+def test_ctrl_c_prints_the_summary_so_far_and_exits_130() -> None:
+    assert GX3
+    with subprocess.Popen([GX3, "decode", "-"], stdin=subprocess.PIPE,
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0) as proc:
+        assert proc.stdin and proc.stdout and proc.stderr
+        proc.stdin.write(C2 + C2)
+        proc.stdin.flush()
+        read_line(proc.stdout)
+        read_line(proc.stdout)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        proc.stdin.close()
+        (summary,) = proc.stderr.read().decode().splitlines()
+        assert summary.startswith("records: 0xC2×2;")
 
 
 def test_docs_command_reference_is_generated_from_the_table() -> None:
     done = gx3("commands", "--markdown")
     assert done.returncode == 0
     assert (ROOT / "docs" / "commands.md").read_text(encoding="utf-8") == done.stdout.decode()
+
+
+def test_command_list_fits_an_80_column_terminal() -> None:
+    done = gx3("commands", columns=80)
+    assert done.returncode == 0
+    text = done.stdout.decode()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    for code, cmd in COMMANDS.items():
+        assert f"0x{code:02X}  {cmd.name}: " in text
+
+
+def test_help_names_only_commands_that_exist() -> None:
+    top = gx3("--help", columns=100)
+    existing = set(re.findall(r"│ (\w+)\s{2,}", top.stdout.decode()))
+    assert {"commands", "decode", "sim"} <= existing
+    for name in existing:
+        text = gx3(name, "--help", columns=100).stdout.decode()
+        assert set(re.findall(r"gx3 (\w+)", text)) <= existing, name
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["decode", "--expect", "zz", "-"], "--expect"),
+    (["sim", "--pty", "--flags", "zz", "--duration", "0"], "--flags"),
+    (["sim", "--pty", "--continuous-preset", "0xZ", "--duration", "0"], "--continuous-preset"),
+])
+def test_option_errors_name_the_option(args: list[str], option: str) -> None:
+    done = gx3(*args)
+    assert done.returncode == 2
+    assert re.search(f"(Invalid value for '?|error: ){option}\\b", done.stderr.decode())
+    assert b"Traceback" not in done.stderr

@@ -19,7 +19,6 @@ from bridge.protocol.codec import (
     encode_command,
     encode_replies,
     encode_reply,
-    json_safe,
     parse_command,
     plausible,
     plausible_rows,
@@ -195,12 +194,11 @@ def test_firmware_update_is_refused() -> None:
 def test_parse_command_round_trips(code: int, data: st.DataObject) -> None:
     params = data.draw(command_params(code))
     wire = encode_command(code, **params)
-    assert command_length(code) == len(wire) == COMMANDS[code].length
+    assert command_length(code) == len(wire)  # what a unit reads before parsing
     parsed = parse_command(wire)
     assert parsed.command is COMMANDS[code]
     assert parsed.confirmed
     assert parsed.params == params
-    assert encode_command(code, **parsed.params) == wire
 
 
 CONFIRMED = sorted(code for code, cmd in COMMANDS.items() if cmd.confirm and cmd.documented)
@@ -273,9 +271,12 @@ def test_many_replies_round_trip_as_columns(case: tuple[int, int, bool, dict[str
     decoded = decode_block(code, block, little_endian)
     for name, column in columns.items():
         np.testing.assert_array_equal(decoded[name], column)
-    for i in range(n):
+    for i in range(n):  # every record stands alone: its own checksum, its own row
         record = raw[i * size : (i + 1) * size]
-        assert encode_reply(code, little_endian, **{k: v[i] for k, v in columns.items()}) == record
+        assert int.from_bytes(record[-2:], "big") == sum(record[:-2]) % 65_536
+        alone = decode_block(code, np.frombuffer(record, np.uint8).reshape(1, -1), little_endian)
+        for name, column in columns.items():
+            np.testing.assert_array_equal(alone[name][0], column[i])
 
 
 def test_timer_column_is_unsigned() -> None:
@@ -372,13 +373,3 @@ def test_plausible_rows_agrees_at_every_float_bound(code: int, f: Field,
     expected = [plausible(code, row, little_endian) for row in rows]
     assert expected.count(False) >= 2
     assert plausible_rows(code, block, little_endian).tolist() == expected
-
-
-# -------------------------------------------------------------------- json_safe
-
-
-def test_json_safe_replaces_non_finite_floats_with_none() -> None:
-    assert json_safe([[1.0, math.nan], [math.inf, -math.inf]]) == [[1.0, None], [None, None]]
-    assert json_safe(math.nan) is None
-    assert json_safe(3) == 3
-    assert json_safe("x") == "x"

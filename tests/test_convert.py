@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from bridge.protocol.convert import (
     STANDARD_GRAVITY,
-    TICKS_PER_SECOND,
     celsius_to_mag_temperature_code,
     euler_to_m,
     euler_to_quaternion,
@@ -30,6 +29,7 @@ from bridge.protocol.convert import (
     ticks_to_seconds,
     wake_time_seconds,
 )
+from bridge.protocol.table import TICKS_PER_SECOND
 
 settings.register_profile("convert", deadline=None, max_examples=150)
 settings.load_profile("convert")
@@ -44,7 +44,7 @@ def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
     """Active rotation matrix by angle about axis (right-hand rule)."""
     u = axis / np.linalg.norm(axis)
     k = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * k @ k
+    return np.asarray(np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * k @ k)
 
 
 def _hamilton(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -213,12 +213,13 @@ def test_example_2_magnetometer_filter() -> None:
 
 def test_filter_responses_at_dc() -> None:
     f = np.array([0.0, 1e-9, 10.0, 1000.0])
-    for h in (
+    for response in (
         fir_response(f, 10),
         mag_fir_response(f, 16),
         mag_fir_response_simplified(f, 16),
         mag_low_power_fir_response(f, 8, 100.0),
     ):
+        h = np.asarray(response)
         assert np.all(np.isfinite(h))
         assert h[0] == 1.0
         assert h[1] == pytest.approx(1.0)

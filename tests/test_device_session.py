@@ -126,7 +126,8 @@ def test_another_baud_rate_is_found() -> None:
 
 
 def test_commands_while_streaming_lose_no_record() -> None:
-    with unit() as (_, url), session_on(url) as s:
+    """A reply can make the unit skip a record (the line is busy); none sent is lost."""
+    with unit() as (sim, url), session_on(url) as s:
         s.quiesce()
         s.identify()
         s.start_streaming(0xC2)
@@ -139,9 +140,10 @@ def test_commands_while_streaming_lose_no_record() -> None:
             for batch in s.read(0.05):
                 timers += batch["timer"].tolist()
         s.stop_streaming()
-    steps = np.diff(np.array(timers, np.int64))
+        sent = sim.units[0].truth.arrays()["timer"]
     assert commands >= 5
-    assert (steps == 625).all(), f"a record went missing around a command: {steps}"
+    start = int(np.flatnonzero(sent == timers[0])[0])
+    assert (sent[start : start + len(timers)] == timers).all(), "a record was lost"
 
 
 def test_baud_change_mid_session() -> None:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import struct
 from collections import Counter
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -47,6 +49,10 @@ def _inside_f32(bound: float) -> float:
     return float(np.nextafter(x, np.float32(0)) if abs(float(x)) > abs(bound) else x)
 
 
+def _array(values: list[float], shape: tuple[int, ...]) -> np.ndarray:
+    return np.array(values, np.float32).reshape(shape)
+
+
 def _values(f: Field) -> st.SearchStrategy[object]:
     """Values a unit sends: inside the field's domain (the framer rejects any other, as
     garbage), NaN and infinities included as in idle mode."""
@@ -55,7 +61,7 @@ def _values(f: Field) -> st.SearchStrategy[object]:
         bound = _inside_f32(f.domain[1])
         element = st.floats(-bound, bound, width=32) | st.sampled_from([math.nan, math.inf])
         return st.lists(element, min_size=f.count, max_size=f.count).map(
-            lambda v, shape=f.shape: np.array(v, np.float32).reshape(shape))
+            functools.partial(_array, shape=f.shape))
     if f.domain_values is not None:
         return st.sampled_from(sorted(f.domain_values))
     lo, hi = f.domain or (0, (1 << 8 * SIZES[f.kind]) - 1)
@@ -63,11 +69,15 @@ def _values(f: Field) -> st.SearchStrategy[object]:
     return st.lists(element, min_size=f.count, max_size=f.count) if f.shape else element
 
 
+def _reply(code: int, little_endian: bool) -> st.SearchStrategy[Sent]:
+    values = st.fixed_dictionaries(
+        {f.name: _values(f) for f in REPLIES[code].fields if not f.is_pad})
+    return values.map(functools.partial(sent, code, little_endian=little_endian))
+
+
 def replies(codes: list[int], little_endian: bool = False) -> st.SearchStrategy[Sent]:
     """One reply of one of ``codes`` with random in-domain values."""
-    return st.sampled_from(codes).flatmap(lambda code: st.fixed_dictionaries(
-        {f.name: _values(f) for f in REPLIES[code].fields if not f.is_pad}).map(
-        lambda values, code=code: sent(code, values, little_endian)))
+    return st.sampled_from(codes).flatmap(functools.partial(_reply, little_endian=little_endian))
 
 
 def as_records(batches: list[Batch]) -> list[Record]:
@@ -141,7 +151,7 @@ def test_fast_path_and_byte_scanner_agree_on_a_long_run(monkeypatch: pytest.Monk
     fast_records = []
     original = Framer._fast
 
-    def spy(self: Framer, *args: object) -> tuple[int, bool]:
+    def spy(self: Framer, *args: Any) -> tuple[int, bool]:
         good, whole = original(self, *args)
         fast_records.append(good)
         return good, whole
@@ -301,7 +311,8 @@ def sampling(flags: int) -> bytes:
 
 
 def test_sampling_settings_reply_switches_float_byte_order_from_the_next_record() -> None:
-    values = {"accel": [0.5, -1.0, 2.0], "ang_rate": [0.0, 0.25, -0.125], "timer": 7}
+    values: dict[str, Any] = {"accel": [0.5, -1.0, 2.0], "ang_rate": [0.0, 0.25, -0.125],
+                              "timer": 7}
     big, little = encode_reply(0xC2, **values), encode_reply(0xC2, True, **values)
     stream = (big + sampling(0x13) + little + little + sampling(0x03) + big
               + sampling(Flag.LITTLE_ENDIAN_FLOATS) + little)

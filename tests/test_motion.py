@@ -13,8 +13,8 @@ from bridge.protocol.convert import (
     m_to_quaternion,
     quaternion_to_m,
 )
+from bridge.protocol.table import CALCULATION_CYCLE_S
 from bridge.sim.motion import (
-    CALCULATION_CYCLE_S,
     RAW_ACCEL_CODES_PER_G,
     RAW_GYRO_CODES_PER_RAD_S,
     RAW_ZERO_CODE,
@@ -54,7 +54,8 @@ def _rotation_angle(r: np.ndarray) -> float:
 def _simpson(f: np.ndarray, h: float) -> np.ndarray:
     w = np.ones(f.shape[0])
     w[1:-1:2], w[2:-1:2] = 4.0, 2.0
-    return (w @ f) * h / 3.0
+    total: np.ndarray = (w @ f) * h / 3.0
+    return total
 
 
 def test_shapes_and_dtypes(samples: dict[str, np.ndarray]) -> None:

@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -53,8 +54,8 @@ class ListSink:
 
     def column(self, name: str) -> np.ndarray:
         with self.lock:
-            parts = [getattr(s, name) if name in ("ticks", "time_ns") else s.batch[name]
-                     for s in self.batches]
+            parts = [getattr(s, name) if name in ("ticks", "time_ns") else
+                     s.batch.rx_ns if name == "rx_ns" else s.batch[name] for s in self.batches]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def kinds(self) -> list[str]:
@@ -62,8 +63,11 @@ class ListSink:
 
 
 @contextmanager
-def running(config: UnitConfig, **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
-    with Simulator([config], "pty") as sim:
+def running(config: UnitConfig, link: Path | None = None,
+            **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
+    """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
+    (the kernel may give a replugged pty another number, as udev rules prevent for real)."""
+    with Simulator([config], "pty", links=[link] if link else None) as sim:
         sink = ListSink()
         pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
         stop = threading.Event()
@@ -115,8 +119,8 @@ def test_time_is_on_the_host_clock_and_monotonic() -> None:
     assert abs(int(t[-1]) - time.time_ns()) < 5e9
 
 
-def test_unplugged_unit_is_reported_and_resumes() -> None:
-    with running(BASE, silence_s=0.5) as (sim, _, sink):
+def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.5)
         wait_for(lambda: "reconnect" in sink.kinds())
@@ -130,8 +134,8 @@ def test_unplugged_unit_is_reported_and_resumes() -> None:
     assert (np.diff(sink.column("ticks")) > 0).all()
 
 
-def test_power_cycled_unit_is_a_reset() -> None:
-    with running(BASE, silence_s=0.5) as (sim, _, sink):
+def test_power_cycled_unit_is_a_reset(tmp_path: Path) -> None:
+    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.0, power_cycle=True)
         wait_for(lambda: "reconnect" in sink.kinds())
@@ -142,7 +146,7 @@ def test_power_cycled_unit_is_a_reset() -> None:
 
 
 def test_operator_action_while_streaming() -> None:
-    with running(BASE) as (_, pipeline, sink):
+    with running(BASE) as (sim, pipeline, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 20)
 
         def info(session: Session, unit: UnitInfo) -> dict[str, Any]:
@@ -151,8 +155,12 @@ def test_operator_action_while_streaming() -> None:
         result = pipeline.submit(info)
         n = len(sink.column("ticks"))
         wait_for(lambda: len(sink.column("ticks")) >= n + 20)
+    sent = sim.units[0].truth.arrays()["timer"]  # the pipeline has stopped: all in
     assert result["serial"] == "PIPE0001"
-    assert (np.diff(sink.column("ticks")) == 625).all()
+    got = sink.column("timer")
+    start = int(np.flatnonzero(sent == got[0])[0])
+    assert (sent[start : start + len(got)] == got).all(), "a record the unit sent was lost"
+    assert (np.diff(sink.column("ticks")) % 625 == 0).all()
 
 
 @pytest.mark.parametrize("poll_hz", [50.0])
@@ -164,3 +172,30 @@ def test_polling_at_a_fixed_rate(poll_hz: float) -> None:
     assert (np.diff(ticks) > 0).all()
     rate = 62_500 * (len(ticks) - 1) / (ticks[-1] - ticks[0])
     assert 0.5 * poll_hz < rate < 1.5 * poll_hz
+
+
+def test_time_on_a_usb_unit_is_the_instant_the_values_describe() -> None:
+    """1 ms USB frames, OS latency and stalls on top, a 15-wide filter (7 ms delay):
+    time_ns must land on the instant the values describe, not on their arrival."""
+    from bridge.sim.usb import UsbDelivery
+
+    with Simulator([BASE], "pty", usb=UsbDelivery(stall_every_s=2.0, seed=3)) as sim:
+        sink = ListSink()
+        pipeline = Pipeline(Options(url=sim.endpoints[0], transport="usb"), sink)
+        stop = threading.Event()
+        worker = threading.Thread(target=pipeline.run, args=(stop,))
+        worker.start()
+        try:
+            wait_for(lambda: len(sink.column("ticks")) >= 800, timeout=60)
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+        truth = sim.units[0].truth.arrays()
+    timer, time_ns = sink.column("timer"), sink.column("time_ns")
+    index = {int(t): i for i, t in enumerate(truth["timer"])}
+    rows = np.array([index[int(t)] for t in timer])
+    error_ms = (time_ns - truth["value_ns"][rows]) / 1e6
+    late = error_ms[len(error_ms) // 2 :]  # after the model has settled
+    assert abs(float(np.median(late))) < 1.0, f"median error {np.median(late):.2f} ms"
+    arrival_ms = (sink.column("rx_ns") - truth["value_ns"][rows]) / 1e6
+    assert float(np.median(arrival_ms)) > 7.0, "the filter delay should show in arrivals"

@@ -7,11 +7,14 @@ import sys
 from pathlib import Path
 from typing import Any, cast
 
+from google.protobuf import descriptor_pool, message_factory
 from google.protobuf.descriptor import FieldDescriptor
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
 
 from bridge.bus import gx3_pb2
 from bridge.bus.codec import HEADER, elements, record_quantities
 from bridge.bus.gx3_pb2 import ImuSample
+from bridge.bus.schema import MESSAGE_NAMES, file_descriptor_set
 from bridge.protocol.table import DATA_CODES, QUANTITIES
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,3 +53,17 @@ def test_header_fields_have_presence_and_fixed_width() -> None:
         assert FIELDS[name].has_presence, name
         assert FIELDS[name].type in fixed, name
     assert FIELDS["unit"].has_presence
+
+
+def test_the_embedded_descriptor_set_decodes_messages_on_its_own() -> None:
+    """What an archive embeds is enough for a reader that has never seen schemas/."""
+    files = FileDescriptorSet.FromString(file_descriptor_set())
+    assert [f.name for f in files.file] == ["google/protobuf/descriptor.proto", "gx3.proto"]
+    pool = descriptor_pool.DescriptorPool()
+    for f in files.file:
+        pool.Add(f)
+    for leaf, name in MESSAGE_NAMES.items():
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+        original = getattr(gx3_pb2, name.rsplit(".", 1)[1])(unit=f"u-{leaf}")
+        decoded: Any = cls.FromString(original.SerializeToString())
+        assert decoded.unit == f"u-{leaf}"

@@ -81,7 +81,7 @@ def assert_frame(reply: bytes, code: int, length: int) -> None:
 
 def timer_of(reply: bytes) -> int:
     """The big-endian unsigned timer that precedes the checksum."""
-    return struct.unpack_from(">I", reply, len(reply) - 6)[0]
+    return int(struct.unpack_from(">I", reply, len(reply) - 6)[0])
 
 
 def gaps(records: list[bytes]) -> list[int]:
@@ -324,7 +324,7 @@ def host(shared: Host) -> Iterator[Host]:
 @pytest.fixture(params=TRANSPORTS)
 def transport(request: pytest.FixtureRequest) -> str:
     """For tests that run a unit of their own: stored settings, resets, special configs."""
-    return request.param
+    return str(request.param)
 
 
 def still_gravity(m: np.ndarray) -> np.ndarray:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -83,7 +85,7 @@ def reopen_and_read(url: str, timeout: float = 5.0) -> bytes:
     while time.monotonic() < deadline:
         try:
             with serial.serial_for_url(url, baudrate=115_200, timeout=0.3) as port:
-                data = port.read(300)
+                data: bytes = port.read(300)
         except (serial.SerialException, OSError):
             time.sleep(0.05)
             continue
@@ -102,8 +104,10 @@ def test_a_pulled_cable_ends_the_connection_and_the_unit_comes_back(
         with serial.serial_for_url(url, baudrate=115_200, timeout=0.05) as port, \
                 pytest.raises(serial.SerialException):
             read_for(port, 5.0)
-        assert Framer({0xC2}).feed(reopen_and_read(url))
-        assert sim.slots[0].faults.disconnects >= 1 or not sim.slots[0].plugged
+        batches = Framer({0xC2}).feed(reopen_and_read(url))
+        timers = np.concatenate([b["timer"] for b in batches]).astype(np.int64)
+        assert len(timers) >= 3 and (np.diff(timers) == 250).all()  # streaming again
+        assert sim.slots[0].faults.disconnects >= 1
 
 
 def test_a_host_at_the_wrong_baud_rate_does_not_stop_the_unit() -> None:
@@ -120,3 +124,76 @@ def test_a_host_at_the_wrong_baud_rate_does_not_stop_the_unit() -> None:
                 reply = right.read(7)
         assert sim.error is None
         assert reply[:1] == b"\xe9" and len(reply) == 7
+
+
+def test_the_link_is_ours_and_goes_on_exit(tmp_path: Path) -> None:
+    link = tmp_path / "imu"
+    link.symlink_to("/dev/pts/999")  # what a killed run leaves behind: replaced
+    with Simulator([UnitConfig()], "pty", links=[link]) as sim:
+        assert sim.endpoints == [str(link)] and link.resolve().exists()
+    assert not link.exists() and not link.is_symlink()
+
+
+def test_a_second_tcp_client_is_refused_and_the_first_keeps_the_unit() -> None:
+    notices: list[str] = []
+    with Simulator([UnitConfig()], "tcp", notify=notices.append) as sim, \
+            serial.serial_for_url(sim.endpoints[0], timeout=0.05) as first:
+        assert ask_until_answered(first, encode_command("firmware_version"), 7)[:1] == b"\xe9"
+        host, port = sim.endpoints[0][len("socket://"):].split(":")
+        with socket.create_connection((host, int(port)), timeout=5) as second:
+            assert second.recv(1) == b""  # closed at once
+        assert ask_until_answered(first, encode_command("firmware_version"), 7)[:1] == b"\xe9"
+    assert len(notices) == 1 and "refused a second client" in notices[0]
+
+
+def test_a_state_file_that_goes_unwritable_is_reported_once(tmp_path: Path) -> None:
+    folder = tmp_path / "state"
+    notices: list[str] = []
+    with Simulator([UnitConfig(state_file=folder / "unit.json")], "tcp",
+                   notify=notices.append) as sim, \
+            serial.serial_for_url(sim.endpoints[0], timeout=0.05) as port:
+        ask_until_answered(port, encode_command("firmware_version"), 7)
+        folder.write_text("not a folder any more")
+        for preset in (3, 2, 3):
+            reply = ask_until_answered(port, encode_command("mode_preset", mode_preset=preset), 4)
+            assert reply[:2] == bytes((0xD5, preset))
+        assert sim.error is None
+    assert len(notices) == 1 and "cannot save" in notices[0]
+
+
+def test_a_power_cutting_disconnect_reboots_the_unit() -> None:
+    faults = FaultConfig(disconnect_every_s=0.5, disconnect_s=0.2, disconnect_power_cycles=True)
+    with Simulator([UnitConfig()], "tcp", faults=faults) as sim:
+        faults_seen = sim.slots[0].faults
+        timer = encode_command("timer", function=1, value=3_000_000_000)
+        deadline = time.monotonic() + 20
+        set_before: int | None = None
+        while set_before is None and time.monotonic() < deadline:
+            with contextlib.suppress(serial.SerialException, OSError), \
+                    serial.serial_for_url(sim.endpoints[0], timeout=0.05) as port:
+                if ask_until_answered(port, timer, 7, timeout=0.5):
+                    set_before = faults_seen.disconnects
+        assert set_before is not None
+        while faults_seen.disconnects <= set_before and time.monotonic() < deadline:
+            time.sleep(0.02)
+        reply = b""
+        while not reply and time.monotonic() < deadline:
+            with contextlib.suppress(serial.SerialException, OSError), \
+                    serial.serial_for_url(sim.endpoints[0], timeout=0.05) as port:
+                reply = ask_until_answered(port, encode_command("timer", function=0, value=0), 7)
+        assert faults_seen.disconnects > set_before and len(reply) == 7
+        assert int.from_bytes(reply[1:5], "big") < 2_000_000_000  # restarted from 0
+
+
+def ask_until_answered(port: serial.SerialBase, command: bytes, length: int,
+                       timeout: float = 5.0) -> bytes:
+    """Send until a whole reply comes (a unit settling after power-up drops what it hears)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        port.write(command)
+        reply: bytes = port.read(length)
+        while reply and len(reply) < length and time.monotonic() < deadline:
+            reply += port.read(length - len(reply))
+        if len(reply) == length:
+            return reply
+    return b""

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -34,7 +36,7 @@ class Host:
             out += self.unit.poll(self.t)
         return bytes(out)
 
-    def send(self, name: str, settle: float = 0.01, /, **params: int) -> bytes:
+    def send(self, name: str, settle: float = 0.01, /, **params: Any) -> bytes:
         self.unit.receive(encode_command(name, **params), self.t)
         return self.run(settle)
 
@@ -49,7 +51,7 @@ class Host:
         self.send("set_continuous", command=code)
 
 
-def unit(**kw: object) -> Host:
+def unit(**kw: Any) -> Host:
     motion = kw.pop("motion", MotionConfig(seed=3))
     u = SimUnit(UnitConfig(motion=motion, **kw), now=0.0, wall_ns=1_000_000_000_000)
     host = Host(u)
@@ -73,7 +75,7 @@ def test_continuous_rate_and_timer_spacing(decimation: int, baud: int) -> None:
     host.run(0.05)
     recs = one(host.records(1.0, 0xC2), 0xC2)
     assert len(recs) == pytest.approx(1000 / decimation, abs=2)
-    steps = np.diff(recs["timer"].astype(np.int64))
+    steps = np.diff(recs["timer"].astype(np.float64))
     assert steps.mean() == pytest.approx(decimation * TICKS_PER_SECOND / 1000, rel=1e-3)
     assert np.abs(steps - decimation * 62.5).max() <= 0.5
     assert host.unit.records_skipped == 0
@@ -388,7 +390,7 @@ def test_truth_log_keeps_the_newest_records_in_order() -> None:
                                               ("write_gyro_bias", {"gyro_bias": [0.0, 0.0, 0.0]})])
 @pytest.mark.parametrize("decimation", [1, 4, 10])
 def test_replies_while_streaming_leave_at_once_in_timer_order(
-        name: str, params: dict[str, object], decimation: int) -> None:
+        name: str, params: dict[str, Any], decimation: int) -> None:
     """The unit answers at the next calculation cycles, between the records around it."""
     host = unit()
     host.stream(0xC2, decimation)
@@ -414,3 +416,120 @@ def test_replies_while_streaming_leave_at_once_in_timer_order(
     if any(f.name == "timer" for f in REPLIES[reply_code].fields):
         timers = np.concatenate([b["timer"] for b in batches]).astype(np.int64)
         assert np.all(np.diff(timers) >= 0)
+
+
+def read_timer(host: Host) -> int:
+    reply = host.send("timer", 0.01, function=0, value=0)
+    assert reply[:1] == b"\xd7" and len(reply) == 7, reply.hex()
+    return int.from_bytes(reply[1:5], "big")
+
+
+def test_sleep_stops_the_timer_and_it_resumes_on_wake() -> None:
+    host = unit()
+    host.send("timer", function=1, value=1_000_000)
+    host.send("mode", 0.0, mode=4)  # 0.01 s after the timer was set
+    host.run(2.0)
+    host.unit.receive(b"\x00", host.t)
+    host.run(0.2)
+    ticks = read_timer(host) - 1_000_000
+    awake_s = 0.01 + 0.2  # before the sleep command, and since the wake; not the 2 s asleep
+    assert ticks == pytest.approx(awake_s * TICKS_PER_SECOND, abs=0.002 * TICKS_PER_SECOND)
+
+
+def test_commands_sent_behind_a_sleep_are_dropped_and_do_not_wake_it() -> None:
+    host = unit()
+    host.unit.receive(encode_command("mode", mode=4) + encode_command("firmware_version"),
+                      host.t)
+    assert host.run(0.5) == bytes((0xD4, 0x04, 0x00, 0xD8))
+    assert host.send("firmware_version", 0.05) == b""  # this one only wakes it
+
+
+def test_power_on_settles_before_it_answers_or_streams() -> None:
+    settle = 0.053 + 2 * 15 / 1000
+    quiet = SimUnit(UnitConfig(), now=0.0)
+    quiet.receive(encode_command("firmware_version"), 0.02)
+    assert quiet.poll(settle - 0.001) == b"" and quiet.poll(0.5) == b""
+    quiet.receive(encode_command("firmware_version"), settle + 0.001)
+    assert quiet.poll(settle + 0.01)[:1] == b"\xe9"
+    streaming = SimUnit(UnitConfig(stored=Stored(mode_preset=2, continuous_preset=0xC2)),
+                        now=0.0)
+    assert streaming.poll(settle - 0.0005) == b""
+    assert len(streaming.poll(settle + 0.05)) >= 31
+
+
+def test_a_partial_command_is_dropped_after_the_inter_byte_timeout() -> None:
+    host = unit()
+    host.unit.receive(encode_command("mode_preset", mode_preset=3)[:2], host.t)
+    host.run(0.15)
+    assert host.send("firmware_version", 0.01)[:1] == b"\xe9"
+    assert host.unit.stored.mode_preset == 1
+    host.unit.receive(encode_command("mode_preset", mode_preset=3)[:2], host.t)
+    host.run(0.05)
+    host.unit.receive(encode_command("mode_preset", mode_preset=3)[2:], host.t)
+    assert host.run(0.01)[:1] == b"\xd5"
+
+
+def test_a_power_cycle_boots_the_unit_from_its_stored_memory() -> None:
+    host = unit()
+    host.send("timer", function=1, value=50_000_000)
+    host.stream(0xC2, 2)
+    host.run(0.2)
+    host.unit.power_cycle(host.t)
+    cut = host.t
+    assert host.run(0.08) == b""
+    assert host.send("firmware_version", 0.05) == b""  # still settling
+    assert (host.unit.sampling.decimation, host.unit.mode) == (10, 1)
+    assert read_timer(host) < (host.t - cut) * TICKS_PER_SECOND + 1
+
+
+@pytest.mark.parametrize(("width", "mag_width"), [(1, 1), (8, 17), (15, 17), (32, 3)])
+def test_the_filter_delay_shows_in_the_data(width: int, mag_width: int) -> None:
+    """Values describe the instant (M-1)/2 ms before their cycle, mag (Mm-1)/2 ms."""
+    host = unit()
+    host.stream(0xCB, 5)
+    host.send("sampling_settings", function=1, decimation=5, flags=0, filter_width=width,
+              mag_filter_width=mag_width, up_compensation=10, north_compensation=10)
+    host.run(0.1)
+    recs = one(host.records(0.5, 0xCB), 0xCB)
+    truth = host.unit.truth.arrays()
+    device = truth["device_s"][np.searchsorted(truth["timer"], recs["timer"])]
+    delay, mag_delay = (width - 1) / 2000, (mag_width - 1) / 2000
+    motion = host.unit.motion
+    shifted = motion.sample(device - delay, 0.005)
+    assert np.abs(recs["accel"] - shifted["accel"]).max() < 1e-6
+    assert np.abs(recs["ang_rate"] - shifted["ang_rate"]).max() < 1e-6
+    assert np.abs(recs["mag"] - motion.magnetometer(device - mag_delay)).max() < 1e-6
+    if width > 1:
+        assert np.abs(recs["ang_rate"] - motion.sample(device, 0.005)["ang_rate"]).max() > 1e-5
+    lag_ns = truth["time_ns"] - truth["value_ns"]
+    assert lag_ns[-1] == pytest.approx(delay * 1e9, abs=2)
+
+
+def test_the_filter_model_can_be_turned_off_and_divides_the_noise() -> None:
+    motion = MotionConfig(seed=4, static=True, noise_gyro_rad_s=0.01)
+    spreads = []
+    for on in (True, False):
+        host = unit(motion=motion, filter_model=on)
+        host.stream(0xC2, 1, 921_600)
+        spreads.append(one(host.records(1.0, 0xC2), 0xC2)["ang_rate"].std())
+        truth = host.unit.truth.arrays()
+        assert (truth["time_ns"] - truth["value_ns"] == (7_000_000 if on else 0)).all()
+    assert spreads[1] == pytest.approx(0.01, rel=0.05)
+    assert spreads[0] == pytest.approx(0.01 / np.sqrt(15), rel=0.05)
+
+
+def test_faults_are_reproducible_from_the_seed_however_the_bytes_are_split() -> None:
+    config = FaultConfig(bit_flip_rate=0.01, drop_rate=0.01)
+    data = bytes(range(256)) * 200
+    whole = Faults(config, seed=7, now=0.0).corrupt(data)
+    split = Faults(config, seed=7, now=0.0)
+    cuts = [0, 1, 100, 4000, 4001, 30000, len(data)]
+    pieces = b"".join(split.corrupt(data[a:b]) for a, b in itertools.pairwise(cuts))
+    assert pieces == whole != data
+    assert Faults(config, seed=8, now=0.0).corrupt(data) != whole
+    stalls = FaultConfig(stall_every_s=0.2, stall_s=0.05, disconnect_every_s=0.5)
+    runs = [Faults(stalls, seed=3, now=0.0) for _ in range(2)]
+    for faults in runs:
+        faults.corrupt(data)
+    timeline = [[(f.stalled(t / 1000), f.outage(t / 1000)) for t in range(3000)] for f in runs]
+    assert timeline[0] == timeline[1]

@@ -194,8 +194,8 @@ def test_data_record(code: int) -> None:
         np.testing.assert_array_equal(decoded[name], want)
     assert int(decoded["timer"]) == 4_294_967_280
     values = {name: SAMPLE[name] for name in names}
-    assert encode_reply(code, timer=0xFFFFFFF0, **{
-        n: np.reshape(v, SHAPES.get(n, (-1,))) for n, v in values.items()}) == raw
+    columns: dict[str, Any] = {n: np.reshape(v, SHAPES.get(n, (-1,))) for n, v in values.items()}
+    assert encode_reply(code, timer=0xFFFFFFF0, **columns) == raw
 
 
 def test_orientation_matrix_is_row_major() -> None:

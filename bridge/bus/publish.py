@@ -120,7 +120,8 @@ class UnitPublisher:
         if not message.unit:
             message.unit = self.unit
         elif message.unit != self.unit:
-            raise ValueError(f"message for unit {message.unit!r} on {self.unit!r}'s publisher")
+            raise ValueError(f"a {type(message).__name__} of unit {message.unit!r} cannot go out "
+                             f"on the publisher of unit {self.unit!r}")
         return message
 
     def _answer_info(self, query: zenoh.Query) -> None:

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Generic, Literal, TypeVar, overload
+from typing import Any, Generic, Literal, TypedDict, TypeVar, Unpack, overload
 
 import numpy as np
 import zenoh
@@ -178,31 +178,36 @@ def _raw(raw: list[RawMessage]) -> list[RawMessage]:
     return raw
 
 
+class SubscribeOptions(TypedDict, total=False):
+    """The keyword arguments of ``subscribe`` besides ``output``."""
+
+    session: zenoh.Session | None
+    zenoh_config: str | Path | None
+    connect: Sequence[str]
+    listen: Sequence[str]
+    mode: str | None
+    multicast_scouting: bool | None
+    history: int
+    on_miss: Callable[[str, int], None] | None
+    idle_timeout: float | None
+    max_batch: int
+    queue_size: int
+
+
 @overload
 def subscribe(key: str = ..., *, output: Literal["samples"] = ...,
-              session: zenoh.Session | None = ..., zenoh_config: str | Path | None = ...,
-              connect: Sequence[str] = ..., listen: Sequence[str] = ..., mode: str | None = ...,
-              history: int = ..., on_miss: Callable[[str, int], None] | None = ...,
-              idle_timeout: float | None = ..., max_batch: int = ...,
-              queue_size: int = ...) -> Subscription[ImuSample]: ...
+              **options: Unpack[SubscribeOptions]) -> Subscription[ImuSample]: ...
 @overload
 def subscribe(key: str = ..., *, output: Literal["batches"],
-              session: zenoh.Session | None = ..., zenoh_config: str | Path | None = ...,
-              connect: Sequence[str] = ..., listen: Sequence[str] = ..., mode: str | None = ...,
-              history: int = ..., on_miss: Callable[[str, int], None] | None = ...,
-              idle_timeout: float | None = ..., max_batch: int = ...,
-              queue_size: int = ...) -> Subscription[SampleBatch]: ...
+              **options: Unpack[SubscribeOptions]) -> Subscription[SampleBatch]: ...
 @overload
 def subscribe(key: str = ..., *, output: Literal["raw"],
-              session: zenoh.Session | None = ..., zenoh_config: str | Path | None = ...,
-              connect: Sequence[str] = ..., listen: Sequence[str] = ..., mode: str | None = ...,
-              history: int = ..., on_miss: Callable[[str, int], None] | None = ...,
-              idle_timeout: float | None = ..., max_batch: int = ...,
-              queue_size: int = ...) -> Subscription[RawMessage]: ...
+              **options: Unpack[SubscribeOptions]) -> Subscription[RawMessage]: ...
 def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
               session: zenoh.Session | None = None, zenoh_config: str | Path | None = None,
               connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str | None = None,
-              history: int = 0, on_miss: Callable[[str, int], None] | None = None,
+              multicast_scouting: bool | None = None, history: int = 0,
+              on_miss: Callable[[str, int], None] | None = None,
               idle_timeout: float | None = None, max_batch: int = 1000,
               queue_size: int = 100_000) -> Subscription[Any]:
     """Subscribe to ``key`` (default every unit's samples, ``gx3/*/imu``).
@@ -211,7 +216,7 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
     SampleBatch per unit and record type of what arrived together, "raw" yields
     RawMessage (key, payload bytes, encoding) for any key. Pass a ``session``, or
     let the subscription open (and close) its own from ``zenoh_config`` and the
-    connect/listen/mode flags. ``history`` asks each publisher's cache for that
+    connect/listen/mode/multicast_scouting flags. ``history`` asks each publisher's cache for that
     many past samples; ``on_miss(source, n)`` hears of samples that could not be
     recovered (``misses`` keeps the total).
     """
@@ -225,7 +230,7 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
         raise ValueError(f"key expression {key!r}: {condense(exc)}") from None
     own = session is None
     if session is None:
-        session = ZenohOptions(zenoh_config, connect, listen, mode).open()
+        session = ZenohOptions(zenoh_config, connect, listen, mode, multicast_scouting).open()
     return Subscription(session, key, converters[output], own_session=own, history=history,
                         max_batch=max_batch, queue_size=queue_size, idle_timeout=idle_timeout,
                         on_miss=on_miss)

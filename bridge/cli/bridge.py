@@ -160,6 +160,9 @@ def run_bridge(
             sink.close()
             for w in writer:
                 w.close()
+    if pipeline.error is not None:
+        raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
+                   f"{pipeline.error}", 1)
     if not quiet:
         err.print(sink.summary())
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
 from bridge.cli.common import app
-from bridge.protocol.docs import command_table_markdown, reply_schemas
+from bridge.protocol.docs import command_list_text, command_table_markdown, reply_schemas
 
 
 @app.command()
@@ -22,12 +22,10 @@ def commands(
         "holds).")] = False,
 ) -> None:
     """List every 3DM-GX3 command with its bytes, parameters and reply layout."""
-    text = command_table_markdown()
     if as_json:
         sys.stdout.write(json.dumps(reply_schemas(), indent=1) + "\n")
     elif markdown:
-        sys.stdout.write(text)
+        sys.stdout.write(command_table_markdown())
     else:
-        from rich.markdown import Markdown
-
-        Console().print(Markdown(text))
+        width = max(40, min(shutil.get_terminal_size().columns, 100))
+        sys.stdout.write(command_list_text(width))

@@ -39,20 +39,26 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
-def parse_code(text: str | None) -> int:
-    """A command byte as people write it: 0xC8, 200 or 0o310; none is 0."""
+def parse_code(text: str | None, option: str | None = None) -> int:
+    """A command byte as people write it: 0xC8, 200 or 0o310; none is 0.
+
+    ``option`` names the option in the error when parsing happens after Click's.
+    """
     if text is None:
         return 0
     try:
         return int(text, 0)
     except ValueError:
-        raise typer.BadParameter(f"{text!r} is not a number such as 0xC8") from None
+        raise typer.BadParameter(f"{text!r} is not a number such as 0xC8",
+                                 param_hint=option) from None
 
 
 def parse_reply_code(text: str) -> int:
+    """A reply code option's value (Typer ``parser``: errors name the option)."""
     code = parse_code(text)
     if code not in REPLIES:
-        raise typer.BadParameter(f"no reply starts with 0x{code:02X}")
+        raise typer.BadParameter(f"no reply starts with 0x{code:02X}; replies start with "
+                                 + " ".join(f"0x{c:02X}" for c in sorted(REPLIES)))
     return code
 
 

@@ -2,21 +2,23 @@
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, BinaryIO, TextIO
+from typing import Annotated, BinaryIO
 
+import numpy as np
+import orjson
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
 from bridge.cli.common import app, err, fail, parse_reply_code
-from bridge.protocol.codec import Batch, json_safe
+from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
-from bridge.protocol.table import DATA_CODES
+from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
 
-_READ_SIZE = 1 << 20
+_READ_SIZE = 1 << 20  # at most; a pipe gives what it holds, so records leave as they arrive
+_KEPT = 1 << 22  # input kept to try the other byte order when nothing decodes
 
 
 def _open_input(path: str) -> BinaryIO:
@@ -37,44 +39,103 @@ def decode(
     file: Annotated[str, typer.Argument(
         help="File of raw bytes as read off the line; - for stdin.")],
     little_endian: Annotated[bool, typer.Option(
-        "--little-endian", help="Floats were sent little-endian (0xDB flag bit 4 set).")] = False,
-    expect: Annotated[list[str] | None, typer.Option(
-        "--expect", "-e", metavar="CODE",
+        "--little-endian", help="Floats start little-endian (0xDB flag bit 4 set); 0xDB "
+        "replies in the capture switch the order from there on.")] = False,
+    expect: Annotated[list[int] | None, typer.Option(
+        "--expect", "-e", metavar="CODE", parser=parse_reply_code,
         help="Reply code to look for, e.g. 0xC8 or 0xD4 (repeatable). "
-             "Default: every data record.")] = None,
+             "Default: every data record. 0xDB replies are always looked for.")] = None,
 ) -> None:
     """Decode a raw capture: one JSON object per record on stdout, a summary on stderr.
 
-    Each object has "command" (integer), "timer" where the record has one, and
-    each quantity under its name (accel, ang_rate, mag, m, euler, quaternion,
-    temperature, …: see docs/commands.md); vectors and matrices are nested
-    lists, matrices row-major. NaN is written as null. Corrupt bytes are
-    skipped and counted; every intact record after them is still decoded.
-    On a terminal, progress is shown on stderr.
+    Each object has "command" (integer), then each field of the record under its
+    name (accel, ang_rate, mag, m, euler, quaternion, temperature, …: see
+    docs/commands.md) and "timer" where the record has one; vectors and matrices
+    are nested lists, matrices row-major. NaN and infinities are written as null.
+    Corrupt bytes are skipped and counted; every intact record after them is still
+    decoded. From a pipe, records are written as they arrive. Exit status 1 when
+    nothing decodes from a non-empty input, 130 on Ctrl-C (after the summary so far).
     """
-    codes = [parse_reply_code(c) for c in expect] if expect else sorted(DATA_CODES)
+    codes = {*(expect or DATA_CODES), BYTE_ORDER_REPLY}
     framer = Framer(codes, little_endian=little_endian)
-    out = sys.stdout
     stream = _open_input(file)
-    size = None if file == "-" else os.fstat(stream.fileno()).st_size
+    fd = stream.fileno()
+    size = None if file == "-" else os.fstat(fd).st_size
+    out = sys.stdout.buffer
+    kept = bytearray()
     progress = Progress(TextColumn("decoding"), BarColumn(), DownloadColumn(),
                         TransferSpeedColumn(), console=err, transient=True,
                         disable=not err.is_terminal)
     try:
         with stream, progress:
             task = progress.add_task("decode", total=size)
-            while chunk := stream.read(_READ_SIZE):
-                _write(framer.feed(chunk), out)
+            while chunk := os.read(fd, _READ_SIZE):
+                if len(kept) < _KEPT:
+                    kept += chunk[: _KEPT - len(kept)]
+                out.write(_lines(framer.feed(chunk)))
+                out.flush()
                 progress.advance(task, len(chunk))
-            _write(framer.flush(), out)
-        out.flush()
+            out.write(_lines(framer.flush()))
+            out.flush()
+    except KeyboardInterrupt:
+        err.print(framer.stats.summary())
+        raise typer.Exit(130) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None
-    err.print(framer.stats.summary())
+    stats = framer.stats
+    err.print(stats.summary())
+    if stats.bytes_fed and not stats.records:
+        raise fail(_nothing_decoded(bytes(kept), codes, little_endian), 1)
 
 
-def _write(batches: list[Batch], out: TextIO) -> None:
+def _nothing_decoded(kept: bytes, codes: set[int], little_endian: bool) -> str:
+    """Why nothing decoded, with the option to change when the other byte order works."""
+    other = Framer(codes, little_endian=not little_endian)
+    found = sum(len(b) for b in other.feed(kept) + other.flush())
+    if found:
+        fix = "--little-endian" if not little_endian else "without --little-endian"
+        return (f"no record decoded, but {found} did with floats "
+                f"{'little' if not little_endian else 'big'}-endian: try {fix}")
+    return ("no record decoded: not a raw 3DM-GX3 capture, or its records are not among "
+            "the expected codes (see --expect)")
+
+
+def _pieces(values: np.ndarray) -> list[bytes]:
+    """Each record's value of one column as JSON text, without its outer brackets.
+
+    One orjson call serialises the whole column (floats widened exactly to float64,
+    NaN and infinities as null); splitting at the record boundaries is safe because
+    numbers and null contain no brackets. Text (ID strings) is quoted one by one.
+    """
+    if values.dtype.kind == "S":
+        return [orjson.dumps(v.decode("ascii", "replace").rstrip("\x00 "))
+                for v in values.tolist()]
+    if values.dtype.kind == "f":
+        values = values.astype(np.float64)
+    depth = values.ndim  # brackets around the column; the record's own are depth - 1
+    text = orjson.dumps(values, option=orjson.OPT_SERIALIZE_NUMPY)
+    inner = depth - 1
+    return text[depth:-depth].split(b"]" * inner + b"," + b"[" * inner)
+
+
+def _template(batch: Batch) -> bytes:
+    """One record's line with a %s per field: command first, then wire order."""
+    parts = [f'{{"command":{batch.code}']
+    for name, col in batch.columns.items():
+        inner = col.ndim - 1
+        parts.append(f',"{name}":{"[" * inner}%s{"]" * inner}')
+    return ("".join(parts) + "}\n").encode()
+
+
+def _lines(batches: list[Batch]) -> bytes:
+    """JSON lines, one per record, as `json.dumps` of the record would give them."""
+    out = []
     for batch in batches:
-        for record in batch.records():
-            out.write(json.dumps({k: json_safe(v) for k, v in record.items()}) + "\n")
+        template = _template(batch)
+        if batch.columns:
+            out += [template % row for row in zip(*map(_pieces, batch.columns.values()),
+                                                  strict=True)]
+        else:
+            out.append(template * len(batch))
+    return b"".join(out)

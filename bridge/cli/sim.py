@@ -132,6 +132,11 @@ def sim(
     disconnect_every: Annotated[float, typer.Option(
         help="Mean seconds between disconnects (0: never).")] = 0.0,
     disconnect_for: Annotated[float, typer.Option(help="Length of a disconnect, s.")] = 1.0,
+    usb: Annotated[bool, typer.Option(
+        "--usb", help="Each unit is on its own USB port: the baud rate has no effect, and "
+                      "bytes reach the host in 1 ms frames after an OS latency, with stalls "
+                      "now and then that deliver a burst (what the clock model must "
+                      "handle).")] = False,
     disconnect_power_cycles: Annotated[bool, typer.Option(
         "--disconnect-power-cycles",
         help="A disconnect also cuts a USB-powered unit's power: on replug it boots (timer "
@@ -161,6 +166,7 @@ def sim(
     from bridge.sim.serve import LinkError, Simulator, unit_configs
     from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
+    from bridge.sim.usb import UsbDelivery
 
     try:
         if pty == (tcp is not None):
@@ -215,7 +221,8 @@ def sim(
                          disconnect_for, disconnect_power_cycles)
     try:
         simulator = Simulator(configs, "pty" if pty else "tcp", host, port, faults, links,
-                              notify=lambda text: err.print(escape(text)))
+                              notify=lambda text: err.print(escape(text)),
+                              usb=UsbDelivery(seed=seed) if usb else None)
     except StateFileError as exc:
         raise fail(f"--state: {exc}") from None
     except LinkError as exc:

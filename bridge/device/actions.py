@@ -13,17 +13,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from bridge.device.session import DeviceError, Session, UnitInfo
+from bridge.protocol.table import STATIONARY_TEST_BITS
 
 Params = dict[str, Any]
-#: The bits of the 0xDA result the manual names (its list is cut short after bit 3).
-STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 
 
 @dataclass(frozen=True)
 class Action:
     """``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
     lasting change; ``effect`` what it does to a running stream: "none",
-    "reconfigure" (settings changed) or "restart" (the unit comes back as after power-up)."""
+    "reconfigure" (settings changed), "discontinuity" (the timer jumps) or "restart"
+    (the unit comes back as after power-up)."""
 
     name: str
     summary: str
@@ -109,7 +109,8 @@ ACTIONS: dict[str, Action] = {a.name: a for a in (
     Action("configure", "Change sampling, baud rate or presets", _configure, _configure_persists,
            "reconfigure"),
     Action("capture_bias", "Capture the gyro bias of a still unit (0xCD)", _capture_bias),
-    Action("set_timer", "Restart the timer at a value (0xD7)", _set_timer, lambda p: False),
+    Action("set_timer", "Restart the timer at a value (0xD7)", _set_timer, lambda p: False,
+           "discontinuity"),
     Action("stationary_test", "Run the self-test (0xDA)", _stationary_test, lambda p: False),
     Action("reset", "Soft-reset the unit (0xFE)", _reset, lambda p: True, "restart"),
 )}

@@ -102,6 +102,7 @@ class Session:
         self.framer = Framer(expect=())
         self.streaming: int | None = None  # the record ``read`` returns: streamed or polled
         self.polling = False
+        self.paced = False  # bytes come at the UART's line rate (not in USB packets)
         self.on_read: Callable[[bytes, int], None] | None = None  # raw capture hook
         self._backlog: list[Batch] = []
         self.bytes_read = 0
@@ -124,8 +125,17 @@ class Session:
 
     def read(self, wait_s: float = 0.05) -> list[Batch]:
         """Data records of the stream that arrived within ``wait_s`` (or while a command
-        waited for its reply)."""
+        waited for its reply).
+
+        On a UART (``paced``) a record cut in two by a read is not waited for byte by
+        byte: the rest cannot arrive before its line time, so the session sleeps that
+        long first, which halves the wake-ups and adds no latency.
+        """
         out, self._backlog = self._backlog, []
+        if not out and self.paced and self.streaming is not None and self.framer.pending:
+            rest = REPLIES[self.streaming].length - self.framer.pending
+            if rest > 0:
+                time.sleep(min(wait_s, _line_time(rest, self.port.baud)))
         out += [b for b in self._read(0.0 if out else wait_s) if b.code == self.streaming]
         return out
 

@@ -22,7 +22,6 @@ from bridge.protocol.table import (
     REPLIES,
     Command,
     Field,
-    ReplySpec,
     lookup,
 )
 
@@ -38,7 +37,8 @@ def checksum(data: bytes | bytearray | memoryview) -> int:
 
 def checksum_rows(block: np.ndarray) -> np.ndarray:
     """``checksum`` of each row of an (n, k) uint8 block, at array speed."""
-    return block.sum(axis=1, dtype=np.uint32) & 0xFFFF
+    sums: np.ndarray = block.sum(axis=1, dtype=np.uint32)
+    return sums & 0xFFFF
 
 
 def _wire_dtype(f: Field, little_endian: bool) -> str:
@@ -49,36 +49,34 @@ def _wire_dtype(f: Field, little_endian: bool) -> str:
     return {"u8": "u1", "u16": ">u2", "u32": ">u4"}[f.kind]
 
 
-def _struct_dtype(fields: tuple[Field, ...], little_endian: bool, head: str) -> np.dtype:
-    """A packed dtype of one message: head byte, fields in wire order, (checksum)."""
-    parts: list[tuple[Any, ...]] = [(head, "u1")]
+def _parts(fields: tuple[Field, ...], little_endian: bool) -> list[tuple[Any, ...]]:
+    """Packed dtype entries of message fields in wire order (reserved bytes as voids)."""
+    parts: list[tuple[Any, ...]] = []
     for i, f in enumerate(fields):
         if f.is_pad:
             parts.append((f"_pad{i}", f"V{f.count}"))
         else:
             parts.append((f.name, _wire_dtype(f, little_endian), f.shape))
-    return np.dtype(parts)
+    return parts
 
 
 @functools.cache
-def reply_dtype(code: int, little_endian: bool = False) -> np.dtype:
-    """The packed wire layout of one reply, checksum last."""
+def reply_dtype(code: int, little_endian: bool = False) -> np.dtype[Any]:
+    """The packed wire layout of one reply: echo byte, fields, checksum."""
     spec = REPLIES[code]
-    base = _struct_dtype(spec.fields, little_endian, "code")
-    dtype = np.dtype([*((n, base.fields[n][0]) for n in base.names), ("checksum", ">u2")])
+    dtype = np.dtype([("code", "u1"), *_parts(spec.fields, little_endian),
+                      ("checksum", ">u2")])
     assert dtype.itemsize == spec.length
     return dtype
 
 
 @functools.cache
-def _command_dtype(code: int) -> np.dtype:
+def _command_dtype(code: int) -> np.dtype[Any]:
     cmd = COMMANDS[code]
     parts: list[tuple[Any, ...]] = [("code", "u1")]
     if cmd.confirm:
         parts.append(("confirm", "V" + str(len(cmd.confirm))))
-    base = _struct_dtype(cmd.params, False, "_")
-    parts.extend((n, base.fields[n][0]) for n in base.names[1:])
-    return np.dtype(parts)
+    return np.dtype(parts + _parts(cmd.params, False))
 
 
 def _native(f: Field) -> str:
@@ -297,14 +295,6 @@ class Batch:
     rx_ns: np.ndarray
     little_endian: bool
 
-    @property
-    def spec(self) -> ReplySpec:
-        return REPLIES[self.code]
-
-    @property
-    def name(self) -> str:
-        return self.spec.name
-
     def __len__(self) -> int:
         return len(self.offsets)
 
@@ -318,13 +308,3 @@ class Batch:
             for name, col in self.columns.items():
                 out[name] = _py(col[i])
             yield out
-
-
-def json_safe(value: Any) -> Any:
-    """Nested lists with NaN and infinities replaced by None (JSON has no NaN)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, list):
-        return [json_safe(v) for v in value]
-    return value
-

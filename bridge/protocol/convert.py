@@ -37,7 +37,7 @@ def _check_shape(a: FloatArray, tail: tuple[int, ...], name: str) -> None:
         )
 
 
-def _dirichlet(x: FloatArray, n: FloatArray) -> FloatArray:
+def _dirichlet(x: FloatArray, n: FloatArray | float) -> FloatArray:
     """sin(n x) / (n sin x), the moving-average response, with its limit where sin x = 0.
 
     The manual's filter equations are 0/0 at f = 0 (and at multiples of the stage rate);
@@ -46,7 +46,7 @@ def _dirichlet(x: FloatArray, n: FloatArray) -> FloatArray:
     s = np.sin(x)
     small = np.abs(s) < _DIRICHLET_EPS
     safe = np.where(small, 1.0, n * s)
-    return np.where(small, np.cos(n * x) / np.cos(x), np.sin(n * x) / safe)
+    return _f64(np.where(small, np.cos(n * x) / np.cos(x), np.sin(n * x) / safe))
 
 
 def euler_to_m(euler: npt.ArrayLike) -> FloatArray:
@@ -162,7 +162,7 @@ def sensor_to_earth_xyzw(q: npt.ArrayLike) -> FloatArray:
     a = _f64(q)
     _check_shape(a, (4,), "q")
     a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    return a[..., [1, 2, 3, 0]]
+    return _f64(a[..., [1, 2, 3, 0]])
 
 
 def ticks_to_seconds(ticks: npt.ArrayLike) -> FloatOut:
@@ -200,7 +200,7 @@ def fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
     """Equation 2: |H| of the accel/gyro filter (30-tap 30 kHz stage, width-M 1 kHz stage)."""
     f = _f64(f_hz)
     m = _f64(width)
-    h = _dirichlet(np.pi * f / 1000.0, m) * _dirichlet(np.pi * f / 30000.0, np.float64(30.0))
+    h = _dirichlet(np.pi * f / 1000.0, m) * _dirichlet(np.pi * f / 30000.0, 30.0)
     return _out(np.abs(h))
 
 
@@ -209,8 +209,8 @@ def mag_fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
     f = _f64(f_hz)
     m = _f64(width)
     h = (
-        _dirichlet(np.pi * f / 7500.0, np.float64(2.0))
-        * _dirichlet(np.pi * f / 3750.0, np.float64(7.0))
+        _dirichlet(np.pi * f / 7500.0, 2.0)
+        * _dirichlet(np.pi * f / 3750.0, 7.0)
         * _dirichlet(np.pi * f / 1000.0, m)
     )
     return _out(np.abs(h))

@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import textwrap
 from typing import Any
 
-from bridge.protocol.table import COMMANDS, DATA_CODES, ERROR_REPLY, REPLIES, Field, When
+from bridge.protocol.table import (
+    COMMANDS,
+    DATA_CODES,
+    ERROR_REPLY,
+    REPLIES,
+    Command,
+    Field,
+    When,
+)
 
 SCHEMA_VERSION = 1
 
@@ -49,16 +58,37 @@ def _version(number: int) -> str:
     return f"{number // 1000}.{number // 100 % 10}.{number % 100}"
 
 
+_INTRO = (
+    "Multi-byte integers, the timer and the checksum are big-endian; floats are "
+    "IEEE-754 float32, big-endian unless 0xDB flag bit 4 is set. The checksum is "
+    "the 16-bit wrapping sum of all preceding reply bytes. A wrong confirmation "
+    f"sequence is answered with the error reply `{ERROR_REPLY.hex(' ')}`."
+)
+
+
+def _notes(c: Command) -> list[str]:
+    notes = []
+    if c.data:
+        notes.append("data record, valid continuous preset")
+    if c.persists_when:
+        notes.append(f"changes non-volatile state{_when(*c.persists_when)}: "
+                     "sent only on explicit request")
+    if c.silent_when:
+        notes.append(f"no reply{_when(c.silent_when)}")
+    if c.ignored_when:
+        notes.append(f"{', '.join(c.ignored)} ignored (may be left out){_when(c.ignored_when)}")
+    if c.notes:
+        notes.append(c.notes)
+    return notes
+
+
 def command_table_markdown() -> str:
     """The whole command set: bytes sent, confirmation, parameters, reply layout."""
     lines = [
         "# 3DM-GX3 command reference",
         "",
         "Generated from `bridge/protocol/table.py` by `gx3 commands --markdown`.",
-        "Multi-byte integers, the timer and the checksum are big-endian; floats are",
-        "IEEE-754 float32, big-endian unless 0xDB flag bit 4 is set. The checksum is",
-        "the 16-bit wrapping sum of all preceding reply bytes. A wrong confirmation",
-        f"sequence is answered with the error reply `{ERROR_REPLY.hex(' ')}`.",
+        *textwrap.wrap(_INTRO, 80),
         "",
         "| code | name | sends | confirmation | parameters | reply | reply fields | notes |",
         "|---|---|---|---|---|---|---|---|",
@@ -70,23 +100,44 @@ def command_table_markdown() -> str:
         else:
             reply = f"{c.reply_length} B"
             fields = "<br>".join(_field(f) for f in c.reply) or "–"
-        notes = []
-        if c.data:
-            notes.append("data record, valid continuous preset")
-        if c.persists_when:
-            notes.append(f"changes non-volatile state{_when(*c.persists_when)}: "
-                         "sent only on explicit request")
-        if c.silent_when:
-            notes.append(f"no reply{_when(c.silent_when)}")
-        if c.ignored_when:
-            notes.append(f"{', '.join(c.ignored)} ignored (may be left out){_when(c.ignored_when)}")
-        if c.notes:
-            notes.append(c.notes)
         sends = f"{c.length} B" if c.documented else "?"
         confirm = c.confirm.hex(" ") or "–"
         lines.append(f"| 0x{c.code:02X} | {c.name} | {sends} | {confirm} | {params} | {reply} "
-                     f"| {fields} | {'; '.join(notes)} |")
+                     f"| {fields} | {'; '.join(_notes(c))} |")
     return "\n".join(lines) + "\n"
+
+
+def _bytes(n: int | None) -> str:
+    return "1 byte" if n == 1 else f"{n} bytes"
+
+
+def command_list_text(width: int = 80) -> str:
+    """The same reference as a list for a terminal ``width`` columns wide."""
+    indent = " " * 6
+
+    def wrap(text: str) -> list[str]:
+        return textwrap.wrap(text.replace("`", ""), width, initial_indent=indent,
+                             subsequent_indent=indent + "  ", break_on_hyphens=False)
+
+    lines = [*textwrap.wrap(_INTRO.replace("`", ""), width), ""]
+    for c in COMMANDS.values():
+        lines += textwrap.wrap(f"0x{c.code:02X}  {c.name}: {c.title}", width,
+                               subsequent_indent=indent)
+        sends = _bytes(c.length) if c.documented else "layout undocumented"
+        confirm = f", confirmation {c.confirm.hex(' ')}" if c.confirm else ""
+        lines += wrap(f"sends {sends}{confirm}")
+        for f in c.params:
+            lines += wrap(f"param {_field(f)}")
+        if c.reply is None:
+            lines += wrap("no reply")
+        else:
+            lines += wrap(f"reply {_bytes(c.reply_length)}" + (":" if c.reply else ""))
+            for f in c.reply:
+                lines += wrap(f"  {_field(f)}")
+        for note in _notes(c):
+            lines += wrap(note)
+        lines.append("")
+    return "\n".join(lines)
 
 
 def reply_schemas() -> dict[str, Any]:

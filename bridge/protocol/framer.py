@@ -32,13 +32,12 @@ from bridge.protocol.codec import (
     decode_block,
     plausible,
     plausible_rows,
-    reply_dtype,
 )
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
 
 _MIN_FAST = 8  # records; below this the scanner is cheaper than array set-up
 _MAX_FAST = 1 << 16
-_FLAGS_AT = reply_dtype(BYTE_ORDER_REPLY).fields["flags"][1]  # type: ignore[index]
+_FLAGS_AT = REPLIES[BYTE_ORDER_REPLY].offset("flags")
 
 
 @dataclass

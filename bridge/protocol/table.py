@@ -46,6 +46,10 @@ class Flag(IntEnum):
 
 
 DEFAULT_FLAGS = Flag.ORIENTATION | Flag.CONING_SCULLING
+
+#: The 0xDA self-test bits the manual names (its list is cut short after bit 3): a set
+#: bit means the function is within specification.
+STATIONARY_TEST_BITS = {0: "supply_3v", 3: "system_tick"}
 #: The reply whose ``flags`` set the float byte order of every record after it.
 BYTE_ORDER_REPLY = 0xDB
 
@@ -405,6 +409,15 @@ class ReplySpec:
     @property
     def length(self) -> int:
         return 3 + sum(f.size for f in self.fields)
+
+    def offset(self, name: str) -> int:
+        """Byte position of field ``name`` in the reply (the echo byte is at 0)."""
+        at = 1
+        for f in self.fields:
+            if f.name == name:
+                return at
+            at += f.size
+        raise KeyError(f"0x{self.code:02X} {self.name} has no field {name!r}")
 
 
 #: Every reply a unit can send, by its first byte: the echoed command, or 0x21.

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bridge.protocol.table import CALCULATION_CYCLE_S, REPLIES, Mode
-from bridge.sim.state import Sampling, Stored
+from bridge.sim.state import Sampling
 from bridge.sim.unit import SimUnit, UnitConfig
 from bridge.sim.usb import UsbDelivery, UsbLink
 
@@ -97,6 +97,7 @@ def synthesize(config: UnitConfig, usb: UsbDelivery, seconds: float,
             sent += len(data)
             reads += link.reads(frame)
             frame += usb.frame_s
+    reads += link.reads(end + 1.0)  # what was on its way when the capture stopped
     truth = unit.truth.arrays()
     done = len(truth["timer"])
     if sent != done * size or unit.records_skipped:

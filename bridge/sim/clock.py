@@ -62,8 +62,8 @@ class UnitClock:
 
     def host(self, device: npt.ArrayLike) -> Any:
         """Host time at device seconds ``device``: the exact inverse of ``device``."""
-        if isinstance(device, float) and self.wanders:
-            return self._host_scalar(device)
+        if self.wanders and np.ndim(device) == 0:
+            return self._host_scalar(float(device))  # type: ignore[arg-type]
         dev = np.asarray(device, np.float64)
         if not self.wanders:
             return (self.t0 + dev / self.scale)[()]

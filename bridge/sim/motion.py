@@ -87,7 +87,7 @@ def _time_keyed_normals(seed: int, t: FloatArray, count: int) -> FloatArray:
 
 
 def _times(t: npt.ArrayLike) -> FloatArray:
-    times = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    times: FloatArray = np.atleast_1d(np.asarray(t, dtype=np.float64))
     if times.ndim != 1:
         raise ValueError(f"t must be one-dimensional, got shape {times.shape}")
     return times
@@ -142,7 +142,8 @@ class Motion:
     def linear_accel_earth(self, t: npt.ArrayLike) -> FloatArray:
         """Kinematic acceleration of the unit in the earth (NED) frame [g], shape t.shape + (3,)."""
         phase = self._lin_phase + self._lin_omega * np.asarray(t, dtype=np.float64)[..., None, None]
-        return np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
+        accel: FloatArray = np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
+        return accel
 
     def _kinematics(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """True M, body rate [rad/s] and specific force [g] at times t, shape (n,)."""
@@ -178,8 +179,9 @@ class Motion:
         """The mag reading alone at times t, (n, 3): what ``sample`` gives, at less cost."""
         t = _times(t)
         m = convert.euler_to_m(self.euler_and_rates(t)[0])
-        field = m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64)
-        return field + self._noise(t, (0.0, 0.0, gain))[:, 6:9]
+        field: FloatArray = m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64)
+        noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
+        return field + noise
 
     def sample(self, t: npt.ArrayLike, period: float,
                noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:

@@ -27,6 +27,7 @@ import numpy as np
 
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
+from bridge.sim.usb import UsbDelivery, UsbLink
 
 _TICK_S = 0.0005
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
@@ -59,7 +60,8 @@ class Link:
     def selectables(self) -> list[int | socket.socket]:
         raise NotImplementedError
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
+        """What arrived on ``obj``, one of ``selectables``."""
         raise NotImplementedError
 
     def unplug(self) -> None:
@@ -111,7 +113,7 @@ class PtyLink(Link):
     def selectables(self) -> list[int | socket.socket]:
         return [self.master]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         try:
             return os.read(self.master, 4096)
         except OSError:
@@ -170,9 +172,9 @@ class TcpLink(Link):
         self.unplugged = False
 
     def selectables(self) -> list[int | socket.socket]:
-        return [self.server] + ([self.client] if self.client else [])
+        return [self.server] if self.client is None else [self.server, self.client]
 
-    def readable(self, obj: int | socket.socket) -> bytes:
+    def readable(self, obj: object) -> bytes:
         if obj is self.server:
             with contextlib.suppress(BlockingIOError):
                 conn, peer = self.server.accept()
@@ -187,6 +189,8 @@ class TcpLink(Link):
                 conn.setblocking(False)
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self.client = conn
+            return b""
+        if not isinstance(obj, socket.socket):
             return b""
         try:
             data = obj.recv(4096)
@@ -235,6 +239,9 @@ class _Slot:
     lost: int = 0
     plugged: bool = True
     state_reported: bool = False
+    pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
+    power_cycle: bool = False
+    usb: UsbLink | None = None  # the unit's own USB port: bytes reach the host in frames
 
 
 class Simulator:
@@ -248,7 +255,8 @@ class Simulator:
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
                  port: int = 0, faults: FaultConfig | None = None,
-                 links: list[Path] | None = None, notify: Notify = _to_stderr) -> None:
+                 links: list[Path] | None = None, notify: Notify = _to_stderr,
+                 usb: UsbDelivery | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")
         faults = faults or FaultConfig()
@@ -257,14 +265,17 @@ class Simulator:
         self.slots: list[_Slot] = []
         try:
             for i, config in enumerate(configs):
+                if usb is not None:
+                    config = replace(config, usb=True)
                 unit = SimUnit(config, now)
                 link: Link
                 if transport == "pty":
                     link = PtyLink(unit.baud, links[i] if links else None)
                 else:
                     link = TcpLink(host, port + i if port else 0, notify)
-                self.slots.append(_Slot(unit, link, Faults(faults, config.motion.seed, now),
-                                        bytearray()))
+                self.slots.append(_Slot(
+                    unit, link, Faults(faults, config.motion.seed, now), bytearray(),
+                    usb=None if usb is None else UsbLink(replace(usb, seed=usb.seed + i), now)))
         except BaseException:
             self._close_links()
             raise
@@ -337,6 +348,13 @@ class Simulator:
                     sel.unregister(fd)
                 sel.register(obj, selectors.EVENT_READ, slot)
 
+    def unplug(self, index: int, seconds: float, power_cycle: bool = False) -> None:
+        """Pull unit ``index``'s cable for ``seconds``, as a test or a demo does on purpose;
+        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug."""
+        slot = self.slots[index]
+        slot.power_cycle = power_cycle
+        slot.pulled_until = time.monotonic() + seconds
+
     @staticmethod
     def _as_unit_hears(slot: _Slot, data: bytes) -> bytes:
         host = slot.link.host_baud()
@@ -348,7 +366,7 @@ class Simulator:
             slot.state_reported = True
             self.notify(f"{slot.unit.config.serial}: cannot save non-volatile memory "
                         f"({slot.unit.state_error}); running on, changes kept until exit")
-        if slot.faults.outage(now):
+        if slot.faults.outage(now) or now < slot.pulled_until:
             if slot.plugged:
                 slot.link.unplug()
                 slot.plugged = False
@@ -357,10 +375,17 @@ class Simulator:
         if not slot.plugged:
             slot.link.plug()
             slot.plugged = True
-            if slot.faults.config.disconnect_power_cycles:
+            if slot.faults.config.disconnect_power_cycles or slot.power_cycle:
+                slot.power_cycle = False
                 slot.unit.power_cycle(now)
                 line = []
-        host = slot.link.host_baud()
+        if slot.usb is not None:  # USB ignores the baud rate: bytes arrive in frames
+            for _, data in line:
+                slot.usb.push(data, now)
+            line = [(0, data) for _, data in slot.usb.reads(now)]
+            host = None
+        else:
+            host = slot.link.host_baud()
         for baud, data in line:
             slot.held += slot.faults.corrupt(reframe(data, baud, host) if host else data)
         if slot.held and not slot.faults.stalled(now):

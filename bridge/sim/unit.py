@@ -21,7 +21,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from bridge.protocol.table import (
     DATA_CODES,
     ERROR_REPLY,
     REPLIES,
+    STATIONARY_TEST_BITS,
     TICKS_PER_SECOND,
     Command,
     Flag,
@@ -51,10 +52,10 @@ URGENT_S = 0.005
 # The manual gives no inter-byte timeout; a partial command older than this is dropped,
 # so that bytes cut short by an unplug do not swallow the next session's first command.
 INTER_BYTE_TIMEOUT_S = 0.1
-# The manual's list of self-test bits is cut short; it names bit 0 (3 V supply)
-# and bit 3 (system tick), which an awake unit sets in every mode. The 5 V flag
+USB_LINE_BAUD = 12_000_000
+# An awake unit sets every self-test bit the manual names, in every mode. The 5 V flag
 # that drops in idle mode has no bit number in the manual.
-STATIONARY_TEST_OK = 0b1001
+STATIONARY_TEST_OK = sum(1 << bit for bit in STATIONARY_TEST_BITS)
 _ORIENTATION_FIELDS = ("m", "c", "euler", "quaternion", "stab_accel", "stab_mag")
 _MAG_FIELDS = ("mag", "stab_mag")
 _RAW_FIELDS = ("raw_accel", "raw_ang_rate", "temperature")
@@ -80,6 +81,7 @@ class UnitConfig:
     state_file: Path | None = None
     truth_length: int = 100_000
     filter_model: bool = True
+    usb: bool = False  # on its own USB port: the baud rate has no effect on the line
 
     def id_string(self, selector: int) -> str:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
@@ -101,7 +103,7 @@ class TruthLog:
     """
 
     def __init__(self, capacity: int) -> None:
-        self._columns = {
+        self._columns: dict[str, np.ndarray] = {
             "time_ns": np.zeros(capacity, np.int64),
             "value_ns": np.zeros(capacity, np.int64),
             "device_s": np.zeros(capacity),
@@ -148,6 +150,12 @@ class _Segment:
         return self.start + len(self.data) / self.rate
 
 
+def _monotonic_to_wall_ns() -> int:
+    """Wall clock minus monotonic clock, from readings taken together (not from a
+    ``now`` captured earlier, which would put every ground-truth time late)."""
+    return time.time_ns() - time.monotonic_ns()
+
+
 class SimUnit:
     """The device model. Not thread-safe: one transport thread drives it."""
 
@@ -160,7 +168,7 @@ class SimUnit:
         self._t0 = now
         self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
                                 config.clock_wander_period_s, config.clock_seed)
-        self._wall_offset_ns = (time.time_ns() - int(now * 1e9)) if wall_ns is None else wall_ns
+        self._wall_offset_ns = _monotonic_to_wall_ns() if wall_ns is None else wall_ns
         self._scale = 1.0 + config.clock_ppm * 1e-6
         self.truth = TruthLog(config.truth_length)
         self.records_skipped = 0
@@ -178,23 +186,35 @@ class SimUnit:
         self._restart(now, config.timer_start)
 
     # --- clock -------------------------------------------------------------------------
+    @overload
+    def device_time(self, host: float) -> float: ...
+    @overload
+    def device_time(self, host: np.ndarray) -> np.ndarray: ...
     def device_time(self, host: Any) -> Any:
         if self._clock.wanders:
             return self._clock.device(host)
         return (host - self._t0) * self._scale
 
+    @overload
+    def host_time(self, device: float) -> float: ...
+    @overload
+    def host_time(self, device: np.ndarray) -> np.ndarray: ...
     def host_time(self, device: Any) -> Any:
         if self._clock.wanders:
             return self._clock.host(device)
         return self._t0 + device / self._scale
 
+    def _host_times(self, device: np.ndarray) -> np.ndarray:
+        """``host_time`` at many instants: its arithmetic takes arrays as they are."""
+        return np.asarray(self.host_time(device))
+
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(self.device_time(host) / CALCULATION_CYCLE_S - 1e-9)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - 1e-9)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
-        return round(self.device_time(host) / CALCULATION_CYCLE_S)
+        return round(float(self.device_time(host)) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
         """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
@@ -217,7 +237,8 @@ class SimUnit:
         """Power-on or reset: input is dropped, output starts after Equation 1's settling."""
         self._inbox.clear()
         self._queue.clear()
-        self._boot(at, timer_value, at + wake_time_seconds(self.stored.sampling.filter_width))
+        self._boot(at, timer_value,
+                   at + float(wake_time_seconds(self.stored.sampling.filter_width)))
 
     def _boot(self, host: float, timer_value: int, ready: float) -> None:
         """Power-up, reset or wake from deep sleep: RAM reloads from non-volatile memory."""
@@ -237,6 +258,11 @@ class SimUnit:
         self.mode = preset
         self._stream_from = self._ready
         self._stream_phase = self._cycle_after(self._ready)
+
+    @property
+    def line_baud(self) -> int:
+        """The pace of the line: the UART's baud rate, or USB full speed (12 Mbit/s)."""
+        return USB_LINE_BAUD if self.config.usb else self.baud
 
     @property
     def little_endian(self) -> bool:
@@ -312,10 +338,10 @@ class SimUnit:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
         if at < self._line_free - 1e-9:
             if skippable:
-                self._plan.append(_Segment(at, b"", self.baud, None))
+                self._plan.append(_Segment(at, b"", self.line_baud, None))
                 return
             at = self._line_free
-        seg = _Segment(at, data, self.baud, truth)
+        seg = _Segment(at, data, self.line_baud, truth)
         self._plan.append(seg)
         self._line_free = seg.end
 
@@ -367,8 +393,8 @@ class SimUnit:
         code = self.continuous_command
         records, truths = self._records(code, cycles)
         size = REPLIES[code].length
-        for i, at in enumerate(self.host_time(cycles * CALCULATION_CYCLE_S)):
-            self._schedule(float(at), records[i * size : (i + 1) * size], truths[i], skippable=True)
+        for i, at in enumerate(self._host_times(cycles * CALCULATION_CYCLE_S).tolist()):
+            self._schedule(at, records[i * size : (i + 1) * size], truths[i], skippable=True)
         self._stream_from = float(self.host_time((cycles[-1] + 1) * CALCULATION_CYCLE_S))
 
     def _start_stream(self, code: int, at: float) -> None:
@@ -411,8 +437,8 @@ class SimUnit:
         timers = self.timer_at(cycles)
         columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
-        wall = self.host_time(device) * 1e9 + self._wall_offset_ns
-        valued = self.host_time(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
+        wall = self._host_times(device) * 1e9 + self._wall_offset_ns
+        valued = self._host_times(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
         truths = list(zip(wall.astype(np.int64).tolist(), valued.astype(np.int64).tolist(),
                           device.tolist(), timers.tolist(), [code] * len(cycles),
                           sample["quaternion"], strict=True))
@@ -528,7 +554,7 @@ class SimUnit:
 
     def _wake_up(self, now: float) -> None:
         """Any byte wakes a sleeping unit into its preset mode after the settling time."""
-        ready = now + wake_time_seconds(self.sampling.filter_width)
+        ready = now + float(wake_time_seconds(self.sampling.filter_width))
         if self.mode == Mode.DEEP_SLEEP:
             self._boot(now, 0, ready)
         else:

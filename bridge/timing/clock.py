@@ -39,6 +39,13 @@ _BISECTIONS = 32
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
 _GRID_MARGIN_NS = 20_000  # snap a little before the estimated frame boundary
+_BUCKET_TICKS = TICKS_PER_SECOND // 4
+# A serial line's window follows drift through the fit's midpoint; over USB the
+# slope comes from recent staircase corners, and a long window lets a unit that
+# beats slowly against the frame clock show two of them.
+_LINE_WINDOW_S = 60.0
+_FRAME_WINDOW_S = 300.0
+_CHORD_TICKS = 20 * TICKS_PER_SECOND  # corners this far apart give the slope
 _GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
 _GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
 
@@ -76,9 +83,11 @@ class OnlineClock:
     """
 
     def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
-                 window_s: float = 60.0, refit_s: float = 1.0) -> None:
+                 window_s: float | None = None, refit_s: float = 1.0) -> None:
         if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0:
             raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
+        if window_s is None:
+            window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
         if window_s <= 0 or refit_s <= 0:
             raise ValueError("window_s and refit_s must be positive")
         self.filter_delay_ns = int(filter_delay_ns)
@@ -150,17 +159,44 @@ class OnlineClock:
         y_ref = int(upper[0])
         dx = (self._x - x_ref).astype(np.float64)
         dy = (upper - y_ref).astype(np.float64)
-        if span >= 2 * TICKS_PER_SECOND:
+        bias = 0.0
+        if self.frame_ns:
+            line = self._frame_fit(upper)
+            if line is not None:
+                x_ref, y_ref, self._rate = line
+                dx = (self._x - x_ref).astype(np.float64)
+                dy = (upper - y_ref).astype(np.float64)
+        elif span >= 2 * TICKS_PER_SECOND:
             self._rate = _support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
-        bias = 0.0
         if self.frame_ns:
-            same = residual[residual < self.frame_ns - _GRID_GUARD_NS]
-            bias = (self.frame_ns - float(same.max())) / 2
+            recent = residual[dx >= 0]
+            same = recent[recent < self.frame_ns - _GRID_GUARD_NS]
+            bias = (self.frame_ns - float(same.max())) / 2 if len(same) else 0.0
         raw = (self._y - y_ref).astype(np.float64) - self._rate * dx - level
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
+
+    def _frame_fit(self, upper: np.ndarray) -> tuple[int, int, float] | None:
+        """The latest whole step of the frame staircase: anchor point and slope.
+
+        Snapped to frames, a unit's points form a staircase whose treads follow
+        the frame clock; the true line touches the corner of every tread, so the
+        slope is that of a hull edge between two corners. The first and last edges
+        run along partial treads and are not used; with fewer than two corners the
+        slope so far stands.
+        """
+        x, y = _bucket_minima(self._x, upper, self._rate)
+        corners = _lower_hull(x, y)[1:-1]
+        if len(corners) < 2:
+            return None
+        b = corners[-1]
+        older = [c for c in corners[:-1] if b[0] - c[0] >= _CHORD_TICKS] or corners[:1]
+        a = older[-1]
+        if b[0] - a[0] < _CHORD_TICKS // 4:
+            return None
+        return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
 
     def _snap(self, new_y: np.ndarray) -> np.ndarray:
         """Receive times moved down to the USB frame that carried them."""
@@ -173,6 +209,36 @@ class OnlineClock:
         cost = (h * centres).sum() - h.sum() * edges + f * (np.cumsum(h) - h)
         phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
         return (self._y - phase) // f * f + phase + _GRID_MARGIN_NS
+
+
+def _bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
+    """The earliest-received point of each short stretch of ticks.
+
+    Within a quarter second the unit's phase against the frame grid barely moves,
+    so the point nearest the line is one that was read in the frame that carried
+    it: a lower bound on the line as well as an upper one.
+    """
+    v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
+    buckets = x // _BUCKET_TICKS
+    starts = np.flatnonzero(np.diff(buckets, prepend=buckets[0] - 1))
+    lowest = np.repeat(np.minimum.reduceat(v, starts), np.diff(starts, append=len(v)))
+    keep = np.flatnonzero(v == lowest)
+    kb = buckets[keep]
+    keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
+    return x[keep].tolist(), y[keep].tolist()
+
+
+def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
+    """Andrew's monotone chain on integers (exact: collinear treads stay collinear)."""
+    hull: list[tuple[int, int]] = []
+    for p in zip(x, y, strict=True):
+        while len(hull) >= 2:
+            (x1, y1), (x2, y2) = hull[-2], hull[-1]
+            if (x2 - x1) * (p[1] - y1) - (y2 - y1) * (p[0] - x1) > 0:
+                break
+            hull.pop()
+        hull.append(p)
+    return hull
 
 
 def _support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:

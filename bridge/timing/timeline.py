@@ -27,7 +27,7 @@ class Timeline:
     the clock, restarting the clock at each reset (the tick base moved)."""
 
     def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
-                 floor_ns: int = 0, frame_ns: int = 0, window_s: float = 60.0) -> None:
+                 floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None) -> None:
         self.unwrapper = TimerUnwrapper(period_ticks)
         self.clock = OnlineClock(filter_delay_ns, floor_ns, frame_ns, window_s)
 

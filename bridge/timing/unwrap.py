@@ -30,6 +30,9 @@ NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 ns
 #: How much later than the record before it a record may be received and still be
 #: believed: covers stalled reads and a scheduler that sleeps for a while.
 HOST_SLACK_NS = 500_000_000
+#: How far a timer that ran on through a reconnect may disagree with the host's elapsed
+#: time (receive latency on both sides of the outage, and a stalled read).
+CONTINUATION_SLACK_S = 0.1
 _LATTICE_TOLERANCE = 0.5  # ticks: each timer value is rounded to the nearest half up
 
 
@@ -174,6 +177,13 @@ class TimerUnwrapper:
             self._drop_candidate(out)
             self._fresh = False
             return self._accept(ref, t, r, step, i, out)
+        if self._fresh:
+            d = self._continuation(ref, t, r)
+            if d is not None:
+                self._drop_candidate(out)
+                self._fresh = False
+                periods = max(1, round(d / self.period_ticks)) if self.period_ticks else 1
+                return self._accept(ref, t, r, (d, periods), i, out)
         cand = self._candidate
         if self._fresh or (cand is not None and self._advance(cand[0], t, r) is not None):
             if cand is not None and not self._fresh:
@@ -196,6 +206,22 @@ class TimerUnwrapper:
         self._drop_candidate(out)
         self._candidate = (_Anchor(t, -1, r), self._records + i)
         return None
+
+    @staticmethod
+    def _continuation(ref: _Anchor, t: int, r: int | None) -> int | None:
+        """Ticks since ``ref`` if the timer ran on through an announced discontinuity.
+
+        A restarted stream starts on a new phase of the decimation lattice, so only
+        host time can tell a timer that ran on (a reconnect: count the gap) from one
+        that restarted (a reset): the advance must match the host's elapsed time.
+        """
+        if r is None or ref.rx is None or r < ref.rx:
+            return None
+        host = (r - ref.rx) / NS_PER_TICK
+        d = (t - ref.timer) % TIMER_MODULUS
+        d += round((host - d) / TIMER_MODULUS) * TIMER_MODULUS
+        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * host
+        return d if d > 0 and abs(d - host) <= tolerance else None
 
     def _host_ticks(self, r: int | None) -> int:
         """Ticks a new epoch starts at: after the last, by the host's elapsed time."""

@@ -1,0 +1,135 @@
+"""`gx3 record`: every unit on Zenoh into one MCAP archive, with a live view."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
+from bridge.cli.common import app, err, fail
+
+
+def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path) -> Table:
+    table = Table(title=f"recording {path} · {elapsed:,.0f} s · {written:,} messages",
+                  title_justify="left", box=None, pad_edge=False)
+    for name, justify in (("unit", "left"), ("state", "left"), ("samples/s", "right"),
+                          ("samples", "right"), ("drops", "right"), ("checksum", "right"),
+                          ("offset ms", "right"), ("drift ppm", "right"),
+                          ("recorded", "right"), ("MB", "right")):
+        table.add_column(name, justify=justify)  # type: ignore[arg-type]
+    for r in rows:
+        table.add_row(
+            r["unit"], "[green]live[/]" if r["alive"] else "[red]gone[/]", f"{r['rate']:,.0f}",
+            f"{r['samples']:,}", str(r["dropped"]), str(r["checksum_failures"]),
+            "–" if r["offset_ms"] is None else f"{r['offset_ms']:,.1f}",
+            "–" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}",
+            f"{r['recorded_s']:,.0f} s", f"{r['bytes'] / 1e6:,.1f}")
+    if not rows:
+        table.add_row("[dim]waiting for units…[/]", *[""] * 9)
+    return table
+
+
+@app.command("record")
+def record(
+    output: Annotated[Path | None, typer.Option(
+        "--output", "-o", metavar="FILE.mcap",
+        help="Archive to write (default: gx3-DATE-TIME.mcap here).")] = None,
+    units: Annotated[str, typer.Option(
+        metavar="KEYEXPR", help="Units to record: a name, or a key expression chunk "
+                                "such as '*' (every unit) or 'lab-*'.")] = "*",
+    prefix: PrefixOpt = "gx3",
+    raw: Annotated[bool, typer.Option(
+        "--raw", help="Also record each unit's raw reads where its bridge offers them.")] = False,
+    history: Annotated[int, typer.Option(
+        min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
+    split_mb: Annotated[float | None, typer.Option(
+        min=1.0, help="Start a new numbered file when one reaches this size, MB.")] = None,
+    split_minutes: Annotated[float | None, typer.Option(
+        min=0.1, help="Start a new numbered file after this many minutes.")] = None,
+    duration: Annotated[float | None, typer.Option(
+        min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live view; errors only.")]
+    = False,
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    mode: ModeOpt = None,
+) -> None:
+    """Record every unit's samples, status, events and info into one MCAP archive.
+
+    Units are found by their bridges' liveliness tokens and may join late, leave and
+    come back. Samples keep the very protobuf bytes from Zenoh, with the schemas
+    embedded; each unit also gets a foxglove.FrameTransform channel, so Foxglove and
+    `rerun FILE.mcap` show its attitude. The file is flushed every second: a crash
+    loses at most that second (`gx3 repair` finishes such a file). Ctrl-C or SIGTERM
+    finish the archive properly.
+    """
+    from bridge.bus.keys import BadName, check_prefix
+    from bridge.bus.session import SessionError, open_session
+    from bridge.recorder.archive import ArchiveError, ArchiveWriter
+    from bridge.recorder.live import Recorder
+
+    try:
+        check_prefix(prefix)
+    except BadName as exc:
+        raise fail(str(exc)) from None
+    path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
+                               mode=mode)
+    except SessionError as exc:
+        raise fail(str(exc)) from None
+    try:
+        writer = ArchiveWriter(path, prefix=prefix,
+                               split_bytes=None if split_mb is None else int(split_mb * 1e6),
+                               split_seconds=None if split_minutes is None
+                               else split_minutes * 60)
+    except ArchiveError as exc:
+        session.close()
+        raise fail(str(exc)) from None
+    console = Console(stderr=True)
+
+    def announce(unit: str, joined: bool) -> None:
+        if quiet:
+            return
+        console.print(f"[dim]{time.strftime('%H:%M:%S')}[/] {unit} "
+                      + ("[green]joined[/]" if joined else "[red]left[/]"))
+
+    started = time.monotonic()
+    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce)
+    try:
+        with Live(console=console, refresh_per_second=2, transient=True,
+                  auto_refresh=False) as live:
+            while not stop.is_set() and recorder.error is None:
+                if duration is not None and time.monotonic() - started >= duration:
+                    break
+                recorder.run_once(0.25)
+                if not quiet:
+                    live.update(_table(recorder.snapshot(), time.monotonic() - started,
+                                       recorder.written, path), refresh=True)
+    finally:
+        recorder.close()
+        try:
+            writer.close()
+        except ArchiveError as exc:
+            recorder.error = recorder.error or exc
+        session.close()
+    if recorder.error is not None:
+        raise fail(str(recorder.error), 1)
+    if not quiet:
+        console.print(_table(recorder.snapshot(), time.monotonic() - started,
+                             recorder.written, path))
+        files = ", ".join(str(p) for p in writer.paths)
+        console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")
+    err.file.flush()

@@ -1,0 +1,89 @@
+"""UnitPublisher and bridge.subscribe on one real session (local delivery, no network)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+import bridge
+from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.publish import UnitPublisher
+from bridge.bus.session import open_session
+from bridge.protocol.table import DATA_CODES
+from tests.test_bus_codec import times, wire_batch
+
+
+@pytest.fixture
+def session() -> Iterator[zenoh.Session]:
+    with open_session(listen=["tcp/127.0.0.1:0"], multicast_scouting=False) as s:
+        yield s
+
+
+def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Session) -> None:
+    with bridge.subscribe("gx3/*/imu", session=session, output="raw") as raw, \
+            bridge.subscribe("gx3/imu0/imu", session=session, output="batches") as batches, \
+            UnitPublisher(session, "imu0") as pub:
+        for code in sorted(DATA_CODES):
+            batch = wire_batch(code, 4, code)
+            ticks, time_ns, rx_ns = times(4)
+            assert pub.publish_samples(batch, ticks, time_ns, rx_ns) == 4
+            got: list[np.ndarray] = []
+            while sum(len(g) for g in got) < 4:
+                b = batches.get(timeout=10)
+                assert b is not None and (b.unit, b.code) == ("imu0", code)
+                done = sum(len(g) for g in got)
+                got.append(b["ticks"])
+                for q in b.columns:
+                    if q not in ("command", "ticks", "time_ns", "rx_ns"):
+                        np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
+                                                      err_msg=q)
+            np.testing.assert_array_equal(np.concatenate(got), ticks)
+        assert pub.published == 4 * len(DATA_CODES)
+        first = raw.get(timeout=10)
+        assert first is not None
+        assert (first.key, first.encoding) == ("gx3/imu0/imu",
+                                               "application/protobuf;gx3.v1.ImuSample")
+
+
+def test_status_event_and_raw_carry_the_unit(session: zenoh.Session) -> None:
+    with bridge.subscribe("gx3/imu0/*", session=session, output="raw") as sub, \
+            UnitPublisher(session, "imu0", raw=True) as pub:
+        pub.publish_status(Status(samples=10, state=Status.STREAMING))
+        pub.publish_event(Event(kind=Event.GAP, count=3, detail="ticks 10 -> 50"))
+        pub.publish_raw(b"\xc2\x00", rx_ns=-5)
+        got = {m.key: m for m in (sub.get(timeout=10) for _ in range(3)) if m is not None}
+        status = Status.FromString(got["gx3/imu0/status"].payload)
+        event = Event.FromString(got["gx3/imu0/event"].payload)
+        assert (status.unit, status.samples, status.state) == ("imu0", 10, Status.STREAMING)
+        assert (event.unit, event.kind, event.count) == ("imu0", Event.GAP, 3)
+        assert got["gx3/imu0/raw"].payload == b"\xc2\x00"
+        with pytest.raises(ValueError, match="a Status of unit 'imu9' cannot go out on the "
+                                             "publisher of unit 'imu0'"):
+            pub.publish_status(Status(unit="imu9"))
+        with pytest.raises(ValueError, match="needs rx_ns"):
+            pub.publish_samples(wire_batch(0xC2, 3, 0), *times(3)[:2])
+
+
+def test_a_subscription_closes_its_own_session_and_leaves_no_thread() -> None:
+    before = set(threading.enumerate())
+    sub = bridge.subscribe("gx3/*/imu", listen=["tcp/127.0.0.1:0"], multicast_scouting=False,
+                           idle_timeout=0.2)
+    assert list(sub) == []
+    waiter = threading.Thread(target=sub.get)  # a reader blocked when close comes
+    waiter.start()
+    sub.close()
+    waiter.join(5)
+    assert not waiter.is_alive()
+    assert set(threading.enumerate()) == before
+    assert sub.get(timeout=0.1) is None
+
+
+def test_bad_arguments_are_one_line_errors() -> None:
+    with pytest.raises(ValueError, match="output 'numpy': use one of samples, batches, raw"):
+        bridge.subscribe(output="numpy")  # type: ignore[call-overload]
+    with pytest.raises(ValueError, match=r"key expression 'gx3//imu': "):
+        bridge.subscribe("gx3//imu")

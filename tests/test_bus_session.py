@@ -1,0 +1,93 @@
+"""Sessions from the shipped configs and flags, for real on loopback; one-line errors."""
+
+from __future__ import annotations
+
+import re
+import socket
+import threading
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from bridge.bus.session import SessionError, ZenohOptions, open_session
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def exchange(sender: zenoh.Session, receiver: zenoh.Session) -> None:
+    """A put from ``sender`` reaches ``receiver`` (retried until routes are up)."""
+    got = threading.Event()
+    sub = receiver.declare_subscriber("gx3/test/ping", lambda s: got.set())
+    for _ in range(100):
+        sender.put("gx3/test/ping", b"x")
+        if got.wait(0.1):
+            break
+    sub.undeclare()
+    assert got.is_set(), "nothing arrived"
+
+
+def test_loopback_config_with_flags_overriding_its_endpoints() -> None:
+    a_ep, b_ep = free_endpoint(), free_endpoint()
+    config = CONFIGS / "zenoh-loopback.json5"
+    with open_session(config, listen=[a_ep]) as a, \
+            open_session(config, listen=[b_ep], connect=[a_ep]) as b:
+        assert ZenohOptions(config, listen=[a_ep]).config().get_json("listen/endpoints") \
+            == f'["{a_ep}"]'
+        exchange(a, b)
+        exchange(b, a)
+
+
+def test_fleet_clients_reach_each_other_through_the_router() -> None:
+    ep = free_endpoint()
+    client = CONFIGS / "fleet" / "client.json5"
+    assert ZenohOptions(client).config().get_json("connect/endpoints") == '["tcp/ROUTER:7447"]'
+    with open_session(CONFIGS / "fleet" / "router.json5", listen=[ep]) as router, \
+            open_session(client, connect=[ep]) as bridge_side, \
+            open_session(client, connect=[ep]) as recorder_side:
+        assert [str(z) for z in bridge_side.info.routers_zid()] == [str(router.zid())]
+        exchange(bridge_side, recorder_side)
+
+
+@pytest.mark.parametrize("name", ["router", "client"])
+def test_tls_configs_parse_and_name_their_certificates(name: str) -> None:
+    config = ZenohOptions(CONFIGS / "tls" / f"{name}.json5").config()
+    endpoints = config.get_json("listen/endpoints" if name == "router" else "connect/endpoints")
+    assert endpoints.startswith('["tls/')
+    assert config.get_json("transport/link/tls/root_ca_certificate") == '"/etc/gx3/tls/ca.pem"'
+
+
+def one_line_error(options: ZenohOptions) -> str:
+    with pytest.raises(SessionError) as caught:
+        options.open().close()
+    message = str(caught.value)
+    assert "\n" not in message and not re.search(r"\.rs:\d", message), message
+    return message
+
+
+def test_bad_files_and_flags_give_one_line_errors(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.json5"
+    assert one_line_error(ZenohOptions(missing)) == f"zenoh config {missing}: no such file"
+    syntax = tmp_path / "syntax.json5"
+    syntax.write_text("{\n  mode: peer,\n}\n")
+    assert one_line_error(ZenohOptions(syntax)) == (
+        f"zenoh config {syntax}: expected array, boolean, null, number, object, or string "
+        "(line 2, column 9)")
+    unknown = tmp_path / "unknown.json5"
+    unknown.write_text('{ modee: "peer" }')
+    assert one_line_error(ZenohOptions(unknown)).startswith(
+        f"zenoh config {unknown}: unknown field `modee`, expected one of `id`")
+    assert one_line_error(ZenohOptions(mode="pear")) == \
+        "--mode 'pear': use one of peer, client, router"
+    assert one_line_error(ZenohOptions(connect=["127.0.0.1:7447"])).startswith(
+        "--connect 127.0.0.1:7447: Endpoints must be of the form <protocol>/<address>")
+    lonely = one_line_error(ZenohOptions(mode="client", connect=[free_endpoint()],
+                                         multicast_scouting=False))
+    assert lonely.startswith("zenoh session: Unable to connect to any of") and \
+        lonely.endswith("(is the router or peer running and reachable?)")

@@ -1,0 +1,116 @@
+"""`gx3 record` as users run it: real bridges on emulated units, a real recorder process.
+
+The recorder listens on a loopback port; each bridge connects to it (multicast
+scouting off). The archive must hold every sample each bridge published while it
+ran, with no hole in any unit's ticks, and each unit's info and status.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from bridge.recorder.read import read_archive
+from bridge.sim.motion import MotionConfig
+from bridge.sim.serve import Simulator, unit_configs
+from bridge.sim.state import Stored
+from bridge.sim.unit import UnitConfig
+from tests.test_bridge_process import GX3, bridge_process, free_port, zenoh_config
+
+UNITS = unit_configs(2, UnitConfig(serial="REC", motion=MotionConfig(seed=21),
+                                   stored=Stored(mode_preset=2, continuous_preset=0xCC)),
+                     clock_ppm=[80.0, -60.0])
+
+
+def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
+    assert GX3
+    return subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
+                             "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def published(stderr: bytes, unit: str) -> int:
+    """The samples a bridge says it published, from its closing summary line."""
+    found = re.search(rf"^{unit}: (\d+) samples", stderr.decode(), re.M)
+    assert found, stderr.decode()
+    return int(found.group(1))
+
+
+def samples_in(path: Path, unit: str) -> int:
+    """Samples of ``unit`` in an archive being written (flushed every second)."""
+    if not path.exists():
+        return 0
+    return sum(len(b) for b in read_archive(path).samples([unit]))
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.2)
+
+
+def test_every_published_sample_is_archived(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    out = tmp_path / "fleet.mcap"
+    proc = recorder(out, rec_cfg, "--history", "10000")
+    with Simulator(UNITS, "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a") as a, \
+            bridge_process(sim.endpoints[1], bridge_cfg, "--unit", "b") as b:
+        wait_for(lambda: min(samples_in(out, "a"), samples_in(out, "b")) >= 200)
+        for bridge in (a, b):
+            bridge.send_signal(signal.SIGINT)
+        stderr = {name: bridge.communicate(timeout=30)[1] for name, bridge in
+                  (("a", a), ("b", b))}
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    _, rec_err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, rec_err.decode()
+    archive = read_archive(out)
+    assert archive.complete and archive.units() == ["a", "b"]
+    for unit in ("a", "b"):
+        ticks = np.sort(np.concatenate([blk.columns["ticks"]
+                                        for blk in archive.samples([unit])]))
+        assert len(ticks) == published(stderr[unit], unit), f"{unit}: samples missing"
+        assert (np.diff(ticks) == 625).all(), f"{unit}: a hole in the archived samples"
+        topics = set(archive.topics())
+        assert {f"gx3/{unit}/info", f"gx3/{unit}/status", f"gx3/{unit}/frame"} <= topics
+
+
+def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    out = tmp_path / "killed.mcap"
+    proc = recorder(out, rec_cfg)
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
+        wait_for(lambda: samples_in(out, "a") >= 200)
+        time.sleep(1.5)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        killed = time.time_ns()
+    for stream in (proc.stdout, proc.stderr):
+        assert stream is not None
+        stream.close()
+    archive = read_archive(out)
+    assert not archive.complete
+    blocks = archive.samples(["a"])
+    ticks = np.sort(np.concatenate([b.columns["ticks"] for b in blocks]))
+    assert (np.diff(ticks) == 625).all()
+    last = max(int(b.receive_ns.max()) for b in blocks)
+    assert killed - last < 2.5e9, "more than the last second or so was lost"
+    repaired = tmp_path / "repaired.mcap"
+    done = subprocess.run([GX3 or "gx3", "repair", str(out), "-o", str(repaired)],
+                          capture_output=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+    fixed = read_archive(repaired)
+    assert fixed.complete and sum(len(b) for b in fixed.samples(["a"])) == len(ticks)
