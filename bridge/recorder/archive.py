@@ -29,16 +29,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, TypeVar
+from typing import IO, Any, TypeVar, cast
 
 import numpy as np
-from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError, Message
 from mcap.writer import CompressionType, Writer
 
 from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
+from bridge.bus.schema import file_descriptor_set
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
 from bridge.recorder.rawcapture import RAW_ENCODING
@@ -61,22 +62,6 @@ MESSAGES: dict[str, tuple[type[Message], str]] = {
 
 class ArchiveError(OSError):
     """The archive cannot be written; the message names the file and the cause."""
-
-
-def descriptor_set(message_class: type[Message]) -> bytes:
-    """A FileDescriptorSet of the message's .proto file and everything it imports."""
-    fds = FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(message_class.DESCRIPTOR.file)
-    return fds.SerializeToString()
 
 
 def frame_topic(prefix: str, unit: str) -> str:
@@ -220,7 +205,7 @@ class ArchiveWriter:
             schema_id = f.schemas.get(name, 0)
             if not schema_id:
                 schema_id = self._guard(f.writer.register_schema, name, PROTOBUF,
-                                        descriptor_set(cls))
+                                        file_descriptor_set(cast(FileDescriptor, cls.DESCRIPTOR.file)))
                 f.schemas[name] = schema_id
             encoding = PROTOBUF
             meta = {"unit": unit}
