@@ -204,8 +204,8 @@ class ArchiveWriter:
             name = cls.DESCRIPTOR.full_name
             schema_id = f.schemas.get(name, 0)
             if not schema_id:
-                schema_id = self._guard(f.writer.register_schema, name, PROTOBUF,
-                                        file_descriptor_set(cast(FileDescriptor, cls.DESCRIPTOR.file)))
+                schema = file_descriptor_set(cast(FileDescriptor, cls.DESCRIPTOR.file))
+                schema_id = self._guard(f.writer.register_schema, name, PROTOBUF, schema)
                 f.schemas[name] = schema_id
             encoding = PROTOBUF
             meta = {"unit": unit}
