@@ -46,7 +46,7 @@ def batch_of(code: int, n: int, rng: np.random.Generator) -> Batch:
     columns = {f.name: rng.normal(size=(n, *f.shape)).astype(np.float32) for f in
                REPLIES[code].fields if f.kind == "f32"}
     columns["timer"] = np.arange(n, dtype=np.uint32)
-    return Batch(code, columns, np.arange(n))
+    return Batch(code, columns, np.arange(n), np.zeros(n, np.int64), False)
 
 
 def per_sample_us(fn: Callable[[], object], batches: int, per_read: int) -> float:

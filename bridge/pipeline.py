@@ -28,8 +28,7 @@ from bridge.device.session import (
     find_baud,
 )
 from bridge.protocol.codec import Batch
-from bridge.protocol.table import REPLIES
-from bridge.timing import Timeline
+from bridge.timing.stream import Settings, StreamTiming
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
@@ -114,7 +113,7 @@ class Pipeline:
         self.on_read = on_read
         self.counters = Counters()
         self.info: UnitInfo | None = None
-        self.timeline: Timeline | None = None
+        self.timing = StreamTiming()
         self.error: Exception | None = None
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
@@ -187,7 +186,7 @@ class Pipeline:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
-        session.paced = self._transport() == "uart"
+        session.paced = self.transport == "uart"
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
@@ -220,35 +219,19 @@ class Pipeline:
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
 
     def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
-        """One timeline for the pipeline's life: ticks keep increasing across reconnects
-        (a gap or a reset is for the unwrapper to find); settings changes update it."""
-        # Polled records come on whatever cycle the request reached: no output period.
-        period = None if self.options.poll_hz is not None else info.period_ticks
-        transport = self._transport()
-        if self.timeline is None:
-            self.timeline = Timeline(period, frame_ns=1_000_000 if transport == "usb" else 0)
-        elif discontinuity or period != self.timeline.unwrapper.period_ticks:
-            self.timeline.expect_discontinuity(period)
-        self.timeline.clock.filter_delay_ns = self._filter_delay_ns(info)
-        self.timeline.clock.floor_ns = self._floor_ns(info, transport)
+        self.timing.configure(Settings(
+            record=info.record, decimation=max(1, info.sampling.get("decimation", 1)),
+            filter_width=max(1, info.sampling.get("filter_width", 1)), baud=info.baud,
+            transport=self.transport, polled=self.options.poll_hz is not None),
+            restarted=discontinuity)
 
-    @staticmethod
-    def _filter_delay_ns(info: UnitInfo) -> int:
-        """The moving average of width M delays the values by (M-1)/2 ms (DESIGN.md)."""
-        return (info.sampling.get("filter_width", 1) - 1) * 500_000
-
-    def _transport(self) -> str:
+    @property
+    def transport(self) -> str:
+        """The link to the unit: "uart", or "usb" (its own USB port, /dev/ttyACM*)."""
         transport = self.options.transport
         if transport == "auto":
             transport = "usb" if is_usb_cdc(self.options.url) else "uart"
         return transport
-
-    @staticmethod
-    def _floor_ns(info: UnitInfo, transport: str) -> int:
-        """The least time a record can take to reach us: its line time on a UART."""
-        if transport == "usb":
-            return 0
-        return round(REPLIES[info.record].length * 10 / info.baud * 1e9)
 
     def _stream(self, session: Session, stop: threading.Event) -> None:
         assert self.info is not None
@@ -278,19 +261,14 @@ class Pipeline:
                 self._status(session)
 
     def _process(self, batch: Batch) -> None:
-        assert self.timeline is not None
-        timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        timed = self.timing.process(batch)
         for ev in timed.events:
             self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
-            if ev.kind == "glitch":
-                self.counters.glitches += 1
+        self.counters.glitches += sum(ev.kind == "glitch" for ev in timed.events)
         self.counters.dropped += timed.dropped
-        keep = timed.valid
-        if not keep.all():
-            batch = _take(batch, keep)
-        if len(batch):
-            self.counters.samples += len(batch)
-            self.sink.samples(Samples(batch, timed.ticks[keep], timed.time_ns[keep]))
+        if len(timed.batch):
+            self.counters.samples += len(timed.batch)
+            self.sink.samples(Samples(timed.batch, timed.ticks, timed.time_ns))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None
@@ -320,7 +298,7 @@ class Pipeline:
         c.implausible = stats.implausible
         c.bytes_skipped = stats.bytes_skipped
         c.resyncs = stats.resyncs
-        clock = self.timeline.state if self.timeline else None
+        clock = self.timing.state
         self.sink.status({
             "state": c.state, "samples": c.samples, "samples_per_s": c.rate(time.monotonic()),
             "dropped": c.dropped, "glitches": c.glitches, "reconnects": c.reconnects,
@@ -335,9 +313,3 @@ class Pipeline:
 
 class _Restart(Exception):
     """The unit was reset on purpose: bring it up again, no disconnect to report."""
-
-
-def _take(batch: Batch, keep: np.ndarray) -> Batch:
-    """The records of ``batch`` where ``keep`` is true."""
-    return Batch(batch.code, {k: v[keep] for k, v in batch.columns.items()},
-                 batch.offsets[keep], batch.rx_ns[keep], batch.little_endian)

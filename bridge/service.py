@@ -133,7 +133,9 @@ class BusSink:
                     "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
                     "flags": str(info.sampling.get("flags", 0)),
                     "filter_width": str(info.sampling.get("filter_width", 0)),
-                    "decimation": str(info.sampling.get("decimation", 0))}
+                    "decimation": str(info.sampling.get("decimation", 0)),
+                    "transport": self.pipeline.transport,
+                    "polled": str(self.pipeline.options.poll_hz is not None).lower()}
             for listener in self._listeners:
                 listener(self.unit, meta)
         self.publisher.set_info(info_message(self.unit, self.port, info, self.allow_commands))

@@ -23,8 +23,9 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
 
 
-def synthetic(code: int, start: int, n: int) -> Batch:
-    """n records of ``code`` whose every value is a known function of the record index."""
+def synthetic(code: int, start: int, n: int, rx_ns: int) -> Batch:
+    """n records of ``code`` whose every value is a known function of the record index,
+    as one read received at ``rx_ns``."""
     index = np.arange(start, start + n)
     columns: dict[str, np.ndarray] = {}
     for f in REPLIES[code].fields:
@@ -34,7 +35,8 @@ def synthetic(code: int, start: int, n: int) -> Batch:
             shape = (n, *f.shape)
             values = index.reshape(-1, *([1] * len(f.shape))) + np.zeros(shape)
             columns[f.name] = values.astype(np.uint16 if f.kind == "u16" else np.float32)
-    return Batch(code, columns, index * REPLIES[code].length)
+    return Batch(code, columns, index * REPLIES[code].length, np.full(n, rx_ns, np.int64),
+                 False)
 
 
 def main() -> int:
@@ -66,11 +68,9 @@ def main() -> int:
             n = min(args.per_read, args.count - start)
             due = t0 + (start + n) / args.rate
             time.sleep(max(0.0, due - time.monotonic()))
-            batch = synthetic(args.code, start, n)
+            batch = synthetic(args.code, start, n, time.time_ns())
             ticks = np.arange(start, start + n, dtype=np.int64) * (TICKS_PER_SECOND // 1000)
-            now = time.time_ns()
-            pub.publish_samples(batch, ticks, ticks * 16_000 + 1_700_000_000_000_000_000,
-                                np.full(n, now, np.int64))
+            pub.publish_samples(batch, ticks, ticks * 16_000 + 1_700_000_000_000_000_000)
         print("DONE", flush=True)
         sys.stdin.read()
     return 0

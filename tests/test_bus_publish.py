@@ -64,8 +64,6 @@ def test_status_event_and_raw_carry_the_unit(session: zenoh.Session) -> None:
         with pytest.raises(ValueError, match="a Status of unit 'imu9' cannot go out on the "
                                              "publisher of unit 'imu0'"):
             pub.publish_status(Status(unit="imu9"))
-        with pytest.raises(ValueError, match="needs rx_ns"):
-            pub.publish_samples(wire_batch(0xC2, 3, 0), *times(3)[:2])
 
 
 def test_a_subscription_closes_its_own_session_and_leaves_no_thread() -> None:
@@ -87,3 +85,14 @@ def test_bad_arguments_are_one_line_errors() -> None:
         bridge.subscribe(output="numpy")  # type: ignore[call-overload]
     with pytest.raises(ValueError, match=r"key expression 'gx3//imu': "):
         bridge.subscribe("gx3//imu")
+
+
+def test_a_late_subscriber_gets_the_history_it_asks_for(session: zenoh.Session) -> None:
+    with UnitPublisher(session, "imu0", cache_samples=30) as pub:
+        batch = wire_batch(0xC2, 50, 3)
+        _, time_ns, rx_ns = times(50)
+        pub.publish_samples(batch, np.arange(50), time_ns, rx_ns)
+        with bridge.subscribe("gx3/*/imu", session=session, history=20) as late:
+            got = [late.get(timeout=10) for _ in range(20)]
+            assert [s.ticks for s in got if s is not None] == list(range(30, 50))
+            assert late.get(timeout=0.5) is None

@@ -188,6 +188,8 @@ class Proxy:
 
     def close(self) -> None:
         self.drop()
+        with contextlib.suppress(OSError):
+            self.server.shutdown(socket.SHUT_RDWR)  # wakes the blocked accept()
         self.server.close()
         for t in self.threads:
             t.join(5)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
 import socket
+import subprocess
 import threading
 from pathlib import Path
 
@@ -55,12 +58,47 @@ def test_fleet_clients_reach_each_other_through_the_router() -> None:
         exchange(bridge_side, recorder_side)
 
 
-@pytest.mark.parametrize("name", ["router", "client"])
-def test_tls_configs_parse_and_name_their_certificates(name: str) -> None:
-    config = ZenohOptions(CONFIGS / "tls" / f"{name}.json5").config()
-    endpoints = config.get_json("listen/endpoints" if name == "router" else "connect/endpoints")
-    assert endpoints.startswith('["tls/')
-    assert config.get_json("transport/link/tls/root_ca_certificate") == '"/etc/gx3/tls/ca.pem"'
+def make_certificates(tmp: Path) -> None:
+    """A CA, another CA, and a router certificate for localhost: the commands of
+    configs/tls/router.json5."""
+    def run(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=tmp, check=True, capture_output=True)
+    for ca in ("ca", "other-ca"):
+        run("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+            "-days", "30", "-subj", f"/CN={ca}", "-keyout", f"{ca}.key", "-out", f"{ca}.pem")
+    run("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
+        "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost",
+        "-keyout", "router.key", "-out", "router.csr")
+    run("x509", "-req", "-in", "router.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+        "-CAcreateserial", "-days", "30", "-copy_extensions", "copy", "-out", "router.pem")
+
+
+def with_certificates(path: Path, tmp: Path, endpoint: str, ca: str = "ca.pem") -> zenoh.Config:
+    """A shipped TLS config with its /etc/gx3/tls/ files swapped for ``tmp``'s."""
+    config = ZenohOptions(path).config()
+    text = path.read_text()
+    for key, name in (("listen_certificate", "router.pem"), ("listen_private_key", "router.key"),
+                      ("root_ca_certificate", ca)):
+        if key in text:
+            config.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tmp / name)))
+    side = "listen" if "router" in path.name else "connect"
+    config.insert_json5(f"{side}/endpoints", json.dumps([endpoint]))
+    return config
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
+def test_tls_configs_connect_and_refuse_an_untrusted_router(tmp_path: Path) -> None:
+    make_certificates(tmp_path)
+    endpoint = free_endpoint().replace("tcp/127.0.0.1", "tls/localhost")
+    tls = CONFIGS / "tls"
+    with zenoh.open(with_certificates(tls / "router.json5", tmp_path, endpoint)) as router, \
+            zenoh.open(with_certificates(tls / "client.json5", tmp_path, endpoint)) as a, \
+            zenoh.open(with_certificates(tls / "client.json5", tmp_path, endpoint)) as b:
+        assert [str(z) for z in a.info.routers_zid()] == [str(router.zid())]
+        exchange(a, b)
+        with pytest.raises(zenoh.ZError, match="Unable to connect"):
+            zenoh.open(with_certificates(tls / "client.json5", tmp_path, endpoint,
+                                         ca="other-ca.pem"))
 
 
 def one_line_error(options: ZenohOptions) -> str:

@@ -7,6 +7,7 @@ ran, with no hole in any unit's ticks, and each unit's info and status.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -35,6 +36,14 @@ def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
                              "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
+def rerun_rows(path: Path, entity: str) -> int:
+    """Rows logged at ``entity`` on the ``time`` timeline, read with Rerun's own reader."""
+    from rerun.chunk import RrdReader
+
+    return sum(c.num_rows for c in RrdReader(path).stream()
+               if c.entity_path == entity and "time" in c.timeline_names)
+
+
 def published(stderr: bytes, unit: str) -> int:
     """The samples a bridge says it published, from its closing summary line."""
     found = re.search(rf"^{unit}: (\d+) samples", stderr.decode(), re.M)
@@ -61,7 +70,8 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
     out = tmp_path / "fleet.mcap"
-    proc = recorder(out, rec_cfg, "--history", "10000")
+    rrd = tmp_path / "fleet.rrd"
+    proc = recorder(out, rec_cfg, "--history", "10000", "--rrd", str(rrd))
     with Simulator(UNITS, "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a") as a, \
             bridge_process(sim.endpoints[1], bridge_cfg, "--unit", "b") as b:
@@ -83,6 +93,14 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
         assert (np.diff(ticks) == 625).all(), f"{unit}: a hole in the archived samples"
         topics = set(archive.topics())
         assert {f"gx3/{unit}/info", f"gx3/{unit}/status", f"gx3/{unit}/frame"} <= topics
+        assert rerun_rows(rrd, f"/plots/accel/{unit}") == len(ticks), "--rrd lost samples"
+    rendered = tmp_path / "rendered.rrd"
+    done = subprocess.run([GX3 or "gx3", "rrd", str(out), "-o", str(rendered)],
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+    for unit in ("a", "b"):
+        entity = f"/plots/accel/{unit}"
+        assert rerun_rows(rendered, entity) == rerun_rows(rrd, entity)
 
 
 def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
@@ -114,3 +132,86 @@ def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr.decode()
     fixed = read_archive(repaired)
     assert fixed.complete and sum(len(b) for b in fixed.samples(["a"])) == len(ticks)
+
+
+def test_replay_of_the_raw_capture_gives_the_live_samples(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    live, capture, replayed = (tmp_path / n for n in ("live.mcap", "raw.mcap", "re.mcap"))
+    proc = recorder(live, rec_cfg, "--history", "10000")
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", "--capture",
+                           str(capture)) as bridge:
+        wait_for(lambda: samples_in(live, "a") >= 300)
+        bridge.send_signal(signal.SIGINT)
+        bridge.wait(timeout=30)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=30)
+    done = subprocess.run([GX3 or "gx3", "replay", str(capture), "-o", str(replayed)],
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+
+    def columns(path: Path) -> dict[str, np.ndarray]:
+        blocks = read_archive(path).samples(["a"])
+        out = {k: np.concatenate([b.columns[k] for b in blocks])
+               for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
+        order = np.argsort(out["ticks"], kind="stable")
+        return {k: v[order] for k, v in out.items()}
+
+    a, b = columns(live), columns(replayed)
+    assert len(a["ticks"]) >= 300
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view_cfg = zenoh_config(tmp_path / "view.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    rrd = tmp_path / "live.rrd"
+    assert GX3
+    viewer = subprocess.Popen([GX3, "view", "--save", str(rrd), "--zenoh-config",
+                               str(view_cfg)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
+        wait_for(lambda: rrd.exists() and rerun_rows(rrd, "/plots/accel/a") >= 100)
+    viewer.send_signal(signal.SIGINT)
+    _, stderr = viewer.communicate(timeout=30)
+    assert viewer.returncode == 0, stderr.decode()
+    assert rerun_rows(rrd, "/plots/accel/a") >= 100
+    assert "samples shown" in stderr.decode()
+
+
+def test_view_without_a_display_or_sink_says_what_to_do() -> None:
+    assert GX3
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    done = subprocess.run([GX3, "view"], capture_output=True, text=True, timeout=60,
+                          check=False, env=env)
+    assert done.returncode == 2 and "--serve" in done.stderr and "--save" in done.stderr
+
+
+def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
+    """Clients that only know the router: a bridge and a recorder, no peer links."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    client = tmp_path / "client.json5"
+    client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
+                                  "scouting": {"multicast": {"enabled": False}}}))
+    assert GX3
+    router = subprocess.Popen([GX3, "router", "--listen", endpoint],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert router.stdout is not None and router.stdout.readline().strip() == b"READY"
+        out = tmp_path / "routed.mcap"
+        proc = recorder(out, client)
+        with Simulator(UNITS[:1], "pty") as sim, \
+                bridge_process(sim.endpoints[0], client, "--unit", "a"):
+            wait_for(lambda: samples_in(out, "a") >= 100)
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    finally:
+        router.send_signal(signal.SIGINT)
+        router.communicate(timeout=30)
+    assert router.returncode == 0
+    assert samples_in(out, "a") >= 100

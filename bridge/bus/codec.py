@@ -36,6 +36,7 @@ class RecordBatch(Protocol):
     """What publishing needs of a block of decoded records (bridge.protocol.codec.Batch)."""
 
     code: int
+    rx_ns: np.ndarray  # host receive time of the read that completed each record
 
     def __len__(self) -> int: ...
 
@@ -124,7 +125,7 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
                  rx_ns: np.ndarray) -> list[bytes]:
     """One serialized ImuSample per record of ``batch``: what protobuf would produce."""
     lay = layout(batch.code, unit)
-    recs = np.repeat(lay.template, len(batch))
+    recs = np.frombuffer(bytearray(lay.template.tobytes() * len(batch)), lay.dtype)
     recs["timer"] = batch["timer"]
     recs["ticks"] = ticks
     recs["time_ns"] = time_ns

@@ -89,11 +89,8 @@ class UnitPublisher:
         ``ticks`` (unwrapped timer) and ``time_ns`` (host-clock estimate with the
         filter delay taken out) are per record, from the timing model.
         """
-        if rx_ns is None:
-            rx_ns = getattr(batch, "rx_ns", None)
-            if rx_ns is None:
-                raise ValueError("publish_samples needs rx_ns: pass it or give the batch rx_ns")
-        payloads = encode_batch(self.unit, batch, ticks, time_ns, rx_ns)
+        payloads = encode_batch(self.unit, batch, ticks, time_ns,
+                                batch.rx_ns if rx_ns is None else rx_ns)
         put = self._imu.put
         for payload in payloads:
             put(payload)

@@ -1,6 +1,35 @@
 """The `gx3` command line: one Typer app, one module per group of commands."""
 
-from bridge.cli import archive, bridge, commands, decode, operate, record, sim
+from typer.models import CommandInfo
+
+from bridge.cli import archive, bridge, commands, decode, operate, record, router, sim, viz
 from bridge.cli.common import app
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "operate", "record", "sim"]
+#: Help panels, in the order `gx3 --help` shows them, each with its commands in order.
+PANELS = {
+    "Run a fleet": ("bridge", "record", "view", "router", "sim"),
+    "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
+                       "reset"),
+    "Archives": ("export", "replay", "rrd", "repair"),
+    "Bytes and protocol": ("decode", "commands"),
+}
+
+
+def _arrange() -> None:
+    order = [name for names in PANELS.values() for name in names]
+    panel = {name: title for title, names in PANELS.items() for name in names}
+
+    def name(info: CommandInfo) -> str:
+        callback = info.callback.__name__ if info.callback else ""
+        return info.name or callback.replace("_", "-")
+
+    for info in app.registered_commands:
+        info.rich_help_panel = panel.get(name(info), "Other")
+    app.registered_commands.sort(
+        key=lambda info: order.index(name(info)) if name(info) in order else len(order))
+
+
+_arrange()
+
+__all__ = ["app", "archive", "bridge", "commands", "decode", "operate", "record", "router",
+           "sim", "viz"]

@@ -24,8 +24,9 @@ TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[method-assig
 
 app = typer.Typer(
     name="gx3",
-    help="Tools for MicroStrain 3DM-GX3 inertial sensors: decode raw captures, emulate "
-         "units on ptys or TCP, look up the command set.",
+    help="MicroStrain 3DM-GX3 inertial sensors on Zenoh, in MCAP archives and in the "
+         "Rerun viewer: bridge each unit, record the fleet, view it live, operate units, "
+         "export archives; emulate units to try it all without hardware.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

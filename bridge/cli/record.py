@@ -50,6 +50,9 @@ def record(
         "--raw", help="Also record each unit's raw reads where its bridge offers them.")] = False,
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
+    rrd: Annotated[Path | None, typer.Option(
+        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded.")]
+    = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file when one reaches this size, MB.")] = None,
     split_minutes: Annotated[float | None, typer.Option(
@@ -106,8 +109,24 @@ def record(
         console.print(f"[dim]{time.strftime('%H:%M:%S')}[/] {unit} "
                       + ("[green]joined[/]" if joined else "[red]left[/]"))
 
+    logger = None
+    if rrd is not None:
+        from bridge.viz.logger import RerunLogger
+        from bridge.viz.sources import log_messages
+
+        try:
+            logger = RerunLogger(rrd, recording_id=path.stem)
+        except OSError as exc:
+            writer.close()
+            session.close()
+            raise fail(f"--rrd {rrd}: cannot write ({exc.strerror or exc})") from None
+        sink = logger
+
+        def to_rerun(messages: list[Any]) -> None:
+            log_messages(sink, messages, prefix)
     started = time.monotonic()
-    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce)
+    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
+                        on_written=None if logger is None else to_rerun)
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:
@@ -120,6 +139,8 @@ def record(
                                        recorder.written, path), refresh=True)
     finally:
         recorder.close()
+        if logger is not None:
+            logger.close()
         try:
             writer.close()
         except ArchiveError as exc:
@@ -133,3 +154,40 @@ def record(
         files = ", ".join(str(p) for p in writer.paths)
         console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")
     err.file.flush()
+
+
+@app.command("replay")
+def replay_command(
+    captures: Annotated[list[Path], typer.Argument(
+        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+                                        "recorded with --raw).")],
+    output: Annotated[Path, typer.Option(
+        "--output", "-o", metavar="ARCHIVE.mcap", help="Archive to write.")],
+    prefix: PrefixOpt = "gx3",
+) -> None:
+    """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
+
+    Gives the samples and live time_ns the bridge published when the capture was
+    made. A capture from another program is understood from its bytes: record type,
+    rate and float byte order.
+    """
+    from bridge.recorder.archive import ArchiveError
+    from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.replay import Replayed, ReplayError, replay
+
+    for path in captures:
+        if not path.is_file():
+            raise fail(f"{path}: no such file; give a raw capture (gx3 bridge --capture)")
+
+    def report(result: Replayed) -> None:
+        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
+        err.print(f"{result.unit}: {result.samples:,} samples"
+                  + (f", {events}" if events else "") + guessed)
+
+    try:
+        results = replay(captures, output, prefix, on_unit=report)
+    except (ReplayError, ArchiveReadError, ArchiveError) as exc:
+        raise fail(str(exc), 1) from None
+    err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
+              f"{len(results)} unit(s)")

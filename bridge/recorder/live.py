@@ -52,12 +52,14 @@ class Recorder:
 
     def __init__(self, session: zenoh.Session, writer: ArchiveWriter, prefix: str = "gx3",
                  units: str = "*", raw: bool = False, history: int = 0,
-                 on_unit: Callable[[str, bool], None] | None = None) -> None:
+                 on_unit: Callable[[str, bool], None] | None = None,
+                 on_written: Callable[[list[RawMessage]], None] | None = None) -> None:
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
         self.views: dict[str, UnitView] = {}
         self.error: ArchiveError | None = None
         self.written = 0
         self._on_unit = on_unit
+        self._on_written = on_written  # e.g. the Rerun logger of --rrd, fed in batches
         self._queue: queue.Queue[RawMessage] = queue.Queue(maxsize=200_000)
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -121,30 +123,35 @@ class Recorder:
     def run_once(self, wait_s: float = 0.2) -> None:
         """Write what arrived (waiting up to ``wait_s``); flush when a second has passed."""
         deadline = time.monotonic() + wait_s
+        written: list[RawMessage] = []
         while True:
             try:
                 msg = self._queue.get(timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
                 break
-            self._write(msg)
+            if self._write(msg):
+                written.append(msg)
             if time.monotonic() >= deadline:
                 break
+        if written and self._on_written is not None:
+            self._on_written(written)
         try:
             self.writer.tick()
         except ArchiveError as exc:
             self.error = exc
 
-    def _write(self, msg: RawMessage) -> None:
+    def _write(self, msg: RawMessage) -> bool:
+        """Archive one message; False if it was not (an error, or not one of ours)."""
         if self.error is not None:
-            return
+            return False
         now = time.time_ns()
         try:
             self.writer.write(msg.key, msg.payload, now)
         except ArchiveError as exc:
             self.error = exc
-            return
+            return False
         except ValueError:
-            return  # not a message of ours on a matching key: not archived
+            return False  # not a message of ours on a matching key: not archived
         self.written += 1
         unit = unit_of(msg.key, self.prefix)
         leaf = msg.key.rsplit("/", 1)[-1]
@@ -161,6 +168,7 @@ class Recorder:
                 status = Status()
                 status.ParseFromString(msg.payload)
                 view.status = status
+        return True
 
     def snapshot(self) -> list[dict[str, Any]]:
         """One row per unit for the terminal view."""
@@ -187,8 +195,13 @@ class Recorder:
         self._stop.set()
         for pump in self._pumps:
             pump.join()
+        written: list[RawMessage] = []
         while True:
             try:
-                self._write(self._queue.get_nowait())
+                msg = self._queue.get_nowait()
             except queue.Empty:
                 break
+            if self._write(msg):
+                written.append(msg)
+        if written and self._on_written is not None:
+            self._on_written(written)

@@ -1,0 +1,140 @@
+"""`gx3 view` (the live fleet in Rerun) and `gx3 rrd` (an archive rendered to .rrd)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
+from bridge.cli.common import app, err, fail
+
+
+@app.command("rrd")
+def rrd(
+    archive: Annotated[Path, typer.Argument(metavar="ARCHIVE.mcap",
+                                            help="Archive from gx3 record or gx3 replay.")],
+    output: Annotated[Path, typer.Option("--output", "-o", metavar="OUT.rrd",
+                                         help="Rerun recording to write.")],
+) -> None:
+    """Render an archive into a Rerun recording with the live view's layout.
+
+    Every unit's attitude in a north-east-down scene, its signals by quantity, status
+    and events, on the timelines `time` and `device_time`. An archive cut short (a
+    killed recorder) is rendered up to its last complete chunk.
+    """
+    from bridge.recorder.read import ArchiveReadError, describe_problem, read_archive
+    from bridge.viz.logger import RerunLogger
+    from bridge.viz.sources import log_archive
+
+    if not archive.is_file():
+        raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
+    try:
+        found = read_archive(archive)
+    except ArchiveReadError as exc:
+        raise fail(str(exc), 1) from None
+    if not found.complete:
+        err.print(f"[yellow]{describe_problem(found)}[/]")
+    total = sum(n for n, _, _ in (found.counts().get(t, (0, 0, 0))
+                                  for t in found.topics("imu")))
+    if total == 0:
+        raise fail(f"{archive}: no samples in it", 1)
+    progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
+                        console=err, transient=True, disable=not err.is_terminal)
+    try:
+        logger = RerunLogger(output, found.units(), recording_id=archive.stem)
+    except OSError as exc:
+        raise fail(f"{output}: cannot write ({exc.strerror or exc})") from None
+    with progress:
+        task = progress.add_task("rrd", total=total)
+        logged = log_archive(found, logger, lambda n: progress.advance(task, n))
+        logger.close()
+    err.print(f"wrote {output}: {logged:,} samples of {len(found.units())} unit(s); "
+              f"open it with: rerun {output}")
+
+
+def _display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+@app.command("view")
+def view(
+    spawn: Annotated[bool | None, typer.Option(
+        "--spawn/--no-spawn", help="Start a Rerun viewer on this machine (default: when "
+                                   "there is a display and no --serve or --save).")] = None,
+    serve: Annotated[bool, typer.Option(
+        "--serve", help="Serve the recording for remote or web viewers and print the URLs "
+                        "to open.")] = False,
+    bind: Annotated[str, typer.Option(help="Address --serve listens on.")] = "127.0.0.1",
+    grpc_port: Annotated[int, typer.Option(help="gRPC port of --serve (rerun --connect).")]
+    = 9876,
+    web_port: Annotated[int, typer.Option(help="Web viewer port of --serve.")] = 9090,
+    save: Annotated[Path | None, typer.Option(
+        metavar="FILE.rrd", help="Also write the recording to this file.")] = None,
+    window: Annotated[float, typer.Option(
+        min=1.0, metavar="SECONDS", help="Plots show the last so many seconds.")] = 30.0,
+    units: Annotated[str, typer.Option(
+        metavar="KEYEXPR", help="Units to show: a name or a key expression chunk.")] = "*",
+    prefix: PrefixOpt = "gx3",
+    duration: Annotated[float | None, typer.Option(
+        min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
+    zenoh_config: ZenohConfigOpt = None,
+    connect: ConnectOpt = None,
+    listen: ListenOpt = None,
+    mode: ModeOpt = None,
+) -> None:
+    """Show the live fleet in Rerun: attitude in 3-D and every signal, as it arrives.
+
+    Spawn a local viewer where there is a display, --serve for a remote or web
+    viewer, --save FILE.rrd; any combination.
+    """
+    import rerun as rr
+
+    from bridge.bus.session import SessionError, open_session
+    from bridge.viz.logger import RerunLogger
+    from bridge.viz.sources import LiveFeed
+
+    if spawn is None:
+        spawn = _display() and not serve and save is None
+    if not (spawn or serve or save):
+        raise fail("no display here to spawn a viewer: use --serve (remote or web viewer) "
+                   "and/or --save FILE.rrd")
+    recording = rr.RecordingStream("gx3", recording_id=time.strftime("live-%Y%m%d-%H%M%S"))
+    sinks: list[Any] = []
+    if spawn:
+        rr.spawn(port=grpc_port, connect=False)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port}/proxy"))
+    if serve:
+        server = rr.GrpcServerSink(bind, grpc_port)
+        sinks.append(server)
+    if save is not None:
+        sinks.append(rr.FileSink(save))
+    recording.set_sinks(*sinks)
+    if serve:
+        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=server.uri)
+        err.print(f"web viewer: http://{bind}:{web_port}/?url={server.uri}\n"
+                  f"native viewer: rerun --connect {server.uri}")
+    try:
+        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
+                               mode=mode)
+    except SessionError as exc:
+        raise fail(str(exc)) from None
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    logger = RerunLogger(recording, window_s=window)
+    feed = LiveFeed(session, logger, prefix, units)
+    try:
+        stop.wait(duration)
+    finally:
+        feed.close()
+        logger.close()
+        recording.flush()
+        session.close()
+    err.print(f"{feed.samples:,} samples shown" + (f"; saved {save}" if save else ""))

@@ -1,0 +1,197 @@
+"""`gx3 replay`: raw captures through the live path's framer and timing, into an archive.
+
+A raw capture holds every read a bridge made, with its receive time. Replaying it
+frames the same bytes with the same framer and times the records with the same
+``StreamTiming``, told what the live bridge told it at the same points of the
+stream: settings from each 0xDB reply, a restarted stream at each 0xC4 reply
+(every bring-up starts streaming with one). So the samples and their live
+``time_ns`` come out as the live bridge published them, with no Zenoh involved.
+
+A capture without metadata (another program's) is understood from its bytes:
+the record type is the most common data record, the rate comes from the timer
+steps, the float byte order from whichever decodes, and the filter width is the
+factory's 15 unless a 0xDB reply says otherwise.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from bridge.bus.codec import encode_batch
+from bridge.bus.gx3_pb2 import Event
+from bridge.protocol.codec import Batch
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
+from bridge.recorder.archive import ArchiveWriter
+from bridge.recorder.read import Archive, read_archive
+from bridge.timing.stream import Settings, StreamTiming
+
+SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
+_EXPECT = frozenset(DATA_CODES | {SET_CONTINUOUS, SAMPLING, TIMER})
+_EVENT_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
+                "glitch": Event.GLITCH}
+FACTORY_FILTER_WIDTH = 15
+_SNIFF_READS = 400
+
+
+class ReplayError(ValueError):
+    """A capture that cannot be replayed; the message says why."""
+
+
+@dataclass
+class Capture:
+    """One unit's reads from a raw capture: receive times, bytes, what its bridge said."""
+
+    unit: str
+    rx_ns: np.ndarray
+    data: list[bytes]
+    metadata: dict[str, str] = field(default_factory=dict)
+
+
+def captures(path: Path, prefix: str = "gx3") -> list[Capture]:
+    """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive)."""
+    archive: Archive = read_archive(path)
+    meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
+            if m.name == "gx3.capture"}
+    out = []
+    for topic in archive.topics("raw"):
+        messages = archive.messages(topic)
+        unit = messages.unit
+        out.append(Capture(unit, messages.log_time.astype(np.int64), messages.payloads,
+                           meta.get(unit, {})))
+    if not out:
+        raise ReplayError(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
+                          "one with gx3 bridge --capture FILE.mcap")
+    return out
+
+
+@dataclass
+class Replayed:
+    unit: str
+    samples: int = 0
+    events: Counter[str] = field(default_factory=Counter)
+    settings: Settings | None = None
+    inferred: list[str] = field(default_factory=list)
+
+
+class UnitReplay:
+    """Frames and times one unit's reads exactly as its live bridge did."""
+
+    def __init__(self, capture: Capture) -> None:
+        self.capture = capture
+        self.result = Replayed(capture.unit)
+        self.settings = self._initial_settings()
+        self.framer = Framer(_EXPECT, little_endian=self._little_endian())
+        self.timing = StreamTiming()
+
+    # --- what the capture says, or what its bytes show ----------------------------------
+    def _initial_settings(self) -> Settings:
+        meta = self.capture.metadata
+        if {"record", "decimation", "filter_width", "baud"} <= meta.keys():
+            return Settings(record=int(meta["record"], 0), decimation=int(meta["decimation"]),
+                            filter_width=int(meta["filter_width"]), baud=int(meta["baud"]),
+                            transport=meta.get("transport", "uart"),
+                            polled=meta.get("polled") == "true")
+        record, decimation = self._sniff()
+        self.result.inferred += [f"record 0x{record:02X}", f"decimation {decimation}",
+                                 f"filter width {FACTORY_FILTER_WIDTH} (factory)"]
+        return Settings(record=record, decimation=decimation,
+                        filter_width=FACTORY_FILTER_WIDTH, baud=DEFAULT_BAUD)
+
+    def _sniff_batches(self, little_endian: bool) -> list[Batch]:
+        framer = Framer(DATA_CODES, little_endian=little_endian)
+        out: list[Batch] = []
+        for rx, data in zip(self.capture.rx_ns[:_SNIFF_READS], self.capture.data, strict=False):
+            out += framer.feed(data, int(rx))
+        return out
+
+    def _little_endian(self) -> bool:
+        """The float byte order the capture starts in (a 0xDB reply may switch it)."""
+        flags = self.capture.metadata.get("flags")
+        if flags is not None:
+            return bool(int(flags) & 0x10)
+        big = sum(len(b) for b in self._sniff_batches(False))
+        little = sum(len(b) for b in self._sniff_batches(True))
+        if little > big:
+            self.result.inferred.append("little-endian floats")
+        return little > big
+
+    def _sniff(self) -> tuple[int, int]:
+        batches = self._sniff_batches(False) or self._sniff_batches(True)
+        if not batches:
+            raise ReplayError(f"{self.capture.unit}: no record found in the first "
+                              f"{_SNIFF_READS} reads: not a capture of a 3DM-GX3")
+        counts: Counter[int] = Counter()
+        for b in batches:
+            counts[b.code] += len(b)
+        record = counts.most_common(1)[0][0]
+        timers = np.concatenate([b["timer"] for b in batches if b.code == record])
+        steps = np.mod(np.diff(timers.astype(np.int64)), np.int64(1 << 32))
+        steps = steps[steps > 0]
+        period = float(np.median(steps)) if len(steps) else 625.0
+        return record, max(1, min(1000, round(period / (TICKS_PER_SECOND / 1000))))
+
+    # --- replay --------------------------------------------------------------------------
+    def run(self, emit: Callable[[str, bytes, int], None], prefix: str) -> Replayed:
+        for rx, data in zip(self.capture.rx_ns.tolist(), self.capture.data, strict=True):
+            for batch in self.framer.feed(data, rx):
+                self._batch(batch, emit, prefix)
+        for batch in self.framer.flush():
+            self._batch(batch, emit, prefix)
+        self.result.settings = self.settings
+        return self.result
+
+    def _batch(self, batch: Batch, emit: Callable[[str, bytes, int], None],
+               prefix: str) -> None:
+        if batch.code == SAMPLING:
+            self.settings = replace(self.settings,
+                                    decimation=max(1, int(batch["decimation"][-1])),
+                                    filter_width=max(1, int(batch["filter_width"][-1])))
+            if self.timing.timeline is not None:
+                self.timing.configure(self.settings, restarted=True)
+        elif batch.code == SET_CONTINUOUS:
+            self.settings = replace(self.settings, record=int(batch["command"][-1]))
+            self.timing.configure(self.settings, restarted=True)
+        elif batch.code == TIMER and self.timing.timeline is not None:
+            self.timing.configure(self.settings, restarted=True)
+        elif batch.code in DATA_CODES and batch.code == self.settings.record:
+            if self.timing.timeline is None:  # the capture began mid-stream
+                self.timing.configure(self.settings, restarted=False)
+            self._samples(batch, emit, prefix)
+
+    def _samples(self, batch: Batch, emit: Callable[[str, bytes, int], None],
+                 prefix: str) -> None:
+        unit = self.capture.unit
+        timed = self.timing.process(batch)
+        for ev in timed.events:
+            self.result.events[ev.kind] += 1
+            event = Event(unit=unit, time_ns=int(batch.rx_ns[0]), ticks=int(ev.ticks),
+                          kind=_EVENT_KINDS.get(ev.kind, Event.KIND_UNSPECIFIED),
+                          count=max(1, int(ev.count)))
+            emit(f"{prefix}/{unit}/event", event.SerializeToString(), int(batch.rx_ns[0]))
+        if not len(timed.batch):
+            return
+        payloads = encode_batch(unit, timed.batch, timed.ticks, timed.time_ns,
+                                timed.batch.rx_ns)
+        for payload, rx in zip(payloads, timed.batch.rx_ns.tolist(), strict=True):
+            emit(f"{prefix}/{unit}/imu", payload, rx)
+        self.result.samples += len(payloads)
+
+
+def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
+           on_unit: Callable[[Replayed], None] | None = None) -> list[Replayed]:
+    """Replay every unit of every capture in ``paths`` into one archive at ``out``."""
+    results = []
+    with ArchiveWriter(out, prefix=prefix) as writer:
+        for path in paths:
+            for capture in captures(path, prefix):
+                result = UnitReplay(capture).run(writer.write, prefix)
+                results.append(result)
+                if on_unit is not None:
+                    on_unit(result)
+    return results

@@ -1,0 +1,103 @@
+"""Time one unit's record batches from the settings that decide timing.
+
+The live pipeline and ``gx3 replay`` both time records through this class, so a
+raw capture replays to the very ticks and ``time_ns`` the live bridge published:
+the same timeline, told the same things (output period, filter delay, transport
+floor, "streaming restarted here") at the same points of the byte stream.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bridge.protocol.codec import Batch
+from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+from bridge.timing.clock import ClockState
+from bridge.timing.timeline import Timeline
+from bridge.timing.unwrap import TimingEvent
+
+USB_FRAME_NS = 1_000_000
+TRANSPORTS = ("uart", "usb")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What decides a record's timing: its type, the unit's 0xDB settings, the link."""
+
+    record: int
+    decimation: int
+    filter_width: int
+    baud: int
+    transport: str = "uart"
+    polled: bool = False
+
+    @property
+    def period_ticks(self) -> float | None:
+        """Output period in ticks (decimation x 62.5); polled records have none."""
+        return None if self.polled else TICKS_PER_SECOND * self.decimation / 1000
+
+    @property
+    def filter_delay_ns(self) -> int:
+        """The moving average of width M delays the values by (M-1)/2 ms (DESIGN.md)."""
+        return (self.filter_width - 1) * 500_000
+
+    @property
+    def floor_ns(self) -> int:
+        """The least time a record takes to reach the host: its line time on a UART."""
+        if self.transport == "usb":
+            return 0
+        return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
+
+
+@dataclass
+class Timed:
+    """One batch's valid records with their ticks and host times, and what happened."""
+
+    batch: Batch
+    ticks: np.ndarray
+    time_ns: np.ndarray
+    events: list[TimingEvent] = field(default_factory=list)
+    dropped: int = 0
+    invalid: int = 0
+
+
+class StreamTiming:
+    """One timeline for a unit's whole life: ticks keep increasing across reconnects
+    (a gap or a reset is for the unwrapper to find); settings changes update it."""
+
+    def __init__(self) -> None:
+        self.timeline: Timeline | None = None
+        self.settings: Settings | None = None
+
+    @property
+    def state(self) -> ClockState | None:
+        return self.timeline.state if self.timeline else None
+
+    def configure(self, settings: Settings, restarted: bool) -> None:
+        """Apply ``settings``; ``restarted``: the stream began anew here (bring-up, a
+        timer set or reset), so the next record may be off the old output lattice."""
+        if settings.transport not in TRANSPORTS:
+            raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
+        period = settings.period_ticks
+        if self.timeline is None:
+            frame = USB_FRAME_NS if settings.transport == "usb" else 0
+            self.timeline = Timeline(period, frame_ns=frame)
+        elif restarted or period != self.timeline.unwrapper.period_ticks:
+            self.timeline.expect_discontinuity(period)
+        self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
+        self.timeline.clock.floor_ns = settings.floor_ns
+        self.settings = settings
+
+    def process(self, batch: Batch) -> Timed:
+        """Ticks and host times of a batch's records; corrupt timers are dropped."""
+        assert self.timeline is not None, "configure() first"
+        timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        keep = timed.valid
+        invalid = int((~keep).sum())
+        if invalid:
+            batch = Batch(batch.code, {k: v[keep] for k, v in batch.columns.items()},
+                          batch.offsets[keep], batch.rx_ns[keep], batch.little_endian)
+        return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
+                     timed.dropped, invalid)

@@ -1,0 +1,352 @@
+"""Samples, status and events of a fleet of units into a Rerun recording, column-wise.
+
+One ``RerunLogger`` serves every caller: a live subscriber hands it each batch as it
+arrives (units may appear at any time), an archive reader hands it whole columns, a
+recorder writes an .rrd beside its MCAP. Each batch costs a few ``send_columns`` calls,
+whatever its length, so kHz streams of many units stay cheap. Orientation follows
+DESIGN.md: the unit's M maps earth (NED) to sensor, the scene shows the sensor-to-earth
+rotation M^T, as a Rerun (x, y, z, w) quaternion.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import rerun as rr
+
+from bridge.bus.codec import record_quantities
+from bridge.bus.gx3_pb2 import Event, Status
+from bridge.protocol import convert
+from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.viz import layout
+from bridge.viz.layout import DEVICE_TIME, PLOT, TIME
+
+NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
+
+_EVENT_LEVEL = {
+    Event.GAP: rr.TextLogLevel.WARN,
+    Event.RESET: rr.TextLogLevel.WARN,
+    Event.ROLLOVER: rr.TextLogLevel.INFO,
+    Event.GLITCH: rr.TextLogLevel.WARN,
+    Event.RECONNECT: rr.TextLogLevel.INFO,
+    Event.DISCONNECT: rr.TextLogLevel.ERROR,
+    Event.RESYNC: rr.TextLogLevel.WARN,
+    Event.BRING_UP: rr.TextLogLevel.INFO,
+    Event.COMMAND: rr.TextLogLevel.INFO,
+}
+
+
+def _indexes(time_ns: npt.ArrayLike, device_ns: npt.ArrayLike | None) -> list[rr.TimeColumn]:
+    """The timelines of rows: nanoseconds as datetime64/timedelta64, which Rerun takes as
+    such (plain numbers would be read as seconds)."""
+    cols = [rr.TimeColumn(TIME, timestamp=np.asarray(time_ns, np.int64).astype("datetime64[ns]"))]
+    if device_ns is not None:
+        cols.append(rr.TimeColumn(
+            DEVICE_TIME, duration=np.asarray(device_ns, np.int64).astype("timedelta64[ns]")))
+    return cols
+
+
+def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    """(n, 4) x, y, z, w quaternions of the rotation M^T, from whichever attitude the record
+    holds (M, else Q, else Euler angles); None for records without one."""
+    if "m" in columns:
+        q = convert.m_to_quaternion(columns["m"])
+    elif "quaternion" in columns:
+        q = np.asarray(columns["quaternion"], np.float64)
+    elif "euler" in columns:
+        q = convert.euler_to_quaternion(columns["euler"])
+    else:
+        return None
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN records stay NaN
+        return convert.sensor_to_earth_xyzw(q)
+
+
+def euler_degrees(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    """(n, 3) roll, pitch, yaw in degrees, as sent or derived from M or Q."""
+    if "euler" in columns:
+        euler = np.asarray(columns["euler"], np.float64)
+    elif "m" in columns:
+        euler = convert.m_to_euler(columns["m"])
+    elif "quaternion" in columns:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            euler = convert.quaternion_to_euler(columns["quaternion"])
+    else:
+        return None
+    return np.degrees(euler)
+
+
+def sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
+    """Plot name -> (n, lines) float64 values of a batch of samples."""
+    series = {name: np.asarray(columns[name], np.float64).reshape(n, -1)
+              for name in columns if name in PLOT}
+    euler = euler_degrees(columns)
+    if euler is not None:
+        series["euler"] = euler
+    if "temperature" in columns:
+        codes = np.asarray(columns["temperature"], np.float64).reshape(n, 4)
+        series["mag_temperature"] = np.asarray(convert.mag_temperature_celsius(codes[:, :1]))
+        series["gyro_temperature"] = codes[:, 1:]
+    return series
+
+
+@dataclass
+class _Pending:
+    """Batches of one unit and record type gathered since ``since`` (monotonic seconds)."""
+
+    since: float
+    parts: list[dict[str, np.ndarray]] = field(default_factory=list)
+    rows: int = 0
+
+
+class RerunLogger:
+    """Writes a fleet's samples, status and events to one Rerun recording.
+
+    ``target`` is a RecordingStream the caller set up (spawned viewer, gRPC connection,
+    file) or a path, for which the logger opens an .rrd file of its own and closes it in
+    ``close``. ``units`` fixes the order of units in the scene; others join as they
+    appear. The blueprint is (re)sent, as active and default, whenever a plot or a unit
+    appears, so it is in every recording and grows with the fleet; ``window_s`` limits the
+    plots to the last so many seconds, for live viewing. Samples reach the recording at
+    most ``latency_s`` after they were logged, provided the caller logs or flushes at
+    least that often (a live caller with no data flowing calls ``flush``).
+    """
+
+    def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
+                 units: Iterable[str] = (), *, application_id: str = "gx3",
+                 recording_id: str | None = None, window_s: float | None = None,
+                 latency_s: float = 0.25, max_rows: int = 4096) -> None:
+        if isinstance(target, rr.RecordingStream):
+            self.recording, self._owned = target, False
+        else:
+            self.recording = rr.RecordingStream(application_id, recording_id=recording_id)
+            self.recording.save(os.fspath(target))
+            self._owned = True
+        self.window_s = window_s
+        self.latency_s = latency_s
+        self.max_rows = max_rows
+        self._pending: dict[tuple[str, int], _Pending] = {}
+        self._lock = threading.Lock()
+        self._blueprint_lock = threading.Lock()
+        self._units: dict[str, int] = {}
+        self._styled: set[tuple[str, str]] = set()
+        self._plots: set[str] = set()
+        self._first_offset: dict[str, int] = {}
+        self._sent: tuple[frozenset[str], int] | None = None
+        self.recording.log(layout.WORLD, rr.ViewCoordinates.FRD, static=True)
+        self.recording.log(f"{layout.WORLD}/ned", rr.Arrows3D(
+            origins=[layout.NED_ORIGIN_M] * 3, vectors=np.eye(3) * layout.AXIS_LENGTH_M,
+            colors=[layout.NED_COLOR], radii=0.005, labels=["N", "E", "D"]), static=True)
+        for unit in units:
+            self._unit(unit)
+        self._send_blueprint()
+
+    # --- public API --------------------------------------------------------------------
+    @property
+    def units(self) -> tuple[str, ...]:
+        return tuple(self._units)
+
+    def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
+        """A batch of one unit's records of type ``code``: every quantity the record holds
+        plus ``ticks`` (unwrapped device timer) and ``time_ns`` (aligned host time), as
+        ``bridge.bus.codec.decode_batch`` returns them.
+
+        Batches are gathered per unit and record type and sent once ``max_rows`` rows or
+        ``latency_s`` seconds have built up (checked at each call), or on ``flush``: a
+        send costs about the same for 10 rows as for 4,000.
+        """
+        quantities = record_quantities(code)
+        missing = [c for c in ("ticks", "time_ns", *quantities) if c not in columns]
+        if missing:
+            raise ValueError(f"0x{code:02X} samples of {unit!r} lack column(s) "
+                             f"{', '.join(missing)}: pass every quantity of the record "
+                             "and ticks, time_ns")
+        n = len(columns["ticks"])
+        bad = [c for c in ("time_ns", *quantities) if len(columns[c]) != n]
+        if bad:
+            raise ValueError(f"0x{code:02X} samples of {unit!r}: column(s) {', '.join(bad)} "
+                             f"do not have the {n} rows of ticks")
+        if n == 0:
+            return
+        self._unit(unit)
+        now = time.monotonic()
+        with self._lock:
+            pending = self._pending.setdefault((unit, code), _Pending(now))
+            # copies: the caller may reuse its buffers before the batch is sent
+            pending.parts.append({c: np.array(columns[c]) for c in
+                                  ("ticks", "time_ns", *quantities)})
+            pending.rows += n
+        self._send_pending(now)
+
+    def log_status(self, unit: str, statuses: Status | Sequence[Status]) -> None:
+        """Status messages of one unit: samples/s, dropped total, clock offset (relative
+        to the first status with a clock model) and drift. Device time is the clock
+        model's inverse, for statuses that have a model (clock_offset_ns != 0)."""
+        items = [statuses] if isinstance(statuses, Status) else list(statuses)
+        if not items:
+            return
+        index = self._unit(unit)
+        time_ns = np.array([s.time_ns for s in items], np.int64)
+        offset = np.array([s.clock_offset_ns for s in items], np.int64)
+        drift = np.array([s.clock_drift_ppm for s in items], np.float64)
+        modelled = offset != 0
+        if modelled.any():
+            self._first_offset.setdefault(unit, int(offset[modelled][0]))
+        first = self._first_offset.get(unit, 0)
+        series = {
+            "samples_per_s": np.array([s.samples_per_s for s in items], np.float64),
+            "dropped": np.array([s.dropped for s in items], np.float64),
+            "clock_offset": np.where(modelled, (offset - first) / 1e6, np.nan),
+            "clock_drift": np.where(modelled, drift, np.nan),
+        }
+        device_ns = np.round((time_ns - offset) / (1.0 + drift * 1e-6)).astype(np.int64)
+        for plot, values in series.items():
+            self._style(plot, unit, index)
+            self._send_split(layout.plot_path(plot, unit), time_ns, device_ns, modelled,
+                             rr.Scalars.columns, scalars=values)
+        self._send_blueprint()
+
+    def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
+        """Events of one unit as text log entries at the time they happened; those that
+        carry device ticks (> 0) are on the device_time timeline as well."""
+        items = [events] if isinstance(events, Event) else list(events)
+        if not items:
+            return
+        self._unit(unit)
+        time_ns = np.array([e.time_ns for e in items], np.int64)
+        ticks = np.array([e.ticks for e in items], np.int64)
+        texts = np.array([event_text(unit, e) for e in items], dtype=str)
+        levels = np.array([_EVENT_LEVEL.get(e.kind, rr.TextLogLevel.INFO) for e in items],
+                          dtype=str)
+        self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
+                         rr.TextLog.columns, text=texts, level=levels)
+        self._send_blueprint()
+
+    def flush(self) -> None:
+        """Send every gathered sample and wait until the recording has them."""
+        self._send_pending(None)
+        self.recording.flush()
+
+    def close(self) -> None:
+        """Flush; for a logger that opened its own file, also finish and close that file."""
+        self.flush()
+        if self._owned:
+            self.recording.disconnect()
+
+    def __enter__(self) -> RerunLogger:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    # --- internals ---------------------------------------------------------------------
+    def _unit(self, unit: str) -> int:
+        """The unit's place in the scene; the first sight of a unit logs its static parts."""
+        with self._lock:
+            if unit in self._units:
+                return self._units[unit]
+            index = self._units[unit] = len(self._units)
+        rec, body, color = self.recording, layout.body_path(unit), layout.unit_color(index)
+        rec.log(f"{layout.WORLD}/{layout.entity_part(unit)}",
+                rr.Transform3D(translation=layout.unit_position(index)), static=True)
+        half = np.array(layout.BOX_SIZE_M) * layout.BOX_SCALE / 2
+        rec.log(f"{body}/box", rr.Boxes3D(half_sizes=[half], colors=[(*color, 200)],
+                                          fill_mode=rr.components.FillMode.Solid,
+                                          labels=[unit]), static=True)
+        rec.log(f"{body}/axes", rr.Arrows3D(
+            vectors=np.eye(3) * layout.AXIS_LENGTH_M, radii=0.008,
+            colors=np.array(layout.AXIS_COLORS, np.uint8)), static=True)
+        for arrow, arrow_color in (("accel", layout.ACCEL_COLOR), ("mag", layout.MAG_COLOR)):
+            rec.log(f"{body}/{arrow}", rr.Arrows3D.from_fields(
+                colors=np.array([arrow_color], np.uint8), radii=0.01), static=True)
+        return index
+
+    def _send_pending(self, now: float | None) -> None:
+        """Send the gathered batches that are due at ``now`` (all of them for None)."""
+        with self._lock:
+            due = [key for key, p in self._pending.items() if now is None
+                   or p.rows >= self.max_rows or now - p.since >= self.latency_s]
+            taken = [(key, self._pending.pop(key)) for key in due]
+        for (unit, _), pending in taken:
+            parts = pending.parts
+            record = parts[0] if len(parts) == 1 else {
+                c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
+            for start in range(0, pending.rows, self.max_rows):
+                self._send_samples(unit, {c: v[start:start + self.max_rows]
+                                          for c, v in record.items()})
+        if taken:
+            self._send_blueprint()
+
+    def _send_samples(self, unit: str, record: dict[str, np.ndarray]) -> None:
+        """One send per plot and scene entity, for all rows at once."""
+        index, rec, n = self._units[unit], self.recording, len(record["ticks"])
+        time_ns = np.asarray(record.pop("time_ns"), np.int64)
+        device_ns = np.asarray(record.pop("ticks"), np.int64) * NS_PER_TICK
+        indexes = _indexes(time_ns, device_ns)
+        for plot, values in sample_series(record, n).items():
+            self._style(plot, unit, index)
+            rec.send_columns(layout.plot_path(plot, unit), indexes=indexes,
+                             columns=rr.Scalars.columns(scalars=values))
+        body = layout.body_path(unit)
+        xyzw = sensor_to_earth(record)
+        if xyzw is not None:
+            ok = np.isfinite(xyzw).all(axis=1)
+            rec.send_columns(body, indexes=indexes if ok.all() else
+                             _indexes(time_ns[ok], device_ns[ok]),
+                             columns=rr.Transform3D.columns(quaternion=xyzw[ok]))
+        for name, (arrow, scale) in layout.ARROWS.items():
+            if name in record:
+                vectors = np.asarray(record[name], np.float32) * np.float32(scale)
+                rec.send_columns(f"{body}/{arrow}", indexes=indexes,
+                                 columns=rr.Arrows3D.columns(vectors=vectors))
+
+    def _style(self, plot: str, unit: str, index: int) -> None:
+        """Names and colours of a unit's lines in a plot, logged once, static."""
+        with self._lock:
+            if (plot, unit) in self._styled:
+                return
+            self._styled.add((plot, unit))
+            self._plots.add(plot)
+        labels = PLOT[plot].labels
+        self.recording.log(layout.plot_path(plot, unit), rr.SeriesLines(
+            names=[f"{unit} {label}" for label in labels],
+            colors=layout.series_colors(index, len(labels))), static=True)
+
+    def _send_blueprint(self) -> None:
+        """Send the blueprint when the plots or the number of units changed since it was
+        last sent; one sender at a time, so the last one sent is the newest."""
+        with self._blueprint_lock:
+            with self._lock:
+                sent = (frozenset(self._plots), len(self._units))
+            if sent == self._sent:
+                return
+            self._sent = sent
+            self.recording.send_blueprint(layout.blueprint(*sent, window_s=self.window_s),
+                                          make_active=True, make_default=True)
+
+    def _send_split(self, path: str, time_ns: np.ndarray, device_ns: np.ndarray,
+                    has_device: np.ndarray, columns: Callable[..., Any],
+                    **values: np.ndarray) -> None:
+        """``columns(**values)`` of rows with a device time on both timelines, of the
+        others on ``time`` only."""
+        for rows, dev in ((has_device, device_ns), (~has_device, None)):
+            if rows.any():
+                self.recording.send_columns(
+                    path, indexes=_indexes(time_ns[rows], None if dev is None else dev[rows]),
+                    columns=columns(**{k: v[rows] for k, v in values.items()}))
+
+
+def event_text(unit: str, event: Event) -> str:
+    """One line: unit, kind, how many when more than one, and the detail."""
+    text = f"{unit} {Event.Kind.Name(event.kind)}"
+    if event.count > 1:
+        text += f" ({event.count})"
+    return f"{text}: {event.detail}" if event.detail else text

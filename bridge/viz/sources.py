@@ -1,0 +1,110 @@
+"""What feeds the Rerun logger: a finished (or cut-short) archive, or the live fleet.
+
+``log_archive`` renders an MCAP archive with the same layout a live view has;
+``LiveFeed`` subscribes to units' samples, status and events on Zenoh and logs them
+as they arrive. Both hand the logger whole columns, never one call per sample.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import defaultdict
+from collections.abc import Callable
+
+import zenoh
+
+from bridge.bus.codec import decode_batch, peek
+from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.keys import unit_of
+from bridge.bus.subscribe import RawMessage, Subscription, subscribe
+from bridge.recorder.read import Archive
+from bridge.viz.logger import RerunLogger
+
+
+def log_archive(archive: Archive, logger: RerunLogger,
+                progress: Callable[[int], None] | None = None) -> int:
+    """Every unit's samples, status and events; the samples logged."""
+    logged = 0
+    for block in archive.samples():
+        logger.log_samples(block.unit, block.code, block.columns)
+        logged += len(block)
+        if progress is not None:
+            progress(len(block))
+    for topic in archive.topics("status"):
+        msgs = archive.messages(topic)
+        if len(msgs):
+            logger.log_status(msgs.unit, [Status.FromString(p) for p in msgs.payloads])
+    by_unit: dict[str, list[Event]] = defaultdict(list)
+    for unit, event in archive.events():
+        by_unit[unit].append(event)
+    for unit, events in by_unit.items():
+        logger.log_event(unit, events)
+    logger.flush()
+    return logged
+
+
+def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str) -> int:
+    """Zenoh messages as they came (any mix of units and kinds): samples decoded in bulk
+    per unit and record type. Returns the samples logged."""
+    samples: dict[tuple[str, int], list[bytes]] = defaultdict(list)
+    logged = 0
+    for msg in messages:
+        unit = unit_of(msg.key, prefix)
+        leaf = msg.key.rsplit("/", 1)[-1]
+        if leaf == "imu":
+            try:
+                samples[(unit, peek(msg.payload)[1])].append(msg.payload)
+            except ValueError:
+                continue
+        elif leaf == "status":
+            logger.log_status(unit, Status.FromString(msg.payload))
+        elif leaf == "event":
+            logger.log_event(unit, Event.FromString(msg.payload))
+    for (unit, code), payloads in samples.items():
+        try:
+            columns = decode_batch(unit, code, payloads)
+        except ValueError:
+            continue
+        logger.log_samples(unit, code, columns)
+        logged += len(payloads)
+    return logged
+
+
+class LiveFeed:
+    """The fleet's samples, status and events on Zenoh, into ``logger`` until ``close``."""
+
+    def __init__(self, session: zenoh.Session, logger: RerunLogger, prefix: str = "gx3",
+                 units: str = "*") -> None:
+        self.logger, self.prefix = logger, prefix
+        self.samples = 0
+        self._stop = threading.Event()
+        self._subs: list[Subscription[RawMessage]] = []
+        try:
+            for leaf in ("imu", "status", "event"):
+                self._subs.append(subscribe(f"{prefix}/{units}/{leaf}", output="raw",
+                                            session=session, max_batch=4096))
+        except BaseException:
+            self.close()
+            raise
+        self._threads = [threading.Thread(target=self._pump, args=(sub,), name="gx3-view")
+                         for sub in self._subs]
+        for thread in self._threads:
+            thread.start()
+
+    def _pump(self, sub: Subscription[RawMessage]) -> None:
+        while not self._stop.is_set():
+            first = sub.get(timeout=0.2)
+            if first is None:
+                self.logger.flush()
+                continue
+            batch = [first]
+            while (more := sub.get(timeout=0)) is not None and len(batch) < 4096:
+                batch.append(more)
+            self.samples += log_messages(self.logger, batch, self.prefix)
+
+    def close(self) -> None:
+        self._stop.set()
+        for sub in self._subs:
+            sub.close()
+        for thread in getattr(self, "_threads", []):
+            thread.join()

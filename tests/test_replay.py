@@ -1,0 +1,83 @@
+"""`gx3 replay` on captures it must understand from their bytes, and on bad input.
+
+Captures come from the emulator in virtual time through the USB delivery model
+(bridge.sim.capture), written as another program would: raw reads, no metadata.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.recorder.rawcapture import RawCaptureWriter
+from bridge.recorder.read import read_archive
+from bridge.recorder.replay import captures, replay
+from bridge.sim.capture import streaming_config, synthesize
+from bridge.sim.motion import MotionConfig
+from bridge.sim.state import Sampling
+from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UsbDelivery
+from tests.test_bridge_process import GX3
+
+
+def write_capture(path: Path, reads: list[tuple[int, bytes]],
+                  metadata: dict[str, str] | None = None) -> Path:
+    writer = RawCaptureWriter(path, "gx3", "u1", metadata)
+    for rx, data in reads:
+        writer.write(data, rx)
+    writer.close()
+    return path
+
+
+@pytest.mark.parametrize("little_endian", [False, True])
+def test_a_capture_without_metadata_is_understood_from_its_bytes(
+        tmp_path: Path, little_endian: bool) -> None:
+    config = streaming_config(UnitConfig(motion=MotionConfig(seed=4)), code=0xC8,
+                              decimation=5)
+    if little_endian:
+        sampling = replace(config.stored.sampling, flags=config.stored.sampling.flags | 0x10)
+        config = replace(config, stored=replace(config.stored,
+                                                sampling=Sampling(**vars(sampling))))
+    cap = synthesize(config, UsbDelivery(seed=2), seconds=20.0)
+    path = write_capture(tmp_path / "raw.mcap", list(zip(cap.rx_ns.tolist(), cap.data,
+                                                         strict=True)))
+    results = replay([path], tmp_path / "out.mcap")
+    assert results[0].settings is not None
+    assert results[0].settings.record == 0xC8 and results[0].settings.decimation == 5
+    assert ("little-endian floats" in results[0].inferred) == little_endian
+    blocks = read_archive(tmp_path / "out.mcap").samples(["u1"])
+    timer = np.concatenate([b.columns["timer"] for b in blocks])
+    m = np.concatenate([b.columns["m"] for b in blocks])
+    assert len(timer) == len(cap.truth["timer"])
+    assert (np.sort(timer) == np.sort(cap.truth["timer"])).all()
+    assert np.allclose(np.einsum("nij,nkj->nik", m, m), np.eye(3), atol=1e-5), \
+        "orientation matrices decoded in the wrong byte order"
+
+
+def test_garbage_and_empty_captures_are_clear_errors(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    garbage = write_capture(tmp_path / "garbage.mcap",
+                            [(i, rng.bytes(64)) for i in range(500)])
+    empty = write_capture(tmp_path / "empty.mcap", [])
+    not_mcap = tmp_path / "text.mcap"
+    not_mcap.write_text("hello\n")
+    assert GX3
+    for path, message in ((garbage, "no record found"), (empty, "no raw reads"),
+                          (not_mcap, "MCAP"), (tmp_path / "missing.mcap", "no such file")):
+        done = subprocess.run([GX3, "replay", str(path), "-o", str(tmp_path / "o.mcap")],
+                              capture_output=True, text=True, timeout=60, check=False)
+        assert done.returncode != 0, path
+        assert message in done.stderr and "Traceback" not in done.stderr, done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_capture_reads_keep_their_receive_times(tmp_path: Path) -> None:
+    reads = [(1_000 + i, bytes([i % 256]) * 3) for i in range(50)]
+    (cap,) = captures(write_capture(tmp_path / "raw.mcap", reads))
+    assert cap.unit == "u1"
+    assert cap.rx_ns.tolist() == [rx for rx, _ in reads]
+    assert cap.data == [d for _, d in reads]

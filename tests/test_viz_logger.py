@@ -1,0 +1,337 @@
+"""The Rerun logger, checked by reading the .rrd back with Rerun's own reader."""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from bridge.bus.gx3_pb2 import Event, Status
+from bridge.protocol import convert
+from bridge.viz.demo import DEMO_EPOCH_NS, demo_columns
+from bridge.viz.logger import RerunLogger
+
+UNITS = {"imu0": (0xCC, 1), "imu1": (0xC8, 2), "imu2": (0xDF, 3)}
+RATE_HZ = 100.0
+SECONDS = 2.0
+N = round(RATE_HZ * SECONDS)
+
+
+def read(path: Path) -> Any:
+    return RrdReader(path).stream().collect()
+
+
+def table(store: Any, entity: str, index: str | None = "time") -> pa.Table:
+    return store.reader(index=index, contents=entity).to_arrow_table()
+
+
+def ns(column: pa.ChunkedArray) -> np.ndarray:
+    """A timestamp or duration column as int64 nanoseconds."""
+    return np.array(column.cast(pa.int64()).to_pylist(), np.int64)
+
+
+def blueprint_views(path: Path) -> list[set[tuple[str, str]]]:
+    """(view class, origin) of every view, one set per blueprint in the file."""
+    reader = RrdReader(path)
+    out = []
+    for entry in reader.blueprints():
+        views = set()
+        for chunk in reader.stream(store=entry):
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+            if "ViewBlueprint:space_origin" in names:
+                kind = batch.column("ViewBlueprint:class_identifier").to_pylist()[0][0]
+                origin = batch.column("ViewBlueprint:space_origin").to_pylist()[0][0]
+                views.add((kind, origin))
+        out.append(views)
+    return out
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, dict[str, Any]]]:
+    """Three units with different record types, status and a gap, in one recording."""
+    path = tmp_path_factory.mktemp("viz") / "fleet.rrd"
+    data = {u: demo_columns(u, code, seed, SECONDS, RATE_HZ) for u, (code, seed) in UNITS.items()}
+    with RerunLogger(path, ["imu0", "imu1"]) as log:
+        for unit, (code, _) in UNITS.items():
+            half = N // 2  # two batches, as a live subscriber would see them
+            for rows in (slice(0, half), slice(half, N)):
+                log.log_samples(unit, code, {k: v[rows] for k, v in data[unit].items()})
+        log.log_status("imu0", [
+            Status(unit="imu0", time_ns=DEMO_EPOCH_NS + k * 10**9, samples_per_s=99.0 + k,
+                   dropped=3 * k, clock_offset_ns=DEMO_EPOCH_NS + 1000 * k,
+                   clock_drift_ppm=20.0) for k in range(3)])
+        log.log_event("imu1", Event(unit="imu1", time_ns=DEMO_EPOCH_NS + 10**9, ticks=62_500,
+                                    kind=Event.GAP, count=12, detail="ticks jumped by 7,500"))
+        log.log_event("imu1", Event(unit="imu1", time_ns=DEMO_EPOCH_NS + 2 * 10**9,
+                                    kind=Event.DISCONNECT, detail="port closed"))
+    return path, data
+
+
+def test_entities_timelines_and_row_counts(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, data = fleet
+    store = read(path)
+    for unit, (_code, _) in UNITS.items():
+        cols = data[unit]
+        plots = {"imu0": ["accel", "ang_rate", "mag", "euler"],
+                 "imu1": ["accel", "ang_rate", "euler"],
+                 "imu2": ["quaternion", "euler"]}[unit]
+        entities = [f"/plots/{p}/{unit}" for p in plots] + [f"/world/{unit}/body"]
+        if "accel" in plots:
+            entities.append(f"/world/{unit}/body/accel")
+        for entity in entities:
+            t = table(store, entity)
+            assert t.num_rows == N, entity
+            assert np.array_equal(ns(t.column("time")), cols["time_ns"]), entity
+            assert np.array_equal(ns(t.column("device_time")), cols["ticks"] * 16_000), entity
+    # the record types decide what exists: no mag for 0xC8, no accel for 0xDF
+    names = {c.entity_path for c in RrdReader(path).stream() if c.timeline_names}
+    assert "/plots/mag/imu1" not in names and "/plots/accel/imu2" not in names
+    assert "/world/imu1/body/mag" not in names and "/world/imu0/body/mag" in names
+
+
+def test_values_are_those_logged(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, data = fleet
+    store = read(path)
+    accel = np.array(table(store, "/plots/accel/imu0").column(
+        "/plots/accel/imu0:Scalars:scalars").to_pylist())
+    assert np.array_equal(accel, data["imu0"]["accel"].astype(np.float64))
+    euler = np.array(table(store, "/plots/euler/imu1").column(
+        "/plots/euler/imu1:Scalars:scalars").to_pylist())
+    assert np.allclose(euler, np.degrees(convert.m_to_euler(data["imu1"]["m"])))
+    arrows = np.array(table(store, "/world/imu0/body/mag").column(
+        "/world/imu0/body/mag:Arrows3D:vectors").to_pylist())[:, 0, :]
+    assert np.allclose(arrows / 0.9, data["imu0"]["mag"], atol=1e-6)
+
+
+def test_series_named_once_static(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, _ = fleet
+    chunks = [c for c in RrdReader(path).stream() if c.entity_path == "/plots/euler/imu1"
+              and "SeriesLines:names" in c.to_record_batch().schema.names]
+    assert len(chunks) == 1 and chunks[0].num_rows == 1
+    batch = chunks[0].to_record_batch()
+    assert batch.column("SeriesLines:names").to_pylist() == [
+        ["imu1 roll", "imu1 pitch", "imu1 yaw"]]
+    colors = batch.column("SeriesLines:colors").to_pylist()[0]
+    assert len(set(colors)) == 3
+
+
+def test_units_side_by_side(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, _ = fleet
+    store = read(path)
+    east = []
+    for unit in UNITS:
+        t = table(store, f"/world/{unit}", index=None)
+        east.append(t.column(f"/world/{unit}:Transform3D:translation").to_pylist()[0][0])
+    positions = np.array(east)
+    # units declared first keep their order; the rest follow in order of appearance
+    assert np.all(np.diff(positions[:, 1]) >= 0.9) and np.all(positions[:, [0, 2]] == 0)
+
+
+def test_status_figures(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, _ = fleet
+    store = read(path)
+    offset = table(store, "/plots/clock_offset/imu0")
+    assert np.allclose(np.array(offset.column(
+        "/plots/clock_offset/imu0:Scalars:scalars").to_pylist())[:, 0], [0, 0.001, 0.002])
+    # device time is the clock model's inverse: (time - offset) / (1 + drift)
+    expected = np.round((np.arange(3) * 10**9 - 1000 * np.arange(3)) / (1 + 20e-6))
+    assert np.array_equal(ns(offset.column("device_time")), expected.astype(np.int64))
+    dropped = table(store, "/plots/dropped/imu0").column("/plots/dropped/imu0:Scalars:scalars")
+    assert np.array(dropped.to_pylist())[:, 0].tolist() == [0, 3, 6]
+
+
+def test_gap_is_an_event_at_its_time(fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, _ = fleet
+    store = read(path)
+    log = table(store, "/events/imu1")
+    assert log.column("/events/imu1:TextLog:text").to_pylist() == [
+        ["imu1 GAP (12): ticks jumped by 7,500"], ["imu1 DISCONNECT: port closed"]]
+    assert log.column("/events/imu1:TextLog:level").to_pylist() == [["WARN"], ["ERROR"]]
+    assert ns(log.column("time")).tolist() == [DEMO_EPOCH_NS + 10**9, DEMO_EPOCH_NS + 2 * 10**9]
+    # the disconnect has no device ticks, so it is on the time timeline only
+    on_device = table(store, "/events/imu1", index="device_time")
+    assert ns(on_device.column("device_time")).tolist() == [10**9]
+
+
+def test_blueprint_has_the_scene_and_a_view_per_quantity(
+        fleet: tuple[Path, dict[str, Any]]) -> None:
+    path, _ = fleet
+    views = blueprint_views(path)
+    assert views, "no blueprint in the recording"
+    latest = max(views, key=len)
+    expected = {("3D", "/world"), ("TextLog", "/events")} | {
+        ("TimeSeries", f"/plots/{p}") for p in ("accel", "ang_rate", "mag", "euler", "quaternion",
+                                                 "samples_per_s", "dropped", "clock_offset",
+                                                 "clock_drift")}
+    assert latest == expected
+
+
+def test_unit_appearing_later_extends_the_blueprint(tmp_path: Path) -> None:
+    path = tmp_path / "late.rrd"
+    with RerunLogger(path) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.5))
+        first = len(blueprint_views_now(log, path))
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.5, start_s=0.5))
+        assert len(blueprint_views_now(log, path)) == first  # nothing new: not sent again
+        log.log_samples("b", 0xC2, demo_columns("b", 0xC2, 2, 0.5))
+        assert len(blueprint_views_now(log, path)) == first + 1  # the camera frames b too
+        temps = demo_columns("c", 0xD1, 3, 0.5)
+        log.log_samples("c", 0xD1, temps)
+    latest = max(blueprint_views(path), key=len)
+    assert {("TimeSeries", "/plots/mag_temperature"),
+            ("TimeSeries", "/plots/gyro_temperature")} <= latest
+    store = read(path)
+    celsius = np.array(table(store, "/plots/mag_temperature/c").column(
+        "/plots/mag_temperature/c:Scalars:scalars").to_pylist())
+    # Equation 15 of the first code (the magnetometer's); the model runs at about 25 C
+    assert np.allclose(celsius[:, 0], convert.mag_temperature_celsius(temps["temperature"][:, 0]))
+    assert np.allclose(celsius, 25.0, atol=1.0)
+
+
+def blueprint_views_now(log: RerunLogger, path: Path) -> list[set[tuple[str, str]]]:
+    log.flush()
+    return blueprint_views(path)
+
+
+def _hamilton_matrix(xyzw: np.ndarray) -> np.ndarray:
+    """The rotation matrix of a Hamilton x, y, z, w quaternion (textbook formula)."""
+    x, y, z, w = xyzw / np.linalg.norm(xyzw)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+@pytest.mark.parametrize("code", [0xC5, 0xDF, 0xCE])
+def test_rotation_is_sensor_to_earth(tmp_path: Path, code: int) -> None:
+    """Known attitudes: 30 degrees of roll, pitch and yaw, each alone, then all three.
+    The logged rotation must be M^T and move the sensor axes where physics says."""
+    a = math.radians(30.0)
+    euler = np.array([[a, 0, 0], [0, a, 0], [0, 0, a], [a, -a, 2 * a]])
+    m = convert.euler_to_m(euler)
+    quantity = {0xC5: ("m", m), 0xDF: ("quaternion", convert.m_to_quaternion(m)),
+                0xCE: ("euler", euler)}[code]
+    columns: dict[str, np.ndarray] = {
+        "ticks": np.arange(4, dtype=np.int64), "time_ns": DEMO_EPOCH_NS + np.arange(4),
+        quantity[0]: quantity[1].astype(np.float32)}
+    path = tmp_path / "rot.rrd"
+    with RerunLogger(path) as log:
+        log.log_samples("u", code, columns)
+    q = np.array(table(read(path), "/world/u/body").column(
+        "/world/u/body:Transform3D:quaternion").to_pylist())[:, 0, :]
+    rotations = np.array([_hamilton_matrix(x) for x in q])
+    assert np.allclose(rotations, m.transpose(0, 2, 1), atol=1e-6)
+    c, s = math.cos(a), math.sin(a)
+    # roll right: the sensor's y (right) axis dips below the horizon (+down)
+    assert np.allclose(rotations[0] @ [0, 1, 0], [0, c, s], atol=1e-6)
+    # pitch up: the sensor's x (forward) axis rises (-down)
+    assert np.allclose(rotations[1] @ [1, 0, 0], [c, 0, -s], atol=1e-6)
+    # yaw right: the sensor's x axis turns from north towards east
+    assert np.allclose(rotations[2] @ [1, 0, 0], [c, s, 0], atol=1e-6)
+
+
+def test_nan_attitudes_are_left_out_of_the_scene(tmp_path: Path) -> None:
+    cols = demo_columns("u", 0xC8, 1, 0.1)
+    cols["m"][3] = np.nan
+    path = tmp_path / "nan.rrd"
+    with RerunLogger(path) as log:
+        log.log_samples("u", 0xC8, cols)
+    store = read(path)
+    assert table(store, "/world/u/body").num_rows == len(cols["ticks"]) - 1
+    assert table(store, "/plots/accel/u").num_rows == len(cols["ticks"])
+
+
+def test_bad_input_is_one_clear_line(tmp_path: Path) -> None:
+    cols = demo_columns("u", 0xC2, 1, 0.1)
+    with RerunLogger(tmp_path / "bad.rrd") as log:
+        with pytest.raises(ValueError, match=r"lack column\(s\) ang_rate"):
+            log.log_samples("u", 0xC2, {k: v for k, v in cols.items() if k != "ang_rate"})
+        with pytest.raises(ValueError, match="do not have the 10 rows"):
+            log.log_samples("u", 0xC2, {**cols, "accel": cols["accel"][:5]})
+        with pytest.raises(ValueError, match="0x10 is not a data record"):
+            log.log_samples("u", 0x10, cols)
+
+
+def test_batches_are_gathered_then_sent_in_chunks_of_max_rows(tmp_path: Path) -> None:
+    path = tmp_path / "gather.rrd"
+    cols = demo_columns("u", 0xC2, 1, 1.2)
+    half = {k: v[:60] for k, v in cols.items()}
+    rest = {k: v[60:] for k, v in cols.items()}
+
+    def accel_chunks() -> list[int]:
+        return [c.num_rows for c in RrdReader(path).stream()
+                if c.entity_path == "/plots/accel/u" and c.timeline_names]
+
+    with RerunLogger(path, latency_s=3600.0, max_rows=100) as log:
+        log.log_samples("u", 0xC2, half)
+        log.recording.flush()
+        assert accel_chunks() == []  # gathered, not sent
+        log.log_samples("u", 0xC2, rest)  # 120 rows: due
+        log.recording.flush()
+        assert accel_chunks() == [100, 20]
+        log.log_samples("u", 0xC2, half)
+        log.flush()
+        assert accel_chunks() == [100, 20, 60]
+
+
+def test_live_window_limits_every_plot(tmp_path: Path) -> None:
+    path = tmp_path / "live.rrd"
+    with RerunLogger(path, window_s=10.0) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.5))
+    reader = RrdReader(path)
+    ranges = [c.to_record_batch().column("VisibleTimeRanges:ranges").to_pylist()[0]
+              for entry in reader.blueprints() for c in reader.stream(store=entry)
+              if c.entity_path.endswith("/VisibleTimeRanges")]
+    assert len(ranges) == 2  # accel and ang_rate
+    for view in ranges:
+        assert {r["timeline"]: r["range"]["start"] for r in view} == {
+            "time": -10 * 10**9, "device_time": -10 * 10**9}
+
+
+def test_units_logging_from_several_threads(tmp_path: Path) -> None:
+    """A live subscriber's callbacks run on several threads; nothing is lost or mixed up."""
+    path = tmp_path / "threads.rrd"
+    data = {f"u{i}": demo_columns(f"u{i}", 0xC8, i, 1.0) for i in range(4)}
+    with RerunLogger(path, latency_s=0.0) as log:
+        def feed(unit: str) -> None:
+            for start in range(0, 100, 10):
+                log.log_samples(unit, 0xC8, {k: v[start:start + 10]
+                                             for k, v in data[unit].items()})
+        threads = [threading.Thread(target=feed, args=(u,)) for u in data]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    store = read(path)
+    for unit, cols in data.items():
+        t = table(store, f"/plots/accel/{unit}")
+        got = np.array(t.column(f"/plots/accel/{unit}:Scalars:scalars").to_pylist())
+        assert np.array_equal(got, cols["accel"].astype(np.float64))
+    east = sorted(table(store, f"/world/{u}", index=None).column(
+        f"/world/{u}:Transform3D:translation").to_pylist()[0][0][1] for u in data)
+    assert east == [0.0, 1.0, 2.0, 3.0]  # each unit its own place
+
+
+def test_a_stream_the_caller_owns_stays_open(tmp_path: Path) -> None:
+    """gx3 view hands in a stream connected to a viewer: the logger flushes it, never
+    closes it."""
+    path = tmp_path / "own.rrd"
+    rec = rr.RecordingStream("gx3", recording_id="caller")
+    rec.save(path)
+    with RerunLogger(rec) as log:
+        log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.2))
+    rec.log("/after", rr.TextLog("still open"), static=True)
+    rec.flush()
+    rec.disconnect()
+    names = {c.entity_path for c in RrdReader(path).stream()}
+    assert {"/plots/accel/a", "/after"} <= names
+    assert RrdReader(path).recordings()[0].recording_id == "caller"
