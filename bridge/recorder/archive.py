@@ -278,10 +278,6 @@ class ArchiveWriter:
                      payload: bytes, rx: int) -> None:
         if code not in DATA_CODES or not has_attitude(record_quantities(code)):
             return  # the bytes are archived all the same
-        try:  # a malformed sample gets no frame, and cannot spoil its group's bulk decode
-            decode_batch(sample_unit, code, [payload])
-        except ValueError:
-            return
         # at most one frame per period per unit; time going back (a reset) starts again
         self._frame_due[unit] = log_ns + self.frame_period_ns
         group = self._pending.get((unit, sample_unit, code))
@@ -294,7 +290,11 @@ class ArchiveWriter:
         """Turn queued attitude samples into FrameTransforms, in bulk."""
         pending, self._pending = self._pending, {}
         for g in pending.values():
-            cols = decode_batch(g.sample_unit, g.code, g.payloads)
+            try:
+                cols = decode_batch(g.sample_unit, g.code, g.payloads)
+            except ValueError:  # a malformed sample among them gets no frame; the rest do
+                g = self._decodable(g)
+                cols = decode_batch(g.sample_unit, g.code, g.payloads)
             xyzw = sensor_to_earth(cols)
             ok = np.isfinite(xyzw).all(axis=1)
             times = cols["time_ns"][ok]
@@ -304,6 +304,19 @@ class ArchiveWriter:
             rx = np.asarray(g.receive_ns)[ok].tolist()
             for t, data, r in zip(times.tolist(), frames, rx, strict=True):
                 self._add(topic, g.unit, FRAME_LEAF, t, data, r)
+
+    @staticmethod
+    def _decodable(g: _Frames) -> _Frames:
+        """The samples of ``g`` that decode on their own."""
+        kept = _Frames(g.unit, g.sample_unit, g.code)
+        for payload, rx in zip(g.payloads, g.receive_ns, strict=True):
+            try:
+                decode_batch(g.sample_unit, g.code, [payload])
+            except ValueError:
+                continue
+            kept.payloads.append(payload)
+            kept.receive_ns.append(rx)
+        return kept
 
     def _maybe_split(self, rx: int) -> None:
         f = self._current()
