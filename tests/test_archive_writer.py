@@ -196,8 +196,9 @@ ATTITUDES = {
 }
 
 
-def write_attitudes(path: Path, code: int, **options: object) -> None:
-    with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
+def write_attitudes(path: Path, code: int) -> None:
+    """Three units, one rotated about each axis; a frame for every sample."""
+    with ArchiveWriter(path, frame_rate_hz=None) as writer:
         for k, (name, (euler, _)) in enumerate(ATTITUDES.items()):
             batch = synthetic_batch(code, 5, k, np.tile(euler, (5, 1)))
             t = T0 + np.arange(5, dtype=np.int64) * PERIOD

@@ -18,8 +18,9 @@ MESSAGE_NAMES = {leaf: f"gx3.v1.{name}" for leaf, name in
                   ("info", "Info"))}
 
 
-def file_descriptor_set() -> bytes:
-    """schemas/gx3.proto and its imports, dependencies first, serialized."""
+def file_descriptor_set(root: FileDescriptor = DESCRIPTOR) -> bytes:
+    """A .proto file (default schemas/gx3.proto) and its imports, dependencies first,
+    serialized."""
     files = FileDescriptorSet()
     seen: set[str] = set()
 
@@ -33,5 +34,5 @@ def file_descriptor_set() -> bytes:
         fd.CopyToProto(proto)
         files.file.append(proto)
 
-    add(DESCRIPTOR)
+    add(root)
     return files.SerializeToString()

@@ -3,27 +3,24 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
 from bridge.cli.common import app, err, fail, parse_code
-from bridge.recorder.archive import ArchiveError
-from bridge.recorder.export import (
-    align_table,
-    check_format,
-    event_table,
-    parse_time,
-    sample_table,
-    write_table,
-)
-from bridge.recorder.read import Archive, ArchiveReadError, describe_problem, read_archive
-from bridge.recorder.repair import repair as repair_archive
+
+if TYPE_CHECKING:
+    from bridge.recorder.read import Archive
+
+# The recorder modules (pyarrow, protobuf schemas) load only when these commands run, so
+# every other gx3 command starts as fast as before.
 
 
 def _read(path: Path) -> Archive:
     """Read an archive with progress on a terminal; warn once when it was cut short."""
+    from bridge.recorder.read import describe_problem, read_archive
+
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
                         transient=True, disable=not err.is_terminal)
@@ -48,6 +45,10 @@ def repair(
     """Rebuild a finished, indexed archive from one cut short (a killed recorder, a full
     disk): every schema, channel, metadata record and message up to the last complete
     chunk is copied; what follows is dropped and counted."""
+    from bridge.recorder.archive import ArchiveError
+    from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.repair import repair as repair_archive
+
     try:
         report = repair_archive(file, output)
     except (ArchiveReadError, ArchiveError) as exc:
@@ -59,23 +60,26 @@ def repair(
 def export(
     archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", help="Table to write: .parquet or .csv.")],
+        "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv.")],
     unit: Annotated[list[str] | None, typer.Option(
-        "--unit", "-u", help="Only this unit (repeatable). Default: every unit.")] = None,
+        "--unit", "-u", metavar="NAME",
+        help="Only this unit (repeatable). Default: every unit.")] = None,
     record_type: Annotated[list[str] | None, typer.Option(
         "--type", "-t", metavar="CODE",
         help="Only records of this command, e.g. 0xCC (repeatable).")] = None,
     start: Annotated[str | None, typer.Option(
+        metavar="TIME",
         help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
              "from the first sample.")] = None,
     end: Annotated[str | None, typer.Option(
-        help="End instant (exclusive), as --start.")] = None,
+        metavar="TIME", help="End instant (exclusive), as --start.")] = None,
     align: Annotated[float | None, typer.Option(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
              "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
              "empty inside gaps.")] = None,
     events: Annotated[Path | None, typer.Option(
+        metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
 ) -> None:
@@ -84,6 +88,17 @@ def export(
     m11 .. m33, roll pitch yaw, q0 .. q3, temperature_0 .. temperature_3, ...), NaN
     where a record lacks a quantity; rows in time order. M maps earth (north-east-down)
     to sensor; the quaternion is scalar first."""
+    from bridge.recorder.archive import ArchiveError
+    from bridge.recorder.export import (
+        align_table,
+        check_format,
+        event_table,
+        parse_time,
+        sample_table,
+        write_table,
+    )
+    from bridge.recorder.read import ArchiveReadError
+
     try:
         check_format(output)
         if events is not None:

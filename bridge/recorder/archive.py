@@ -29,16 +29,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, TypeVar
+from typing import IO, Any, TypeVar, cast
 
 import numpy as np
-from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError, Message
 from mcap.writer import CompressionType, Writer
 
 from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
+from bridge.bus.schema import file_descriptor_set
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
 from bridge.recorder.rawcapture import RAW_ENCODING
@@ -61,22 +62,6 @@ MESSAGES: dict[str, tuple[type[Message], str]] = {
 
 class ArchiveError(OSError):
     """The archive cannot be written; the message names the file and the cause."""
-
-
-def descriptor_set(message_class: type[Message]) -> bytes:
-    """A FileDescriptorSet of the message's .proto file and everything it imports."""
-    fds = FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(message_class.DESCRIPTOR.file)
-    return fds.SerializeToString()
 
 
 def frame_topic(prefix: str, unit: str) -> str:
@@ -219,8 +204,8 @@ class ArchiveWriter:
             name = cls.DESCRIPTOR.full_name
             schema_id = f.schemas.get(name, 0)
             if not schema_id:
-                schema_id = self._guard(f.writer.register_schema, name, PROTOBUF,
-                                        descriptor_set(cls))
+                schema = file_descriptor_set(cast(FileDescriptor, cls.DESCRIPTOR.file))
+                schema_id = self._guard(f.writer.register_schema, name, PROTOBUF, schema)
                 f.schemas[name] = schema_id
             encoding = PROTOBUF
             meta = {"unit": unit}
@@ -293,10 +278,6 @@ class ArchiveWriter:
                      payload: bytes, rx: int) -> None:
         if code not in DATA_CODES or not has_attitude(record_quantities(code)):
             return  # the bytes are archived all the same
-        try:  # a malformed sample gets no frame, and cannot spoil its group's bulk decode
-            decode_batch(sample_unit, code, [payload])
-        except ValueError:
-            return
         # at most one frame per period per unit; time going back (a reset) starts again
         self._frame_due[unit] = log_ns + self.frame_period_ns
         group = self._pending.get((unit, sample_unit, code))
@@ -309,7 +290,11 @@ class ArchiveWriter:
         """Turn queued attitude samples into FrameTransforms, in bulk."""
         pending, self._pending = self._pending, {}
         for g in pending.values():
-            cols = decode_batch(g.sample_unit, g.code, g.payloads)
+            try:
+                cols = decode_batch(g.sample_unit, g.code, g.payloads)
+            except ValueError:  # a malformed sample among them gets no frame; the rest do
+                g = self._decodable(g)
+                cols = decode_batch(g.sample_unit, g.code, g.payloads)
             xyzw = sensor_to_earth(cols)
             ok = np.isfinite(xyzw).all(axis=1)
             times = cols["time_ns"][ok]
@@ -319,6 +304,19 @@ class ArchiveWriter:
             rx = np.asarray(g.receive_ns)[ok].tolist()
             for t, data, r in zip(times.tolist(), frames, rx, strict=True):
                 self._add(topic, g.unit, FRAME_LEAF, t, data, r)
+
+    @staticmethod
+    def _decodable(g: _Frames) -> _Frames:
+        """The samples of ``g`` that decode on their own."""
+        kept = _Frames(g.unit, g.sample_unit, g.code)
+        for payload, rx in zip(g.payloads, g.receive_ns, strict=True):
+            try:
+                decode_batch(g.sample_unit, g.code, [payload])
+            except ValueError:
+                continue
+            kept.payloads.append(payload)
+            kept.receive_ns.append(rx)
+        return kept
 
     def _maybe_split(self, rx: int) -> None:
         f = self._current()

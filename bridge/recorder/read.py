@@ -212,9 +212,15 @@ class Archive:
         return Messages(topic, info.unit if info else "", info.kind if info else "",
                         log[order], pub[order], seq[order], [payloads[i] for i in order])
 
-    def iter_messages(self, topics: Iterable[str] | None = None) -> Iterator[Record]:
-        """Messages of ``topics`` (default: all) merged in log-time order."""
-        msgs = [self.messages(t) for t in (self.topics() if topics is None else topics)]
+    def iter_messages(self, topics: Iterable[str] | None = None,
+                      units: Iterable[str] | None = None) -> Iterator[Record]:
+        """Messages of ``topics`` and ``units`` (default: all) merged in log-time order."""
+        chosen = self.topics() if topics is None else list(topics)
+        if units is not None:
+            keep = set(units)
+            chosen = [t for t in chosen if any(c.unit in keep for c in self.channels.values()
+                                               if c.topic == t)]
+        msgs = [self.messages(t) for t in chosen]
         if not msgs:
             return
         which = np.repeat(np.arange(len(msgs)), [len(m) for m in msgs]).tolist()
