@@ -31,7 +31,8 @@ _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
           "command": Event.COMMAND}
 
 
-def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool) -> Info:
+def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
+                 link: str = "uart") -> Info:
     s = info.sampling
     return Info(
         unit=unit, port=port, baud=info.baud, firmware=info.firmware,
@@ -41,7 +42,7 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool) -> 
         up_compensation=s.get("up_compensation", 0),
         north_compensation=s.get("north_compensation", 0), command=info.record,
         mode=2, bring_up_time_ns=info.bring_up_ns, bridge_version=version("gx3-bridge"),
-        allow_commands=allow_commands, output_rate_hz=info.output_hz, **info.ids)
+        allow_commands=allow_commands, output_rate_hz=info.output_hz, link=link, **info.ids)
 
 
 def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
@@ -124,11 +125,12 @@ class BusSink:
         self._info = info
         if self.unit is None:
             self.unit = check_unit(_name_from_serial(info.ids.get("serial", "")))
-        message = info_message(self.unit, self.port, info, self.allow_commands)
+        assert self.pipeline is not None
+        message = info_message(self.unit, self.port, info, self.allow_commands,
+                               self.pipeline.transport)
         if self.publisher is not None:
             self.publisher.set_info(message)
             return
-        assert self.pipeline is not None
         self.publisher = UnitPublisher(
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),

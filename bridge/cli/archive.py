@@ -83,16 +83,20 @@ def export(
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
 ) -> None:
-    """Export samples to Parquet or CSV: one row per sample with unit, command, timer,
-    ticks, time_ns, live_time_ns, rx_ns and flat quantity columns (accel_x .. accel_z,
-    m11 .. m33, roll pitch yaw, q0 .. q3, temperature_0 .. temperature_3, ...), NaN
-    where a record lacks a quantity; rows in time order. M maps earth (north-east-down)
-    to sensor; the quaternion is scalar first."""
+    """Export samples to Parquet or CSV, one row per sample, every unit on one timeline.
+
+    Columns: unit, command, timer, ticks, time_ns (each unit's clock re-estimated over
+    the whole recording), live_time_ns (as the bridge published it), rx_ns, then flat
+    quantity columns (accel_x .. accel_z, m11 .. m33, roll pitch yaw, q0 .. q3,
+    temperature_0 .. temperature_3, ...), NaN where a record lacks a quantity; rows in
+    time order. M maps earth (north-east-down) to sensor; the quaternion is scalar first.
+    """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.export import (
         align_table,
         check_format,
         event_table,
+        offline_times,
         parse_time,
         sample_table,
         write_table,
@@ -110,7 +114,7 @@ def export(
         first = data.first_sample_ns() or 0
         lo_ns = lo.resolve(first) if lo else None
         hi_ns = hi.resolve(first) if hi else None
-        table = sample_table(data, unit, codes, lo_ns, hi_ns)
+        table = sample_table(data, unit, codes, lo_ns, hi_ns, offline_times(data))
         rows = len(table["time_ns"])
         if not rows:
             raise ValueError(f"{archive}: no samples match (units: "

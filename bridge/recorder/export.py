@@ -23,7 +23,7 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
 from bridge.bus.codec import HEADER, elements
-from bridge.bus.gx3_pb2 import Event, ImuSample
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info
 from bridge.protocol.convert import (
     euler_to_quaternion,
     m_to_quaternion,
@@ -31,10 +31,12 @@ from bridge.protocol.convert import (
     quaternion_to_m,
 )
 from bridge.recorder.read import Archive, Samples
+from bridge.timing.offline import OfflineClock
+from bridge.timing.stream import TRANSPORTS, USB_FRAME_NS, Settings
 
-#: Offline re-estimate of sample times for one unit: (ticks, rx_ns) -> time_ns, all in
-#: arrival order, int64 ns.
-ReEstimate = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: Offline re-estimate of sample times: (unit, ticks, rx_ns) -> time_ns, all of one unit
+#: in arrival order, int64 ns; None keeps that unit's live times.
+ReEstimate = Callable[[str, np.ndarray, np.ndarray], np.ndarray | None]
 
 #: Quantity fields of ImuSample in schema order (the column order of an export).
 QUANTITY_ORDER = tuple(f.name for f in ImuSample.DESCRIPTOR.fields if f.name not in HEADER
@@ -85,7 +87,8 @@ def parse_time(text: str) -> TimeBound:
                      + delta.microseconds * 1000, relative=False)
 
 
-def _unit_times(blocks: Sequence[Samples], re_estimate: ReEstimate | None) -> list[np.ndarray]:
+def _unit_times(unit: str, blocks: Sequence[Samples],
+                re_estimate: ReEstimate | None) -> list[np.ndarray]:
     """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
     live = [b.columns["time_ns"] for b in blocks]
     if re_estimate is None:
@@ -93,9 +96,52 @@ def _unit_times(blocks: Sequence[Samples], re_estimate: ReEstimate | None) -> li
     ticks = np.concatenate([b.columns["ticks"] for b in blocks])
     rx = np.concatenate([b.columns["rx_ns"] for b in blocks])
     order = np.argsort(rx, kind="stable")
+    found = re_estimate(unit, ticks[order], rx[order])
+    if found is None:
+        return live
     estimate = np.empty(len(rx), np.int64)
-    estimate[order] = np.asarray(re_estimate(ticks[order], rx[order]), np.int64)
+    estimate[order] = np.asarray(found, np.int64)
     return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
+
+
+def unit_settings(archive: Archive, unit: str) -> Settings | None:
+    """What decided a unit's timing, from the last Info its bridge published."""
+    topic = f"{archive_prefix(archive)}/{unit}/info"
+    messages = archive.messages(topic) if topic in archive.topics("info") else None
+    if messages is None or not len(messages):
+        return None
+    info = Info.FromString(messages.payloads[-1])
+    if not (info.command and info.baud and info.decimation and info.filter_width):
+        return None
+    return Settings(record=info.command, decimation=info.decimation,
+                    filter_width=info.filter_width, baud=info.baud,
+                    transport=info.link if info.link in TRANSPORTS else "uart")
+
+
+def archive_prefix(archive: Archive) -> str:
+    """The key prefix the archive was recorded under."""
+    for m in archive.metadata:
+        if m.name == "gx3.archive" and "prefix" in m.metadata:
+            return m.metadata["prefix"]
+    return "gx3"
+
+
+def offline_times(archive: Archive) -> ReEstimate:
+    """Each unit's sample instants re-estimated over the whole recording (the live
+    estimate only had the past), with the settings of the unit's archived Info; units
+    without one keep their live times."""
+    def estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray | None:
+        settings = unit_settings(archive, unit)
+        if settings is None or len(ticks) < 2:
+            return None
+        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns,
+                             USB_FRAME_NS if settings.transport == "usb" else 0)
+        order = np.argsort(ticks, kind="stable")
+        out = np.empty(len(ticks), np.int64)
+        out[order] = clock.smooth(ticks[order], rx_ns[order])
+        return out
+
+    return estimate
 
 
 def sample_table(archive: Archive, units: Iterable[str] | None = None,
@@ -108,7 +154,7 @@ def sample_table(archive: Archive, units: Iterable[str] | None = None,
     by_unit: dict[str, list[Samples]] = {}
     for b in blocks:
         by_unit.setdefault(b.unit, []).append(b)
-    times = {u: _unit_times(bs, re_estimate) for u, bs in by_unit.items()}
+    times = {u: _unit_times(u, bs, re_estimate) for u, bs in by_unit.items()}
     unit_names = sorted(by_unit)
     ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
     time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)

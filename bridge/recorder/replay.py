@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Event
+from bridge.bus.gx3_pb2 import Event, Info
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
@@ -137,7 +137,20 @@ class UnitReplay:
         return record, max(1, min(1000, round(period / (TICKS_PER_SECOND / 1000))))
 
     # --- replay --------------------------------------------------------------------------
+    def _info(self, emit: Callable[[str, bytes, int], None], prefix: str, at_ns: int) -> None:
+        """The unit's Info, as its bridge published it, so the archive is complete (and
+        the offline time estimate knows the settings)."""
+        s, meta = self.settings, self.capture.metadata
+        info = Info(unit=self.capture.unit, port=meta.get("port", ""), baud=s.baud,
+                    command=s.record, decimation=s.decimation, filter_width=s.filter_width,
+                    flags=int(meta.get("flags", "0")), output_rate_hz=1000 / s.decimation,
+                    firmware_text=meta.get("firmware", ""), link=s.transport,
+                    bring_up_time_ns=at_ns)
+        emit(f"{prefix}/{self.capture.unit}/info", info.SerializeToString(), at_ns)
+
     def run(self, emit: Callable[[str, bytes, int], None], prefix: str) -> Replayed:
+        if len(self.capture.rx_ns):
+            self._info(emit, prefix, int(self.capture.rx_ns[0]))
         for rx, data in zip(self.capture.rx_ns.tolist(), self.capture.data, strict=True):
             for batch in self.framer.feed(data, rx):
                 self._batch(batch, emit, prefix)
