@@ -127,7 +127,7 @@ def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written])
     path, written = fleet
     calls: list[int] = []
 
-    def re_estimate(ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray:
+    def re_estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray:
         calls.append(len(ticks))
         assert np.all(np.diff(rx_ns) >= 0)
         return T0 + ticks * 16_000  # 62.5 kHz ticks
