@@ -42,9 +42,12 @@ def repair(
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap).")] = None,
 ) -> None:
-    """Rebuild a finished, indexed archive from one cut short (a killed recorder, a full
-    disk): every schema, channel, metadata record and message up to the last complete
-    chunk is copied; what follows is dropped and counted."""
+    """Rebuild a finished, indexed archive from one cut short (a killed recorder).
+
+    Every schema, channel, metadata record and message up to the last complete chunk
+    is copied into a new file with its index and summary; what follows is dropped and
+    counted. The input is never overwritten.
+    """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
     from bridge.recorder.repair import repair as repair_archive
