@@ -37,6 +37,7 @@ _EVENT_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOV
                 "glitch": Event.GLITCH}
 FACTORY_FILTER_WIDTH = 15
 _SNIFF_READS = 400
+_GROUP = 4096  # records timed and encoded together
 
 
 class ReplayError(ValueError):
@@ -88,6 +89,7 @@ class UnitReplay:
         self.settings = self._initial_settings()
         self.framer = Framer(_EXPECT, little_endian=self._little_endian())
         self.timing = StreamTiming()
+        self._pending: list[Batch] = []
 
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self) -> Settings:
@@ -156,11 +158,27 @@ class UnitReplay:
                 self._batch(batch, emit, prefix)
         for batch in self.framer.flush():
             self._batch(batch, emit, prefix)
+        self._flush(emit, prefix)
         self.result.settings = self.settings
         return self.result
 
+    def _flush(self, emit: Callable[[str, bytes, int], None], prefix: str) -> None:
+        """Time and archive the records gathered since the last settings change in one
+        go: the timing gives the same results however records are grouped."""
+        pending, self._pending = self._pending, []
+        if pending:
+            self._samples(join(pending), emit, prefix)
+
     def _batch(self, batch: Batch, emit: Callable[[str, bytes, int], None],
                prefix: str) -> None:
+        if batch.code in DATA_CODES and batch.code == self.settings.record:
+            if self.timing.timeline is None:  # the capture began mid-stream
+                self.timing.configure(self.settings, restarted=False)
+            self._pending.append(batch)
+            if sum(len(b) for b in self._pending) >= _GROUP:
+                self._flush(emit, prefix)
+            return
+        self._flush(emit, prefix)  # what came before a settings change is timed by them
         if batch.code == SAMPLING:
             self.settings = replace(self.settings,
                                     decimation=max(1, int(batch["decimation"][-1])),
@@ -172,10 +190,6 @@ class UnitReplay:
             self.timing.configure(self.settings, restarted=True)
         elif batch.code == TIMER and self.timing.timeline is not None:
             self.timing.configure(self.settings, restarted=True)
-        elif batch.code in DATA_CODES and batch.code == self.settings.record:
-            if self.timing.timeline is None:  # the capture began mid-stream
-                self.timing.configure(self.settings, restarted=False)
-            self._samples(batch, emit, prefix)
 
     def _samples(self, batch: Batch, emit: Callable[[str, bytes, int], None],
                  prefix: str) -> None:
@@ -194,6 +208,16 @@ class UnitReplay:
         for payload, rx in zip(payloads, timed.batch.rx_ns.tolist(), strict=True):
             emit(f"{prefix}/{unit}/imu", payload, rx)
         self.result.samples += len(payloads)
+
+
+def join(batches: list[Batch]) -> Batch:
+    """Consecutive batches of one record type and byte order as one."""
+    first = batches[0]
+    if len(batches) == 1:
+        return first
+    columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
+    return Batch(first.code, columns, np.concatenate([b.offsets for b in batches]),
+                 np.concatenate([b.rx_ns for b in batches]), first.little_endian)
 
 
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
