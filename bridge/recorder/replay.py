@@ -90,6 +90,7 @@ class UnitReplay:
         self.framer = Framer(_EXPECT, little_endian=self._little_endian())
         self.timing = StreamTiming()
         self._pending: list[Batch] = []
+        self._pending_records = 0
 
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self) -> Settings:
@@ -165,7 +166,7 @@ class UnitReplay:
     def _flush(self, emit: Callable[[str, bytes, int], None], prefix: str) -> None:
         """Time and archive the records gathered since the last settings change in one
         go: the timing gives the same results however records are grouped."""
-        pending, self._pending = self._pending, []
+        pending, self._pending, self._pending_records = self._pending, [], 0
         if pending:
             self._samples(join(pending), emit, prefix)
 
@@ -175,7 +176,8 @@ class UnitReplay:
             if self.timing.timeline is None:  # the capture began mid-stream
                 self.timing.configure(self.settings, restarted=False)
             self._pending.append(batch)
-            if sum(len(b) for b in self._pending) >= _GROUP:
+            self._pending_records += len(batch)
+            if self._pending_records >= _GROUP:
                 self._flush(emit, prefix)
             return
         self._flush(emit, prefix)  # what came before a settings change is timed by them
