@@ -95,7 +95,7 @@ def test_fleet_across_namespaces_through_a_router_survives_a_pulled_link(
                 time.sleep(3.0)
                 ip("-n", bridges_ns, "link", "set", link, "up")
                 before = samples_in(out, "a")
-                wait_for(lambda: samples_in(out, "a") >= before + 300, timeout=90)
+                wait_for(lambda: samples_in(out, "a") >= before + 150, timeout=90)
                 for bridge in bridges:
                     bridge.send_signal(signal.SIGINT)
                 stderr = {name: bridge.communicate(timeout=30)[1]

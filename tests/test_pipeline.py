@@ -186,7 +186,7 @@ def test_time_on_a_usb_unit_is_the_instant_the_values_describe() -> None:
         worker = threading.Thread(target=pipeline.run, args=(stop,))
         worker.start()
         try:
-            wait_for(lambda: len(sink.column("ticks")) >= 800, timeout=60)
+            wait_for(lambda: len(sink.column("ticks")) >= 600, timeout=60)
         finally:
             stop.set()
             worker.join(timeout=30)
