@@ -15,12 +15,16 @@ from collections.abc import Callable
 from importlib.metadata import version
 from typing import Any
 
+from rich.console import Console
+
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
 from bridge.pipeline import Pipeline, Samples, UnitEvent
+from bridge.protocol.table import Mode
 
 DECLARE_SETTLE_S = 1.0
+_err = Console(stderr=True, highlight=False, soft_wrap=True)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
            "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
@@ -32,7 +36,7 @@ _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
 
 
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
-                 link: str = "uart") -> Info:
+                 link: str = "uart", polled: bool = False) -> Info:
     s = info.sampling
     return Info(
         unit=unit, port=port, baud=info.baud, firmware=info.firmware,
@@ -41,7 +45,8 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
         mag_filter_width=s.get("mag_filter_width", 0),
         up_compensation=s.get("up_compensation", 0),
         north_compensation=s.get("north_compensation", 0), command=info.record,
-        mode=2, bring_up_time_ns=info.bring_up_ns, bridge_version=version("gx3-bridge"),
+        mode=int(Mode.ACTIVE if polled else Mode.CONTINUOUS), bring_up_time_ns=info.bring_up_ns,
+        bridge_version=version("gx3-bridge"),
         allow_commands=allow_commands, output_rate_hz=info.output_hz, link=link, **info.ids)
 
 
@@ -127,7 +132,7 @@ class BusSink:
             self.unit = check_unit(_name_from_serial(info.ids.get("serial", "")))
         assert self.pipeline is not None
         message = info_message(self.unit, self.port, info, self.allow_commands,
-                               self.pipeline.transport)
+                               self.pipeline.transport, self.pipeline.options.poll_hz is not None)
         if self.publisher is not None:
             self.publisher.set_info(message)
             return
@@ -185,8 +190,6 @@ def _name_from_serial(serial: str) -> str:
 
 
 def _print_event(event: UnitEvent) -> None:
-    from bridge.cli.common import err
-
     stamp = time.strftime("%H:%M:%S", time.localtime(event.time_ns / 1e9))
     count = f" ({event.count})" if event.count > 1 else ""
-    err.print(f"[dim]{stamp}[/] [bold]{event.kind}[/]{count} {event.detail}".rstrip())
+    _err.print(f"[dim]{stamp}[/] [bold]{event.kind}[/]{count} {event.detail}".rstrip())
