@@ -218,3 +218,30 @@ def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
         router.communicate(timeout=30)
     assert router.returncode == 0
     assert samples_in(out, "a") >= 100
+
+
+def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
+    """A killed recorder's file: `gx3 rrd` renders what is readable and says so."""
+    from bridge.bus.codec import encode_batch
+    from bridge.protocol.codec import Batch
+    from bridge.protocol.table import REPLIES
+    from bridge.recorder.archive import ArchiveWriter
+
+    path = tmp_path / "cut.mcap"
+    with ArchiveWriter(path, chunk_size=4096) as writer:
+        n = 2000
+        columns = {f.name: np.zeros((n, *f.shape), np.float32) for f in REPLIES[0xC2].fields}
+        columns["timer"] = (np.arange(n) * 625).astype(np.uint32)
+        t = 1_763_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 10_000_000
+        batch = Batch(0xC2, columns, np.arange(n), t, False)
+        for i, payload in enumerate(encode_batch("a", batch, np.arange(n) * 625, t, t)):
+            writer.write("gx3/a/imu", payload, int(t[i]))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) * 2 // 3])
+    out = tmp_path / "cut.rrd"
+    done = subprocess.run([GX3, "rrd", str(path), "-o", str(out)], capture_output=True,
+                          text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    rows = rerun_rows(out, "/plots/accel/a")
+    assert 0 < rows < 2000, rows
+    assert f"{rows:,} samples" in done.stderr and "Traceback" not in done.stderr
