@@ -78,6 +78,12 @@ def main() -> None:
     elapsed = time.perf_counter() - start
     print(f"gx3 export -> parquet: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
           f"{out.stat().st_size / 1e6:.1f} MB")
+    rrd = workdir / "bench.rrd"
+    start = time.perf_counter()
+    subprocess.run([gx3, "rrd", str(path), "-o", str(rrd)], check=True)
+    elapsed = time.perf_counter() - start
+    print(f"gx3 rrd -> Rerun: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
+          f"{rrd.stat().st_size / total:.0f} bytes/sample")
     if args.dir is None:
         shutil.rmtree(workdir)
 
