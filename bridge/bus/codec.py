@@ -166,7 +166,8 @@ def decode_batch(unit: str, code: int, payloads: Sequence[bytes]) -> dict[str, n
     lay = layout(code, unit)
     n = len(payloads)
     recs = np.zeros(n, lay.dtype)
-    fits = np.array([len(p) == lay.size for p in payloads], bool)
+    size = lay.size
+    fits = np.fromiter((len(p) == size for p in payloads), bool, n)
     if fits.any():
         raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
                             np.uint8).reshape(-1, lay.size)
