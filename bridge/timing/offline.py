@@ -24,6 +24,7 @@ from bridge.timing.clock import (
     grid_histogram,
     snap,
     support_slope,
+    uncovered_half,
 )
 from bridge.timing.unwrap import NS_PER_TICK
 
@@ -81,4 +82,6 @@ class OfflineClock:
         """The lower envelope's value at ``at``; half a frame under it on USB."""
         dx, dy = (x - at).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
-        return int(y[0]) + float(np.min(dy - slope * dx)) - self.frame_ns / 2
+        residual = dy - slope * dx
+        level = float(np.min(residual))
+        return int(y[0]) + level - uncovered_half(residual - level, self.frame_ns)
