@@ -91,7 +91,7 @@ class OnlineClock:
 
     ``filter_delay_ns``: the unit's moving-average delay, (M - 1) / 2 ms for filter
     width M. ``floor_ns``: the least time from sample to receive the transport
-    allows (a UART's line time of the record, len * 10 / baud s; USB: 0).
+    allows (a UART's line time of the record, len * 10 / baud s; USB: len * 1 us).
     ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line.
     """
 
