@@ -58,7 +58,10 @@ class OfflineClock:
             y = snap(y, grid_histogram(y, self.frame_ns), self.frame_ns)
         x0, y0 = int(x[0]), int(y[0])
         dx, dy = (x - x0).astype(np.float64), (y - y0).astype(np.float64)
-        rate = support_slope(dx, dy, float(NS_PER_TICK)) if len(x) > 1 else float(NS_PER_TICK)
+        # The lower envelope's slope under the middle of the recording: the mean rate to
+        # within a frame over half the span (judged at an end it is the first hull
+        # edge's, which a staircase can tilt by hundreds of ppm).
+        rate = support_slope(dx - dx[-1] / 2, dy, float(NS_PER_TICK))
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
         bx, by = bucket_minima(x, y, rate) if self.frame_ns else ([], [])
         values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
