@@ -63,3 +63,16 @@ def test_wander_that_bends_every_window_costs_no_half_frame() -> None:
     assert p99 < 100_000, p99  # was ~470 us: half a frame early around bent windows
     assert p99 < np.percentile(np.abs(live_err), 99)
     assert abs(err.mean()) < 25_000, err.mean()  # no transfer time left in (floor on USB)
+
+
+def test_a_unit_slower_than_the_frame_clock_keeps_its_rate() -> None:
+    # The smoother's slopes are searched around a prior rate. Taken from the first
+    # edge of the staircase's hull it sat 500 ppm low here, leaving out this unit's
+    # true rate: every window with the frame crossing was rejected and the estimate
+    # drifted with the frame clock instead (p99 ~550 us).
+    config = streaming_config(UnitConfig(clock_ppm=-2.0, clock_seed=4), code=0xC2)
+    capture = synthesize(config, UsbDelivery(frame_phase_s=0.00055, seed=4), seconds=300.0)
+    timer, rx = capture.records()
+    ticks = TimerUnwrapper(625).update(timer, rx).ticks
+    out = OfflineClock(_delay_ns(capture), FLOOR_NS, FRAME_NS).smooth(ticks, rx)
+    assert np.percentile(_errors(capture, out), 99) < 250_000
