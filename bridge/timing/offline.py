@@ -6,8 +6,11 @@ the shortest window around the anchor in which the frame staircase pins one
 straight line (a long one for a unit whose phase crawls across the frame, a
 short one where it sweeps the frame and wander would bend a longer line) and
 puts the anchor in the middle of every line the points allow; records between
-anchors are interpolated. Without a frame grid
-(a serial line) each anchor gets the lower envelope's line through its window.
+anchors are interpolated. Without a frame grid (a serial line), or where wander
+bends every window so that no straight line fits its staircase, an anchor gets
+the lower envelope's line through the shortest window, less half of the frame
+its points leave uncovered: nothing where the phase has swept the frame (the
+envelope then runs along the staircase's corners), half a frame where it has not.
 """
 
 from __future__ import annotations
@@ -82,7 +85,7 @@ class OfflineClock:
         return self._envelope(x[lo:hi], y[lo:hi], at, rate)
 
     def _envelope(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
-        """The lower envelope's value at ``at``; half a frame under it on USB."""
+        """The lower envelope's value at ``at``, less half of the frame uncovered."""
         dx, dy = (x - at).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
         residual = dy - slope * dx
