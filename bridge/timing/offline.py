@@ -31,7 +31,9 @@ from bridge.timing.clock import (
 )
 from bridge.timing.unwrap import NS_PER_TICK
 
-_WINDOWS_S = (60.0, 120.0, 300.0, 600.0)  # shortest first
+# Shortest first. The longest lets a unit that beats slowly against the frame clock
+# and crossed a frame boundary once keep that crossing in view ten minutes later.
+_WINDOWS_S = (60.0, 120.0, 300.0, 600.0, 1200.0)
 
 
 class OfflineClock:
