@@ -11,7 +11,7 @@
 
 What the caller passes: ``period_ticks`` = decimation x 62.5 (None if unknown);
 ``filter_delay_ns`` = (M - 1) x 500,000 for filter width M (0xDB); ``floor_ns`` =
-the record's line time on a UART (length x 10 / baud s, in ns), 0 on USB;
+the record's line time on a UART (length x 10 / baud s, in ns), length x 1 us on USB;
 ``frame_ns`` = 1,000,000 on USB (full-speed frames), 0 on a UART. A bridge that
 resets the unit, sets its timer or changes its sampling calls
 ``expect_discontinuity`` first; a Timeline resets its clock itself on a reset.

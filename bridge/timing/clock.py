@@ -91,7 +91,7 @@ class OnlineClock:
 
     ``filter_delay_ns``: the unit's moving-average delay, (M - 1) / 2 ms for filter
     width M. ``floor_ns``: the least time from sample to receive the transport
-    allows (a UART's line time of the record, len * 10 / baud s; USB: 0).
+    allows (a UART's line time of the record, len * 10 / baud s; USB: len * 1 us).
     ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line.
     """
 
@@ -192,9 +192,7 @@ class OnlineClock:
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
         if self.frame_ns:
-            recent = residual[dx >= 0]
-            same = recent[recent < self.frame_ns - _GRID_GUARD_NS]
-            bias = (self.frame_ns - float(same.max())) / 2 if len(same) else 0.0
+            bias = uncovered_half(residual[dx >= 0], self.frame_ns)
         raw = (self._y - y_ref).astype(np.float64) - self._rate * dx - level
         self._spread = int(np.median(raw))
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
@@ -240,6 +238,18 @@ class OnlineClock:
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
         return snap(self._y, self._grid, self.frame_ns)
+
+
+def uncovered_half(residual: np.ndarray, frame: int) -> float:
+    """Half the frame that snapped points above a lower-envelope line leave uncovered.
+
+    The true line is under every snapped point and less than a frame under it; where
+    the unit's phase has swept the frame the residuals cover it and the envelope is
+    the line, where it has not the line is somewhere in the gap: take off half.
+    Residuals within a guard of a whole frame may be reads a frame late.
+    """
+    same = residual[residual < frame - _GRID_GUARD_NS]
+    return (frame - float(same.max())) / 2 if len(same) else 0.0
 
 
 def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:

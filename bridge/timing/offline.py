@@ -6,8 +6,11 @@ the shortest window around the anchor in which the frame staircase pins one
 straight line (a long one for a unit whose phase crawls across the frame, a
 short one where it sweeps the frame and wander would bend a longer line) and
 puts the anchor in the middle of every line the points allow; records between
-anchors are interpolated. Without a frame grid
-(a serial line) each anchor gets the lower envelope's line through its window.
+anchors are interpolated. Without a frame grid (a serial line), or where wander
+bends every window so that no straight line fits its staircase, an anchor gets
+the lower envelope's line through the shortest window, less half of the frame
+its points leave uncovered: nothing where the phase has swept the frame (the
+envelope then runs along the staircase's corners), half a frame where it has not.
 """
 
 from __future__ import annotations
@@ -24,10 +27,13 @@ from bridge.timing.clock import (
     grid_histogram,
     snap,
     support_slope,
+    uncovered_half,
 )
 from bridge.timing.unwrap import NS_PER_TICK
 
-_WINDOWS_S = (60.0, 120.0, 300.0, 600.0)  # shortest first
+# Shortest first. The longest lets a unit that beats slowly against the frame clock
+# and crossed a frame boundary once keep that crossing in view ten minutes later.
+_WINDOWS_S = (60.0, 120.0, 300.0, 600.0, 1200.0)
 
 
 class OfflineClock:
@@ -57,7 +63,10 @@ class OfflineClock:
             y = snap(y, grid_histogram(y, self.frame_ns), self.frame_ns)
         x0, y0 = int(x[0]), int(y[0])
         dx, dy = (x - x0).astype(np.float64), (y - y0).astype(np.float64)
-        rate = support_slope(dx, dy, float(NS_PER_TICK)) if len(x) > 1 else float(NS_PER_TICK)
+        # The lower envelope's slope under the middle of the recording: the mean rate to
+        # within a frame over half the span (judged at an end it is the first hull
+        # edge's, which a staircase can tilt by hundreds of ppm).
+        rate = support_slope(dx - dx[-1] / 2, dy, float(NS_PER_TICK))
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
         bx, by = bucket_minima(x, y, rate) if self.frame_ns else ([], [])
         values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
@@ -78,7 +87,9 @@ class OfflineClock:
         return self._envelope(x[lo:hi], y[lo:hi], at, rate)
 
     def _envelope(self, x: np.ndarray, y: np.ndarray, at: int, rate: float) -> float:
-        """The lower envelope's value at ``at``; half a frame under it on USB."""
+        """The lower envelope's value at ``at``, less half of the frame uncovered."""
         dx, dy = (x - at).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
-        return int(y[0]) + float(np.min(dy - slope * dx)) - self.frame_ns / 2
+        residual = dy - slope * dx
+        level = float(np.min(residual))
+        return int(y[0]) + level - uncovered_half(residual - level, self.frame_ns)

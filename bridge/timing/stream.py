@@ -19,6 +19,7 @@ from bridge.timing.timeline import Timeline
 from bridge.timing.unwrap import TimingEvent
 
 USB_FRAME_NS = 1_000_000
+USB_BYTE_NS = 1_000  # full-speed USB moves about 1 MB/s of payload
 TRANSPORTS = ("uart", "usb")
 
 
@@ -45,9 +46,11 @@ class Settings:
 
     @property
     def floor_ns(self) -> int:
-        """The least time a record takes to reach the host: its line time on a UART."""
+        """The least time a record takes to reach the host: its line time on a UART; on
+        USB (the baud setting has no effect there) its transfer at full speed's payload
+        rate."""
         if self.transport == "usb":
-            return 0
+            return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
 
 
