@@ -28,6 +28,7 @@ from bridge.device.session import (
     find_baud,
 )
 from bridge.protocol.codec import Batch
+from bridge.timing.rate import RateWindow
 from bridge.timing.stream import Settings, StreamTiming
 
 _RETRY_FIRST_S = 0.2
@@ -83,13 +84,11 @@ class Counters:
     bytes_skipped: int = 0
     resyncs: int = 0
     state: str = "starting"
-    window: list[tuple[float, int]] = field(default_factory=list)
+    meter: RateWindow = field(default_factory=lambda: RateWindow(5.0))
 
     def rate(self, now: float) -> float:
         """Samples per second over the last few seconds."""
-        self.window = [(t, n) for t, n in self.window if now - t <= 5.0] + [(now, self.samples)]
-        (t0, n0), (t1, n1) = self.window[0], self.window[-1]
-        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+        return self.meter.rate(now, self.samples)
 
 
 class Sink(Protocol):

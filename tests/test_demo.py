@@ -13,7 +13,6 @@ from tests.test_record_live import rerun_rows
 
 
 def test_demo_runs_the_fleet_and_reports_the_fault(tmp_path: Path) -> None:
-    assert GX3
     out = tmp_path / "demo"
     proc = psutil.Popen([GX3, "demo", "--duration", "5", "--units", "2", "-o", str(out)],
                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -60,7 +60,6 @@ def two_hosts() -> Iterator[tuple[str, str, str, str]]:
 
 
 def in_ns(ns: str, *args: str) -> list[str]:
-    assert GX3
     return ["ip", "netns", "exec", ns, GX3, *args]
 
 

@@ -105,7 +105,6 @@ class Session:
         self.paced = False  # bytes come at the UART's line rate (not in USB packets)
         self.on_read: Callable[[bytes, int], None] | None = None  # raw capture hook
         self._backlog: list[Batch] = []
-        self.bytes_read = 0
 
     # --- reading -----------------------------------------------------------------------
     def _expect(self, *extra: int) -> None:
@@ -118,7 +117,6 @@ class Session:
         data, rx_ns = self.port.read(wait_s)
         if not data:
             return []
-        self.bytes_read += len(data)
         if self.on_read is not None:
             self.on_read(data, rx_ns)
         return self.framer.feed(data, rx_ns)

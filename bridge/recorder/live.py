@@ -22,6 +22,7 @@ from bridge.bus.gx3_pb2 import Status
 from bridge.bus.keys import unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.recorder.archive import ArchiveError, ArchiveWriter
+from bridge.timing.rate import RateWindow
 
 LEAVES = ("imu", "status", "event")
 _QUERY_TIMEOUT_S = 3.0
@@ -41,12 +42,10 @@ class UnitView:
     last_ns: int = 0
     status: Status | None = None
     joined: int = 1
-    recent: list[tuple[float, int]] = field(default_factory=list)
+    meter: RateWindow = field(default_factory=lambda: RateWindow(3.0))
 
     def rate(self, now: float) -> float:
-        self.recent = [(t, n) for t, n in self.recent if now - t <= 3.0] + [(now, self.samples)]
-        (t0, n0), (t1, n1) = self.recent[0], self.recent[-1]
-        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+        return self.meter.rate(now, self.samples)
 
 
 class Recorder:
