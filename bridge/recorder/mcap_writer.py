@@ -1,0 +1,278 @@
+"""A chunked, indexed MCAP writer that takes messages in bulk.
+
+mcap's ``Writer`` builds each message record through a dozen Python calls (~30 us a
+message), which caps a recorder near 30,000 messages a second. A Message record is a
+fixed 31-byte head and the payload, so here a whole batch of them is laid out with one
+NumPy structured array, and the message index that follows each chunk likewise.
+
+What is written follows the MCAP specification (https://mcap.dev/spec, format version
+0, the layout mcap 1.6's own writer produces), little-endian throughout:
+
+- Magic, Header (op 0x01), then the data section: Metadata records (0x0C) at top level
+  as they are added; Schema (0x03) and Channel (0x04) records inside the chunk in
+  progress, before the first message that uses them.
+- Chunk (0x06): message_start_time u64, message_end_time u64, uncompressed_size u64,
+  uncompressed_crc u32 (CRC-32 of the records), compression string ("zstd"), records
+  (u64 length + zstd frame). It holds Message records (0x05): channel_id u16, sequence
+  u32, log_time u64, publish_time u64, data (the rest of the record).
+- After each chunk, one Message Index (0x07) per channel in it: channel_id u16, then
+  (log_time u64, offset u64) pairs (u32 byte length first), the offset being where the
+  Message record starts in the chunk's uncompressed records.
+- Data End (0x0F, data_section_crc 0: not computed), then the summary: Schema, Channel,
+  Statistics (0x0B), Chunk Index (0x08) and Metadata Index (0x0D) groups, a Summary
+  Offset (0x0E) per group, the Footer (0x02, with the summary's CRC-32) and the magic.
+
+A chunk is closed once its records pass ``chunk_size`` and at every ``flush``, so a
+writer killed mid-run leaves every closed chunk readable by a streaming reader. The
+rare records go through mcap's own record classes; only Message and Message Index
+records, the bulk of every file, are built here.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import IO
+
+import numpy as np
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+MAGIC = b"\x89MCAP0\r\n"
+#: zstd level 1: twice level 3's speed on IMU samples, 2 % larger chunks
+ZSTD_LEVEL = 1
+_HEAD = [("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+         ("log_time", "<u8"), ("publish_time", "<u8")]
+_MESSAGE_HEAD = np.dtype(_HEAD)  # packed: 31 bytes
+_BODY_FIXED = _MESSAGE_HEAD.itemsize - 9  # a Message record's length without its data
+_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+_INDEX_HEAD = struct.Struct("<BQHI")
+
+
+def message_records(channel: int, first_sequence: int, log_time: np.ndarray,
+                    publish_time: np.ndarray,
+                    payloads: Sequence[bytes]) -> tuple[bytes, np.ndarray]:
+    """Message records of ``payloads`` end to end, and each record's size in bytes.
+
+    Payloads of one length (a unit's samples in the bulk layout) become one structured
+    array; others get their heads from one array and are joined around them.
+    """
+    n = len(payloads)
+    sizes = np.fromiter(map(len, payloads), np.int64, n)
+    same = n > 0 and bool(sizes[0]) and bool((sizes == sizes[0]).all())
+    dtype = np.dtype([*_HEAD, ("data", f"V{int(sizes[0])}")]) if same else _MESSAGE_HEAD
+    rec = np.empty(n, dtype)
+    rec["opcode"] = Opcode.MESSAGE
+    rec["length"] = sizes + _BODY_FIXED
+    rec["channel"] = channel
+    rec["sequence"] = (first_sequence + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
+    rec["log_time"] = log_time
+    rec["publish_time"] = publish_time
+    if same:
+        rec["data"] = np.frombuffer(b"".join(payloads), dtype["data"])
+        return rec.tobytes(), sizes + _MESSAGE_HEAD.itemsize
+    heads = rec.tobytes()
+    size = _MESSAGE_HEAD.itemsize
+    parts: list[bytes] = []
+    for i, payload in enumerate(payloads):
+        parts += (heads[i * size : (i + 1) * size], payload)
+    return b"".join(parts), sizes + size
+
+
+def _record(record: McapRecord) -> bytes:
+    builder = RecordBuilder()
+    record.write(builder)
+    return bytes(builder.end())  # type: ignore[no-untyped-call]
+
+
+@dataclass
+class _OpenChunk:
+    """Records of the chunk in progress and the index of its messages."""
+
+    parts: list[bytes | memoryview] = field(default_factory=list)
+    size: int = 0
+    messages: int = 0
+    start: int = 0
+    end: int = 0
+    index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
+
+    def add(self, record: bytes | memoryview) -> None:
+        self.parts.append(record)
+        self.size += len(record)
+
+
+class McapWriter:
+    """Write one MCAP file to ``stream``: ``start``, register, ``add`` in bulk, ``finish``.
+
+    Ids of schemas and channels count from 1 in registration order, as mcap's writer
+    gives them. Errors of the stream (a full disk) propagate as OSError.
+    """
+
+    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20) -> None:
+        self.stream = stream
+        self.chunk_size = chunk_size
+        self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+        self._schemas: list[Schema] = []
+        self._channels: list[Channel] = []
+        self._chunk = _OpenChunk()
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._counts: dict[int, int] = {}
+        self._messages = 0
+        self._start = 0
+        self._end = 0
+        self._metadata = 0
+
+    def start(self, profile: str, library: str) -> None:
+        self.stream.write(MAGIC + _record(Header(profile, library)))
+
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        self._chunk.add(_record(schema))
+        return schema.id
+
+    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
+                         metadata: dict[str, str]) -> int:
+        channel = Channel(id=len(self._channels) + 1, topic=topic,
+                          message_encoding=message_encoding, schema_id=schema_id,
+                          metadata=dict(metadata))
+        self._channels.append(channel)
+        self._chunk.add(_record(channel))
+        return channel.id
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        record = _record(Metadata(name=name, metadata=dict(data)))
+        self._metadata_indexes.append(MetadataIndex(self.stream.tell(), len(record), name))
+        self.stream.write(record)
+        self._metadata += 1
+
+    def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
+            publish_time: np.ndarray, payloads: Sequence[bytes],
+            stop_after_chunk: bool = False) -> int:
+        """Append messages of ``channel`` (sequence numbers from ``first_sequence``).
+
+        A chunk closes after the message that takes its records past ``chunk_size``
+        (as mcap's writer does); with ``stop_after_chunk`` the call returns there, so
+        the caller can look at the file's size. Returns how many messages were taken.
+        """
+        if not len(payloads):
+            return 0
+        log_time = np.asarray(log_time, np.int64)
+        publish_time = np.asarray(publish_time, np.int64)
+        records, sizes = message_records(channel, first_sequence, log_time, publish_time,
+                                         payloads)
+        view = memoryview(records)
+        ends = np.cumsum(sizes)
+        taken = 0
+        while taken < len(payloads):
+            done = int(ends[taken - 1]) if taken else 0
+            over = np.flatnonzero(self._chunk.size + ends[taken:] - done > self.chunk_size)
+            stop = taken + int(over[0]) + 1 if len(over) else len(payloads)
+            self._take(channel, view[done : int(ends[stop - 1])], log_time[taken:stop],
+                       ends[taken:stop] - sizes[taken:stop] - done)
+            taken = stop
+            if len(over):
+                self._close_chunk()
+                if stop_after_chunk:
+                    break
+        return taken
+
+    def _take(self, channel: int, records: memoryview, log_time: np.ndarray,
+              offsets: np.ndarray) -> None:
+        chunk, n = self._chunk, len(log_time)
+        first, last = int(log_time.min()), int(log_time.max())
+        chunk.start = first if not chunk.messages else min(chunk.start, first)
+        chunk.end = max(chunk.end, last)
+        chunk.index.setdefault(channel, []).append((log_time, chunk.size + offsets))
+        chunk.add(records)
+        chunk.messages += n
+        self._start = first if not self._messages else min(self._start, first)
+        self._end = max(self._end, last)
+        self._messages += n
+        self._counts[channel] = self._counts.get(channel, 0) + n
+
+    def _close_chunk(self) -> None:
+        """Write the chunk in progress and its message indexes (none without messages:
+        its schemas and channels wait for the next)."""
+        chunk = self._chunk
+        if not chunk.messages:
+            return
+        data = b"".join(chunk.parts)
+        compressed = self._zstd.compress(data)
+        record = _record(Chunk(compression="zstd", data=compressed,
+                               message_start_time=chunk.start, message_end_time=chunk.end,
+                               uncompressed_crc=zlib.crc32(data),
+                               uncompressed_size=len(data)))
+        chunk_at = self.stream.tell()
+        indexes: list[bytes] = []
+        offsets: dict[int, int] = {}
+        at = chunk_at + len(record)
+        for channel, parts in chunk.index.items():
+            entries = np.empty(sum(len(t) for t, _ in parts), _INDEX_ENTRY)
+            entries["log_time"] = np.concatenate([t for t, _ in parts])
+            entries["offset"] = np.concatenate([o for _, o in parts])
+            body = entries.tobytes()
+            offsets[channel] = at
+            indexes.append(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(body), channel,
+                                            len(body)) + body)
+            at += len(indexes[-1])
+        self.stream.write(record)
+        self.stream.write(b"".join(indexes))
+        self._chunk_indexes.append(ChunkIndex(
+            message_start_time=chunk.start, message_end_time=chunk.end,
+            chunk_start_offset=chunk_at, chunk_length=len(record),
+            message_index_offsets=offsets, message_index_length=at - chunk_at - len(record),
+            compression="zstd", compressed_size=len(compressed), uncompressed_size=len(data)))
+        self._chunk = _OpenChunk()
+
+    def flush(self) -> None:
+        """Close the chunk in progress and hand everything to the OS."""
+        self._close_chunk()
+        self.stream.flush()
+
+    def finish(self) -> None:
+        """Close the last chunk and write the summary and footer (the stream stays open)."""
+        self._close_chunk()
+        self.stream.write(_record(DataEnd(0)))
+        summary_start = self.stream.tell()
+        stats = Statistics(message_count=self._messages, schema_count=len(self._schemas),
+                           channel_count=len(self._channels), attachment_count=0,
+                           metadata_count=self._metadata, chunk_count=len(self._chunk_indexes),
+                           message_start_time=self._start, message_end_time=self._end,
+                           channel_message_counts=dict(self._counts))
+        groups: list[tuple[Opcode, Sequence[McapRecord]]] = [
+            (Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels),
+            (Opcode.STATISTICS, [stats]), (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes)]
+        summary = bytearray()
+        offsets = []
+        for opcode, records in groups:
+            if records:
+                start = len(summary)
+                summary += b"".join(_record(r) for r in records)
+                offsets.append(SummaryOffset(opcode, summary_start + start,
+                                             len(summary) - start))
+        offset_start = summary_start + len(summary)
+        summary += b"".join(_record(r) for r in offsets)
+        footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start)
+        crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        self.stream.write(bytes(summary))
+        self.stream.write(_record(Footer(summary_start, offset_start, crc)) + MAGIC)
