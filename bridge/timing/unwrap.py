@@ -35,6 +35,8 @@ HOST_SLACK_NS = 500_000_000
 CONTINUATION_SLACK_S = 0.1
 _LATTICE_TOLERANCE = 0.5  # ticks: each timer value is rounded to the nearest half up
 _SCALAR_BATCH = 16  # records; below this plain integers beat NumPy's cost per call
+_FAST_WINDOW = 8192  # records the bulk path looks at in one go
+_SLOW_RUN = 32  # records taken one by one before the bulk path is tried again
 
 
 @dataclass(frozen=True)
@@ -117,24 +119,38 @@ class TimerUnwrapper:
     # --- update --------------------------------------------------------------------------
     def update(self, timer: npt.ArrayLike,
                rx_ns: npt.ArrayLike | None = None) -> Unwrapped:
-        """Unwrap one batch of timers (uint32), with each record's receive time if known."""
+        """Unwrap one batch of timers (uint32), with each record's receive time if known.
+
+        Runs of records one period apart go through in bulk, the rest record by record;
+        the result does not depend on where the batch is cut.
+        """
         timers = np.asarray(timer).astype(np.int64)
         rx = None if rx_ns is None else np.asarray(rx_ns, np.int64)
         if rx is not None and rx.shape != timers.shape:
             raise ValueError(f"timer and rx_ns differ in length: {timers.shape} vs {rx.shape}")
-        out = self._fast(timers, rx)
-        if out is None:
-            out = self._slow(timers, rx)
-        self._records += len(timers)
-        return out
+        parts: list[tuple[int, Unwrapped]] = []
+        done = 0
+        while True:
+            rest, rest_rx = timers[done:], None if rx is None else rx[done:]
+            out = self._fast(rest, rest_rx)
+            if out is None:
+                out = self._slow(rest, rest_rx)
+            parts.append((done, out))
+            self._records += len(out.ticks)
+            done += len(out.ticks)
+            if done >= len(timers):
+                return _joined(parts)
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
-        """The common case in one go: every record exactly one period after the last."""
+        """The common case in one go: the leading records each exactly one period after
+        the last (None when not even the first is)."""
         ref = self._ref
         if ref is None or self._candidate is not None or self._fresh or not len(timers):
             return None
         if len(timers) <= _SCALAR_BATCH:
             return self._fast_scalar(ref, timers.tolist(), None if rx is None else rx.tolist())
+        timers = timers[:_FAST_WINDOW]
+        rx = None if rx is None else rx[:_FAST_WINDOW]
         d = np.diff(timers, prepend=ref.timer) % TIMER_MODULUS
         ok = d > 0
         if self.period_ticks is not None:
@@ -143,7 +159,11 @@ class TimerUnwrapper:
             host = np.diff(rx, prepend=ref.rx) // NS_PER_TICK
             ok &= (d <= host + HOST_SLACK_NS // NS_PER_TICK) & (host <= TIMER_MODULUS // 2)
         if not ok.all():
-            return None
+            good = int(np.argmin(ok))
+            if not good:
+                return None
+            timers, d = timers[:good], d[:good]
+            rx = None if rx is None else rx[:good]
         ticks = ref.ticks + np.cumsum(d)
         events = []
         for i in np.flatnonzero(np.diff(timers, prepend=ref.timer) < 0).tolist():
@@ -186,6 +206,8 @@ class TimerUnwrapper:
         return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events)
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
+        """Record by record, at least ``_SLOW_RUN`` of them and on until the state is
+        plain again (an anchor, nothing in doubt), so the bulk path can take over."""
         n = len(timers)
         ticks = np.full(n, -1, np.int64)
         valid = np.zeros(n, bool)
@@ -198,6 +220,9 @@ class TimerUnwrapper:
                 ticks[i] = value
                 valid[i] = True
                 self._last_ticks = value
+            if i + 1 >= _SLOW_RUN and self._candidate is None and not self._fresh:
+                out.ticks, out.valid = ticks[: i + 1], valid[: i + 1]
+                break
         return out
 
     def _step(self, t: int, r: int | None, i: int, out: Unwrapped) -> int | None:
@@ -291,3 +316,14 @@ class TimerUnwrapper:
         self._candidate = None
         self.glitches += 1
         out.events.append(TimingEvent("glitch", number - self._records, self._last_ticks, 1))
+
+
+def _joined(parts: list[tuple[int, Unwrapped]]) -> Unwrapped:
+    """The results of consecutive stretches of one batch (each at its start) as one."""
+    if len(parts) == 1:
+        return parts[0][1]
+    events = [TimingEvent(e.kind, e.index + start, e.ticks, e.count)
+              for start, part in parts for e in part.events]
+    return Unwrapped(np.concatenate([p.ticks for _, p in parts]),
+                     np.concatenate([p.valid for _, p in parts]), events,
+                     sum(p.dropped for _, p in parts))
