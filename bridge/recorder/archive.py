@@ -25,6 +25,7 @@ Layout (DESIGN.md, "Archives"):
 
 from __future__ import annotations
 
+import bisect
 import functools
 import struct
 import time
@@ -124,6 +125,25 @@ def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray,
     found = [stamp(unit, p) for p in payloads]
     return ([f[0] for f in found], np.array([f[1] for f in found], np.int64),
             np.array([f[2] for f in found], np.int64))
+
+
+def frame_picks(times: list[int], ordered: bool, due: int | None,
+                period: int) -> tuple[list[int], int | None]:
+    """Which of a unit's attitude samples become frames, and when the next is due: the
+    first at or after ``due``, then one a period; time going back more than two periods
+    (a reset) starts again. ``ordered`` (times never go back) lets it jump from frame
+    to frame instead of looking at every sample."""
+    picks: list[int] = []
+    i = 0
+    while i < len(times):
+        t = times[i]
+        if due is None or t >= due or t < due - 2 * period:
+            picks.append(i)
+            due = t + period
+            i += 1
+        else:
+            i = bisect.bisect_left(times, due, i + 1) if ordered else i + 1
+    return picks, due
 
 
 @dataclass
@@ -341,25 +361,28 @@ class ArchiveWriter:
 
     def _queue_frames(self, unit: str, units: list[str], codes: np.ndarray,
                       log_ns: np.ndarray, payloads: Sequence[bytes], rx: np.ndarray) -> None:
-        """Keep the samples that become FrameTransforms: at most one a period per unit
-        (time going back, a reset, starts again); records without attitude get none."""
-        framed = {c: c in DATA_CODES and has_attitude(record_quantities(c))
-                  for c in set(codes.tolist())}
-        if not any(framed.values()):
+        """Keep the samples that become FrameTransforms (records without attitude get
+        none): at most one a period per unit."""
+        framed = [c for c in set(codes.tolist())
+                  if c in DATA_CODES and has_attitude(record_quantities(c))]
+        eligible = np.flatnonzero(np.isin(codes, framed))
+        if not len(eligible):
             return
-        period = self.frame_period_ns
-        due = self._frame_due.get(unit)
-        for i, (code, t) in enumerate(zip(codes.tolist(), log_ns.tolist(), strict=True)):
-            if framed[code] and (due is None or t >= due or t < due - 2 * period):
-                due = t + period
-                group = self._pending.get((unit, units[i], code))
-                if group is None:
-                    group = self._pending[(unit, units[i], code)] = _Frames(unit, units[i],
-                                                                           code)
-                group.payloads.append(payloads[i])
-                group.receive_ns.append(int(rx[i]))
+        times = log_ns[eligible]
+        picks, due = frame_picks(times.tolist(), bool((np.diff(times) >= 0).all()),
+                                 self._frame_due.get(unit), self.frame_period_ns)
         if due is not None:
             self._frame_due[unit] = due
+        chosen = eligible[picks].tolist()
+        keys = [(units[i], c) for i, c in zip(chosen, codes[chosen].tolist(), strict=True)]
+        for sample_unit, code in dict.fromkeys(keys):
+            group = self._pending.get((unit, sample_unit, code))
+            if group is None:
+                group = self._pending[(unit, sample_unit, code)] = _Frames(unit, sample_unit,
+                                                                           code)
+            mine = [i for i, k in zip(chosen, keys, strict=True) if k == (sample_unit, code)]
+            group.payloads += [payloads[i] for i in mine]
+            group.receive_ns += rx[mine].tolist()
 
     def _write_frames(self) -> None:
         """Turn queued attitude samples into FrameTransforms, in bulk."""

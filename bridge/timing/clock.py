@@ -387,11 +387,15 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     a fraction of the arithmetic on long windows).
     """
     lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
+    v = np.empty_like(dy)
     for step in range(_BISECTIONS):
         if step and step % _PRUNE_EVERY == 0 and len(dx) > _PRUNE_MIN:
             dx, dy = lowest_candidates(dx, dy, lo, hi)
+            v = np.empty_like(dy)
         mid = (lo + hi) / 2
-        if dx[int((dy - mid * dx).argmin())] > 0:
+        np.multiply(mid, dx, out=v)
+        np.subtract(dy, v, out=v)
+        if dx[int(v.argmin())] > 0:
             hi = mid
         else:
             lo = mid
