@@ -3,8 +3,10 @@ reads, per-unit FrameTransforms with the true attitude, numbered splits, clear w
 
 from __future__ import annotations
 
+import itertools
 import json
 import signal
+import struct
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -13,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
-from mcap.reader import make_reader
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader, make_reader
 
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
@@ -22,6 +25,7 @@ from bridge.protocol.convert import euler_to_m, euler_to_quaternion
 from bridge.protocol.table import REPLIES
 from bridge.recorder.archive import ArchiveError, ArchiveWriter, numbered
 from bridge.recorder.read import read_archive
+from bridge.recorder.repair import repair
 
 T0 = 1_763_000_000_000_000_000
 PERIOD = 10_000_000  # 100 Hz
@@ -64,10 +68,14 @@ class Written:
 FLEET = {"u1": (0xCC, 300, 0), "u2": (0xDF, 200, 60), "u3": (0xC2, 150, 10)}
 
 
-def write_fleet(path: Path, **options: object) -> Written:
-    """Three units at 100 Hz, with status each second, events, info and one raw read."""
+Feed = list[tuple[int, str, bytes, int]]  # (receive ns, key, payload, log ns)
+
+
+def fleet_feed() -> tuple[Written, Feed]:
+    """Three units at 100 Hz, with status each second, events, info and one raw read, in
+    the order they are received."""
     written = Written()
-    feed: list[tuple[int, str, bytes, int]] = []  # (receive ns, key, payload, log ns)
+    feed: Feed = []
     for k, (unit, (code, n, first)) in enumerate(FLEET.items()):
         euler = np.stack([np.linspace(0, 1, n), np.linspace(0, -0.5, n),
                           np.linspace(-3, 3, n)], axis=1)
@@ -92,11 +100,30 @@ def write_fleet(path: Path, **options: object) -> Written:
                      int(time_ns[0]) - 5))
     feed.append((T0 + 7, "gx3/u1/raw", b"\xcc\x00\x01raw bytes", T0 + 7))
     feed.sort(key=lambda f: f[0])
+    for receive_ns, key, payload, log_ns in feed:
+        written.add(key, log_ns, receive_ns, payload)
+    return written, feed
+
+
+def write_fleet(path: Path, **options: object) -> Written:
+    written, feed = fleet_feed()
     with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
-        for receive_ns, key, payload, log_ns in feed:
+        for receive_ns, key, payload, _ in feed:
             writer.write(key, payload, receive_ns)
-            written.add(key, log_ns, receive_ns, payload)
     return written
+
+
+def in_bursts(feed: Feed) -> Feed:
+    """The feed as a recorder draining its queue every 250 ms takes it: key by key."""
+    return sorted(feed, key=lambda f: (f[0] // 250_000_000, f[1], f[0]))
+
+
+def write_bulk(path: Path, feed: Feed, **options: object) -> None:
+    """``feed`` through write_many, one call per run of one key."""
+    with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
+        for key, run in itertools.groupby(feed, key=lambda f: f[1]):
+            burst = list(run)
+            writer.write_many(key, [f[2] for f in burst], np.array([f[0] for f in burst]))
 
 
 def rotation(xyzw: np.ndarray) -> np.ndarray:
@@ -141,7 +168,8 @@ def test_data_channels_hold_the_zenoh_bytes_logged_at_sample_time(tmp_path: Path
 
 _STANDARD_DECODE = """
 import json, sys
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.exceptions import EndOfFile
 from mcap_protobuf.decoder import DecoderFactory
 out = {}
 with open(sys.argv[1], "rb") as f:
@@ -282,8 +310,23 @@ def test_split_by_duration_of_receive_time(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     write_fleet(path, split_seconds=1.0)
     # the feed spans 2.6 s of receive time
-    assert [f.name for f in sorted(tmp_path.glob("run_*.mcap"))] == [
-        "run_0001.mcap", "run_0002.mcap", "run_0003.mcap"]
+    files = sorted(tmp_path.glob("run_*.mcap"))
+    assert [f.name for f in files] == ["run_0001.mcap", "run_0002.mcap", "run_0003.mcap"]
+    for f in files:  # a file's age counts from its first message, the one that opened it
+        received = np.concatenate([m.publish_time for t in read_archive(f).topics()
+                                   if (m := read_archive(f).messages(t))])
+        assert received.max() - received.min() < 1_000_000_000, f.name
+
+
+def test_a_new_file_is_as_old_as_the_message_that_opened_it(tmp_path: Path) -> None:
+    raw = "gx3/u1/raw"
+    with ArchiveWriter(tmp_path / "run.mcap", split_seconds=1.0) as writer:
+        for at in (0.0, 0.5, 1.0, 1.6, 2.0, 2.1):
+            writer.write(raw, b"x", T0 + int(at * 1e9))
+    held = [read_archive(f).messages(raw).log_time.tolist()
+            for f in sorted(tmp_path.glob("run_*.mcap"))]
+    assert held == [[T0, T0 + 500_000_000], [T0 + 1_000_000_000, T0 + 1_600_000_000],
+                    [T0 + 2_000_000_000, T0 + 2_100_000_000]]
 
 
 def test_unwritable_path_is_a_one_line_error(tmp_path: Path) -> None:
@@ -375,7 +418,9 @@ def test_tick_flushes_a_second_after_the_last_flush_while_messages_pause(
     assert read_archive(path).complete
 
 
-def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: Path) -> None:
+@pytest.mark.parametrize("bulk", [False, True], ids=["write", "write_many"])
+def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: Path,
+                                                                     bulk: bool) -> None:
     m = euler_to_m(np.array([0.0, 0.0, 0.3])).reshape(-1).tolist()
     # m before the header fields (another producer's order), a unit name unlike the key's
     head = ImuSample(unit="other", command=0xC5, timer=1, ticks=1, time_ns=T0 + 5, rx_ns=T0 + 9)
@@ -385,10 +430,17 @@ def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: P
                     rx_ns=T0 + 9).SerializeToString() + b"\x82\x01\x24" + bytes(10)
     path = tmp_path / "odd.mcap"
     with ArchiveWriter(path, frame_rate_hz=None) as writer:
-        writer.write("gx3/u1/imu", reordered, T0 + 10)
-        writer.write("gx3/u1/imu", cut, T0 + 11)
-        with pytest.raises(ValueError, match=r"not a gx3\.v1\.ImuSample"):
-            writer.write("gx3/u1/imu", b"\xff" * 8, T0 + 12)
+        if bulk:
+            writer.write_many("gx3/u1/imu", [reordered, cut], np.array([T0 + 10, T0 + 11]))
+            with pytest.raises(ValueError, match=r"not a gx3\.v1\.ImuSample"):
+                writer.write_many("gx3/u1/imu", [cut, b"\xff" * 8], T0 + 12)
+            with pytest.raises(ValueError, match="2 payloads but 3 receive times"):
+                writer.write_many("gx3/u1/imu", [cut, cut], np.zeros(3, np.int64))
+        else:
+            writer.write("gx3/u1/imu", reordered, T0 + 10)
+            writer.write("gx3/u1/imu", cut, T0 + 11)
+            with pytest.raises(ValueError, match=r"not a gx3\.v1\.ImuSample"):
+                writer.write("gx3/u1/imu", b"\xff" * 8, T0 + 12)
     archive = read_archive(path)
     imu = archive.messages("gx3/u1/imu")
     assert imu.payloads == [reordered, cut] and imu.log_time.tolist() == [T0 + 5, T0 + 6]
@@ -398,3 +450,92 @@ def test_samples_of_other_encodings_or_names_are_archived_and_framed(tmp_path: P
     assert frame.child_frame_id == "u1"
     q = np.array([frame.rotation.x, frame.rotation.y, frame.rotation.z, frame.rotation.w])
     np.testing.assert_allclose(rotation(q), np.reshape(m, (3, 3)).T, atol=1e-6)
+
+
+def _never() -> float:
+    """A clock that stands still: no flush by the wall clock, so chunks depend on the data."""
+    return 0.0
+
+
+def standard_read(path: Path) -> tuple[list[tuple[str, int, int, int, bytes]], dict[str, int]]:
+    """Every message (topic, log time, publish time, sequence, data) in file order, and the
+    summary's count per topic, as mcap's own reader gives them."""
+    with path.open("rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        messages = [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
+                    for _, c, m in reader.iter_messages(log_time_order=False)]
+        summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = {summary.channels[c].topic: n
+              for c, n in summary.statistics.channel_message_counts.items()}
+    return messages, counts
+
+
+@pytest.mark.parametrize("options", [
+    {}, {"chunk_size": 3_000}, {"split_bytes": 30_000, "chunk_size": 8_000},
+    {"split_seconds": 1.0, "frame_rate_hz": None}], ids=["plain", "small chunks",
+                                                        "split by size", "split by age"])
+def test_write_many_archives_what_write_archives_message_by_message(
+        tmp_path: Path, options: dict[str, object]) -> None:
+    written, feed = fleet_feed()
+    feed = in_bursts(feed)
+    (tmp_path / "one").mkdir()
+    (tmp_path / "bulk").mkdir()
+    with ArchiveWriter(tmp_path / "one" / "a.mcap", clock=_never,
+                       **options) as writer:  # type: ignore[arg-type]
+        for receive_ns, key, payload, _ in feed:
+            writer.write(key, payload, receive_ns)
+    write_bulk(tmp_path / "bulk" / "a.mcap", feed, clock=_never, **options)
+    names = sorted(f.name for f in (tmp_path / "one").iterdir())
+    assert names == sorted(f.name for f in (tmp_path / "bulk").iterdir())
+    assert len(names) > 1 or not any(k.startswith("split") for k in options)
+    archived: list[tuple[str, int, int, int, bytes]] = []
+    for name in names:
+        one, bulk = tmp_path / "one" / name, tmp_path / "bulk" / name
+        assert standard_read(bulk) == standard_read(one)
+        assert bulk.read_bytes() == one.read_bytes()  # down to where the chunks close
+        archived += standard_read(bulk)[0]
+    for topic, expected in written.messages.items():  # and it is what was fed
+        got = sorted((t, r, p) for top, t, r, _, p in archived if top == topic)
+        assert got == sorted(expected), topic
+    assert any(topic.endswith("/frame") for topic, *_ in archived)
+
+
+def test_a_write_many_archive_cut_anywhere_reads_and_repairs_up_to_its_last_chunk(
+        tmp_path: Path) -> None:
+    """A killed recorder leaves the file cut at any byte: every chunk written before the
+    cut is read back (by read.py and by mcap's streaming reader alike) and repaired into
+    a finished, indexed archive."""
+    path = tmp_path / "whole.mcap"
+    write_bulk(path, in_bursts(fleet_feed()[1]), chunk_size=4_000, clock=_never)
+    data = path.read_bytes()
+    whole, _ = standard_read(path)
+    with path.open("rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes  # type: ignore[union-attr]
+    assert len(chunks) > 8
+    ends = [c.chunk_start_offset + c.chunk_length for c in chunks]
+    cuts = [chunks[2].chunk_start_offset + chunks[2].chunk_length // 2,  # inside a chunk
+            ends[4] + 12,  # inside the message index after a chunk
+            chunks[6].chunk_start_offset,  # right before a chunk
+            ends[-1] + 3]  # after the last chunk, before the summary
+    cut = tmp_path / "cut.mcap"
+    counts = []
+    for at in cuts:
+        cut.write_bytes(data[:at])
+        archive = read_archive(cut)
+        assert not archive.complete
+        streamed = []
+        # mcap's streaming reader stops at the cut (inside an index: struct.error)
+        with cut.open("rb") as f, pytest.raises((EndOfFile, struct.error)):
+            for _, c, m in NonSeekingReader(f).iter_messages(log_time_order=False):
+                streamed.append((c.topic, m.log_time, m.publish_time, m.sequence, m.data))
+        assert archive.chunks == sum(1 for e in ends if e <= at)
+        assert archive.message_count == len(streamed) > 0
+        assert streamed == whole[: len(streamed)]
+        report = repair(cut, tmp_path / "repaired.mcap")
+        assert report.messages == len(streamed)
+        repaired, counts_by_topic = standard_read(tmp_path / "repaired.mcap")
+        assert sorted(repaired) == sorted(streamed)
+        assert sum(counts_by_topic.values()) == len(streamed)
+        counts.append(len(streamed))
+    assert counts == sorted(counts) and counts[0] < counts[-1]

@@ -279,10 +279,36 @@ def test_receive_time_is_the_completing_reads_whatever_the_chunking(
         finer += [(piece, rx_ns) for piece, _ in reads_of(chunk, cuts, 0)]
     got = timed(replay(Framer(expect), live))
     assert timed(replay(Framer(expect), finer)) == got
+    # many reads handed over at once, in groups of any size: the same records and times
+    groups = data.draw(chunkings(len(live)), label="groups")
+    bulk_framer, bulk = Framer(expect), []
+    for lo, hi in itertools.pairwise([0, *groups, len(live)]):
+        reads = live[lo:hi]
+        bulk += bulk_framer.feed_reads(b"".join(d for d, _ in reads),
+                                       np.cumsum([len(d) for d, _ in reads], dtype=np.int64),
+                                       np.array([t for _, t in reads], np.int64))
+    assert timed(bulk + bulk_framer.flush()) == got
+    per_read = Framer(expect)
+    replay(per_read, live)
+    assert bulk_framer.stats == per_read.stats
     ends = np.cumsum([len(chunk) for chunk, _ in live])
     for offset, rx_ns, _, record in got:
         last = offset + REPLIES[record[0]].length - 1
         assert rx_ns == live[int(np.searchsorted(ends, last, side="right"))][1]
+
+
+def test_reads_handed_over_at_once_must_end_where_their_bytes_do() -> None:
+    framer = Framer()
+    for ends in ([3, 5], [2, 1, 6], [7]):
+        with pytest.raises(ValueError, match="read ends must rise to the 6 bytes given"):
+            framer.feed_reads(bytes(6), np.array(ends), np.zeros(len(ends), np.int64))
+    with pytest.raises(ValueError, match="differ in shape"):
+        framer.feed_reads(bytes(6), np.array([6]), np.zeros(2, np.int64))
+    c7 = frame(0xC7, struct.pack(">3fI", 0, 0, 1.0, 9))
+    (batch,) = framer.feed_reads(c7 + c7[:3] + b"" + c7[3:], np.array([len(c7), len(c7) + 3,
+                                                                     len(c7) + 3, 2 * len(c7)]),
+                                 np.array([10, 20, 30, 40]))
+    assert batch.rx_ns.tolist() == [10, 40]  # an empty read is no read
 
 
 def test_record_held_back_by_a_rescan_keeps_its_reads_time() -> None:

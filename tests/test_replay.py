@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.bus.gx3_pb2 import Event
+from bridge.protocol.codec import encode_reply
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.read import read_archive
 from bridge.recorder.replay import captures, replay
@@ -72,6 +74,23 @@ def test_garbage_and_empty_captures_are_clear_errors(tmp_path: Path) -> None:
         assert done.returncode != 0, path
         assert message in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_an_event_carries_the_receive_time_of_the_read_that_showed_it(tmp_path: Path) -> None:
+    """As the live bridge tells a gap right after the read that held the record after it:
+    not at the start of the stretch of records the replay times at once."""
+    t0 = 1_763_000_000_000_000_000
+    reads = [(t0 + i * 10_000_000, encode_reply(0xC2, accel=[0.0, 0.0, -1.0],
+                                                ang_rate=[0.0, 0.0, 0.0], timer=1000 + i * 625))
+             for i in range(300) if i not in (120, 121)]
+    meta = {"unit": "u1", "record": "0xC2", "decimation": "10", "filter_width": "15",
+            "baud": "115200", "transport": "uart"}
+    path = write_capture(tmp_path / "raw.mcap", reads, meta)
+    (result,) = replay([path], tmp_path / "out.mcap")
+    assert result.samples == 298 and result.events["gap"] == 1
+    ((unit, gap),) = read_archive(tmp_path / "out.mcap").events()
+    assert (unit, gap.kind, gap.count) == ("u1", Event.GAP, 2)
+    assert gap.time_ns == t0 + 122 * 10_000_000
 
 
 def test_capture_reads_keep_their_receive_times(tmp_path: Path) -> None:

@@ -419,12 +419,15 @@ class ArchiveWriter:
         return kept
 
     def _maybe_split(self, rx: int) -> None:
+        """Start the next file before a message received at ``rx`` if this one is full or
+        old; a file's age counts from the receive time of its first message."""
         f = self._current()
         if f.opened_ns is None:
             f.opened_ns = rx
         old = self.split_ns is not None and rx - f.opened_ns >= self.split_ns
         if old or (self.split_bytes is not None and f.stream.tell() >= self.split_bytes):
             self._roll()
+            self._current().opened_ns = rx
 
     def _roll(self) -> None:
         self._finish()
