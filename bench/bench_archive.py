@@ -1,9 +1,11 @@
 """Archive throughput: write 1,000,000 ImuSamples (10 units x 100,000, 0xCC at 100 Hz) through
-ArchiveWriter one message at a time, as a live recorder does, then `gx3 export` it to Parquet.
+ArchiveWriter one message at a time, then again in batches of each unit's samples
+(``write_many``, --batch per call, as a recorder draining its queue does), then
+`gx3 export` it to Parquet.
 
-    .venv/bin/python bench/bench_archive.py [--units 10] [--samples 100000] [--dir DIR]
+    .venv/bin/python bench/bench_archive.py [--units 10] [--samples 100000] [--batch 100]
 
-Prints samples/s written, bytes per sample on disk, and the export's wall time. The values
+Prints samples/s written each way, bytes per sample on disk, and the export's wall time. The values
 are a sensor at rest with realistic noise (float32 noise does not compress much), so the
 size is close to what a real recording takes.
 """
@@ -47,6 +49,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=10)
     parser.add_argument("--samples", type=int, default=100_000, help="per unit")
+    parser.add_argument("--batch", type=int, default=100,
+                        help="samples of one unit per write_many call")
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: tmp)")
     args = parser.parse_args()
     workdir = args.dir or Path(tempfile.mkdtemp(prefix="bench_archive_"))
@@ -58,19 +62,27 @@ def main() -> None:
         time_ns = T0 + np.arange(n, dtype=np.int64) * PERIOD_NS + u * 137_000
         payloads = encode_batch(f"imu{u}", unit_batch(n, u), np.arange(n, dtype=np.int64) * 625,
                                 time_ns, time_ns + 2_000_000)
-        feeds.append((f"gx3/imu{u}/imu", payloads, (time_ns + 2_500_000).tolist()))
+        feeds.append((f"gx3/imu{u}/imu", payloads, time_ns + 2_500_000))
     path = workdir / "bench.mcap"
     total = n * units
+    one_by_one = [(key, payloads, rx.tolist()) for key, payloads, rx in feeds]
+    start = time.perf_counter()
+    with ArchiveWriter(workdir / "one_by_one.mcap") as writer:
+        for i in range(n):
+            for key, payloads, received in one_by_one:
+                writer.write(key, payloads[i], received[i])
+    elapsed = time.perf_counter() - start
+    print(f"write: {total:,} samples in {elapsed:.2f} s = {total / elapsed:,.0f} samples/s")
     start = time.perf_counter()
     with ArchiveWriter(path) as writer:
-        for i in range(n):
+        for i in range(0, n, args.batch):
             for key, payloads, rx in feeds:
-                writer.write(key, payloads[i], rx[i])
+                writer.write_many(key, payloads[i : i + args.batch], rx[i : i + args.batch])
     elapsed = time.perf_counter() - start
     size = path.stat().st_size
-    print(f"write: {total:,} samples in {elapsed:.2f} s = {total / elapsed:,.0f} samples/s; "
-          f"{writer.messages - total:,} FrameTransforms; {size / 1e6:.1f} MB = "
-          f"{size / total:.1f} bytes/sample")
+    print(f"write_many ({args.batch} a call): {total:,} samples in {elapsed:.2f} s = "
+          f"{total / elapsed:,.0f} samples/s; {writer.messages - total:,} FrameTransforms; "
+          f"{size / 1e6:.1f} MB = {size / total:.1f} bytes/sample")
     gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
     out = workdir / "bench.parquet"
     start = time.perf_counter()

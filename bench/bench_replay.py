@@ -2,14 +2,20 @@
 
 Captures come from the emulator in virtual time through the USB delivery model and
 are written as a bridge's --capture files; the replay runs them through the framer,
-the timing and the archive writer. Reports samples replayed per second.
+the timing and the archive writer. Reports samples replayed per second and the load
+average while it ran (the machine is shared: other work slows it down).
 
-    python bench/bench_replay.py --units 4 --rate 100 --minutes 10
+By default the capture metadata names no unit, so the replay finds the settings from
+the bytes and times the records as from a serial line; ``--usb`` writes the bridge's
+full metadata (unit, USB link), and the replay then runs the USB frame-clock model.
+
+    python bench/bench_replay.py --units 4 --rate 100 --minutes 10 [--usb]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -27,6 +33,8 @@ def main() -> None:
     parser.add_argument("--units", type=int, default=4)
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--minutes", type=float, default=10.0)
+    parser.add_argument("--usb", action="store_true",
+                        help="the bridge's metadata: unit named, USB link timing")
     args = parser.parse_args()
     decimation = round(1000 / args.rate)
     with tempfile.TemporaryDirectory() as tmp:
@@ -36,9 +44,10 @@ def main() -> None:
                                       code=0xCC, decimation=decimation)
             cap = synthesize(config, UsbDelivery(seed=i), seconds=args.minutes * 60)
             path = Path(tmp, f"u{i}.mcap")
-            writer = RawCaptureWriter(path, "gx3", f"u{i}", {
-                "record": "0xCC", "decimation": str(decimation), "filter_width": "15",
-                "baud": "115200", "transport": "usb"})
+            meta = {"record": "0xCC", "decimation": str(decimation), "filter_width": "15",
+                    "baud": "115200", "transport": "usb"}
+            writer = RawCaptureWriter(path, "gx3", f"u{i}",
+                                      {"unit": f"u{i}", **meta} if args.usb else meta)
             for rx, data in zip(cap.rx_ns.tolist(), cap.data, strict=True):
                 writer.write(data, rx)
             writer.close()
@@ -46,9 +55,11 @@ def main() -> None:
         started = time.perf_counter()
         results = replay(paths, Path(tmp, "out.mcap"))
         took = time.perf_counter() - started
+        load = os.getloadavg()[0]
     samples = sum(r.samples for r in results)
-    print(f"{args.units} units x {args.rate:g} Hz x {args.minutes:g} min: {samples:,} samples "
-          f"replayed in {took:.1f} s, {samples / took:,.0f} samples/s")
+    print(f"{args.units} units x {args.rate:g} Hz x {args.minutes:g} min"
+          f"{' (USB timing)' if args.usb else ''}: {samples:,} samples replayed in "
+          f"{took:.2f} s, {samples / took:,.0f} samples/s (load average {load:.2f})")
 
 
 if __name__ == "__main__":

@@ -92,6 +92,7 @@ def _header_dtype(unit: str) -> np.dtype[np.void]:
 
 
 _HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
+_BULK = 16  # messages; fewer are cheaper one by one than through arrays
 
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
@@ -107,12 +108,13 @@ def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
 
 
 def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """``stamp`` of many ImuSamples: units, commands, times. Payloads of one length whose
-    headers all name ``unit`` are read as one array; any others one by one."""
+    """``stamp`` of many ImuSamples: units, commands, times. Many payloads of one length
+    whose headers all name ``unit`` are read as one array; any others one by one."""
     head = _header_dtype(unit)
     name = unit.encode()
     size = len(payloads[0]) if payloads else 0
-    if size >= head.itemsize and len(name) < 0x80 and all(len(p) == size for p in payloads):
+    if (len(payloads) >= _BULK and size >= head.itemsize and len(name) < 0x80
+            and all(len(p) == size for p in payloads)):
         rows = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), size)
         h = np.ascontiguousarray(rows[:, : head.itemsize]).view(head)[:, 0]
         ok = (h["n"] == len(name)) & (rows[:, 2 : 2 + len(name)]
@@ -125,6 +127,12 @@ def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray,
     found = [stamp(unit, p) for p in payloads]
     return ([f[0] for f in found], np.array([f[1] for f in found], np.int64),
             np.array([f[2] for f in found], np.int64))
+
+
+@functools.cache
+def _framed(code: int) -> bool:
+    """Whether samples of record type ``code`` carry an attitude (and become frames)."""
+    return code in DATA_CODES and has_attitude(record_quantities(code))
 
 
 def frame_picks(times: list[int], ordered: bool, due: int | None,
@@ -363,18 +371,18 @@ class ArchiveWriter:
                       log_ns: np.ndarray, payloads: Sequence[bytes], rx: np.ndarray) -> None:
         """Keep the samples that become FrameTransforms (records without attitude get
         none): at most one a period per unit."""
-        framed = [c for c in set(codes.tolist())
-                  if c in DATA_CODES and has_attitude(record_quantities(c))]
-        eligible = np.flatnonzero(np.isin(codes, framed))
-        if not len(eligible):
+        code_list = codes.tolist()
+        eligible = [i for i, c in enumerate(code_list) if _framed(c)]
+        if not eligible:
             return
-        times = log_ns[eligible]
-        picks, due = frame_picks(times.tolist(), bool((np.diff(times) >= 0).all()),
-                                 self._frame_due.get(unit), self.frame_period_ns)
+        times = log_ns[eligible].tolist() if len(eligible) > 1 else [int(log_ns[eligible[0]])]
+        ordered = len(times) < 2 or bool((np.diff(times) >= 0).all())
+        picks, due = frame_picks(times, ordered, self._frame_due.get(unit),
+                                 self.frame_period_ns)
         if due is not None:
             self._frame_due[unit] = due
-        chosen = eligible[picks].tolist()
-        keys = [(units[i], c) for i, c in zip(chosen, codes[chosen].tolist(), strict=True)]
+        chosen = [eligible[k] for k in picks]
+        keys = [(units[i], code_list[i]) for i in chosen]
         for sample_unit, code in dict.fromkeys(keys):
             group = self._pending.get((unit, sample_unit, code))
             if group is None:
@@ -382,7 +390,7 @@ class ArchiveWriter:
                                                                            code)
             mine = [i for i, k in zip(chosen, keys, strict=True) if k == (sample_unit, code)]
             group.payloads += [payloads[i] for i in mine]
-            group.receive_ns += rx[mine].tolist()
+            group.receive_ns += [int(rx[i]) for i in mine]
 
     def _write_frames(self) -> None:
         """Turn queued attitude samples into FrameTransforms, in bulk."""

@@ -30,6 +30,7 @@ records, the bulk of every file, are built here.
 
 from __future__ import annotations
 
+import functools
 import struct
 import zlib
 from collections.abc import Sequence
@@ -58,10 +59,9 @@ from mcap.records import (
 MAGIC = b"\x89MCAP0\r\n"
 #: zstd level 1: twice level 3's speed on IMU samples, 2 % larger chunks
 ZSTD_LEVEL = 1
-_HEAD = [("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
-         ("log_time", "<u8"), ("publish_time", "<u8")]
-_MESSAGE_HEAD = np.dtype(_HEAD)  # packed: 31 bytes
-_BODY_FIXED = _MESSAGE_HEAD.itemsize - 9  # a Message record's length without its data
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, log, publish
+_BODY_FIXED = _MESSAGE_HEAD.size - 9  # a Message record's length without its data
+_BULK = 16  # messages; fewer are cheaper packed one by one than laid out as an array
 _INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 _INDEX_HEAD = struct.Struct("<BQHI")
 
@@ -71,29 +71,36 @@ def message_records(channel: int, first_sequence: int, log_time: np.ndarray,
                     payloads: Sequence[bytes]) -> tuple[bytes, np.ndarray]:
     """Message records of ``payloads`` end to end, and each record's size in bytes.
 
-    Payloads of one length (a unit's samples in the bulk layout) become one structured
-    array; others get their heads from one array and are joined around them.
+    Many payloads of one length (a unit's samples in the bulk layout) become one
+    structured array; a few, or payloads of several lengths, are packed one by one.
     """
     n = len(payloads)
     sizes = np.fromiter(map(len, payloads), np.int64, n)
-    same = n > 0 and bool(sizes[0]) and bool((sizes == sizes[0]).all())
-    dtype = np.dtype([*_HEAD, ("data", f"V{int(sizes[0])}")]) if same else _MESSAGE_HEAD
-    rec = np.empty(n, dtype)
-    rec["opcode"] = Opcode.MESSAGE
-    rec["length"] = sizes + _BODY_FIXED
-    rec["channel"] = channel
-    rec["sequence"] = (first_sequence + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
-    rec["log_time"] = log_time
-    rec["publish_time"] = publish_time
-    if same:
-        rec["data"] = np.frombuffer(b"".join(payloads), dtype["data"])
-        return rec.tobytes(), sizes + _MESSAGE_HEAD.itemsize
-    heads = rec.tobytes()
-    size = _MESSAGE_HEAD.itemsize
+    if n >= _BULK and sizes[0] and (sizes == sizes[0]).all():
+        rec = np.empty(n, _records_dtype(int(sizes[0])))
+        rec["opcode"] = Opcode.MESSAGE
+        rec["length"] = sizes + _BODY_FIXED
+        rec["channel"] = channel
+        rec["sequence"] = (first_sequence + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
+        rec["log_time"] = log_time
+        rec["publish_time"] = publish_time
+        rec["data"] = np.frombuffer(b"".join(payloads), rec.dtype["data"])
+        return rec.tobytes(), sizes + _MESSAGE_HEAD.size
     parts: list[bytes] = []
-    for i, payload in enumerate(payloads):
-        parts += (heads[i * size : (i + 1) * size], payload)
-    return b"".join(parts), sizes + size
+    for i, (payload, log, published) in enumerate(zip(payloads, log_time.tolist(),
+                                                      publish_time.tolist(), strict=True)):
+        parts += (_MESSAGE_HEAD.pack(Opcode.MESSAGE, len(payload) + _BODY_FIXED, channel,
+                                     (first_sequence + i) & 0xFFFFFFFF, log, published),
+                  payload)
+    return b"".join(parts), sizes + _MESSAGE_HEAD.size
+
+
+@functools.cache
+def _records_dtype(size: int) -> np.dtype[np.void]:
+    """Message records with ``size``-byte payloads, as one packed NumPy record."""
+    return np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"),
+                     ("sequence", "<u4"), ("log_time", "<u8"), ("publish_time", "<u8"),
+                     ("data", f"V{size}")])
 
 
 def _record(record: McapRecord) -> bytes:
@@ -179,8 +186,11 @@ class McapWriter:
         publish_time = np.asarray(publish_time, np.int64)
         records, sizes = message_records(channel, first_sequence, log_time, publish_time,
                                          payloads)
-        view = memoryview(records)
         ends = np.cumsum(sizes)
+        if self._chunk.size + len(records) <= self.chunk_size:  # the chunk stays open
+            self._take(channel, records, log_time, ends - sizes)
+            return len(payloads)
+        view = memoryview(records)
         taken = 0
         while taken < len(payloads):
             done = int(ends[taken - 1]) if taken else 0
@@ -195,10 +205,14 @@ class McapWriter:
                     break
         return taken
 
-    def _take(self, channel: int, records: memoryview, log_time: np.ndarray,
+    def _take(self, channel: int, records: bytes | memoryview, log_time: np.ndarray,
               offsets: np.ndarray) -> None:
         chunk, n = self._chunk, len(log_time)
-        first, last = int(log_time.min()), int(log_time.max())
+        if n < _BULK:
+            times = log_time.tolist()
+            first, last = min(times), max(times)
+        else:
+            first, last = int(log_time.min()), int(log_time.max())
         chunk.start = first if not chunk.messages else min(chunk.start, first)
         chunk.end = max(chunk.end, last)
         chunk.index.setdefault(channel, []).append((log_time, chunk.size + offsets))
