@@ -32,6 +32,7 @@ not on how they are split into ``update`` calls.
 from __future__ import annotations
 
 from bisect import bisect_left
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,7 +125,8 @@ class OnlineClock:
         self._line: _Line | None = None
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
-        self._latency = np.zeros(0)  # receive times above the last fit, for ``state``
+        # receive times above the last fit, for ``state``: worked out only when asked
+        self._latency: Callable[[], np.ndarray] = lambda: np.zeros(0)
 
     @property
     def state(self) -> ClockState:
@@ -133,7 +135,8 @@ class OnlineClock:
             return ClockState(0, 0.0, 0, 0)
         x = int(self._x[-1])
         offset = int(line.at(np.array([x]))[0]) - x * NS_PER_TICK
-        spread = int(np.median(self._latency)) if len(self._latency) else 0
+        latency = self._latency()
+        spread = int(np.median(latency)) if len(latency) else 0
         return ClockState(offset, (NS_PER_TICK / line.rate - 1.0) * 1e6, spread,
                           len(self._x))
 
@@ -183,7 +186,8 @@ class OnlineClock:
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)
-                self._latency = self._y - self._line.at(self._x)
+                y, x, fit = self._y, self._x, self._line
+                self._latency = lambda: y - fit.at(x)
                 return
             line = self._frame_fit(bx, by)
             if line is not None:
@@ -196,7 +200,8 @@ class OnlineClock:
         residual = dy - self._rate * dx - level
         if self.frame_ns:
             bias = uncovered_half(residual[dx >= 0], self.frame_ns)
-        self._latency = (self._y - y_ref).astype(np.float64) - self._rate * dx - level
+        y, rate = self._y, self._rate
+        self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
     def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float, float] | None:
