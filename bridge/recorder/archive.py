@@ -93,6 +93,7 @@ def _header_dtype(unit: str) -> np.dtype[np.void]:
 
 _HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
 _BULK = 16  # messages; fewer are cheaper one by one than through arrays
+_RUN = 1024  # messages of one key ``write`` gathers at most before handing them on
 
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
@@ -214,6 +215,9 @@ class ArchiveWriter:
         self._sequence: dict[str, int] = {}
         self._broken: ArchiveError | None = None
         self._file: _File | None = None
+        self._run_key = ""  # messages ``write`` holds for ``write_many``
+        self._run: list[bytes] = []
+        self._run_rx: list[int] = []
         self._open()
 
     # -- files ---------------------------------------------------------------------------
@@ -309,8 +313,35 @@ class ArchiveWriter:
 
     def write(self, key: str, payload: bytes, receive_ns: int | None = None) -> None:
         """One message as it came from Zenoh (or one raw read), received at ``receive_ns``
-        (host ns; now when omitted)."""
-        self.write_many(key, [payload], time.time_ns() if receive_ns is None else receive_ns)
+        (host ns; now when omitted).
+
+        It is checked at once (a bad key or payload raises here) and joins the messages
+        of the same key written just before it: a run goes to ``write_many`` when another
+        key comes, when it is long, and at every flush, tick and close. The archive is
+        the same; only the fixed cost of a call is shared.
+        """
+        if self._broken is not None:
+            raise self._broken
+        self._current()  # a closed archive takes nothing
+        if key != self._run_key:
+            self._drain()
+        unit, leaf = self._routes.get(key) or self._route(key)
+        if leaf == "imu":
+            stamp(unit, payload)
+        elif leaf != "raw":
+            self._logged_at(key, leaf, payload)
+        self._run_key = key
+        self._run.append(payload)
+        self._run_rx.append(time.time_ns() if receive_ns is None else receive_ns)
+        if len(self._run) >= _RUN or self._clock() - self._flushed >= FLUSH_EVERY_S:
+            self._drain()
+
+    def _drain(self) -> None:
+        """Hand the run of messages ``write`` gathered to ``write_many``."""
+        if self._run:
+            key, run, rx = self._run_key, self._run, self._run_rx
+            self._run, self._run_rx = [], []
+            self.write_many(key, run, np.array(rx, np.int64))
 
     def write_many(self, key: str, payloads: Sequence[bytes],
                    receive_ns: int | np.ndarray) -> None:
@@ -318,6 +349,7 @@ class ArchiveWriter:
         per payload): the archive ``write`` gives message by message, in bulk."""
         if self._broken is not None:
             raise self._broken
+        self._drain()
         n = len(payloads)
         rx = np.asarray(receive_ns, np.int64)
         if rx.ndim == 0:
@@ -375,9 +407,9 @@ class ArchiveWriter:
         eligible = [i for i, c in enumerate(code_list) if _framed(c)]
         if not eligible:
             return
-        times = log_ns[eligible].tolist() if len(eligible) > 1 else [int(log_ns[eligible[0]])]
+        times = log_ns[eligible]
         ordered = len(times) < 2 or bool((np.diff(times) >= 0).all())
-        picks, due = frame_picks(times, ordered, self._frame_due.get(unit),
+        picks, due = frame_picks(times.tolist(), ordered, self._frame_due.get(unit),
                                  self.frame_period_ns)
         if due is not None:
             self._frame_due[unit] = due
@@ -443,6 +475,7 @@ class ArchiveWriter:
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS (a crash keeps it)."""
+        self._drain()
         self._write_frames()
         self._guard(self._current().writer.flush)
         self._flushed = self._clock()
@@ -469,7 +502,10 @@ class ArchiveWriter:
     def close(self) -> None:
         """Finish the file (summary and index); safe to call twice, and after an error."""
         if self._file is not None:
-            self._finish()
+            try:
+                self._drain()
+            finally:
+                self._finish()
 
     def __enter__(self) -> ArchiveWriter:
         return self

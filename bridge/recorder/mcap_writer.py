@@ -6,7 +6,7 @@ fixed 31-byte head and the payload, so here a whole batch of them is laid out wi
 NumPy structured array, and the message index that follows each chunk likewise.
 
 What is written follows the MCAP specification (https://mcap.dev/spec, format version
-0, the layout mcap 1.6's own writer produces), little-endian throughout:
+0), record for record where mcap 1.6's own writer puts them, little-endian throughout:
 
 - Magic, Header (op 0x01), then the data section: Metadata records (0x0C) at top level
   as they are added; Schema (0x03) and Channel (0x04) records inside the chunk in
@@ -20,7 +20,9 @@ What is written follows the MCAP specification (https://mcap.dev/spec, format ve
   Message record starts in the chunk's uncompressed records.
 - Data End (0x0F, data_section_crc 0: not computed), then the summary: Schema, Channel,
   Statistics (0x0B), Chunk Index (0x08) and Metadata Index (0x0D) groups, a Summary
-  Offset (0x0E) per group, the Footer (0x02, with the summary's CRC-32) and the magic.
+  Offset (0x0E) per group that has records (no attachments are written, so no
+  Attachment Index group), the Footer (0x02, with the CRC-32 of the summary up to its
+  own CRC field) and the magic.
 
 A chunk is closed once its records pass ``chunk_size`` and at every ``flush``, so a
 writer killed mid-run leaves every closed chunk readable by a streaming reader. The
