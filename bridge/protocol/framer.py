@@ -20,6 +20,7 @@ same records and times.
 from __future__ import annotations
 
 import re
+from bisect import bisect_right
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -68,20 +69,21 @@ class _Reads:
     """Receive time of every read with bytes still held, by the stream position it ends at."""
 
     def __init__(self) -> None:
-        self.ends = np.zeros(0, np.int64)
-        self.ns = np.zeros(0, np.int64)
+        self.ends: list[int] = []
+        self.ns: list[int] = []
 
-    def add(self, ends: np.ndarray, rx_ns: np.ndarray) -> None:
-        self.ends = np.concatenate([self.ends, ends])
-        self.ns = np.concatenate([self.ns, rx_ns])
+    def add(self, ends: list[int], rx_ns: list[int]) -> None:
+        self.ends += ends
+        self.ns += rx_ns
 
     def times(self, last_bytes: np.ndarray) -> np.ndarray:
         """The receive time of the read holding each of these stream positions."""
-        return self.ns[np.searchsorted(self.ends, last_bytes, side="right")]
+        index = np.searchsorted(np.array(self.ends, np.int64), last_bytes, side="right")
+        return np.array(self.ns, np.int64)[index]
 
     def forget_before(self, position: int) -> None:
-        done = int(np.searchsorted(self.ends, position, side="right"))
-        self.ends, self.ns = self.ends[done:], self.ns[done:]
+        done = bisect_right(self.ends, position)
+        del self.ends[:done], self.ns[:done]
 
 
 class _Runs:
@@ -149,7 +151,7 @@ class Framer:
 
     def feed(self, data: bytes | bytearray | memoryview, rx_ns: int = 0) -> list[Batch]:
         """Take the next read, received at ``rx_ns``; return the records decided so far."""
-        return self._take(data, np.array([len(data)], np.int64), np.array([rx_ns], np.int64))
+        return self._take(data, [len(data)], [rx_ns])
 
     def feed_reads(self, data: bytes | bytearray | memoryview, ends: np.ndarray,
                    rx_ns: np.ndarray) -> list[Batch]:
@@ -163,13 +165,14 @@ class Framer:
         last = int(ends[-1]) if len(ends) else 0
         if last != len(data) or (np.diff(ends, prepend=0) < 0).any():
             raise ValueError(f"read ends must rise to the {len(data)} bytes given")
-        return self._take(data, ends, rx_ns)
+        return self._take(data, ends.tolist(), rx_ns.tolist())
 
-    def _take(self, data: bytes | bytearray | memoryview, ends: np.ndarray,
-              rx_ns: np.ndarray) -> list[Batch]:
+    def _take(self, data: bytes | bytearray | memoryview, ends: list[int],
+              rx_ns: list[int]) -> list[Batch]:
         if len(data):
             self.stats.bytes_fed += len(data)
-            self._reads.add(self._base + len(self._buf) + ends, rx_ns)
+            base = self._base + len(self._buf)
+            self._reads.add([base + end for end in ends], rx_ns)
             self._buf += data
         return self._scan(final=False)
 

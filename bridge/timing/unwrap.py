@@ -129,17 +129,15 @@ class TimerUnwrapper:
         if rx is not None and rx.shape != timers.shape:
             raise ValueError(f"timer and rx_ns differ in length: {timers.shape} vs {rx.shape}")
         parts: list[tuple[int, Unwrapped]] = []
-        done = 0
+        done, rest, rest_rx = 0, timers, rx
         while True:
-            rest, rest_rx = timers[done:], None if rx is None else rx[done:]
-            out = self._fast(rest, rest_rx)
-            if out is None:
-                out = self._slow(rest, rest_rx)
+            out = self._fast(rest, rest_rx) or self._slow(rest, rest_rx)
             parts.append((done, out))
             self._records += len(out.ticks)
             done += len(out.ticks)
             if done >= len(timers):
                 return _joined(parts)
+            rest, rest_rx = timers[done:], None if rx is None else rx[done:]
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
         """The common case in one go: the leading records each exactly one period after
