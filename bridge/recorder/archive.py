@@ -493,6 +493,7 @@ class ArchiveWriter:
                 self._guard(f.writer.finish)
         finally:
             self._file = None
+            f.writer.close()
             try:
                 f.stream.close()
             except OSError as exc:

@@ -24,8 +24,10 @@ What is written follows the MCAP specification (https://mcap.dev/spec, format ve
   Attachment Index group), the Footer (0x02, with the CRC-32 of the summary up to its
   own CRC field) and the magic.
 
-A chunk is closed once its records pass ``chunk_size`` and at every ``flush``, so a
-writer killed mid-run leaves every closed chunk readable by a streaming reader. The
+A chunk is closed once its records pass ``chunk_size`` and at every ``flush``; it is
+compressed on a worker thread while the next one fills and written when that one closes
+or at the next flush, so a writer killed mid-run leaves every chunk flushed before
+readable by a streaming reader. The
 rare records go through mcap's own record classes; only Message and Message Index
 records, the bulk of every file, are built here.
 """
@@ -36,6 +38,7 @@ import functools
 import struct
 import zlib
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import IO
 
@@ -105,6 +108,11 @@ def _records_dtype(size: int) -> np.dtype[np.void]:
                      ("data", f"V{size}")])
 
 
+def _compress(zstd: zstandard.ZstdCompressor, data: bytes) -> tuple[bytes, int]:
+    """A chunk's records compressed, and their CRC-32 (both let go of the GIL)."""
+    return zstd.compress(data), zlib.crc32(data)
+
+
 def _record(record: McapRecord) -> bytes:
     builder = RecordBuilder()
     record.write(builder)
@@ -138,6 +146,8 @@ class McapWriter:
         self.stream = stream
         self.chunk_size = chunk_size
         self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="gx3-mcap-zstd")
+        self._closed: tuple[Future[tuple[bytes, int]], _OpenChunk, int] | None = None
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
         self._chunk = _OpenChunk()
@@ -168,6 +178,7 @@ class McapWriter:
         return channel.id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self._write_closed()
         record = _record(Metadata(name=name, metadata=dict(data)))
         self._metadata_indexes.append(MetadataIndex(self.stream.tell(), len(record), name))
         self.stream.write(record)
@@ -226,17 +237,28 @@ class McapWriter:
         self._counts[channel] = self._counts.get(channel, 0) + n
 
     def _close_chunk(self) -> None:
-        """Write the chunk in progress and its message indexes (none without messages:
-        its schemas and channels wait for the next)."""
+        """Close the chunk in progress (none without messages: its schemas and channels
+        wait for the next). It is compressed on a worker thread while the next one
+        fills, and written when that one closes or at the next flush."""
         chunk = self._chunk
         if not chunk.messages:
             return
         data = b"".join(chunk.parts)
-        compressed = self._zstd.compress(data)
+        packed = self._worker.submit(_compress, self._zstd, data)
+        self._write_closed()
+        self._closed = (packed, chunk, len(data))
+        self._chunk = _OpenChunk()
+
+    def _write_closed(self) -> None:
+        """Write the chunk last closed and its message indexes."""
+        if self._closed is None:
+            return
+        packed, chunk, size = self._closed
+        self._closed = None
+        compressed, crc = packed.result()
         record = _record(Chunk(compression="zstd", data=compressed,
                                message_start_time=chunk.start, message_end_time=chunk.end,
-                               uncompressed_crc=zlib.crc32(data),
-                               uncompressed_size=len(data)))
+                               uncompressed_crc=crc, uncompressed_size=size))
         chunk_at = self.stream.tell()
         indexes: list[bytes] = []
         offsets: dict[int, int] = {}
@@ -256,17 +278,27 @@ class McapWriter:
             message_start_time=chunk.start, message_end_time=chunk.end,
             chunk_start_offset=chunk_at, chunk_length=len(record),
             message_index_offsets=offsets, message_index_length=at - chunk_at - len(record),
-            compression="zstd", compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._chunk = _OpenChunk()
+            compression="zstd", compressed_size=len(compressed), uncompressed_size=size))
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the OS."""
         self._close_chunk()
+        self._write_closed()
         self.stream.flush()
+
+    def close(self) -> None:
+        """Stop the compression thread (``finish`` does; call this when not finishing,
+        after a write error). Safe to call twice."""
+        self._closed = None
+        self._worker.shutdown(wait=True)
 
     def finish(self) -> None:
         """Close the last chunk and write the summary and footer (the stream stays open)."""
-        self._close_chunk()
+        try:
+            self._close_chunk()
+            self._write_closed()
+        finally:
+            self.close()
         self.stream.write(_record(DataEnd(0)))
         summary_start = self.stream.tell()
         stats = Statistics(message_count=self._messages, schema_count=len(self._schemas),
