@@ -393,9 +393,11 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     """
     lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
     v = np.empty_like(dy)
+    # every |dy - r dx| searched is below ``scale``; float64 rounds it by ~1e-16 of it
+    scale = _largest(dy) + max(abs(lo), abs(hi)) * _largest(dx) if len(dx) else 0.0
     for step in range(_BISECTIONS):
         if step and step % _PRUNE_EVERY == 0 and len(dx) > _PRUNE_MIN:
-            dx, dy = lowest_candidates(dx, dy, lo, hi)
+            dx, dy = lowest_candidates(dx, dy, lo, hi, 1.0 + 2e-9 * scale)
             v = np.empty_like(dy)
         mid = (lo + hi) / 2
         np.multiply(mid, dx, out=v)
@@ -407,15 +409,20 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     return (lo + hi) / 2
 
 
-def lowest_candidates(dx: np.ndarray, dy: np.ndarray, lo: float,
-                      hi: float) -> tuple[np.ndarray, np.ndarray]:
+def _largest(a: np.ndarray) -> float:
+    """The largest magnitude in ``a``."""
+    return max(float(a.max()), -float(a.min()))
+
+
+def lowest_candidates(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float,
+                      margin: float) -> tuple[np.ndarray, np.ndarray]:
     """The points, in order, that may be lowest (``argmin(dy - r dx)``) for a slope r
     in [lo, hi]: each point's line in r is at least its lower end there, the lowest
-    point at most the least of the higher ends. The margin, far above float64's
-    rounding, keeps every point whose computed value could tie the lowest."""
+    point at most the least of the higher ends. ``margin``, far above float64's
+    rounding of these values, keeps every point whose computed value could tie the
+    lowest."""
     at_lo = dy - lo * dx
     at_hi = dy - hi * dx
     ceiling = float(np.maximum(at_lo, at_hi).min())
-    margin = 1.0 + 1e-9 * float(np.abs(at_lo).max() + np.abs(at_hi).max())
     keep = np.minimum(at_lo, at_hi) <= ceiling + margin
     return dx[keep], dy[keep]
