@@ -61,6 +61,11 @@ class Unwrapped:
     valid: npt.NDArray[np.bool_]  # False: a corrupt or unconfirmed timer; drop the record
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0  # samples the unit produced that never arrived (gaps)
+    intact: bool = False  # known without looking: every record is valid
+
+    @property
+    def all_valid(self) -> bool:
+        return self.intact or bool(self.valid.all())
 
 
 @dataclass
@@ -152,7 +157,8 @@ class TimerUnwrapper:
         self._ref = _Anchor(int(timers[-1]), int(ticks[-1]),
                             None if rx is None else int(rx[-1]))
         self._last_ticks = int(ticks[-1])
-        return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events)
+        return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events,
+                         intact=True)
 
     def _fast_scalar(self, ref: _Anchor, timers: list[int],
                      rx: list[int] | None) -> Unwrapped | None:
@@ -183,7 +189,8 @@ class TimerUnwrapper:
             events.append(TimingEvent("rollover", i, ticks[i], self.rollovers))
         self._ref = _Anchor(timers[-1], value, None if rx is None else rx[-1])
         self._last_ticks = value
-        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events)
+        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events,
+                         intact=True)
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
         n = len(timers)
