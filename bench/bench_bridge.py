@@ -84,7 +84,8 @@ def main() -> None:
     args = parser.parse_args()
     code = int(args.code, 0)
     if args.floor_child:
-        floor(*args.floor_child, code)
+        port, zenoh_config = args.floor_child
+        floor(port, zenoh_config, code)
         return
     gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
     config = UnitConfig(serial="BENCH", motion=MotionConfig(seed=1), stored=Stored(
