@@ -117,6 +117,7 @@ class OnlineClock:
         bins = max(1, self.frame_ns // _GRID_BIN_NS)
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
+        self._last_ns: int | None = None  # the latest instant given out
         self.reset()
 
     def reset(self) -> None:
@@ -166,7 +167,22 @@ class OnlineClock:
             assert self._line is not None
             out.append(self._line.at_one(xs[j]) - delay)
             i = j + 1
-        return np.array(out, np.int64)
+        return self._increasing(np.array(out, np.int64))
+
+    def _increasing(self, out: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """Instants that only move forward: a refit may lower the line by more than a
+        sample period (late points early on, then prompt ones), and a subscriber must
+        never see a later sample stamped before an earlier one. Such records get the
+        least later instant (1 ns on) until the line has caught up."""
+        if not len(out):
+            return out
+        last = self._last_ns
+        if (last is not None and out[0] <= last) or (len(out) > 1 and (np.diff(out) <= 0).any()):
+            start = out[0] if last is None else last + 1
+            ramp = np.arange(len(out), dtype=np.int64)
+            out = np.maximum.accumulate(np.maximum(out, start + ramp) - ramp) + ramp
+        self._last_ns = int(out[-1])
+        return out
 
     # --- fitting -------------------------------------------------------------------------
     def _fit(self, now: int) -> None:
