@@ -4,7 +4,7 @@ reviewer sees after `gx3 view --serve` or `rerun --serve-web`.
 Needs Debian's Chromium and Playwright's Python package, without Playwright's own browser
 download (the page is opened in /usr/bin/chromium, WebGL on SwiftShader):
 
-    apt-get install -y chromium && .venv/bin/pip install playwright==1.65.2
+    apt-get install -y chromium && .venv/bin/pip install -e '.[docs]'
     .venv/bin/python docs/web_viewer_shot.py docs/images/web-viewer.png
 
 The recording is the one docs/images/viewer.png shows (bridge.viz.demo.write_demo).
