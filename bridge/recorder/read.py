@@ -24,7 +24,6 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
-from numpy.lib.stride_tricks import sliding_window_view
 
 from bridge.bus.codec import decode_batch, layout, peek
 from bridge.bus.gx3_pb2 import Event
@@ -362,8 +361,10 @@ def _indexed_runs(buf: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    """(len(starts), width) bytes of ``buf`` from each start: one row copy each."""
-    rows: np.ndarray = sliding_window_view(buf, width)[starts]
+    """(len(starts), width) bytes of ``buf`` from each start: one row copy each (through a
+    view of every window of ``width`` bytes, made without sliding_window_view's checks)."""
+    windows = np.ndarray((max(len(buf) - width + 1, 0), width), np.uint8, buf, strides=(1, 1))
+    rows: np.ndarray = windows[starts]
     return rows
 
 
