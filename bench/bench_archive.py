@@ -1,9 +1,11 @@
 """Archive throughput: write 1,000,000 ImuSamples (10 units x 100,000, 0xCC at 100 Hz) through
-ArchiveWriter one message at a time, as a live recorder does, then `gx3 export` it to Parquet.
+ArchiveWriter one message at a time, as a live recorder does, then `gx3 export` it to Parquet
+and `gx3 rrd` it to a Rerun recording.
 
     .venv/bin/python bench/bench_archive.py [--units 10] [--samples 100000] [--dir DIR]
 
-Prints samples/s written, bytes per sample on disk, and the export's wall time. The values
+Prints samples/s written, bytes per sample on disk, the wall times of export and rrd (with
+the load average: other work on the machine slows them) and the .rrd's bytes per sample. The values
 are a sensor at rest with realistic noise (float32 noise does not compress much), so the
 size is close to what a real recording takes.
 """
@@ -11,6 +13,7 @@ size is close to what a real recording takes.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -41,6 +44,11 @@ def unit_batch(n: int, seed: int) -> Batch:
         "timer": (np.arange(n, dtype=np.uint32) * 625),
     }
     return Batch(0xCC, columns, np.arange(n), np.zeros(n, np.int64), False)
+
+
+def load() -> str:
+    """The machine's load over the last minute, so a figure says what else was running."""
+    return f"load average {os.getloadavg()[0]:.2f}"
 
 
 def main() -> None:
@@ -77,13 +85,13 @@ def main() -> None:
     subprocess.run([gx3, "export", str(path), "-o", str(out)], check=True)
     elapsed = time.perf_counter() - start
     print(f"gx3 export -> parquet: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
-          f"{out.stat().st_size / 1e6:.1f} MB")
+          f"{out.stat().st_size / 1e6:.1f} MB; {load()}")
     rrd = workdir / "bench.rrd"
     start = time.perf_counter()
     subprocess.run([gx3, "rrd", str(path), "-o", str(rrd)], check=True)
     elapsed = time.perf_counter() - start
     print(f"gx3 rrd -> Rerun: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
-          f"{rrd.stat().st_size / total:.0f} bytes/sample")
+          f"{rrd.stat().st_size / total:.0f} bytes/sample; {load()}")
     if args.dir is None:
         shutil.rmtree(workdir)
 

@@ -188,28 +188,35 @@ def parse(payload: bytes) -> ImuSample:
         raise ValueError(f"not a gx3.v1.ImuSample ({len(payload)} bytes): {exc}") from None
 
 
-def decode_batch(unit: str, code: int, payloads: Sequence[bytes]) -> dict[str, np.ndarray]:
+def decode_batch(unit: str, code: int,
+                 payloads: Sequence[bytes] | np.ndarray) -> dict[str, np.ndarray]:
     """Columns (header and quantities, shaped as in the command table) of serialized
     ImuSamples of one unit and record type.
 
     Messages in the bulk layout are read as one array; any other valid encoding of the
     same message (another producer's field order, say) is parsed one by one.
+    ``payloads`` may also be an (n, layout size) uint8 array, one message per row (read
+    straight out of a buffer, without a bytes object each).
     """
     lay = layout(code, unit)
     n = len(payloads)
     recs = np.zeros(n, lay.dtype)
     size = lay.size
-    fits = np.fromiter((len(p) == size for p in payloads), bool, n)
-    if fits.any():
+    if isinstance(payloads, np.ndarray):
+        raw = payloads.reshape(n, size)
+        fits = np.ones(n, bool)
+    else:
+        fits = np.fromiter((len(p) == size for p in payloads), bool, n)
         raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
-                            np.uint8).reshape(-1, lay.size)
+                            np.uint8).reshape(-1, size)
+    if fits.any():
         const = lay.template.view(np.uint8)[lay.const_mask]
         good = (raw[:, lay.const_mask] == const).all(axis=1)
         idx = np.flatnonzero(fits)
         recs[idx[good]] = raw[good].reshape(-1).view(lay.dtype)
         fits[idx[~good]] = False
     for i in np.flatnonzero(~fits).tolist():
-        msg = parse(payloads[i])
+        msg = parse(bytes(payloads[i]))
         if msg.unit != unit or msg.command != code:
             raise ValueError(f"sample {i} is from {msg.unit!r} 0x{msg.command:02X}, "
                              f"not {unit!r} 0x{code:02X}")
