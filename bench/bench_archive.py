@@ -1,18 +1,20 @@
 """Archive throughput: write 1,000,000 ImuSamples (10 units x 100,000, 0xCC at 100 Hz) through
 ArchiveWriter one message at a time, then again in batches of each unit's samples
-(``write_many``, --batch per call, as a recorder draining its queue does), then
-`gx3 export` it to Parquet.
+(``write_many``, --batch per call, as a recorder draining its queue does), then `gx3 export`
+it to Parquet and `gx3 rrd` it to a Rerun recording.
 
     .venv/bin/python bench/bench_archive.py [--units 10] [--samples 100000] [--batch 100]
 
-Prints samples/s written each way, bytes per sample on disk, and the export's wall time. The values
-are a sensor at rest with realistic noise (float32 noise does not compress much), so the
-size is close to what a real recording takes.
+Prints samples/s written each way, bytes per sample on disk, the wall times of export and
+rrd (with the load average: other work on the machine slows them all) and the .rrd's bytes
+per sample. The values are a sensor at rest with realistic noise (float32 noise does not
+compress much), so the size is close to what a real recording takes.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -45,6 +47,11 @@ def unit_batch(n: int, seed: int) -> Batch:
     return Batch(0xCC, columns, np.arange(n), np.zeros(n, np.int64), False)
 
 
+def load() -> str:
+    """The machine's load over the last minute, so a figure says what else was running."""
+    return f"load average {os.getloadavg()[0]:.2f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=10)
@@ -72,7 +79,8 @@ def main() -> None:
             for key, payloads, received in one_by_one:
                 writer.write(key, payloads[i], received[i])
     elapsed = time.perf_counter() - start
-    print(f"write: {total:,} samples in {elapsed:.2f} s = {total / elapsed:,.0f} samples/s")
+    print(f"write: {total:,} samples in {elapsed:.2f} s = {total / elapsed:,.0f} samples/s; "
+          f"{load()}")
     start = time.perf_counter()
     with ArchiveWriter(path) as writer:
         for i in range(0, n, args.batch):
@@ -82,20 +90,20 @@ def main() -> None:
     size = path.stat().st_size
     print(f"write_many ({args.batch} a call): {total:,} samples in {elapsed:.2f} s = "
           f"{total / elapsed:,.0f} samples/s; {writer.messages - total:,} FrameTransforms; "
-          f"{size / 1e6:.1f} MB = {size / total:.1f} bytes/sample")
+          f"{size / 1e6:.1f} MB = {size / total:.1f} bytes/sample; {load()}")
     gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
     out = workdir / "bench.parquet"
     start = time.perf_counter()
     subprocess.run([gx3, "export", str(path), "-o", str(out)], check=True)
     elapsed = time.perf_counter() - start
     print(f"gx3 export -> parquet: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
-          f"{out.stat().st_size / 1e6:.1f} MB")
+          f"{out.stat().st_size / 1e6:.1f} MB; {load()}")
     rrd = workdir / "bench.rrd"
     start = time.perf_counter()
     subprocess.run([gx3, "rrd", str(path), "-o", str(rrd)], check=True)
     elapsed = time.perf_counter() - start
     print(f"gx3 rrd -> Rerun: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
-          f"{rrd.stat().st_size / total:.0f} bytes/sample")
+          f"{rrd.stat().st_size / total:.0f} bytes/sample; {load()}")
     if args.dir is None:
         shutil.rmtree(workdir)
 

@@ -7,12 +7,25 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 
+from bridge.bus.codec import HEADER, encode_batch, record_quantities
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.read import MAGIC, ArchiveReadError, read_archive
 from bridge.recorder.repair import repair
-from tests.test_archive_writer import FLEET, write_fleet
+from tests.test_archive_writer import (
+    FLEET,
+    LATENCY,
+    PERIOD,
+    T0,
+    synthetic_batch,
+    write_fleet,
+)
 
 
 def record_ends(data: bytes) -> list[int]:
@@ -168,3 +181,157 @@ def test_messages_of_all_topics_come_in_log_time_order(fleet: Path) -> None:
     summary = archive.summary()
     for unit, (code, n, _) in FLEET.items():
         assert f"{unit} 0x{code:02X}: {n} samples" in summary
+
+
+# -- the bulk reader against the MCAP library, message by message ----------------------
+
+#: unit -> record types it sends, in turn (a unit that switches types mid-run, names of
+#: several lengths, one without attitude)
+MIXED = {"u1": (0xCC, 0xC2), "imu-long-2": (0xDF,), "u3": (0xC2,)}
+
+
+#: A raw read whose last bytes look like a whole message record of its own.
+FAKE_RECORD = b"\x05" + struct.pack("<Q", 22) + bytes(22)
+RAW = b"\xcc\x00\x01raw bytes" + FAKE_RECORD
+
+
+def _reordered(payload: bytes) -> bytes:
+    """The same ImuSample with its unit field moved to the end: as long as the bulk
+    layout, valid protobuf, but not the layout."""
+    end = 2 + payload[1]
+    return payload[end:] + payload[:end]
+
+
+def write_mixed(path: Path) -> None:
+    """Three units, two record types for one, status, events, info, a raw read, and two
+    samples in another encoding: one reordered, one with an unknown field appended."""
+    feed: list[tuple[int, str, bytes]] = []
+    for k, (unit, codes) in enumerate(MIXED.items()):
+        for j, code in enumerate(codes):
+            n = 120
+            time_ns = T0 + (j * n + np.arange(n, dtype=np.int64)) * PERIOD + k * 1000
+            euler = np.stack([np.linspace(0, 1, n)] * 3, axis=1)
+            payloads = encode_batch(unit, synthetic_batch(code, n, 10 * k + j, euler),
+                                    (j * n + np.arange(n, dtype=np.int64)) * 625, time_ns,
+                                    time_ns + LATENCY)
+            if unit == "u3":
+                payloads[50] = _reordered(payloads[50])
+            if code == 0xCC:
+                payloads[70] += bytes([0xC0, 0x3E, 0x01])  # field 1000, varint 1
+            feed += [(int(t) + LATENCY, f"gx3/{unit}/imu", p)
+                     for t, p in zip(time_ns, payloads, strict=True)]
+            for s in range(0, n, 40):
+                t = int(time_ns[s])
+                feed.append((t + 1, f"gx3/{unit}/status",
+                             Status(unit=unit, time_ns=t, samples=s).SerializeToString()))
+            feed.append((int(time_ns[n // 2]) + 2, f"gx3/{unit}/event", Event(
+                unit=unit, time_ns=int(time_ns[n // 2]), kind=Event.GAP, count=j + 1,
+                detail=f"{unit} {j}").SerializeToString()))
+        feed.append((T0 - 4 + k, f"gx3/{unit}/info",
+                     Info(unit=unit, bring_up_time_ns=T0 - 5).SerializeToString()))
+    feed.append((T0 + 7, "gx3/u1/raw", RAW))
+    feed.sort(key=lambda f: f[0])
+    with ArchiveWriter(path, chunk_size=5_000) as writer:
+        for receive_ns, key, payload in feed:
+            writer.write(key, payload, receive_ns)
+
+
+def top_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, start, end) of each whole top-level record (an independent walk)."""
+    out, off = [], len(MAGIC)
+    while off + 9 <= len(data):
+        opcode, length = struct.unpack_from("<BQ", data, off)
+        if off + 9 + length > len(data):
+            break
+        out.append((opcode, off, off + 9 + length))
+        off += 9 + length
+    return out
+
+
+def reference(path: Path) -> tuple[dict[int, Channel], list[Message]]:
+    """Channels and messages as the MCAP library reads them, one object each, up to where
+    it stops (the end, or a record cut short)."""
+    channels: dict[int, Channel] = {}
+    messages: list[Message] = []
+    with path.open("rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    messages.append(record)
+        except Exception:  # the library stops at a cut-off record, as it should
+            pass
+    return channels, messages
+
+
+def by_log_time(messages: list[Message]) -> list[Message]:
+    return sorted(messages, key=lambda m: m.log_time)  # stable: file order among equals
+
+
+def assert_reads_like_the_library(path: Path) -> None:
+    channels, messages = reference(path)
+    archive = read_archive(path)
+    assert archive.message_count == len(messages)
+    topics = sorted({channels[m.channel_id].topic for m in messages})
+    assert [t for t in archive.topics() if len(archive.messages(t))] == topics
+    for topic in topics:
+        want = by_log_time([m for m in messages if channels[m.channel_id].topic == topic])
+        got = archive.messages(topic)
+        assert got.payloads == [m.data for m in want], topic
+        assert got.log_time.tolist() == [m.log_time for m in want], topic
+        assert got.publish_time.tolist() == [m.publish_time for m in want], topic
+        assert got.sequence.tolist() == [m.sequence for m in want], topic
+    imu = by_log_time([m for m in messages if channels[m.channel_id].topic.endswith("/imu")])
+    parsed = [(ImuSample.FromString(m.data), m.publish_time) for m in imu]
+    samples = archive.samples()
+    assert sorted((s.unit, s.code) for s in samples) == sorted(
+        {(p.unit, p.command) for p, _ in parsed})
+    for s in samples:
+        mine = [(p, rx) for p, rx in parsed if (p.unit, p.command) == (s.unit, s.code)]
+        assert s.receive_ns.tolist() == [rx for _, rx in mine]
+        for name in HEADER:
+            assert s.columns[name].tolist() == [getattr(p, name) for p, _ in mine], name
+        for q in record_quantities(s.code):
+            want_q = np.array([list(getattr(p, q)) for p, _ in mine], np.float64)
+            np.testing.assert_array_equal(s.columns[q].reshape(len(mine), -1), want_q, q)
+    events = by_log_time([m for m in messages if channels[m.channel_id].topic.endswith("/event")])
+    assert [(u, e.SerializeToString()) for u, e in archive.events()] == [
+        (Event.FromString(m.data).unit, m.data) for m in events]
+
+
+def test_bulk_reading_gives_what_the_mcap_library_reads(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.mcap"
+    write_mixed(path)
+    data = path.read_bytes()
+    records = top_records(data)
+    chunks = [(start, end) for op, start, end in records if op == Opcode.CHUNK]
+    indexes = [(start, end) for op, start, end in records if op == Opcode.MESSAGE_INDEX]
+    assert len(chunks) >= 6 and indexes
+    archive = read_archive(path)
+    assert {(s.unit, s.code) for s in archive.samples()} == {
+        (u, c) for u, codes in MIXED.items() for c in codes}
+    assert archive.topics("status") and archive.topics("info") and archive.topics("raw")
+    variants = {"whole": data,
+                "cut in a chunk": data[: (chunks[-2][0] + chunks[-2][1]) // 2],
+                "cut in the indexes after a chunk": data[: chunks[-3][1] + 20]}
+    # message indexes that lie: one lists nothing, one points one byte off, and the raw
+    # read's points at the message record look-alike inside it
+    lying = bytearray(data)
+    start, _ = indexes[0]
+    lying[start + 9 + 2 : start + 9 + 6] = bytes(4)
+    start, end = indexes[len(indexes) // 2]
+    assert end - start >= 9 + 6 + 16
+    (offset,) = struct.unpack_from("<Q", lying, start + 9 + 6 + 8)
+    struct.pack_into("<Q", lying, start + 9 + 6 + 8, offset + 1)
+    (raw_id,) = (c.id for c in archive.channels.values() if c.kind == "raw")
+    (start, _), = ((s, e) for s, e in indexes
+                   if struct.unpack_from("<H", data, s + 9)[0] == raw_id)
+    (offset,) = struct.unpack_from("<Q", lying, start + 9 + 6 + 8)
+    struct.pack_into("<Q", lying, start + 9 + 6 + 8,
+                     offset + 9 + 22 + len(RAW) - len(FAKE_RECORD))
+    variants["lying indexes"] = bytes(lying)
+    for name, content in variants.items():
+        cut = tmp_path / f"{name.replace(' ', '_')}.mcap"
+        cut.write_bytes(content)
+        assert_reads_like_the_library(cut)

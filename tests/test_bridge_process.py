@@ -106,7 +106,7 @@ def wait_for(condition: Callable[[], bool], timeout: float = 30.0) -> None:
 def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
         network: tuple[Path, Path]) -> None:
     bridge_cfg, client_cfg = network
-    seconds = 10.0
+    seconds = 5.0
     with Simulator([FAST], "pty") as sim, \
             subscribe("gx3/fast/imu", output="batches", zenoh_config=client_cfg,
                       history=20_000) as sub, \
@@ -127,7 +127,7 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
     ticks = np.concatenate([b["ticks"] for b in batches])
     timer = np.concatenate([b["timer"] for b in batches])
     accel = np.concatenate([b["accel"] for b in batches])
-    assert ticks[-1] - ticks[0] >= seconds * 62_500, "not 10 s of samples"
+    assert ticks[-1] - ticks[0] >= seconds * 62_500, f"not {seconds:g} s of samples"
     steps = np.diff(ticks)
     assert set(steps.tolist()) <= {62, 63}, f"missing or repeated samples: {np.unique(steps)}"
     assert misses == 0

@@ -146,3 +146,20 @@ def test_reset_restarts_the_model_and_keeps_the_rate() -> None:
     truth = capture.truth["time_ns"][5000:]
     assert abs(clock.state.drift_ppm - rate) < 1.0
     assert np.percentile(np.abs(out - truth)[-1000:], 99) < 600_000
+
+
+def test_live_instants_never_go_back_when_the_latency_drops() -> None:
+    """A busy host delivers the first second 20 ms late, then promptly: the refit lowers
+    the line by 20 ms, yet every later sample must be stamped after the one before."""
+    n = 3000  # 1 kHz for 3 s
+    ticks = np.arange(n, dtype=np.int64) * 62 + 5_000
+    true_ns = 1_763_000_000_000_000_000 + ticks * 16_000
+    late = np.where(np.arange(n) < 1000, 20_000_000, 50_000)
+    clock = OnlineClock()
+    one_by_one = np.concatenate([clock.update(ticks[i : i + 1], (true_ns + late)[i : i + 1])
+                                 for i in range(n)])
+    assert (np.diff(one_by_one) > 0).all()
+    settled = one_by_one[-500:] - true_ns[-500:]
+    assert np.abs(settled).max() < 1_000_000, "the line catches up with the prompt points"
+    at_once = OnlineClock().update(ticks, true_ns + late)
+    assert (at_once == one_by_one).all(), "the same whatever the split"

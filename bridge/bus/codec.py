@@ -21,6 +21,7 @@ from google.protobuf.message import DecodeError
 
 from bridge.bus import gx3_pb2
 from bridge.bus.gx3_pb2 import ImuSample
+from bridge.protocol.codec import reply_dtype
 from bridge.protocol.table import DATA_CODES, QUANTITIES, REPLIES
 
 #: Columns every sample carries besides its quantities.
@@ -37,6 +38,8 @@ class RecordBatch(Protocol):
 
     code: int
     rx_ns: np.ndarray  # host receive time of the read that completed each record
+    little_endian: bool  # float byte order of ``block``
+    block: np.ndarray | None  # the records' wire bytes, (n, length) uint8, if known
 
     def __len__(self) -> int: ...
 
@@ -121,17 +124,46 @@ def layout(code: int, unit: str) -> Layout:
     return Layout(unit, code, quantities, dtype, template, mask)
 
 
+@functools.cache
+def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(message positions, record positions): where each byte of the timer and the
+    quantities of a wire record lands in its ImuSample. The message holds every value
+    in 4 little-endian bytes; a wire value may be shorter (the upper bytes stay zero,
+    as in the template) and big-endian (its bytes are reversed on the way)."""
+    lay = layout(code, unit)
+    wire = reply_dtype(code, little_endian)
+    dst: list[int] = []
+    src: list[int] = []
+    for name in ("timer", *lay.quantities):
+        kind, at = wire.fields[name][:2]  # type: ignore[index]
+        to = lay.dtype.fields[name][1]  # type: ignore[index]
+        width = kind.base.itemsize
+        for k in range(kind.itemsize // width):
+            for b in range(width):
+                dst.append(to + 4 * k + b)
+                src.append(at + width * k + (width - 1 - b if kind.base.byteorder == ">" else b))
+    return np.array(dst), np.array(src)
+
+
 def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
                  rx_ns: np.ndarray) -> list[bytes]:
-    """One serialized ImuSample per record of ``batch``: what protobuf would produce."""
+    """One serialized ImuSample per record of ``batch``: what protobuf would produce.
+
+    Records that came off the wire are moved byte by byte from their wire bytes, with
+    no decoding: a live bridge encodes a record or two per read.
+    """
     lay = layout(batch.code, unit)
     recs = np.frombuffer(bytearray(lay.template.tobytes() * len(batch)), lay.dtype)
-    recs["timer"] = batch["timer"]
+    if batch.block is not None:
+        dst, src = _byte_map(batch.code, unit, batch.little_endian)
+        recs.view(np.uint8).reshape(len(batch), -1)[:, dst] = batch.block[:, src]
+    else:
+        recs["timer"] = batch["timer"]
+        for q in lay.quantities:
+            recs[q] = np.reshape(batch[q], (len(batch), -1))
     recs["ticks"] = ticks
     recs["time_ns"] = time_ns
     recs["rx_ns"] = rx_ns
-    for q in lay.quantities:
-        recs[q] = np.reshape(batch[q], (len(batch), -1))
     buf = recs.tobytes()
     size = lay.size
     return [buf[i : i + size] for i in range(0, len(buf), size)]
@@ -156,28 +188,35 @@ def parse(payload: bytes) -> ImuSample:
         raise ValueError(f"not a gx3.v1.ImuSample ({len(payload)} bytes): {exc}") from None
 
 
-def decode_batch(unit: str, code: int, payloads: Sequence[bytes]) -> dict[str, np.ndarray]:
+def decode_batch(unit: str, code: int,
+                 payloads: Sequence[bytes] | np.ndarray) -> dict[str, np.ndarray]:
     """Columns (header and quantities, shaped as in the command table) of serialized
     ImuSamples of one unit and record type.
 
     Messages in the bulk layout are read as one array; any other valid encoding of the
     same message (another producer's field order, say) is parsed one by one.
+    ``payloads`` may also be an (n, layout size) uint8 array, one message per row (read
+    straight out of a buffer, without a bytes object each).
     """
     lay = layout(code, unit)
     n = len(payloads)
     recs = np.zeros(n, lay.dtype)
     size = lay.size
-    fits = np.fromiter((len(p) == size for p in payloads), bool, n)
-    if fits.any():
+    if isinstance(payloads, np.ndarray):
+        raw = payloads.reshape(n, size)
+        fits = np.ones(n, bool)
+    else:
+        fits = np.fromiter((len(p) == size for p in payloads), bool, n)
         raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
-                            np.uint8).reshape(-1, lay.size)
+                            np.uint8).reshape(-1, size)
+    if fits.any():
         const = lay.template.view(np.uint8)[lay.const_mask]
         good = (raw[:, lay.const_mask] == const).all(axis=1)
         idx = np.flatnonzero(fits)
         recs[idx[good]] = raw[good].reshape(-1).view(lay.dtype)
         fits[idx[~good]] = False
     for i in np.flatnonzero(~fits).tolist():
-        msg = parse(payloads[i])
+        msg = parse(bytes(payloads[i]))
         if msg.unit != unit or msg.command != code:
             raise ValueError(f"sample {i} is from {msg.unit!r} 0x{msg.command:02X}, "
                              f"not {unit!r} 0x{code:02X}")

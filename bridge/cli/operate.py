@@ -9,10 +9,13 @@ confirmation first (or takes ``--yes``).
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar, cast, get_type_hints
 
 import typer
 from rich.console import Console
@@ -82,6 +85,34 @@ class Target:
     connect: list[str] | None
 
 
+_TARGET_OPTIONS = [
+    inspect.Parameter(name, inspect.Parameter.POSITIONAL_OR_KEYWORD, default=default,
+                      annotation=annotation)
+    for name, default, annotation in [
+        ("port", None, TargetPortOpt), ("baud", "115200", BaudOpt), ("unit", None, UnitOpt),
+        ("prefix", "gx3", PrefixOpt), ("zenoh_config", None, ZenohConfigOpt),
+        ("connect", None, ConnectOpt)]
+]
+Command = TypeVar("Command", bound=Callable[..., None])
+
+
+def targeted(command: Command) -> Command:
+    """Give an action command the options that say where it goes (--port, --baud,
+    --unit, --prefix, --zenoh-config, --connect) and hand them to it as one ``target``."""
+    hints = get_type_hints(command, include_extras=True)  # the options' Annotated metadata
+    own = [p.replace(annotation=hints[p.name])
+           for p in inspect.signature(command).parameters.values() if p.name != "target"]
+
+    @functools.wraps(command)
+    def with_target(**options: Any) -> None:
+        target = Target(**{p.name: options.pop(p.name) for p in _TARGET_OPTIONS})
+        command(target=target, **options)
+
+    with_target.__signature__ = inspect.Signature([*_TARGET_OPTIONS, *own])  # type: ignore[attr-defined]
+    with_target.__annotations__ = {p.name: p.annotation for p in [*_TARGET_OPTIONS, *own]}
+    return cast(Command, with_target)
+
+
 def _run(target: Target, name: str, params: dict[str, Any], yes: bool, as_json: bool) -> None:
     if (target.port is None) == (target.unit is None):
         raise fail("give either --port (a unit on a serial port) or --unit (running bridges "
@@ -149,21 +180,16 @@ def show(result: dict[str, Any], as_json: bool) -> None:
 
 
 @app.command()
-def info(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
-         prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
-         connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
+@targeted
+def info(target: Target, as_json: JsonOpt = False) -> None:
     """Read a unit's firmware, ID strings, sampling settings and presets (changes nothing)."""
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "info", {}, True, as_json)
+    _run(target, "info", {}, True, as_json)
 
 
 @app.command()
+@targeted
 def configure(
-    port: TargetPortOpt = None,
-    baud: BaudOpt = "115200",
-    unit: UnitOpt = None,
-    prefix: PrefixOpt = "gx3",
-    zenoh_config: ZenohConfigOpt = None,
-    connect: ConnectOpt = None,
+    target: Target,
     decimation: Annotated[int | None, typer.Option(
         min=1, max=1000, help="Output rate = 1000 Hz / N.")] = None,
     flags: Annotated[str | None, typer.Option(
@@ -205,18 +231,13 @@ def configure(
         "continuous_preset": parse_code(continuous_preset) if continuous_preset else None,
         "persist": persist,
     }
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "configure", params, yes,
-         as_json)
+    _run(target, "configure", params, yes, as_json)
 
 
 @app.command("capture-bias")
+@targeted
 def capture_bias(
-    port: TargetPortOpt = None,
-    baud: BaudOpt = "115200",
-    unit: UnitOpt = None,
-    prefix: PrefixOpt = "gx3",
-    zenoh_config: ZenohConfigOpt = None,
-    connect: ConnectOpt = None,
+    target: Target,
     sampling_ms: Annotated[int, typer.Option(
         min=1, max=65_535, help="Averaging time, ms (the manual advises 10000-30000).")] = 10_000,
     persist: Annotated[bool, typer.Option(
@@ -226,39 +247,31 @@ def capture_bias(
 ) -> None:
     """Capture the gyro bias (0xCD): keep the unit perfectly still while it samples."""
     err.print(f"[dim]sampling for {sampling_ms / 1000:g} s: keep the unit still…[/]")
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "capture_bias",
-         {"sampling_ms": sampling_ms, "persist": persist}, yes, as_json)
+    _run(target, "capture_bias", {"sampling_ms": sampling_ms, "persist": persist}, yes,
+         as_json)
 
 
 @app.command("set-timer")
+@targeted
 def set_timer(
-    port: TargetPortOpt = None,
-    baud: BaudOpt = "115200",
-    unit: UnitOpt = None,
-    prefix: PrefixOpt = "gx3",
-    zenoh_config: ZenohConfigOpt = None,
-    connect: ConnectOpt = None,
+    target: Target,
     value: Annotated[int, typer.Option(min=0, max=0xFFFF_FFFF,
                                        help="New timer value, ticks.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:
     """Restart the unit's timer at a value (0xD7; not stored)."""
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "set_timer",
-         {"value": value}, True, as_json)
+    _run(target, "set_timer", {"value": value}, True, as_json)
 
 
 @app.command("stationary-test")
-def stationary_test(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
-                    prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
-                    connect: ConnectOpt = None, as_json: JsonOpt = False) -> None:
+@targeted
+def stationary_test(target: Target, as_json: JsonOpt = False) -> None:
     """Run the self-test (0xDA) on a still unit and print its flags."""
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "stationary_test", {}, True,
-         as_json)
+    _run(target, "stationary_test", {}, True, as_json)
 
 
 @app.command()
-def reset(port: TargetPortOpt = None, baud: BaudOpt = "115200", unit: UnitOpt = None,
-          prefix: PrefixOpt = "gx3", zenoh_config: ZenohConfigOpt = None,
-          connect: ConnectOpt = None, yes: YesOpt = False, as_json: JsonOpt = False) -> None:
+@targeted
+def reset(target: Target, yes: YesOpt = False, as_json: JsonOpt = False) -> None:
     """Soft-reset the unit (0xFE): it restarts from its stored settings."""
-    _run(Target(port, baud, unit, prefix, zenoh_config, connect), "reset", {}, yes, as_json)
+    _run(target, "reset", {}, yes, as_json)

@@ -41,8 +41,8 @@ def rrd(
         raise fail(str(exc), 1) from None
     if not found.complete:
         err.print(f"[yellow]{describe_problem(found)}[/]")
-    total = sum(n for n, _, _ in (found.counts().get(t, (0, 0, 0))
-                                  for t in found.topics("imu")))
+    counts = found.counts()
+    total = sum(counts[t][0] for t in found.topics("imu") if t in counts)
     if total == 0:
         raise fail(f"{archive}: no samples in it", 1)
     progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),

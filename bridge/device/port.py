@@ -91,7 +91,7 @@ class Port:
                 ready, _, _ = select.select([fd], [], [], wait_s)
                 if not ready:
                     return b"", time.time_ns()
-                data = self.raw.read(_READ_SIZE)
+                data = os.read(fd, _READ_SIZE)  # pyserial's read would select again
                 rx_ns = time.time_ns()
                 if not data:
                     raise PortError(f"{self.url}: the device went away (cable pulled?)")

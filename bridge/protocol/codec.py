@@ -211,8 +211,31 @@ def _decoded_fields(code: int) -> tuple[tuple[str, str], ...]:
 
 def decode_block(code: int, block: np.ndarray, little_endian: bool = False) -> dict[str, Any]:
     """Columns of an (n, length) uint8 block of replies of one type, in native types."""
-    recs = block.reshape(-1).view(reply_dtype(code, little_endian))
-    return {name: recs[name].astype(native) for name, native in _decoded_fields(code)}
+    return dict(Columns(code, block, little_endian))
+
+
+class Columns(Mapping[str, np.ndarray]):
+    """The fields of an (n, length) uint8 block of replies, each decoded to native types
+    when first asked for: a live bridge reads only the timer of each record and
+    publishes the rest from the wire bytes, and per read NumPy's cost per call is what
+    counts."""
+
+    def __init__(self, code: int, block: np.ndarray, little_endian: bool = False) -> None:
+        self._recs = block.reshape(-1).view(reply_dtype(code, little_endian))
+        self._natives = dict(_decoded_fields(code))
+        self._done: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        col = self._done.get(name)
+        if col is None:
+            col = self._done[name] = self._recs[name].astype(self._natives[name])
+        return col
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._natives)
+
+    def __len__(self) -> int:
+        return len(self._natives)
 
 
 @functools.cache
@@ -237,7 +260,11 @@ def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
     NaN and infinities pass in every float field: a unit sends them.
     """
     for unpacker, offset, f in _domain_checks(code, little_endian):
-        for v in unpacker.unpack_from(record, offset):
+        values = unpacker.unpack_from(record, offset)
+        if f.domain is not None and f.domain_values is None \
+                and f.domain[0] <= min(values) and max(values) <= f.domain[1]:
+            continue  # the usual case, decided in C (NaN, inf: looked at below)
+        for v in values:
             outside = f.domain is not None and not f.domain[0] <= v <= f.domain[1]
             if outside and (f.kind != "f32" or math.isfinite(v)):
                 return False
@@ -291,14 +318,31 @@ class Batch:
     ``offsets`` are the byte positions of each record's first byte in the stream the
     framer was fed; ``rx_ns`` the receive time of the read that completed each record
     (its last byte), so a replayed capture times every record as the live run did.
-    ``little_endian`` is the float byte order the records were decoded with.
+    ``little_endian`` is the float byte order the records were decoded with; ``block``
+    the records' wire bytes, (n, length) uint8, when they came from a byte stream.
     """
 
     code: int
-    columns: dict[str, np.ndarray]
+    columns: Mapping[str, np.ndarray]
     offsets: np.ndarray
     rx_ns: np.ndarray
     little_endian: bool
+    block: np.ndarray | None = None
+
+    @classmethod
+    def from_block(cls, code: int, block: np.ndarray, offsets: np.ndarray, rx_ns: np.ndarray,
+                   little_endian: bool) -> Batch:
+        """Records as they came off the wire, decoded only as far as they are read."""
+        return cls(code, Columns(code, block, little_endian), offsets, rx_ns, little_endian,
+                   block)
+
+    def select(self, keep: np.ndarray) -> Batch:
+        """The records where ``keep`` is True."""
+        if self.block is not None:
+            return Batch.from_block(self.code, self.block[keep], self.offsets[keep],
+                                    self.rx_ns[keep], self.little_endian)
+        return Batch(self.code, {k: v[keep] for k, v in self.columns.items()},
+                     self.offsets[keep], self.rx_ns[keep], self.little_endian)
 
     def __len__(self) -> int:
         return len(self.offsets)

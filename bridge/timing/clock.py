@@ -63,6 +63,7 @@ _FRAME_WINDOW_S = 300.0
 _CHORD_TICKS = 20 * TICKS_PER_SECOND  # corners this far apart give the slope
 _GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
 _GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
+_SCALAR_RUN = 16  # records; shorter runs are cheaper in plain integers than in NumPy
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,11 @@ class _Line:
     def at(self, ticks: np.ndarray) -> np.ndarray:
         dx = (ticks - self.x_ref).astype(np.float64)
         return self.y_ref + np.round(self.rate * dx - self.bias).astype(np.int64)
+
+    def at_one(self, ticks: int) -> int:
+        """``at`` of one record in plain numbers: the same float64 operations and
+        round-half-to-even, so the same result without NumPy's cost per call."""
+        return self.y_ref + round(self.rate * float(ticks - self.x_ref) - self.bias)
 
 
 class OnlineClock:
@@ -114,6 +120,7 @@ class OnlineClock:
         bins = max(1, self.frame_ns // _GRID_BIN_NS)
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
+        self._last_ns: int | None = None  # the latest instant given out
         self.reset()
 
     def reset(self) -> None:
@@ -144,24 +151,44 @@ class OnlineClock:
         """Sample instants (host ns) of records with increasing ``ticks`` received at
         ``rx_ns``: the instant their values describe, filter delay taken out."""
         x = np.asarray(ticks, np.int64)
-        y = np.asarray(rx_ns, np.int64) - self.floor_ns
+        y = np.asarray(rx_ns, np.int64)
         if x.shape != y.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
-        out = np.empty(len(x), np.int64)
+        xs, ys = x.tolist(), y.tolist()
+        floor, delay = self.floor_ns, self.filter_delay_ns
+        out: list[int] = []
         i = 0
-        while i < len(x):
-            j = i if self._next_fit is None else i + int(np.searchsorted(x[i:], self._next_fit))
-            if j > i and self._line is not None:
-                out[i:j] = self._line.at(x[i:j])
-            self._new_x += x[i : j + 1].tolist()
-            self._new_y += y[i : j + 1].tolist()
-            if j >= len(x):
+        while i < len(xs):
+            # records before the next refit point follow the current line
+            j = i if self._next_fit is None else bisect_left(xs, self._next_fit, i)
+            line = self._line
+            if j > i and line is not None:
+                out += (line.at(x[i:j]) - delay).tolist() if j - i > _SCALAR_RUN \
+                    else [line.at_one(t) - delay for t in xs[i:j]]
+            self._new_x += xs[i : j + 1]
+            self._new_y += [r - floor for r in ys[i : j + 1]]
+            if j >= len(xs):
                 break
-            self._fit(int(x[j]))
+            self._fit(xs[j])
             assert self._line is not None
-            out[j : j + 1] = self._line.at(x[j : j + 1])
+            out.append(self._line.at_one(xs[j]) - delay)
             i = j + 1
-        return out - self.filter_delay_ns
+        return self._increasing(np.array(out, np.int64))
+
+    def _increasing(self, out: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """Instants that only move forward: a refit may lower the line by more than a
+        sample period (late points early on, then prompt ones), and a subscriber must
+        never see a later sample stamped before an earlier one. Such records get the
+        least later instant (1 ns on) until the line has caught up."""
+        if not len(out):
+            return out
+        last = self._last_ns
+        if (last is not None and out[0] <= last) or (len(out) > 1 and (np.diff(out) <= 0).any()):
+            start = out[0] if last is None else last + 1
+            ramp = np.arange(len(out), dtype=np.int64)
+            out = np.maximum.accumulate(np.maximum(out, start + ramp) - ramp) + ramp
+        self._last_ns = int(out[-1])
+        return out
 
     # --- fitting -------------------------------------------------------------------------
     def _fit(self, now: int) -> None:

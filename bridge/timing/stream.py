@@ -98,9 +98,8 @@ class StreamTiming:
         assert self.timeline is not None, "configure() first"
         timed = self.timeline.update(batch["timer"], batch.rx_ns)
         keep = timed.valid
-        invalid = int((~keep).sum())
+        invalid = 0 if timed.intact else int((~keep).sum())
         if invalid:
-            batch = Batch(batch.code, {k: v[keep] for k, v in batch.columns.items()},
-                          batch.offsets[keep], batch.rx_ns[keep], batch.little_endian)
+            batch = batch.select(keep)
         return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
                      timed.dropped, invalid)

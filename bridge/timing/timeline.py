@@ -20,6 +20,7 @@ class TimelineBatch:
     valid: npt.NDArray[np.bool_]
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0
+    intact: bool = False  # known without looking: every record is valid
 
 
 class Timeline:
@@ -42,8 +43,12 @@ class Timeline:
     def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike) -> TimelineBatch:
         rx = np.asarray(rx_ns, np.int64)
         u = self.unwrapper.update(timer, rx)
+        resets = [e.index for e in u.events if e.kind == "reset"]
+        if not resets and u.all_valid:  # the common case, without index arithmetic
+            return TimelineBatch(u.ticks, self.clock.update(u.ticks, rx), u.valid, u.events,
+                                 u.dropped, intact=True)
         time_ns = np.full(len(rx), -1, np.int64)
-        starts = [e.index for e in u.events if e.kind == "reset"] + [len(rx)]
+        starts = [*resets, len(rx)]
         begin = 0
         for end in starts:
             part = np.flatnonzero(u.valid[begin:end]) + begin

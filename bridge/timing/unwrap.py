@@ -63,6 +63,11 @@ class Unwrapped:
     valid: npt.NDArray[np.bool_]  # False: a corrupt or unconfirmed timer; drop the record
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0  # samples the unit produced that never arrived (gaps)
+    intact: bool = False  # known without looking: every record is valid
+
+    @property
+    def all_valid(self) -> bool:
+        return self.intact or bool(self.valid.all())
 
 
 @dataclass
@@ -170,7 +175,8 @@ class TimerUnwrapper:
         self._ref = _Anchor(int(timers[-1]), int(ticks[-1]),
                             None if rx is None else int(rx[-1]))
         self._last_ticks = int(ticks[-1])
-        return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events)
+        return Unwrapped(ticks.astype(np.int64), np.ones(len(timers), bool), events,
+                         intact=True)
 
     def _fast_scalar(self, ref: _Anchor, timers: list[int],
                      rx: list[int] | None) -> Unwrapped | None:
@@ -201,7 +207,8 @@ class TimerUnwrapper:
             events.append(TimingEvent("rollover", i, ticks[i], self.rollovers))
         self._ref = _Anchor(timers[-1], value, None if rx is None else rx[-1])
         self._last_ticks = value
-        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events)
+        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events,
+                         intact=True)
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
         """Record by record, at least ``_SLOW_RUN`` of them and on until the state is
@@ -324,4 +331,4 @@ def _joined(parts: list[tuple[int, Unwrapped]]) -> Unwrapped:
               for start, part in parts for e in part.events]
     return Unwrapped(np.concatenate([p.ticks for _, p in parts]),
                      np.concatenate([p.valid for _, p in parts]), events,
-                     sum(p.dropped for _, p in parts))
+                     sum(p.dropped for _, p in parts), all(p.intact for _, p in parts))

@@ -27,13 +27,13 @@ from bridge.viz.demo import DEMO_EPOCH_NS, write_demo
 from bridge.viz.layout import TIME
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
 
 
-def _rerun_executable() -> str:
+def rerun_executable() -> str:
     beside = Path(sys.executable).with_name("rerun")
     found = str(beside) if beside.exists() else shutil.which("rerun")
     if found is None:
@@ -47,9 +47,9 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
     timeline (default: where the viewer puts it), save what it shows to ``png`` and return
     the viewer's own account of it: recordings, timelines, views and what each view
     failed to show."""
-    port = _free_port()
+    port = free_port()
     viewer = subprocess.Popen(
-        [_rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
+        [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
          "--window-size", f"{size[0]}x{size[1]}", "--hide-welcome-screen"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
