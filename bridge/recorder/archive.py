@@ -93,7 +93,7 @@ def _header_dtype(unit: str) -> np.dtype[np.void]:
 
 _HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
 _BULK = 16  # messages; fewer are cheaper one by one than through arrays
-_RUN = 1024  # messages of one key ``write`` gathers at most before handing them on
+_HOLD = 1024  # messages ``write`` holds at most before handing them on
 
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
@@ -215,9 +215,9 @@ class ArchiveWriter:
         self._sequence: dict[str, int] = {}
         self._broken: ArchiveError | None = None
         self._file: _File | None = None
-        self._run_key = ""  # messages ``write`` holds for ``write_many``
-        self._run: list[bytes] = []
-        self._run_rx: list[int] = []
+        # messages ``write`` holds for ``write_many``, by key: payloads, receive times
+        self._held: dict[str, tuple[list[bytes], list[int]]] = {}
+        self._holding = 0
         self._open()
 
     # -- files ---------------------------------------------------------------------------
@@ -315,33 +315,35 @@ class ArchiveWriter:
         """One message as it came from Zenoh (or one raw read), received at ``receive_ns``
         (host ns; now when omitted).
 
-        It is checked at once (a bad key or payload raises here) and joins the messages
-        of the same key written just before it: a run goes to ``write_many`` when another
-        key comes, when it is long, and at every flush, tick and close. The archive is
-        the same; only the fixed cost of a call is shared.
+        It is checked at once (a bad key or payload raises here), then held with the
+        other messages of its key: they go to ``write_many`` together when many are
+        held, and at every flush, tick and close, so a message reaches the disk as
+        soon as before. Each topic keeps its order; between topics the file's order
+        can differ from the order of the calls, except in a recording split by age,
+        where a message of another key hands over the ones held first.
         """
         if self._broken is not None:
             raise self._broken
         self._current()  # a closed archive takes nothing
-        if key != self._run_key:
-            self._drain()
         unit, leaf = self._routes.get(key) or self._route(key)
         if leaf == "imu":
             stamp(unit, payload)
         elif leaf != "raw":
             self._logged_at(key, leaf, payload)
-        self._run_key = key
-        self._run.append(payload)
-        self._run_rx.append(time.time_ns() if receive_ns is None else receive_ns)
-        if len(self._run) >= _RUN or self._clock() - self._flushed >= FLUSH_EVERY_S:
+        if self.split_ns is not None and key not in self._held:
+            self._drain()
+        payloads, received = self._held.setdefault(key, ([], []))
+        payloads.append(payload)
+        received.append(time.time_ns() if receive_ns is None else receive_ns)
+        self._holding += 1
+        if self._holding >= _HOLD or self._clock() - self._flushed >= FLUSH_EVERY_S:
             self._drain()
 
     def _drain(self) -> None:
-        """Hand the run of messages ``write`` gathered to ``write_many``."""
-        if self._run:
-            key, run, rx = self._run_key, self._run, self._run_rx
-            self._run, self._run_rx = [], []
-            self.write_many(key, run, np.array(rx, np.int64))
+        """Hand the messages ``write`` holds to ``write_many``, key by key."""
+        held, self._held, self._holding = self._held, {}, 0
+        for key, (payloads, received) in held.items():
+            self.write_many(key, payloads, np.array(received, np.int64))
 
     def write_many(self, key: str, payloads: Sequence[bytes],
                    receive_ns: int | np.ndarray) -> None:
