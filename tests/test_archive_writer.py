@@ -549,3 +549,29 @@ def test_a_write_many_archive_cut_anywhere_reads_and_repairs_up_to_its_last_chun
         assert sum(counts_by_topic.values()) == len(streamed)
         counts.append(len(streamed))
     assert counts == sorted(counts) and counts[0] < counts[-1]
+
+
+def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
+    """Times before and after 1970, whole seconds, rotations with +0.0 (left out) and
+    -0.0 (kept), a long unit name: byte for byte what FrameTransform.SerializeToString
+    gives, so any protobuf reader sees the same message."""
+    from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+    from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+    from google.protobuf.timestamp_pb2 import Timestamp
+
+    from bridge.recorder.frames import WORLD, frame_messages
+
+    rng = np.random.default_rng(11)
+    times = np.concatenate([rng.integers(-(1 << 62), 1 << 62, 300),
+                            [0, 1, -1, 10**9, -(10**9), 999_999_999, T0]]).astype(np.int64)
+    xyzw = rng.normal(size=(len(times), 4))
+    xyzw[rng.random(xyzw.shape) < 0.2] = 0.0
+    xyzw[rng.random(xyzw.shape) < 0.05] = -0.0
+    for unit, slot in (("u1", 0), ("a-unit-with-a-long-name" * 7, 3)):
+        expected = [FrameTransform(
+            timestamp=Timestamp(seconds=t // 10**9, nanos=t % 10**9), parent_frame_id=WORLD,
+            child_frame_id=unit, translation=Vector3(x=0.0, y=slot * 0.5, z=0.0),
+            rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
+            for t, (x, y, z, w) in zip(times.tolist(), xyzw.tolist(), strict=True)]
+        assert frame_messages(unit, slot, times, xyzw, 0.5) == expected
+    assert frame_messages("u1", 0, np.zeros(0, np.int64), np.zeros((0, 4)), 0.5) == []
