@@ -234,9 +234,14 @@ def join(batches: list[Batch]) -> Batch:
     first = batches[0]
     if len(batches) == 1:
         return first
+    offsets = np.concatenate([b.offsets for b in batches])
+    rx_ns = np.concatenate([b.rx_ns for b in batches])
+    blocks = [b.block for b in batches if b.block is not None]
+    if len(blocks) == len(batches):  # still wire bytes: encoded without decoding
+        return Batch.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
+                                first.little_endian)
     columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
-    return Batch(first.code, columns, np.concatenate([b.offsets for b in batches]),
-                 np.concatenate([b.rx_ns for b in batches]), first.little_endian)
+    return Batch(first.code, columns, offsets, rx_ns, first.little_endian)
 
 
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
