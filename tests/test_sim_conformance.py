@@ -243,11 +243,16 @@ class Host:
     def ask_settled(self, command: bytes, length: int, within: float = 10.0) -> bytes:
         """Ask until answered: a unit settling after a wake-up or reset drops what it hears."""
         deadline = time.monotonic() + within
+        asked = 0
         while True:
             self.send(command)
+            asked += 1
             reply = self.read(length, timeout=0.25)
             if reply or time.monotonic() > deadline:
                 break
+        reply += self.read(length - len(reply), timeout=5.0)
+        if asked > 1:  # a busy machine may answer an earlier try late: drop its echo
+            self.drain(settle=0.5)
         assert len(reply) == length, f"{hexid(command[0])}: {len(reply)} of {length} bytes"
         return reply
 
