@@ -25,7 +25,7 @@ from __future__ import annotations
 import functools
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -273,6 +273,14 @@ class ArchiveWriter:
         self._add(key, unit, leaf, log_ns, payload, rx)
         if self._clock() - self._flushed >= FLUSH_EVERY_S:
             self.flush()
+
+    def write_many(self, key: str, payloads: Sequence[bytes],
+                   receive_ns: int | np.ndarray) -> None:
+        """Messages of one key received at ``receive_ns`` (one time for all, or one each):
+        what ``write`` gives message by message."""
+        times = np.broadcast_to(np.asarray(receive_ns, np.int64), (len(payloads),)).tolist()
+        for payload, rx in zip(payloads, times, strict=True):
+            self.write(key, payload, rx)
 
     def _queue_frame(self, unit: str, sample_unit: str, code: int, log_ns: int,
                      payload: bytes, rx: int) -> None:
