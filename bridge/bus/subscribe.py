@@ -93,7 +93,7 @@ class Subscription(Generic[T]):
             if self._session is not None:
                 self._session.close()
             raise
-        self._try_recv = self._sub.handler.try_recv
+        self._try_recv: Callable[[], zenoh.Sample | None] = self._sub.handler.try_recv
 
     def _missed(self, miss: Miss) -> None:
         with self._lock:
@@ -105,18 +105,24 @@ class Subscription(Generic[T]):
         """Up to ``limit`` samples as they arrived, waiting up to ``timeout`` seconds
         (None: until something arrives or close) for the first; [] after that."""
         deadline = None if timeout is None else time.monotonic() + timeout
-        try_recv = self._try_recv
         while not self._closed.is_set():
-            got: list[zenoh.Sample] = []
-            append = got.append
-            while len(got) < limit and (sample := try_recv()) is not None:
-                append(sample)
+            got = self._drain(limit)
             wait = _IDLE_S if deadline is None else min(_IDLE_S, deadline - time.monotonic())
             if got or wait <= 0:
                 self.received += len(got)
                 return got
             self._closed.wait(wait)
         return []
+
+    def _drain(self, limit: int) -> list[zenoh.Sample]:
+        got: list[zenoh.Sample] = []
+        append, try_recv = got.append, self._try_recv
+        try:
+            while len(got) < limit and (sample := try_recv()) is not None:
+                append(sample)
+        except zenoh.ZError:  # the channel is closed: the subscriber is gone
+            pass
+        return got
 
     def take_by_key(self, limit: int) -> dict[str, list[bytes]]:
         """What has arrived (up to ``limit`` messages, no waiting): payloads by key,
@@ -154,9 +160,11 @@ class Subscription(Generic[T]):
         undeclaring = threading.Thread(target=self._undeclare, name="gx3-undeclare")
         undeclaring.start()
         while undeclaring.is_alive():
-            while self._try_recv() is not None:
+            while self._drain(1 << 16):
                 pass
             undeclaring.join(_IDLE_S)
+        # what Zenoh still delivers (a recovery under way) finds the channel gone
+        self._try_recv = _nothing
         if self._session is not None:
             self._session.close()
 
@@ -170,6 +178,10 @@ class Subscription(Generic[T]):
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def _nothing() -> None:
+    return None
 
 
 def _samples(got: list[zenoh.Sample]) -> list[ImuSample]:
