@@ -3,18 +3,21 @@
 An advanced subscriber with recovery: after a short link loss the samples come back
 from the publisher's cache, in order; what cannot come back is counted in
 ``misses`` (and passed to ``on_miss``), never silently bridged.
+
+Samples wait in a bounded Zenoh FIFO channel and are taken out in bulk by the reading
+thread: Zenoh's threads never need the GIL for a sample, and a full channel holds
+Zenoh (and, with BLOCK congestion control, the publishers) back instead of dropping.
 """
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Generic, Literal, TypedDict, TypeVar, Unpack, overload
+from typing import Any, Generic, Literal, NamedTuple, TypedDict, TypeVar, Unpack, overload
 
 import numpy as np
 import zenoh
@@ -26,11 +29,10 @@ from bridge.bus.keys import PREFIX, fleet
 from bridge.bus.session import ZenohOptions, condense
 
 T = TypeVar("T")
-_POLL_S = 0.1  # how often a blocked delivery re-checks for close
+_IDLE_S = 0.005  # how long a reader waits before looking into an empty channel again
 
 
-@dataclass(frozen=True)
-class RawMessage:
+class RawMessage(NamedTuple):
     """One message as it came: for archiving the very bytes (MCAP) or other types."""
 
     key: str
@@ -65,7 +67,7 @@ class Subscription(Generic[T]):
     the subscriber and closes the session if this subscription opened it.
     """
 
-    def __init__(self, session: zenoh.Session, key: str, convert: Callable[[list[RawMessage]],
+    def __init__(self, session: zenoh.Session, key: str, convert: Callable[[list[zenoh.Sample]],
                  list[T]], *, own_session: bool, history: int, max_batch: int,
                  queue_size: int, idle_timeout: float | None,
                  on_miss: Callable[[str, int], None] | None) -> None:
@@ -77,13 +79,12 @@ class Subscription(Generic[T]):
         self._max_batch = max_batch
         self._idle_timeout = idle_timeout
         self._on_miss = on_miss
-        self._queue: queue.Queue[RawMessage] = queue.Queue(queue_size)
         self._closed = threading.Event()
         self._lock = threading.Lock()
         self._pending: list[T] = []
         try:
             self._sub = declare_advanced_subscriber(
-                session, key, self._deliver,
+                session, key, zenoh.handlers.FifoChannel(queue_size),
                 history=HistoryConfig(detect_late_publishers=True, max_samples=history)
                 if history else None,
                 recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
@@ -92,16 +93,7 @@ class Subscription(Generic[T]):
             if self._session is not None:
                 self._session.close()
             raise
-
-    def _deliver(self, sample: zenoh.Sample) -> None:
-        """Zenoh's callback: queue the message; a full queue holds Zenoh back (BLOCK)."""
-        msg = RawMessage(str(sample.key_expr), sample.payload.to_bytes(), str(sample.encoding))
-        while not self._closed.is_set():
-            try:
-                self._queue.put(msg, timeout=_POLL_S)
-                return
-            except queue.Full:
-                continue
+        self._try_recv: Callable[[], zenoh.Sample | None] = self._sub.handler.try_recv
 
     def _missed(self, miss: Miss) -> None:
         with self._lock:
@@ -109,33 +101,47 @@ class Subscription(Generic[T]):
         if self._on_miss is not None:
             self._on_miss(str(miss.source), miss.nb)
 
-    def _take(self, timeout: float | None) -> list[RawMessage]:
-        """What has arrived: at least one message, or none after ``timeout`` or close."""
+    def take(self, limit: int, timeout: float | None = 0.0) -> list[zenoh.Sample]:
+        """Up to ``limit`` samples as they arrived, waiting up to ``timeout`` seconds
+        (None: until something arrives or close) for the first; [] after that."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self._closed.is_set():
-            wait = _POLL_S if deadline is None else min(_POLL_S, deadline - time.monotonic())
-            if wait <= 0:
-                return []
-            try:
-                first = self._queue.get(timeout=wait)
-            except queue.Empty:
-                continue
-            got = [first]
-            while len(got) < self._max_batch:
-                try:
-                    got.append(self._queue.get_nowait())
-                except queue.Empty:
-                    break
-            return got
+            got = self._drain(limit)
+            wait = _IDLE_S if deadline is None else min(_IDLE_S, deadline - time.monotonic())
+            if got or wait <= 0:
+                self.received += len(got)
+                return got
+            self._closed.wait(wait)
         return []
+
+    def _drain(self, limit: int) -> list[zenoh.Sample]:
+        got: list[zenoh.Sample] = []
+        append, try_recv = got.append, self._try_recv
+        try:
+            while len(got) < limit and (sample := try_recv()) is not None:
+                append(sample)
+        except zenoh.ZError:  # the channel is closed: the subscriber is gone
+            pass
+        return got
+
+    def take_by_key(self, limit: int) -> dict[str, list[bytes]]:
+        """What has arrived (up to ``limit`` messages, no waiting): payloads by key,
+        each key's in the order they came."""
+        groups: dict[str, list[bytes]] = {}
+        for sample in self.take(limit):
+            key = str(sample.key_expr)
+            payloads = groups.get(key)
+            if payloads is None:
+                payloads = groups[key] = []
+            payloads.append(sample.payload.to_bytes())
+        return groups
 
     def get(self, timeout: float | None = None) -> T | None:
         """The next item, or None after ``timeout`` seconds (or once closed)."""
         if not self._pending:
-            raw = self._take(timeout)
-            self.received += len(raw)
-            self._pending = self._convert(raw)
-        return self._pending.pop(0) if self._pending else None
+            self._pending = self._convert(self.take(self._max_batch, timeout))
+            self._pending.reverse()
+        return self._pending.pop() if self._pending else None
 
     def __iter__(self) -> Iterator[T]:
         while True:
@@ -145,14 +151,26 @@ class Subscription(Generic[T]):
             yield item
 
     def close(self) -> None:
-        """Undeclare, release a blocked Zenoh callback, close an owned session."""
+        """Undeclare, release Zenoh if it waits on a full channel, close an owned session."""
         if self._closed.is_set():
             return
         self._closed.set()
-        self._listener.undeclare()
-        self._sub.undeclare()
+        # a Zenoh thread waiting on the full channel holds the subscriber's lock, which
+        # undeclaring needs: empty the channel until the undeclaring is through
+        undeclaring = threading.Thread(target=self._undeclare, name="gx3-undeclare")
+        undeclaring.start()
+        while undeclaring.is_alive():
+            while self._drain(1 << 16):
+                pass
+            undeclaring.join(_IDLE_S)
+        # what Zenoh still delivers (a recovery under way) finds the channel gone
+        self._try_recv = _nothing
         if self._session is not None:
             self._session.close()
+
+    def _undeclare(self) -> None:
+        self._listener.undeclare()
+        self._sub.undeclare()
 
     def __enter__(self) -> Subscription[T]:
         return self
@@ -162,20 +180,25 @@ class Subscription(Generic[T]):
         self.close()
 
 
-def _samples(raw: list[RawMessage]) -> list[ImuSample]:
-    return [parse(m.payload) for m in raw]
+def _nothing() -> None:
+    return None
 
 
-def _batches(raw: list[RawMessage]) -> list[SampleBatch]:
+def _samples(got: list[zenoh.Sample]) -> list[ImuSample]:
+    return [parse(s.payload.to_bytes()) for s in got]
+
+
+def _batches(got: list[zenoh.Sample]) -> list[SampleBatch]:
     groups: dict[tuple[str, int], list[bytes]] = {}
-    for m in raw:
-        groups.setdefault(peek(m.payload), []).append(m.payload)
+    for s in got:
+        payload = s.payload.to_bytes()
+        groups.setdefault(peek(payload), []).append(payload)
     return [SampleBatch(unit, code, decode_batch(unit, code, payloads))
             for (unit, code), payloads in groups.items()]
 
 
-def _raw(raw: list[RawMessage]) -> list[RawMessage]:
-    return raw
+def _raw(got: list[zenoh.Sample]) -> list[RawMessage]:
+    return [RawMessage(str(s.key_expr), s.payload.to_bytes(), str(s.encoding)) for s in got]
 
 
 class SubscribeOptions(TypedDict, total=False):
@@ -220,7 +243,7 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
     many past samples; ``on_miss(source, n)`` hears of samples that could not be
     recovered (``misses`` keeps the total).
     """
-    converters: dict[str, Callable[[list[RawMessage]], list[Any]]] = {
+    converters: dict[str, Callable[[list[zenoh.Sample]], list[Any]]] = {
         "samples": _samples, "batches": _batches, "raw": _raw}
     if output not in converters:
         raise ValueError(f"output {output!r}: use one of {', '.join(converters)}")

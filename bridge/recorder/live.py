@@ -1,17 +1,19 @@
 """`gx3 record`'s engine: every unit on Zenoh into one archive, as they come and go.
 
 Subscriptions to the fleet's samples, status and events (and raw reads, when asked)
-feed one queue; one thread drains it into the ``ArchiveWriter``, so messages are
-written in the order they arrived and the file is flushed at least once a second.
+buffer what arrives in Zenoh's own channels; the thread calling ``run_once`` takes it
+out in bulk a few times a second and hands the ``ArchiveWriter`` each key's messages
+in one call (each key's in the order they came), so receiving costs little per
+message; the file is flushed at least once a second.
 Units are discovered by their bridges' liveliness tokens: a unit that appears gets
 its Info queried and archived; one that leaves and comes back simply continues.
 """
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,7 +21,7 @@ from typing import Any
 import zenoh
 
 from bridge.bus.gx3_pb2 import Status
-from bridge.bus.keys import unit_of
+from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.recorder.archive import ArchiveError, ArchiveWriter
 from bridge.timing.rate import RateWindow
@@ -28,6 +30,7 @@ LEAVES = ("imu", "status", "event")
 _QUERY_TIMEOUT_S = 3.0
 _INFO_TRIES = 10
 _INFO_RETRY_S = 0.5
+_PASS_S = 0.05  # a pass takes ~5,000 messages at 100,000/s: whole batches per key
 
 
 @dataclass
@@ -49,28 +52,35 @@ class UnitView:
 
 
 class Recorder:
-    """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into ``writer``."""
+    """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into ``writer``.
+
+    ``queue_size``: messages each subscription holds while the writer is busy; beyond
+    that Zenoh waits (and, with BLOCK congestion control, so do the publishers).
+    """
 
     def __init__(self, session: zenoh.Session, writer: ArchiveWriter, prefix: str = "gx3",
                  units: str = "*", raw: bool = False, history: int = 0,
                  on_unit: Callable[[str, bool], None] | None = None,
-                 on_written: Callable[[list[RawMessage]], None] | None = None) -> None:
+                 on_written: Callable[[list[RawMessage]], None] | None = None,
+                 queue_size: int = 100_000) -> None:
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
         self.views: dict[str, UnitView] = {}
         self.error: ArchiveError | None = None
         self.written = 0
         self._on_unit = on_unit
         self._on_written = on_written  # e.g. the Rerun logger of --rrd, fed in batches
-        self._queue: queue.Queue[RawMessage] = queue.Queue(maxsize=200_000)
+        self._queue_size = queue_size
+        self._answers: deque[RawMessage] = deque()  # Info replies, from the query threads
+        self._routes: dict[str, tuple[str, str]] = {}
         self._stop = threading.Event()
         self._lock = threading.Lock()
         leaves = (*LEAVES, "raw") if raw else LEAVES
         self._subs: list[Subscription[RawMessage]] = []
-        self._pumps: list[threading.Thread] = []
         try:
             for leaf in leaves:
                 sub = subscribe(f"{prefix}/{units}/{leaf}", output="raw", session=session,
-                                history=history if leaf == "imu" else 0)
+                                history=history if leaf == "imu" else 0,
+                                queue_size=queue_size)
                 self._subs.append(sub)
             self._alive = session.liveliness().declare_subscriber(
                 f"{prefix}/{units}/alive", self._on_alive, history=True)
@@ -78,21 +88,10 @@ class Recorder:
             for sub in self._subs:
                 sub.close()
             raise
-        for sub in self._subs:
-            pump = threading.Thread(target=self._pump, args=(sub,), daemon=False,
-                                    name="gx3-record-pump")
-            pump.start()
-            self._pumps.append(pump)
 
     @property
     def misses(self) -> int:
         return sum(sub.misses for sub in self._subs)
-
-    def _pump(self, sub: Subscription[RawMessage]) -> None:
-        while not self._stop.is_set():
-            msg = sub.get(timeout=0.2)
-            if msg is not None:
-                self._queue.put(msg)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         unit = unit_of(str(sample.key_expr), self.prefix)
@@ -122,61 +121,93 @@ class Recorder:
             except zenoh.ZError:
                 return
             for sample in answers:
-                self._queue.put(RawMessage(str(sample.key_expr), sample.payload.to_bytes(),
-                                           str(sample.encoding)))
+                self._answers.append(RawMessage(str(sample.key_expr), sample.payload.to_bytes(),
+                                                str(sample.encoding)))
             if answers:
                 return
             self._stop.wait(_INFO_RETRY_S)
 
     def run_once(self, wait_s: float = 0.2) -> None:
-        """Write what arrived (waiting up to ``wait_s``); flush when a second has passed."""
+        """Write what arrives during ``wait_s``, taken in bulk every ``_PASS_S`` (or at
+        least once); flush when a second has passed."""
         deadline = time.monotonic() + wait_s
-        written: list[RawMessage] = []
         while True:
-            try:
-                msg = self._queue.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
+            self._pass()
+            left = deadline - time.monotonic()
+            if left <= 0:
                 break
-            if self._write(msg):
-                written.append(msg)
-            if time.monotonic() >= deadline:
-                break
-        if written and self._on_written is not None:
-            self._on_written(written)
+            time.sleep(min(_PASS_S, left))
         try:
             self.writer.tick()
         except ArchiveError as exc:
             self.error = exc
 
-    def _write(self, msg: RawMessage) -> bool:
-        """Archive one message; False if it was not (an error, or not one of ours)."""
-        if self.error is not None:
-            return False
+    def _pass(self) -> None:
+        """Everything that has arrived into the archive, one write per key."""
         now = time.time_ns()
+        written: list[RawMessage] | None = None if self._on_written is None else []
+        for sub in self._subs:
+            for key, payloads in sub.take_by_key(self._queue_size).items():
+                self._write(key, payloads, now, written)
+        while self._answers:
+            msg = self._answers.popleft()
+            self._write(msg.key, [msg.payload], now, written)
+        if written and self._on_written is not None:
+            self._on_written(written)
+
+    def _write(self, key: str, payloads: list[bytes], now: int,
+               written: list[RawMessage] | None) -> None:
+        """Archive messages of one key and count them in their unit's view."""
+        if self.error is not None:
+            return
         try:
-            self.writer.write(msg.key, msg.payload, now)
+            self.writer.write_many(key, payloads, now)
         except ArchiveError as exc:
             self.error = exc
-            return False
-        except ValueError:
-            return False  # not a message of ours on a matching key: not archived
-        self.written += 1
-        unit = unit_of(msg.key, self.prefix)
-        leaf = msg.key.rsplit("/", 1)[-1]
+            return
+        except ValueError:  # not all of ours (nothing written): archive those that are
+            payloads = self._each(key, payloads, now)
+            if not payloads:
+                return
+        self.written += len(payloads)
+        unit, leaf = self._routes.get(key) or self._route(key)
+        status = None
+        if leaf == "status":
+            status = Status()
+            status.ParseFromString(payloads[-1])
         with self._lock:
             view = self.views.get(unit)
             if view is None:
                 view = self.views[unit] = UnitView(unit)
-            view.bytes += len(msg.payload)
+            view.bytes += sum(map(len, payloads))
             if leaf == "imu":
-                view.samples += 1
+                view.samples += len(payloads)
                 view.last_ns = now
                 view.first_ns = view.first_ns or now
-            elif leaf == "status":
-                status = Status()
-                status.ParseFromString(msg.payload)
+            elif status is not None:
                 view.status = status
-        return True
+        if written is not None:
+            encoding = ENCODINGS.get(leaf, "")
+            written.extend(RawMessage(key, payload, encoding) for payload in payloads)
+
+    def _each(self, key: str, payloads: list[bytes], now: int) -> list[bytes]:
+        """The payloads that ``write`` takes one by one (a message on a matching key that
+        is not one of ours is not archived)."""
+        kept = []
+        for payload in payloads:
+            try:
+                self.writer.write(key, payload, now)
+            except ValueError:
+                continue
+            except ArchiveError as exc:
+                self.error = exc
+                break
+            kept.append(payload)
+        return kept
+
+    def _route(self, key: str) -> tuple[str, str]:
+        route = self._routes[key] = unit_of(key, self.prefix), key.rsplit("/", 1)[-1]
+        return route
 
     def snapshot(self) -> list[dict[str, Any]]:
         """One row per unit for the terminal view."""
@@ -197,20 +228,9 @@ class Recorder:
         return rows
 
     def close(self) -> None:
-        """Stop receiving, write what is queued, and leave the writer to its owner."""
+        """Stop receiving, write what has arrived, and leave the writer to its owner."""
         self._alive.undeclare()
+        self._stop.set()
+        self._pass()
         for sub in self._subs:
             sub.close()
-        self._stop.set()
-        for pump in self._pumps:
-            pump.join()
-        written: list[RawMessage] = []
-        while True:
-            try:
-                msg = self._queue.get_nowait()
-            except queue.Empty:
-                break
-            if self._write(msg):
-                written.append(msg)
-        if written and self._on_written is not None:
-            self._on_written(written)
