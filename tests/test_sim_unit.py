@@ -51,10 +51,10 @@ class Host:
         self.send("set_continuous", command=code)
 
 
-def unit(**kw: Any) -> Host:
+def unit(now: float = 0.0, **kw: Any) -> Host:
     motion = kw.pop("motion", MotionConfig(seed=3))
-    u = SimUnit(UnitConfig(motion=motion, **kw), now=0.0, wall_ns=1_000_000_000_000)
-    host = Host(u)
+    u = SimUnit(UnitConfig(motion=motion, **kw), now=now, wall_ns=1_000_000_000_000)
+    host = Host(u, now)
     host.run(0.2)
     return host
 
@@ -67,10 +67,13 @@ def one(batches: list[Batch], code: int) -> Batch:
                  np.concatenate([b.rx_ns for b in found]), found[0].little_endian)
 
 
+@pytest.mark.parametrize("uptime_s", [0.0, 20_000.0, 5e6], ids=["boot", "5h", "2 months"])
 @pytest.mark.parametrize(("decimation", "baud"), [(10, 115_200), (4, 115_200), (2, 460_800),
                                                   (1, 921_600)])
-def test_continuous_rate_and_timer_spacing(decimation: int, baud: int) -> None:
-    host = unit()
+def test_continuous_rate_and_timer_spacing(decimation: int, baud: int, uptime_s: float) -> None:
+    """Host times are monotonic seconds since boot: a host up for hours or months has
+    coarser floats, and no record may be lost to their rounding."""
+    host = unit(now=uptime_s)
     host.stream(0xC2, decimation, baud)
     host.run(0.05)
     recs = one(host.records(1.0, 0xC2), 0xC2)

@@ -49,6 +49,11 @@ _HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, coun
 # itself only when less than URGENT_S is left.
 LOOKAHEAD_S = 0.1
 URGENT_S = 0.005
+# Host times are monotonic seconds since boot: after months of uptime a float64 holds
+# them to ~1 ns, and a device -> host -> device round trip is off by a few of those.
+# Comparisons allow this much, far below a cycle (1 ms) or a byte's line time (>= 10 us).
+_SLACK_S = 1e-7
+_SLACK_CYCLES = 1e-6
 # The manual gives no inter-byte timeout; a partial command older than this is dropped,
 # so that bytes cut short by an unplug do not swallow the next session's first command.
 INTER_BYTE_TIMEOUT_S = 0.1
@@ -210,7 +215,7 @@ class SimUnit:
 
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - 1e-9)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - _SLACK_CYCLES)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
@@ -336,7 +341,7 @@ class SimUnit:
     def _schedule(self, at: float, data: bytes, truth: TruthRow | None = None,
                   skippable: bool = False) -> None:
         """Queue bytes for the line; a skippable record that finds the line busy is lost."""
-        if at < self._line_free - 1e-9:
+        if at < self._line_free - _SLACK_S:
             if skippable:
                 self._plan.append(_Segment(at, b"", self.line_baud, None))
                 return
@@ -364,7 +369,7 @@ class SimUnit:
                 self.truth.append(seg.truth)
                 self.records_sent += 1
                 seg.truth = None
-            done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-9))
+            done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-6))
             if done > seg.sent:
                 chunk = seg.data[seg.sent : done]
                 if out and out[-1][0] == seg.baud:
