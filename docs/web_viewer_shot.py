@@ -17,15 +17,13 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 import urllib.parse
 from pathlib import Path
 
 from playwright.sync_api import sync_playwright
 
-from bridge.viz.demo import write_demo
-from bridge.viz.snapshot import free_port, rerun_executable
+from bridge.viz.snapshot import demo_picture, free_port, rerun_executable
 
 CHROMIUM = "/usr/bin/chromium"
 SIZE = (1600, 1000)
@@ -74,14 +72,7 @@ def shoot(rrd: Path, png: Path) -> None:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 1:
-        print("usage: python docs/web_viewer_shot.py OUT.png", file=sys.stderr)
-        return 2
-    with tempfile.TemporaryDirectory() as tmp:
-        rrd = Path(tmp) / "demo.rrd"
-        write_demo(rrd)
-        shoot(rrd, Path(argv[0]))
-    return 0
+    return demo_picture(argv, "python docs/web_viewer_shot.py", shoot)
 
 
 if __name__ == "__main__":

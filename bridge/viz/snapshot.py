@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -88,15 +89,21 @@ def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> View
             time.sleep(0.3)
 
 
-def main(argv: list[str]) -> int:
+def demo_picture(argv: list[str], usage: str, take: Callable[[Path, Path], object]) -> int:
+    """The screenshot scripts' main: ``take(recording, png)`` of the demo recording."""
     if len(argv) != 1:
-        print("usage: python -m bridge.viz.snapshot OUT.png", file=sys.stderr)
+        print(f"usage: {usage} OUT.png", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         rrd = Path(tmp) / "demo.rrd"
         write_demo(rrd)
-        render(rrd, argv[0], at_ns=DEMO_EPOCH_NS + 20 * 10**9)
+        take(rrd, Path(argv[0]))
     return 0
+
+
+def main(argv: list[str]) -> int:
+    return demo_picture(argv, "python -m bridge.viz.snapshot",
+                        lambda rrd, png: render(rrd, png, at_ns=DEMO_EPOCH_NS + 20 * 10**9))
 
 
 if __name__ == "__main__":
