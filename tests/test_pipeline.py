@@ -129,8 +129,9 @@ def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
     kinds = sink.kinds()
     assert kinds.index("disconnect") < kinds.index("reconnect")
     assert "gap" in kinds, kinds
-    gap = next(e for e in sink.events if e.kind == "gap")
-    assert gap.count >= 100, "1.5 s at 100 Hz unplugged should miss ~150 samples"
+    # a busy machine may also make a short silence of its own: count every gap reported
+    missed = sum(e.count for e in sink.events if e.kind == "gap")
+    assert missed >= 100, "1.5 s at 100 Hz unplugged should miss ~150 samples"
     assert (np.diff(sink.column("ticks")) > 0).all()
 
 
