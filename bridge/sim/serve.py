@@ -75,10 +75,10 @@ class Link:
 
 
 class PtyLink(Link):
-    """A pseudo-terminal; ``link`` is a stable symlink that survives unplug/plug.
+    """A pseudo-terminal; ``link`` is a stable symlink that names it across unplug/plug.
 
-    The symlink only ever replaces a stale one to a pty (an earlier run's), and is
-    removed on close.
+    The symlink only ever replaces a stale one to a pty (an earlier run's); it is
+    removed while unplugged and on close.
     """
 
     def __init__(self, baud: int, link: Path | None = None) -> None:
@@ -137,7 +137,9 @@ class PtyLink(Link):
             return None
 
     def unplug(self) -> None:
-        self._close_fds()
+        """The pty goes and so does the stable name, as udev removes a pulled device's
+        link: a host retrying the name must not reach the next pty given that number."""
+        self.close()
 
     def plug(self) -> None:
         self._open()
