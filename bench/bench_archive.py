@@ -52,6 +52,14 @@ def load() -> str:
     return f"load average {os.getloadavg()[0]:.2f}"
 
 
+def gx3_seconds(command: str, archive: Path, out: Path) -> float:
+    """Wall time of ``gx3 COMMAND ARCHIVE -o OUT`` as a user runs it (start-up included)."""
+    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
+    start = time.perf_counter()
+    subprocess.run([gx3, command, str(archive), "-o", str(out)], check=True)
+    return time.perf_counter() - start
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=10)
@@ -91,17 +99,12 @@ def main() -> None:
     print(f"write_many ({args.batch} a call): {total:,} samples in {elapsed:.2f} s = "
           f"{total / elapsed:,.0f} samples/s; {writer.messages - total:,} FrameTransforms; "
           f"{size / 1e6:.1f} MB = {size / total:.1f} bytes/sample; {load()}")
-    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
     out = workdir / "bench.parquet"
-    start = time.perf_counter()
-    subprocess.run([gx3, "export", str(path), "-o", str(out)], check=True)
-    elapsed = time.perf_counter() - start
+    elapsed = gx3_seconds("export", path, out)
     print(f"gx3 export -> parquet: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
           f"{out.stat().st_size / 1e6:.1f} MB; {load()}")
     rrd = workdir / "bench.rrd"
-    start = time.perf_counter()
-    subprocess.run([gx3, "rrd", str(path), "-o", str(rrd)], check=True)
-    elapsed = time.perf_counter() - start
+    elapsed = gx3_seconds("rrd", path, rrd)
     print(f"gx3 rrd -> Rerun: {elapsed:.2f} s ({total / elapsed:,.0f} samples/s), "
           f"{rrd.stat().st_size / total:.0f} bytes/sample; {load()}")
     if args.dir is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import time
 from collections.abc import Iterator
@@ -16,7 +17,7 @@ from bridge.protocol.codec import encode_command
 from bridge.protocol.framer import Framer
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
-from bridge.sim.serve import Simulator
+from bridge.sim.serve import PtyLink, Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
@@ -132,6 +133,22 @@ def test_the_link_is_ours_and_goes_on_exit(tmp_path: Path) -> None:
     with Simulator([UnitConfig()], "pty", links=[link]) as sim:
         assert sim.endpoints == [str(link)] and link.resolve().exists()
     assert not link.exists() and not link.is_symlink()
+
+
+def test_a_pulled_pty_takes_its_name_with_it(tmp_path: Path) -> None:
+    """As udev removes a pulled device's link: a host retrying the name while the unit is
+    away must not open whichever pty the kernel hands that number next."""
+    name = tmp_path / "imu"
+    link = PtyLink(115_200, name)
+    try:
+        before = os.readlink(name)
+        link.unplug()
+        assert not name.is_symlink()
+        link.plug()
+        assert name.is_symlink() and os.readlink(name) == link.path
+    finally:
+        link.close()
+    assert before.startswith("/dev/pts/") and not name.is_symlink()
 
 
 def test_a_second_tcp_client_is_refused_and_the_first_keeps_the_unit() -> None:

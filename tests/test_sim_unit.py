@@ -62,9 +62,7 @@ def unit(now: float = 0.0, **kw: Any) -> Host:
 def one(batches: list[Batch], code: int) -> Batch:
     found = [b for b in batches if b.code == code]
     assert found, f"no 0x{code:02X} records in {[hex(b.code) for b in batches]}"
-    return Batch(code, {k: np.concatenate([b[k] for b in found]) for k in found[0].columns},
-                 np.concatenate([b.offsets for b in found]),
-                 np.concatenate([b.rx_ns for b in found]), found[0].little_endian)
+    return Batch.concatenate(found)
 
 
 @pytest.mark.parametrize("uptime_s", [0.0, 20_000.0, 5e6], ids=["boot", "5h", "2 months"])

@@ -11,7 +11,7 @@ from __future__ import annotations
 import functools
 import math
 import struct
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -335,6 +335,22 @@ class Batch:
         """Records as they came off the wire, decoded only as far as they are read."""
         return cls(code, Columns(code, block, little_endian), offsets, rx_ns, little_endian,
                    block)
+
+    @classmethod
+    def concatenate(cls, batches: Sequence[Batch]) -> Batch:
+        """Consecutive batches of one record type and byte order as one (still wire bytes
+        when they all are)."""
+        first = batches[0]
+        if len(batches) == 1:
+            return first
+        offsets = np.concatenate([b.offsets for b in batches])
+        rx_ns = np.concatenate([b.rx_ns for b in batches])
+        blocks = [b.block for b in batches if b.block is not None]
+        if len(blocks) == len(batches):
+            return cls.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
+                                  first.little_endian)
+        columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
+        return cls(first.code, columns, offsets, rx_ns, first.little_endian)
 
     def select(self, keep: np.ndarray) -> Batch:
         """The records where ``keep`` is True."""

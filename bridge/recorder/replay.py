@@ -172,7 +172,7 @@ class UnitReplay:
         go: the timing gives the same results however records are grouped."""
         pending, self._pending, self._pending_records = self._pending, [], 0
         if pending:
-            self._samples(join(pending), emit, prefix)
+            self._samples(Batch.concatenate(pending), emit, prefix)
 
     def _batch(self, batch: Batch, emit: Emit, prefix: str) -> None:
         if batch.code in DATA_CODES and batch.code == self.settings.record:
@@ -227,21 +227,6 @@ def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterat
         if hi > lo:
             start = ends[lo] - sizes[lo]
             yield framer.feed_reads(b"".join(reads[lo:hi]), ends[lo:hi] - start, rx_ns[lo:hi])
-
-
-def join(batches: list[Batch]) -> Batch:
-    """Consecutive batches of one record type and byte order as one."""
-    first = batches[0]
-    if len(batches) == 1:
-        return first
-    offsets = np.concatenate([b.offsets for b in batches])
-    rx_ns = np.concatenate([b.rx_ns for b in batches])
-    blocks = [b.block for b in batches if b.block is not None]
-    if len(blocks) == len(batches):  # still wire bytes: encoded without decoding
-        return Batch.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
-                                first.little_endian)
-    columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
-    return Batch(first.code, columns, offsets, rx_ns, first.little_endian)
 
 
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
