@@ -26,6 +26,7 @@ import zenoh
 import bridge
 from bridge.bus.gx3_pb2 import Info
 from bridge.bus.publish import UnitPublisher
+from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, open_session
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -257,6 +258,27 @@ def test_liveliness_token_disappears_when_the_publisher_is_killed(
         assert not [r for r in session.liveliness().get("gx3/imu0/alive", timeout=1.0)
                     if r.ok is not None]
         token_watch.undeclare()
+
+
+def test_a_receiving_session_declares_each_publishers_key_as_it_appears(endpoint: str) -> None:
+    """Declared keys keep Zenoh from searching every unit's tokens per sample (routes.py)."""
+    with open_session(listen=[endpoint], multicast_scouting=False) as there, \
+            open_session(connect=[endpoint], multicast_scouting=False) as here:
+        early = UnitPublisher(there, "early")
+        keys = PublisherKeys(here, "gx3/*/imu")
+        try:
+            wait_for(lambda: keys.keys == ["gx3/early/imu"], 20, "the early unit's key")
+            late = UnitPublisher(there, "late")
+            wait_for(lambda: keys.keys == ["gx3/early/imu", "gx3/late/imu"], 20,
+                     "the late unit's key")
+            late.close()
+            early.close()
+            time.sleep(0.2)
+            assert keys.keys == ["gx3/early/imu", "gx3/late/imu"]  # a unit may come back
+        finally:
+            keys.close()
+            early.close()
+        assert keys.keys == []
 
 
 def _reply_texts(session: zenoh.Session, key: str, payload: str | None = None) -> list[str]:

@@ -4,6 +4,9 @@ An advanced subscriber with recovery: after a short link loss the samples come b
 from the publisher's cache, in order; what cannot come back is counted in
 ``misses`` (and passed to ``on_miss``), never silently bridged.
 
+Each publisher's key is declared on the session as it appears (``routes``), which keeps
+Zenoh's routing of a sample cheap however many units there are.
+
 Samples wait in a bounded Zenoh FIFO channel and are taken out in bulk by the reading
 thread: Zenoh's threads never need the GIL for a sample, and a full channel holds
 Zenoh (and, with BLOCK congestion control, the publishers) back instead of dropping.
@@ -26,6 +29,7 @@ from zenoh.ext import HistoryConfig, Miss, RecoveryConfig, declare_advanced_subs
 from bridge.bus.codec import decode_batch, parse, peek
 from bridge.bus.gx3_pb2 import ImuSample
 from bridge.bus.keys import PREFIX, fleet
+from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, condense
 
 T = TypeVar("T")
@@ -82,7 +86,9 @@ class Subscription(Generic[T]):
         self._closed = threading.Event()
         self._lock = threading.Lock()
         self._pending: list[T] = []
+        self._routes: PublisherKeys | None = None
         try:
+            self._routes = PublisherKeys(session, key)  # before the first sample can come
             self._sub = declare_advanced_subscriber(
                 session, key, zenoh.handlers.FifoChannel(queue_size),
                 history=HistoryConfig(detect_late_publishers=True, max_samples=history)
@@ -90,6 +96,8 @@ class Subscription(Generic[T]):
                 recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
             self._listener = self._sub.sample_miss_listener(self._missed)
         except BaseException:
+            if self._routes is not None:
+                self._routes.close()
             if self._session is not None:
                 self._session.close()
             raise
@@ -171,6 +179,8 @@ class Subscription(Generic[T]):
     def _undeclare(self) -> None:
         self._listener.undeclare()
         self._sub.undeclare()
+        if self._routes is not None:
+            self._routes.close()
 
     def __enter__(self) -> Subscription[T]:
         return self
