@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from functools import cache
+from itertools import pairwise
 
 import numpy as np
 from hypothesis import given, settings
@@ -13,6 +14,7 @@ from bridge.sim.capture import Capture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from bridge.timing import OnlineClock, Timeline
+from bridge.timing.clock import _lower_hull, support_slope
 
 FRAME_NS = 1_000_000
 WARM_NS = 30_000_000_000
@@ -163,3 +165,33 @@ def test_live_instants_never_go_back_when_the_latency_drops() -> None:
     assert np.abs(settled).max() < 1_000_000, "the line catches up with the prompt points"
     at_once = OnlineClock().update(ticks, true_ns + late)
     assert (at_once == one_by_one).all(), "the same whatever the split"
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(2, 3000), st.floats(-120, 120), st.floats(-400, 400), st.integers(0, 2**32))
+def test_support_slope_is_the_lower_hull_edge_over_the_middle(
+        n: int, ppm: float, prior_error_ppm: float, seed: int) -> None:
+    """Whatever the points and however far the prior, the slope is that of the hull edge
+    through the window's middle (found exactly on integers), to well under a ns, unless
+    that is beyond the search's +-500 ppm."""
+    rng = np.random.default_rng(seed)
+    x = np.unique(rng.integers(0, 60 * TICKS_PER_SECOND, n)).astype(np.int64)
+    late = rng.exponential(rng.uniform(1e3, 3e6), len(x)) * (1 + 40 * (rng.random(len(x)) < 0.01))
+    y = (x * (16_000 * (1 + ppm * 1e-6)) + late).astype(np.int64) + 10**15
+    mid = int(x[0] + (x[-1] - x[0]) // 2)
+    hull = _lower_hull(x.tolist(), y.tolist())
+    if len(hull) < 2:
+        return
+    a, b = next((a, b) for a, b in pairwise(hull) if b[0] > mid)
+    prior = 16_000 * (1 + (ppm + prior_error_ppm) * 1e-6)
+    got = support_slope((x - mid).astype(np.float64), (y - y[0]).astype(np.float64), prior)
+    edge = min(max((b[1] - a[1]) / (b[0] - a[0]), prior * (1 - 500e-6)), prior * (1 + 500e-6))
+    assert abs(got - edge) * 60 * TICKS_PER_SECOND < 0.01  # ns over the whole window
+
+
+def test_support_slope_stops_at_the_search_limits() -> None:
+    """Points that rise faster than any crystal can: the search's edge, not beyond."""
+    dx = np.array([-2.0, -1.0, 1.0, 2.0]) * TICKS_PER_SECOND
+    dy = dx * 16_000 * 1.01  # +10,000 ppm
+    assert support_slope(dx, dy, 16_000.0) == 16_000.0 * (1 + 500e-6)
+    assert support_slope(dx, -dy, 16_000.0) == 16_000.0 * (1 - 500e-6)

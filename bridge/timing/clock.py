@@ -43,8 +43,7 @@ from bridge.timing.unwrap import NS_PER_TICK
 
 _MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
 _BISECTIONS = 32
-_PRUNE_EVERY = 4  # bisections between settings-aside of points that cannot be lowest
-_PRUNE_MIN = 64
+_START_PPM = 2.0  # the first bracket around the last fit's rate
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
 _PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
@@ -411,45 +410,46 @@ def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
 
 
 def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
-    """The slope of the highest line under every point, judged at dx = 0.
+    """The slope of the highest line under every point, judged at dx = 0: the lower
+    hull's edge over dx = 0, clamped to ``_MAX_PPM`` around ``prior``.
 
-    ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point
-    moves from one side of dx = 0 to the other. As the slopes searched narrow, the
-    points that cannot be lowest for any of them are set aside (the same answer,
-    a fraction of the arithmetic on long windows).
+    ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point moves
+    from one side of dx = 0 to the other. A bracket starting a few ppm around
+    ``prior`` (a refit's rate is close to the last one) widens until the lowest point
+    at its ends is on either side. Then the line through the two lowest points is
+    tried: if no point lies under it, it is the edge; otherwise the point under it
+    replaces the one on its side. Each try is one pass over the points, and a few
+    tries find the edge of thousands.
     """
-    lo, hi = prior * (1 - _MAX_PPM * 1e-6), prior * (1 + _MAX_PPM * 1e-6)
+    if not len(dx):
+        return prior
     v = np.empty_like(dy)
-    # every |dy - r dx| searched is below ``scale``; float64 rounds it by ~1e-16 of it
-    scale = _largest(dy) + max(abs(lo), abs(hi)) * _largest(dx) if len(dx) else 0.0
-    for step in range(_BISECTIONS):
-        if step and step % _PRUNE_EVERY == 0 and len(dx) > _PRUNE_MIN:
-            dx, dy = lowest_candidates(dx, dy, lo, hi, 1.0 + 2e-9 * scale)
-            v = np.empty_like(dy)
-        mid = (lo + hi) / 2
-        np.multiply(mid, dx, out=v)
+
+    def lowest(r: float) -> int:
+        np.multiply(r, dx, out=v)
         np.subtract(dy, v, out=v)
-        if dx[int(v.argmin())] > 0:
-            hi = mid
+        return int(v.argmin())
+
+    ppm = _START_PPM
+    while True:
+        lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
+        i, j = lowest(lo), lowest(hi)
+        if dx[i] <= 0 < dx[j]:
+            break
+        if ppm >= _MAX_PPM:
+            return lo if dx[i] > 0 else hi
+        ppm = min(_MAX_PPM, ppm * 8)
+    # float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie
+    tie = 1e-12 * (float(np.abs(dy).max()) + abs(hi) * float(np.abs(dx).max()))
+    for _ in range(_BISECTIONS):
+        r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
+        if not lo < r < hi:
+            break  # the edge is as narrow as floats resolve
+        k = lowest(r)
+        if (dy[i] - r * dx[i]) - v[k] <= tie:
+            return r
+        if dx[k] > 0:
+            j, hi = k, r
         else:
-            lo = mid
+            i, lo = k, r
     return (lo + hi) / 2
-
-
-def _largest(a: np.ndarray) -> float:
-    """The largest magnitude in ``a``."""
-    return max(float(a.max()), -float(a.min()))
-
-
-def lowest_candidates(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float,
-                      margin: float) -> tuple[np.ndarray, np.ndarray]:
-    """The points, in order, that may be lowest (``argmin(dy - r dx)``) for a slope r
-    in [lo, hi]: each point's line in r is at least its lower end there, the lowest
-    point at most the least of the higher ends. ``margin``, far above float64's
-    rounding of these values, keeps every point whose computed value could tie the
-    lowest."""
-    at_lo = dy - lo * dx
-    at_hi = dy - hi * dx
-    ceiling = float(np.maximum(at_lo, at_hi).min())
-    keep = np.minimum(at_lo, at_hi) <= ceiling + margin
-    return dx[keep], dy[keep]
