@@ -2,7 +2,8 @@
 
 The pipeline (device -> timing) hands samples, events, status and info to a
 ``BusSink``, which turns them into the gx3.v1 messages and publishes them under
-the unit's keys; a raw capture, when asked for, records every read beside it.
+the unit's keys; every read can also go out raw (``--publish-raw``) and into a raw
+capture file beside it.
 Operator commands that reach the unit's command queryable run on the
 pipeline's thread, only when the bridge was started with ``--allow-commands``.
 """
@@ -22,6 +23,7 @@ from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
 from bridge.pipeline import Pipeline, Samples, UnitEvent
 from bridge.protocol.table import Mode
+from bridge.recorder.rawcapture import capture_metadata
 
 DECLARE_SETTLE_S = 1.0
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
@@ -109,9 +111,13 @@ class BusSink:
     """
 
     def __init__(self, session: Any, prefix: str, unit: str | None, port: str,
-                 allow_commands: bool, cache_s: float, quiet: bool = False) -> None:
+                 allow_commands: bool, cache_s: float, quiet: bool = False,
+                 raw: bool = False) -> None:
         self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
+        self.raw = raw
+        self._early_reads: list[tuple[bytes, int]] = []
+        self._read_listeners: list[Callable[[bytes, int], None]] = []
         self.publisher: Any = None
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
@@ -139,20 +145,37 @@ class BusSink:
         self.publisher = UnitPublisher(
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
-            on_command=command_handler(self.pipeline), allow_commands=self.allow_commands)
+            on_command=command_handler(self.pipeline), allow_commands=self.allow_commands,
+            raw=self.raw)
         self.publisher.set_info(message)
-        meta = {"unit": self.unit, "port": self.port, "baud": str(info.baud),
-                "record": f"0x{info.record:02X}", "firmware": info.firmware_text,
-                "flags": str(info.sampling.get("flags", 0)),
-                "filter_width": str(info.sampling.get("filter_width", 0)),
-                "decimation": str(info.sampling.get("decimation", 0)),
-                "transport": self.pipeline.transport,
-                "polled": str(self.pipeline.options.poll_hz is not None).lower()}
         for listener in self._listeners:
-            listener(self.unit, meta)
+            listener(self.unit, capture_metadata(message))
         # Let the new publisher's declaration reach subscribers that already run (a
         # recorder) before the first sample, which they would otherwise miss.
         time.sleep(DECLARE_SETTLE_S)
+        for data, rx_ns in self._early_reads:
+            self._deliver(data, rx_ns)
+        self._early_reads.clear()
+
+    def on_read(self, listener: Callable[[bytes, int], None]) -> None:
+        """``listener(data, rx_ns)`` hears every read from the port (a raw capture)."""
+        self._read_listeners.append(listener)
+
+    def read(self, data: bytes, rx_ns: int) -> None:
+        """A read from the port: to the read listeners, and published raw with ``raw``.
+        The reads of the first bring-up wait for the unit's name (and publisher)."""
+        if not (self.raw or self._read_listeners):
+            return
+        if self.publisher is None:
+            self._early_reads.append((data, rx_ns))
+        else:
+            self._deliver(data, rx_ns)
+
+    def _deliver(self, data: bytes, rx_ns: int) -> None:
+        for listener in self._read_listeners:
+            listener(data, rx_ns)
+        if self.raw:
+            self.publisher.publish_raw(data, rx_ns)
 
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:

@@ -53,6 +53,15 @@ def published(stderr: bytes, unit: str) -> int:
     return int(found.group(1))
 
 
+def sample_columns(path: Path, unit: str) -> dict[str, np.ndarray]:
+    """A unit's samples in an archive, in tick order: what replay must reproduce."""
+    blocks = read_archive(path).samples([unit])
+    out = {k: np.concatenate([b.columns[k] for b in blocks])
+           for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
+    order = np.argsort(out["ticks"], kind="stable")
+    return {k: v[order] for k, v in out.items()}
+
+
 def samples_in(path: Path, unit: str) -> int:
     """Samples of ``unit`` in an archive being written (flushed every second)."""
     if not path.exists():
@@ -155,14 +164,35 @@ def test_replay_of_the_raw_capture_gives_the_live_samples(tmp_path: Path) -> Non
                           capture_output=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr.decode()
 
-    def columns(path: Path) -> dict[str, np.ndarray]:
-        blocks = read_archive(path).samples(["a"])
-        out = {k: np.concatenate([b.columns[k] for b in blocks])
-               for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
-        order = np.argsort(out["ticks"], kind="stable")
-        return {k: v[order] for k, v in out.items()}
+    a, b = sample_columns(live, "a"), sample_columns(replayed, "a")
+    assert len(a["ticks"]) >= 300
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
-    a, b = columns(live), columns(replayed)
+
+def test_an_archive_of_raw_reads_from_zenoh_replays_to_the_live_samples(tmp_path: Path) -> None:
+    """`gx3 bridge --publish-raw` into `gx3 record --raw`: the archive replays by itself,
+    each read at the time its bridge received it, timed with the unit's Info."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    live, replayed = tmp_path / "live.mcap", tmp_path / "re.mcap"
+    proc = recorder(live, rec_cfg, "--raw")
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", "--publish-raw") as bridge:
+        wait_for(lambda: samples_in(live, "a") >= 300)
+        bridge.send_signal(signal.SIGINT)
+        bridge.wait(timeout=30)
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=30)
+    archive = read_archive(live)
+    assert "gx3/a/raw" in archive.topics("raw")
+    done = subprocess.run([GX3, "replay", str(live), "-o", str(replayed)],
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()
+    assert "inferred" not in done.stdout.decode() + done.stderr.decode()
+    a, b = sample_columns(live, "a"), sample_columns(replayed, "a")
     assert len(a["ticks"]) >= 300
     for name in a:
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)

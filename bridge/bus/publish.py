@@ -24,7 +24,7 @@ from zenoh.ext import (
 
 from bridge.bus.codec import RecordBatch, encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
-from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
+from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys, read_time_attachment
 
 #: Default imu cache: five seconds at the unit's top rate of 1 kHz.
 CACHE_SAMPLES = 5000
@@ -107,7 +107,7 @@ class UnitPublisher:
         """The bytes of one read, with its host receive time (int64 LE ns) as attachment."""
         if self._raw is None:
             raise ValueError("this UnitPublisher was declared without raw=True")
-        self._raw.put(data, attachment=int(rx_ns).to_bytes(8, "little", signed=True))
+        self._raw.put(data, attachment=read_time_attachment(rx_ns))
 
     def set_info(self, info: Info) -> None:
         """What the info queryable answers from now on."""

@@ -28,7 +28,7 @@ from zenoh.ext import HistoryConfig, Miss, RecoveryConfig, declare_advanced_subs
 
 from bridge.bus.codec import decode_batch, parse, peek
 from bridge.bus.gx3_pb2 import ImuSample
-from bridge.bus.keys import PREFIX, fleet
+from bridge.bus.keys import PREFIX, fleet, read_time
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, condense
 
@@ -142,6 +142,21 @@ class Subscription(Generic[T]):
             if payloads is None:
                 payloads = groups[key] = []
             payloads.append(sample.payload.to_bytes())
+        return groups
+
+    def take_reads(self, limit: int, default_ns: int) -> dict[str, tuple[list[bytes], list[int]]]:
+        """Raw reads that have arrived (up to ``limit``, no waiting), by key: their bytes
+        and the receive times their bridge attached (``default_ns`` where none is)."""
+        groups: dict[str, tuple[list[bytes], list[int]]] = {}
+        for sample in self.take(limit):
+            key = str(sample.key_expr)
+            group = groups.get(key)
+            if group is None:
+                group = groups[key] = ([], [])
+            attachment = sample.attachment
+            stamp = read_time(None if attachment is None else attachment.to_bytes())
+            group[0].append(sample.payload.to_bytes())
+            group[1].append(default_ns if stamp is None else stamp)
         return groups
 
     def get(self, timeout: float | None = None) -> T | None:

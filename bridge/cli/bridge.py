@@ -65,6 +65,9 @@ def run_bridge(
              "USB port), auto (usb for /dev/ttyACM*).")] = "auto",
     capture: Annotated[Path | None, typer.Option(
         metavar="FILE.mcap", help="Also record every read raw, with its receive time.")] = None,
+    publish_raw: Annotated[bool, typer.Option(
+        "--publish-raw", help="Also publish every read on PREFIX/UNIT/raw with its receive "
+                              "time, for gx3 record --raw.")] = False,
     allow_commands: Annotated[bool, typer.Option(
         "--allow-commands", help="Carry out operator commands that arrive over Zenoh "
                                  "(gx3 configure --unit …); refused otherwise.")] = False,
@@ -83,8 +86,9 @@ def run_bridge(
 
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
-    queryable and a liveliness token. Keeps streaming through pulled cables and
-    resets. Ctrl-C or SIGTERM stop continuous mode and close the port.
+    queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
+    streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
+    mode and close the port.
     """
     from bridge.bus.keys import BadName, check_prefix, check_unit
     from bridge.pipeline import Options, Pipeline
@@ -123,29 +127,24 @@ def run_bridge(
     except SessionError as exc:
         raise fail(str(exc)) from None
     writer: list[RawCaptureWriter] = []
-    early: list[tuple[bytes, int]] = []  # reads before the unit's name is known
 
-    def on_read(data: bytes, rx_ns: int) -> None:
-        if capture is None:
-            return
+    def write_capture(data: bytes, rx_ns: int) -> None:
         if not writer:
-            early.append((data, rx_ns))
             return
         try:
-            for item in early:
-                writer[0].write(*item)
-            early.clear()
             writer[0].write(data, rx_ns)
         except CaptureError as exc:
             err.print(f"[yellow]capture stopped:[/] {exc}")
             writer.clear()
 
     with bus:
-        sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet)
-        pipeline = Pipeline(options, sink, on_read=on_read)
+        sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet,
+                       raw=publish_raw)
+        pipeline = Pipeline(options, sink, on_read=sink.read)
         sink.attach(pipeline)
         if capture is not None:
             sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta))
+            sink.on_read(write_capture)
         worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
         worker.start()
         deadline = None if duration is None else time.monotonic() + duration

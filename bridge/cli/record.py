@@ -47,7 +47,8 @@ def record(
                                 "such as '*' (every unit) or 'lab-*'.")] = "*",
     prefix: PrefixOpt = "gx3",
     raw: Annotated[bool, typer.Option(
-        "--raw", help="Also record each unit's raw reads where its bridge offers them.")] = False,
+        "--raw", help="Also record each unit's raw reads where its bridge publishes them "
+                 "(gx3 bridge --publish-raw); gx3 replay takes the archive.")] = False,
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
     rrd: Annotated[Path | None, typer.Option(

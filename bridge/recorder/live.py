@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from bridge.bus.gx3_pb2 import Status
@@ -76,12 +77,15 @@ class Recorder:
         self._lock = threading.Lock()
         leaves = (*LEAVES, "raw") if raw else LEAVES
         self._subs: list[Subscription[RawMessage]] = []
+        self._reads: Subscription[RawMessage] | None = None  # raw reads, stamped by bridges
         try:
             for leaf in leaves:
                 sub = subscribe(f"{prefix}/{units}/{leaf}", output="raw", session=session,
                                 history=history if leaf == "imu" else 0,
                                 queue_size=queue_size)
                 self._subs.append(sub)
+                if leaf == "raw":
+                    self._reads = sub
             self._alive = session.liveliness().declare_subscriber(
                 f"{prefix}/{units}/alive", self._on_alive, history=True)
         except BaseException:
@@ -147,6 +151,10 @@ class Recorder:
         now = time.time_ns()
         written: list[RawMessage] | None = None if self._on_written is None else []
         for sub in self._subs:
+            if sub is self._reads:  # a read's log time is when its bridge received it
+                for key, (payloads, stamps) in sub.take_reads(self._queue_size, now).items():
+                    self._write(key, payloads, np.array(stamps, np.int64), written)
+                continue
             for key, payloads in sub.take_by_key(self._queue_size).items():
                 self._write(key, payloads, now, written)
         while self._answers:
@@ -155,18 +163,19 @@ class Recorder:
         if written and self._on_written is not None:
             self._on_written(written)
 
-    def _write(self, key: str, payloads: list[bytes], now: int,
+    def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
                written: list[RawMessage] | None) -> None:
-        """Archive messages of one key and count them in their unit's view."""
+        """Archive messages of one key, received at ``received`` (host ns: one for all, or
+        one each), and count them in their unit's view."""
         if self.error is not None:
             return
         try:
-            self.writer.write_many(key, payloads, now)
+            self.writer.write_many(key, payloads, received)
         except ArchiveError as exc:
             self.error = exc
             return
         except ValueError:  # not all of ours (nothing written): archive those that are
-            payloads = self._each(key, payloads, now)
+            payloads = self._each(key, payloads, received)
             if not payloads:
                 return
         self.written += len(payloads)
@@ -181,6 +190,7 @@ class Recorder:
                 view = self.views[unit] = UnitView(unit)
             view.bytes += sum(map(len, payloads))
             if leaf == "imu":
+                now = int(np.max(received))
                 view.samples += len(payloads)
                 view.last_ns = now
                 view.first_ns = view.first_ns or now
@@ -190,13 +200,15 @@ class Recorder:
             encoding = ENCODINGS.get(leaf, "")
             written.extend(RawMessage(key, payload, encoding) for payload in payloads)
 
-    def _each(self, key: str, payloads: list[bytes], now: int) -> list[bytes]:
+    def _each(self, key: str, payloads: list[bytes], received: int | np.ndarray
+              ) -> list[bytes]:
         """The payloads that ``write`` takes one by one (a message on a matching key that
         is not one of ours is not archived)."""
         kept = []
-        for payload in payloads:
+        stamps = np.broadcast_to(np.asarray(received, np.int64), (len(payloads),)).tolist()
+        for payload, stamp in zip(payloads, stamps, strict=True):
             try:
-                self.writer.write(key, payload, now)
+                self.writer.write(key, payload, stamp)
             except ValueError:
                 continue
             except ArchiveError as exc:

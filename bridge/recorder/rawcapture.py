@@ -17,6 +17,9 @@ from typing import IO, Any, TypeVar
 
 from mcap.writer import CompressionType, Writer
 
+from bridge.bus.gx3_pb2 import Info
+from bridge.protocol.table import Mode
+
 T = TypeVar("T")
 RAW_ENCODING = "application/octet-stream"
 FLUSH_EVERY_S = 1.0
@@ -28,6 +31,17 @@ class CaptureError(OSError):
 
 def raw_topic(prefix: str, unit: str) -> str:
     return f"{prefix}/{unit}/raw"
+
+
+def capture_metadata(info: Info) -> dict[str, str]:
+    """What a capture's reads need to be timed as live (``gx3.capture`` metadata), from
+    the unit's Info: a bridge writes it into its --capture file, and ``gx3 replay``
+    takes it from an archive's Info where raw reads came over Zenoh."""
+    return {"unit": info.unit, "port": info.port, "baud": str(info.baud),
+            "record": f"0x{info.command:02X}", "firmware": info.firmware_text,
+            "flags": str(info.flags), "filter_width": str(info.filter_width),
+            "decimation": str(info.decimation), "transport": info.link or "uart",
+            "polled": str(info.mode == Mode.ACTIVE).lower()}
 
 
 class RawCaptureWriter:

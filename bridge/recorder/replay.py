@@ -15,6 +15,7 @@ factory's 15 unless a 0xDB reply says otherwise.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -22,6 +23,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from google.protobuf.message import DecodeError
 
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
@@ -29,6 +31,7 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
 from bridge.recorder.archive import ArchiveWriter
+from bridge.recorder.rawcapture import capture_metadata
 from bridge.recorder.read import Archive, read_archive
 from bridge.timing.stream import Settings, StreamTiming
 
@@ -64,6 +67,11 @@ def captures(path: Path, prefix: str = "gx3") -> list[Capture]:
     archive: Archive = read_archive(path)
     meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
             if m.name == "gx3.capture"}
+    for topic in archive.topics("info"):  # an archive of reads that came over Zenoh
+        for payload in archive.messages(topic).payloads[:1]:
+            with contextlib.suppress(DecodeError):  # a damaged Info: settings from the bytes
+                info = Info.FromString(payload)
+                meta.setdefault(info.unit, capture_metadata(info))
     out = []
     for topic in archive.topics("raw"):
         messages = archive.messages(topic)
