@@ -3,7 +3,8 @@
 Load generators (PROCS processes, each publishing a share of the units through the
 same UnitPublisher a bridge uses, 10 records per put burst as a USB read delivers
 them) feed one `gx3 record` process. Reports the recorder's CPU and peak memory,
-the bytes per sample on disk, and the samples lost (published minus archived).
+the bytes per sample on disk, the samples lost (published minus archived), and those
+archived but not as published (each is checked).
 
     python bench/bench_recorder.py --units 100 --rate 1000 --seconds 60
 """
@@ -36,6 +37,22 @@ def imu_messages(path: Path) -> int:
     counts = summary.statistics.channel_message_counts
     return sum(counts.get(c.id, 0) for c in summary.channels.values()
                if c.topic.endswith("/imu"))
+
+
+def damaged(path: Path, per_unit: int) -> int:
+    """Archived samples that are not as published: each unit's ticks are 0, 62, 124, ...
+    once each and every quantity is 0, so a payload mangled in transit shows."""
+    from bridge.recorder.read import read_archive
+
+    bad = 0
+    expected = np.arange(per_unit) * 62
+    for block in read_archive(path).samples():
+        ticks = block.columns["ticks"]
+        wrong = ~np.isin(ticks, expected)
+        for name in ("accel", "ang_rate", "mag", "m"):
+            wrong |= (block.columns[name].reshape(len(ticks), -1) != 0).any(axis=1)
+        bad += int(wrong.sum()) + len(ticks[~wrong]) - len(np.unique(ticks[~wrong]))
+    return bad
 
 
 def publish(config: str, units: list[str], rate: float, seconds: float) -> None:
@@ -133,9 +150,11 @@ def main() -> None:
             g.wait(timeout=60)
         archived = imu_messages(out)
         size = out.stat().st_size
+        bad = damaged(out, round(args.rate * args.seconds))
     print(f"{args.units} units x {args.rate:g} Hz for {args.seconds:g} s "
           f"({args.units * args.rate:,.0f} samples/s offered)")
-    print(f"published {published:,}, archived {archived:,}, lost {published - archived:,}")
+    print(f"published {published:,}, archived {archived:,}, lost {published - archived:,}; "
+          f"{bad:,} not decoded as published")
     print(f"recorder CPU {100 * (cpu1 - cpu0) / (wall1 - wall0):.0f} % of one core, "
           f"peak memory {rss:.0f} MiB, {size / max(1, archived):.1f} bytes per sample on disk")
 
