@@ -348,52 +348,87 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: floa
     middle the estimate: half a frame wide for a unit
     that has never crossed a frame boundary, narrowing with every crossing. When
     no straight line fits (the rate wandered within the window), None.
+
+    Every search is over a piecewise-linear function of the slope r, convex or
+    concave: each step follows the linear piece it stands on to where that piece
+    would give the answer, so a few passes over the points find it exactly.
     """
     if len(x) < 2:
         return None
     dx = np.array(x, np.float64) - now
     dy = np.array(y, np.float64) - y[-1]
-
-    def width(r: float) -> float:
-        v = dy - r * dx
-        return float(v.max() - v.min())
-
+    band = _Band(dx, dy)
     lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
-    for _ in range(_BISECTIONS):  # the narrowest band (convex in r)
-        mid = (lo + hi) / 2
-        v = dy - mid * dx
-        if dx[int(np.argmin(v))] > dx[int(np.argmax(v))]:
-            hi = mid
-        else:
-            lo = mid
-    best = (lo + hi) / 2
-    if width(best) > frame:
+    best = band.narrowest(lo, hi)
+    if band.width(best)[0] > frame:
         return None
-    edges = []
-    for far in (prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)):
-        inside, outside = best, far
-        for _ in range(_BISECTIONS):
-            mid = (inside + outside) / 2
-            inside, outside = (mid, outside) if width(mid) <= frame else (inside, mid)
-        edges.append(inside)
-    low_rate, high_rate = edges
-    top = _extreme(dy, dx, low_rate, high_rate, 1.0)
-    bottom = _extreme(dy, dx, low_rate, high_rate, -1.0) - frame
+    low_rate, high_rate = band.reach(best, lo, frame), band.reach(best, hi, frame)
+    r_top, _ = _peak(dx, dy, low_rate, high_rate)
+    r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate)
+    top = float((dy - r_top * dx).min())
+    bottom = float((dy - r_bottom * dx).max()) - frame
     return (now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
             high_rate - low_rate)
 
 
-def _extreme(dy: np.ndarray, dx: np.ndarray, lo: float, hi: float, sign: float) -> float:
-    """Over slopes in [lo, hi], the highest upper bound at dx = 0 (``sign`` 1:
-    ``min(dy - r dx)``, concave) or the lowest lower bound (-1: ``max(...)``, convex)."""
-    for _ in range(_BISECTIONS):
-        mid = (lo + hi) / 2
-        v = sign * (dy - mid * dx)
-        rising = dx[int(np.argmin(v))] < 0  # the bound's slope in r at ``mid`` is -dx
-        lo, hi = (mid, hi) if rising == (sign > 0) else (lo, mid)
-    r = (lo + hi) / 2
-    v = dy - r * dx
-    return float(v.min() if sign > 0 else v.max())
+class _Band:
+    """The spread of ``dy - r dx`` over the points, a convex function of the slope r,
+    and the linear piece of it at each r (its value and slope there)."""
+
+    def __init__(self, dx: np.ndarray, dy: np.ndarray) -> None:
+        self.dx, self.dy = dx, dy
+        self._v = np.empty_like(dy)
+        self._dx_range = float(np.abs(dx).max())
+        self._dy_range = float(np.abs(dy).max())
+
+    def tie(self, r: float) -> float:
+        """float64 rounds dy - r dx by ~1e-16 of its magnitude: closer is a tie."""
+        return 1e-12 * (self._dy_range + abs(r) * self._dx_range)
+
+    def width(self, r: float) -> tuple[float, float]:
+        v = self._v
+        np.multiply(r, self.dx, out=v)
+        np.subtract(self.dy, v, out=v)
+        top, bottom = int(v.argmax()), int(v.argmin())
+        return float(v[top] - v[bottom]), float(self.dx[bottom] - self.dx[top])
+
+    def narrowest(self, lo: float, hi: float) -> float:
+        """The r in [lo, hi] where the spread is least: where the lines of the pieces on
+        either side of it cross, unless a piece there is higher."""
+        w_lo, s_lo = self.width(lo)
+        w_hi, s_hi = self.width(hi)
+        if s_lo >= 0:
+            return lo
+        if s_hi <= 0:
+            return hi
+        for _ in range(_BISECTIONS):
+            r = (w_hi - w_lo + s_lo * lo - s_hi * hi) / (s_lo - s_hi)
+            if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
+                return hi if r >= hi else lo
+            w, s = self.width(r)
+            if w - (w_lo + s_lo * (r - lo)) <= self.tie(r) or s == 0:
+                return r
+            if s > 0:
+                hi, w_hi, s_hi = r, w, s
+            else:
+                lo, w_lo, s_lo = r, w, s
+        return (lo + hi) / 2
+
+    def reach(self, inside: float, outside: float, level: float) -> float:
+        """Between ``inside`` (spread <= level) and ``outside``, the r where the spread
+        reaches ``level`` (``outside`` if it never does). From the outside each piece's
+        line lies under the convex spread, so following it never overshoots."""
+        r = outside
+        w, s = self.width(r)
+        for _ in range(_BISECTIONS):
+            if w <= level + self.tie(r) or s == 0:
+                break
+            step = r - (w - level) / s
+            if not min(inside, r) <= step <= max(inside, r) or step == r:
+                break
+            r = step
+            w, s = self.width(r)
+        return r
 
 
 def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
@@ -411,18 +446,28 @@ def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:
 
 def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     """The slope of the highest line under every point, judged at dx = 0: the lower
-    hull's edge over dx = 0, clamped to ``_MAX_PPM`` around ``prior``.
-
-    ``min(dy - r dx)`` is concave in r; its maximum is where the lowest point moves
-    from one side of dx = 0 to the other. A bracket starting a few ppm around
-    ``prior`` (a refit's rate is close to the last one) widens until the lowest point
-    at its ends is on either side. Then the line through the two lowest points is
-    tried: if no point lies under it, it is the edge; otherwise the point under it
-    replaces the one on its side. Each try is one pass over the points, and a few
-    tries find the edge of thousands.
-    """
+    hull's edge over dx = 0, clamped to ``_MAX_PPM`` around ``prior``. The search starts
+    a few ppm around ``prior`` (a refit's rate is close to the last one) and widens
+    until the answer is inside."""
     if not len(dx):
         return prior
+    ppm = _START_PPM
+    while True:
+        r, inside = _peak(dx, dy, prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6))
+        if inside or ppm >= _MAX_PPM:
+            return r
+        ppm = min(_MAX_PPM, ppm * 8)
+
+
+def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float) -> tuple[float, bool]:
+    """The r in [lo, hi] where ``min(dy - r dx)`` is highest, and whether it is inside
+    (not at an end).
+
+    The function is concave; its peak is where the lowest point moves from one side
+    of dx = 0 to the other. The line through the lowest points on either side is
+    tried: if no point lies under it, its slope is the peak; otherwise the point
+    under it replaces the one on its side. A few passes find the edge of thousands.
+    """
     v = np.empty_like(dy)
 
     def lowest(r: float) -> int:
@@ -430,26 +475,22 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
         np.subtract(dy, v, out=v)
         return int(v.argmin())
 
-    ppm = _START_PPM
-    while True:
-        lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
-        i, j = lowest(lo), lowest(hi)
-        if dx[i] <= 0 < dx[j]:
-            break
-        if ppm >= _MAX_PPM:
-            return lo if dx[i] > 0 else hi
-        ppm = min(_MAX_PPM, ppm * 8)
+    i, j = lowest(lo), lowest(hi)
+    if dx[i] > 0:
+        return lo, False  # falling from lo on
+    if dx[j] <= 0:
+        return hi, False  # still rising at hi
     # float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie
-    tie = 1e-12 * (float(np.abs(dy).max()) + abs(hi) * float(np.abs(dx).max()))
+    tie = 1e-12 * (float(np.abs(dy).max()) + max(abs(lo), abs(hi)) * float(np.abs(dx).max()))
     for _ in range(_BISECTIONS):
         r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
-        if not lo < r < hi:
-            break  # the edge is as narrow as floats resolve
+        if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
+            return (hi if r >= hi else lo), True
         k = lowest(r)
         if (dy[i] - r * dx[i]) - v[k] <= tie:
-            return r
+            return r, True
         if dx[k] > 0:
             j, hi = k, r
         else:
             i, lo = k, r
-    return (lo + hi) / 2
+    return (lo + hi) / 2, True
