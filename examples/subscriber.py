@@ -90,6 +90,18 @@ def main() -> int:
 
         printed = 0
         with zenoh.open(config) as session:
+            declared: dict[str, Any] = {}
+
+            def on_publisher(token: zenoh.Sample) -> None:
+                # Each unit's publisher announces itself under its key (KEY/@adv/pub/...).
+                # Declaring that key here lets Zenoh route its samples from a cache; else
+                # it searches every unit's announcements per sample (slow with many units).
+                key = str(token.key_expr).split("/@adv/pub/", 1)[0]
+                if token.kind == zenoh.SampleKind.PUT and key not in declared:
+                    declared[key] = session.declare_keyexpr(key)
+
+            publishers = session.liveliness().declare_subscriber(
+                f"{args.key}/@adv/pub/**", on_publisher, history=True)
             sub = declare_advanced_subscriber(
                 session, args.key, on_sample, history=HistoryConfig(detect_late_publishers=True),
                 recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
@@ -110,6 +122,7 @@ def main() -> int:
                 pass
             listener.undeclare()
             sub.undeclare()
+            publishers.undeclare()
     return 0
 
 
