@@ -115,7 +115,7 @@ def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray,
     name = unit.encode()
     size = len(payloads[0]) if payloads else 0
     if (len(payloads) >= _BULK and size >= head.itemsize and len(name) < 0x80
-            and all(len(p) == size for p in payloads)):
+            and set(map(len, payloads)) == {size}):
         rows = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), size)
         h = np.ascontiguousarray(rows[:, : head.itemsize]).view(head)[:, 0]
         ok = (h["n"] == len(name)) & (rows[:, 2 : 2 + len(name)]
@@ -406,9 +406,11 @@ class ArchiveWriter:
         """Keep the samples that become FrameTransforms (records without attitude get
         none): at most one a period per unit."""
         code_list = codes.tolist()
-        eligible = [i for i, c in enumerate(code_list) if _framed(c)]
-        if not eligible:
+        kinds = set(code_list)
+        if not any(map(_framed, kinds)):
             return
+        eligible = (list(range(len(code_list))) if all(map(_framed, kinds))
+                    else [i for i, c in enumerate(code_list) if _framed(c)])
         times = log_ns[eligible]
         ordered = len(times) < 2 or bool((np.diff(times) >= 0).all())
         picks, due = frame_picks(times.tolist(), ordered, self._frame_due.get(unit),
