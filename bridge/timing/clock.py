@@ -131,6 +131,8 @@ class OnlineClock:
         self._line: _Line | None = None
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
+        self._snapped = np.zeros(0, np.int64)  # the window's receive times, snapped
+        self._phase: int | None = None
         # receive times above the last fit, for ``state``: worked out only when asked
         self._latency: Callable[[], np.ndarray] = lambda: np.zeros(0)
 
@@ -200,11 +202,9 @@ class OnlineClock:
         span = int(self._x[-1] - self._x[0])
         step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
         self._next_fit = now + max(1, step)
-        upper = self._snap(new_y) if self.frame_ns else self._y
+        upper = self._snap(new_y, keep) if self.frame_ns else self._y
         x_ref = int(self._x[0]) + span // 2
         y_ref = int(upper[0])
-        dx = (self._x - x_ref).astype(np.float64)
-        dy = (upper - y_ref).astype(np.float64)
         bias = 0.0
         if self.frame_ns:
             bx, by = bucket_minima(self._x, upper, self._rate)
@@ -215,12 +215,12 @@ class OnlineClock:
                 y, x, fit = self._y, self._x, self._line
                 self._latency = lambda: y - fit.at(x)
                 return
-            line = self._frame_fit(bx, by)
+            line = self._frame_fit(bx.tolist(), by.tolist())
             if line is not None:
                 x_ref, y_ref, self._rate = line
-                dx = (self._x - x_ref).astype(np.float64)
-                dy = (upper - y_ref).astype(np.float64)
-        elif span >= 2 * TICKS_PER_SECOND:
+        dx = (self._x - x_ref).astype(np.float64)
+        dy = (upper - y_ref).astype(np.float64)
+        if not self.frame_ns and span >= 2 * TICKS_PER_SECOND:
             self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
@@ -230,13 +230,13 @@ class OnlineClock:
         self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
-    def _centre(self, x: list[int], y: list[int]) -> tuple[int, int, float, float, float] | None:
+    def _centre(self, x: np.ndarray, y: np.ndarray) -> tuple[int, int, float, float, float] | None:
         """``best_centre`` at the newest record over the last quarter, half or whole
         of the window. Once a fit has pinned the rate, slopes are only searched as
         far from it as a crystal's temperature drift can take it since: with a
         single frame crossing in view, the points alone would allow far more."""
         now = int(self._x[-1])
-        starts = [bisect_left(x, now - self._window // part) for part in (4, 2, 1)]
+        starts = np.searchsorted(x, [now - self._window // part for part in (4, 2, 1)]).tolist()
         ppm = _MAX_PPM
         if self._pinned is not None:
             ppm = min(_MAX_PPM, _RATE_FLOOR_PPM
@@ -266,11 +266,21 @@ class OnlineClock:
             return None
         return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
 
-    def _snap(self, new_y: np.ndarray) -> np.ndarray:
-        """Receive times moved down to the USB frame that carried them."""
+    def _snap(self, new_y: np.ndarray, dropped: int) -> np.ndarray:
+        """Receive times moved down to the USB frame that carried them. The window's
+        older points keep their snapped times while the grid's phase stays put (the
+        window lost its first ``dropped`` points since the last fit)."""
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
-        return snap(self._y, self._grid, self.frame_ns)
+        phase = grid_phase(self._grid, self.frame_ns)
+        old = len(self._y) - len(new_y)
+        if phase == self._phase and len(self._snapped) - dropped == old >= 0:
+            fresh = snap_to(self._y[old:], phase, self.frame_ns)
+            self._snapped = np.concatenate([self._snapped[dropped:], fresh])
+        else:
+            self._snapped = snap_to(self._y, phase, self.frame_ns)
+        self._phase = phase
+        return self._snapped
 
 
 def uncovered_half(residual: np.ndarray, frame: int) -> float:
@@ -293,15 +303,23 @@ def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
 def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
     """``y`` moved down to the frame boundary before it, the grid's phase being the
     edge where receive times crowd in (just after each boundary, latency is least)."""
+    return snap_to(y, grid_phase(histogram, frame), frame)
+
+
+def grid_phase(histogram: np.ndarray, frame: int) -> int:
+    """Where in the frame the boundary lies, from the receive times folded onto it."""
     h = histogram.astype(np.float64)
     centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
     edges = np.arange(len(h)) * _GRID_BIN_NS
     cost = (h * centres).sum() - h.sum() * edges + frame * (np.cumsum(h) - h)
-    phase = int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+    return int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+
+
+def snap_to(y: np.ndarray, phase: int, frame: int) -> np.ndarray:
     return np.asarray((y - phase) // frame * frame + phase + _GRID_MARGIN_NS)
 
 
-def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int], list[int]]:
+def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
     """The earliest-received point of each short stretch of ticks.
 
     Within a quarter second the unit's phase against the frame grid barely moves,
@@ -316,10 +334,10 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[list[int],
     kb = buckets[keep]
     keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
     keep = keep[1:-1]  # the buckets at the window's ends are partial
-    return x[keep].tolist(), y[keep].tolist()
+    return x[keep], y[keep]
 
 
-def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
+def best_centre(x: np.ndarray, y: np.ndarray, at: int, frame: int, prior: float,
                 spans: list[tuple[int, int]],
                 ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
     """``polygon_centre`` over the shortest span (index range, shortest first) that
@@ -337,7 +355,7 @@ def best_centre(x: list[int], y: list[int], at: int, frame: int, prior: float,
     return best
 
 
-def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: float,
+def polygon_centre(x: np.ndarray, y: np.ndarray, now: int, frame: int, prior: float,
                    ppm: float = _MAX_PPM) -> tuple[int, int, float, float, float] | None:
     """The middle of every line the frame staircase allows, judged at ticks ``now``.
 
@@ -355,8 +373,9 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: floa
     """
     if len(x) < 2:
         return None
-    dx = np.array(x, np.float64) - now
-    dy = np.array(y, np.float64) - y[-1]
+    newest = int(y[-1])
+    dx = (x - now).astype(np.float64)
+    dy = (y - newest).astype(np.float64)  # in integers first: ns since 1970 exceed float64's
     band = _Band(dx, dy)
     lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
     best = band.narrowest(lo, hi)
@@ -367,7 +386,7 @@ def polygon_centre(x: list[int], y: list[int], now: int, frame: int, prior: floa
     r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate)
     top = float((dy - r_top * dx).min())
     bottom = float((dy - r_bottom * dx).max()) - frame
-    return (now, y[-1] + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
+    return (now, newest + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
             high_rate - low_rate)
 
 

@@ -15,8 +15,6 @@ envelope then runs along the staircase's corners), half a frame where it has not
 
 from __future__ import annotations
 
-from bisect import bisect_left
-
 import numpy as np
 import numpy.typing as npt
 
@@ -68,17 +66,19 @@ class OfflineClock:
         # edge's, which a staircase can tilt by hundreds of ppm).
         rate = support_slope(dx - dx[-1] / 2, dy, float(NS_PER_TICK))
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
-        bx, by = bucket_minima(x, y, rate) if self.frame_ns else ([], [])
+        empty = np.zeros(0, np.int64)
+        bx, by = bucket_minima(x, y, rate) if self.frame_ns else (empty, empty)
         values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
         out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
         return np.asarray(out, np.int64) - self.filter_delay_ns
 
-    def _solve(self, x: np.ndarray, y: np.ndarray, bx: list[int], by: list[int], at: int,
+    def _solve(self, x: np.ndarray, y: np.ndarray, bx: np.ndarray, by: np.ndarray, at: int,
                rate: float) -> float:
         """The line's value at ticks ``at`` from the window around it that pins it best."""
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
         if self.frame_ns:
-            spans = [(bisect_left(bx, at - h), bisect_left(bx, at + h)) for h in halves]
+            spans = [(int(np.searchsorted(bx, at - h)), int(np.searchsorted(bx, at + h)))
+                     for h in halves]
             centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
             if centre is not None:
                 return float(centre[1])
