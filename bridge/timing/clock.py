@@ -402,7 +402,7 @@ class _Band:
 
     def tie(self, r: float) -> float:
         """float64 rounds dy - r dx by ~1e-16 of its magnitude: closer is a tie."""
-        return 1e-12 * (self._dy_range + abs(r) * self._dx_range)
+        return 1e-14 * (self._dy_range + abs(r) * self._dx_range)
 
     def width(self, r: float) -> tuple[float, float]:
         v = self._v
@@ -500,7 +500,7 @@ def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float) -> tuple[float, 
     if dx[j] <= 0:
         return hi, False  # still rising at hi
     # float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie
-    tie = 1e-12 * (float(np.abs(dy).max()) + max(abs(lo), abs(hi)) * float(np.abs(dx).max()))
+    tie = 1e-14 * (float(np.abs(dy).max()) + max(abs(lo), abs(hi)) * float(np.abs(dx).max()))
     for _ in range(_BISECTIONS):
         r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
         if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
