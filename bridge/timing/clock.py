@@ -328,11 +328,11 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray
     """
     v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
     buckets = x // _BUCKET_TICKS
-    starts = np.flatnonzero(np.diff(buckets, prepend=buckets[0] - 1))
-    lowest = np.repeat(np.minimum.reduceat(v, starts), np.diff(starts, append=len(v)))
-    keep = np.flatnonzero(v == lowest)
-    kb = buckets[keep]
-    keep = keep[np.diff(kb, prepend=kb[0] - 1) != 0]  # one per bucket, ties to the first
+    starts = np.concatenate(([0], np.flatnonzero(buckets[1:] != buckets[:-1]) + 1))
+    sizes = np.diff(np.concatenate((starts, [len(v)])))
+    lowest = np.flatnonzero(v == np.repeat(np.minimum.reduceat(v, starts), sizes))
+    kb = buckets[lowest]
+    keep = lowest[np.concatenate(([True], kb[1:] != kb[:-1]))]  # one a bucket: the first
     keep = keep[1:-1]  # the buckets at the window's ends are partial
     return x[keep], y[keep]
 
