@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from collections.abc import Callable
 from importlib.metadata import version
 from typing import Any
@@ -26,6 +27,7 @@ from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
 
 DECLARE_SETTLE_S = 1.0
+_EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
@@ -116,7 +118,8 @@ class BusSink:
         self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
         self.raw = raw
-        self._early_reads: list[tuple[bytes, int]] = []
+        # a unit that never comes up (a wrong baud rate) must not fill the memory
+        self._early_reads: deque[tuple[bytes, int]] = deque(maxlen=_EARLY_READS)
         self._read_listeners: list[Callable[[bytes, int], None]] = []
         self.publisher: Any = None
         self.pipeline: Pipeline | None = None
