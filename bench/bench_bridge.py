@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-from procstat import cpu_seconds
+from procstat import cpu_seconds, thread_cpu_seconds
 
 from bridge.bus.codec import parse
 from bridge.protocol.table import Flag
@@ -135,8 +135,10 @@ def main() -> None:
                     latencies.clear()
                     ticks.clear()
                 cpu0, wall0 = cpu_seconds(bridge.pid), time.monotonic()
+                threads0 = thread_cpu_seconds(bridge.pid)
                 time.sleep(args.seconds)
                 cpu1, wall1 = cpu_seconds(bridge.pid), time.monotonic()
+                threads1 = thread_cpu_seconds(bridge.pid)
                 time.sleep(0.5)
                 sub.undeclare()
         finally:
@@ -149,7 +151,10 @@ def main() -> None:
         what = "bare select/read/put loop" if args.floor else "bridge"
         print(f"0x{code:02X} at 1,000 Hz, {args.seconds:g} s: {len(t)} samples received"
               + ("" if args.floor else f", {missing} missing from the tick sequence"))
-        print(f"{what} CPU: {100 * (cpu1 - cpu0) / (wall1 - wall0):.1f} % of one core")
+        spent = {name: t - threads0.get(name, 0.0) for name, t in threads1.items()}
+        print(f"{what} CPU: {100 * (cpu1 - cpu0) / (wall1 - wall0):.1f} % of one core; by thread: "
+              + ", ".join(f"{name} {100 * t / (wall1 - wall0):.1f} %"
+                          for name, t in sorted(spent.items(), key=lambda kv: -kv[1]) if t > 0))
         print(f"rx -> subscriber callback: p50 {np.percentile(lat, 50):.3f} ms, "
               f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms")
 
