@@ -4,8 +4,8 @@ A record is received after it was sampled, never before: the host time of a read
 is an upper bound on the sample instant of every record in it. On a serial line
 the estimator keeps a sliding window of (ticks, receive time) points and fits
 the line ``host = offset + rate * ticks`` that lies under all of them and is
-highest mid-window (the lower convex hull's supporting edge there), found by
-bisection on the slope. Late points (OS latency, a burst after a stall) lie
+highest mid-window (the lower convex hull's edge there), found by walking the
+hull's edges from the last rate. Late points (OS latency, a burst after a stall) lie
 above the line and do not move it; the window follows a rate that wanders.
 
 USB adds a quantisation the hull cannot see through: bytes reach the host only
@@ -42,7 +42,7 @@ from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.timing.unwrap import NS_PER_TICK
 
 _MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
-_BISECTIONS = 32
+_MAX_STEPS = 32  # passes a search may take; a few find the answer, rounding may want more
 _START_PPM = 2.0  # the first bracket around the last fit's rate
 _WARM_S = 10.0  # refit ten times a second until the window is this long
 _GRID_BIN_NS = 1_000
@@ -420,7 +420,7 @@ class _Band:
             return lo
         if s_hi <= 0:
             return hi
-        for _ in range(_BISECTIONS):
+        for _ in range(_MAX_STEPS):
             r = (w_hi - w_lo + s_lo * lo - s_hi * hi) / (s_lo - s_hi)
             if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
                 return hi if r >= hi else lo
@@ -439,7 +439,7 @@ class _Band:
         line lies under the convex spread, so following it never overshoots."""
         r = outside
         w, s = self.width(r)
-        for _ in range(_BISECTIONS):
+        for _ in range(_MAX_STEPS):
             if w <= level + self.tie(r) or s == 0:
                 break
             step = r - (w - level) / s
@@ -501,7 +501,7 @@ def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float) -> tuple[float, 
         return hi, False  # still rising at hi
     # float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie
     tie = 1e-14 * (float(np.abs(dy).max()) + max(abs(lo), abs(hi)) * float(np.abs(dx).max()))
-    for _ in range(_BISECTIONS):
+    for _ in range(_MAX_STEPS):
         r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
         if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
             return (hi if r >= hi else lo), True
