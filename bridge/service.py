@@ -27,7 +27,7 @@ from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
 
 DECLARE_SETTLE_S = 1.0
-_EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
+EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
@@ -119,7 +119,7 @@ class BusSink:
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
         self.raw = raw
         # a unit that never comes up (a wrong baud rate) must not fill the memory
-        self._early_reads: deque[tuple[bytes, int]] = deque(maxlen=_EARLY_READS)
+        self._early_reads: deque[tuple[bytes, int]] = deque(maxlen=EARLY_READS)
         self._read_listeners: list[Callable[[bytes, int], None]] = []
         self.publisher: Any = None
         self.pipeline: Pipeline | None = None

@@ -13,7 +13,10 @@ import bridge
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
+from bridge.device.session import UnitInfo
+from bridge.pipeline import Options, Pipeline
 from bridge.protocol.table import DATA_CODES
+from bridge.service import EARLY_READS, BusSink
 from tests.test_bus_codec import times, wire_batch
 
 
@@ -96,3 +99,24 @@ def test_a_late_subscriber_gets_the_history_it_asks_for(session: zenoh.Session) 
             got = [late.get(timeout=10) for _ in range(20)]
             assert [s.ticks for s in got if s is not None] == list(range(30, 50))
             assert late.get(timeout=0.5) is None
+
+
+def test_reads_from_before_the_first_bring_up_reach_the_capture_boundedly(
+        session: zenoh.Session) -> None:
+    """A unit that never comes up (a wrong baud rate) must not fill the memory with the
+    reads kept for its capture; once it is up they follow, newest kept, in order."""
+    sink = BusSink(session, "gx3", "late", "/dev/ttyUSB9", False, 1.0, quiet=True)
+    sink.attach(Pipeline(Options(url="/dev/ttyUSB9"), sink))
+    heard: list[int] = []
+    sink.on_read(lambda data, rx_ns: heard.append(rx_ns))
+    for rx_ns in range(EARLY_READS + 5):
+        sink.read(b"\x00", rx_ns)
+    assert heard == []
+    sink.info(UnitInfo(firmware=1127, ids={"serial": "1"}, sampling={"decimation": 10},
+                       baud=115_200, continuous_preset=0xCC, record=0xCC))
+    try:
+        assert heard == list(range(5, EARLY_READS + 5))
+        sink.read(b"\x00", 10**18)
+        assert heard[-1] == 10**18
+    finally:
+        sink.close()
