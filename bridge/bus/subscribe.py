@@ -28,7 +28,7 @@ from zenoh.ext import HistoryConfig, Miss, RecoveryConfig, declare_advanced_subs
 
 from bridge.bus.codec import decode_batch, parse, peek
 from bridge.bus.gx3_pb2 import ImuSample
-from bridge.bus.keys import PREFIX, fleet, read_time
+from bridge.bus.keys import PREFIX, fleet
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, condense
 
@@ -132,31 +132,16 @@ class Subscription(Generic[T]):
             pass
         return got
 
-    def take_by_key(self, limit: int) -> dict[str, list[bytes]]:
-        """What has arrived (up to ``limit`` messages, no waiting): payloads by key,
-        each key's in the order they came."""
-        groups: dict[str, list[bytes]] = {}
-        for sample in self.take(limit):
-            key = str(sample.key_expr)
-            payloads = groups.get(key)
-            if payloads is None:
-                payloads = groups[key] = []
-            payloads.append(sample.payload.to_bytes())
-        return groups
-
-    def take_reads(self, limit: int, default_ns: int) -> dict[str, tuple[list[bytes], list[int]]]:
-        """Raw reads that have arrived (up to ``limit``, no waiting), by key: their bytes
-        and the receive times their bridge attached (``default_ns`` where none is)."""
-        groups: dict[str, tuple[list[bytes], list[int]]] = {}
+    def take_by_key(self, limit: int) -> dict[str, list[zenoh.Sample]]:
+        """What has arrived (up to ``limit`` messages, no waiting), by key, each key's in
+        the order they came."""
+        groups: dict[str, list[zenoh.Sample]] = {}
         for sample in self.take(limit):
             key = str(sample.key_expr)
             group = groups.get(key)
             if group is None:
-                group = groups[key] = ([], [])
-            attachment = sample.attachment
-            stamp = read_time(None if attachment is None else attachment.to_bytes())
-            group[0].append(sample.payload.to_bytes())
-            group[1].append(default_ns if stamp is None else stamp)
+                group = groups[key] = []
+            group.append(sample)
         return groups
 
     def get(self, timeout: float | None = None) -> T | None:

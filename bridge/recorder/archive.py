@@ -299,8 +299,11 @@ class ArchiveWriter:
         self.messages += taken
         return taken
 
-    def _route(self, key: str) -> tuple[str, str]:
-        """(unit, leaf) of a key, checked once per key."""
+    def route(self, key: str) -> tuple[str, str]:
+        """(unit, leaf) of a key, checked once per key (ValueError: not one it archives)."""
+        known = self._routes.get(key)
+        if known is not None:
+            return known
         unit = unit_of(key, self.prefix)
         leaf = key[len(self.prefix) + len(unit) + 2:]
         if leaf not in MESSAGES and leaf != "raw":
@@ -325,7 +328,7 @@ class ArchiveWriter:
         if self._broken is not None:
             raise self._broken
         self._current()  # a closed archive takes nothing
-        unit, leaf = self._routes.get(key) or self._route(key)
+        unit, leaf = self.route(key)
         if leaf == "imu":
             stamp(unit, payload)
         elif leaf != "raw":
@@ -358,7 +361,7 @@ class ArchiveWriter:
             rx = np.full(n, rx, np.int64)
         if rx.shape != (n,):
             raise ValueError(f"{key}: {n} payloads but {rx.size} receive times")
-        unit, leaf = self._routes.get(key) or self._route(key)
+        unit, leaf = self.route(key)
         units: list[str] = []
         codes = np.zeros(0, np.int64)
         if leaf == "imu":

@@ -22,7 +22,7 @@ import numpy as np
 import zenoh
 
 from bridge.bus.gx3_pb2 import Status
-from bridge.bus.keys import ENCODINGS, unit_of
+from bridge.bus.keys import ENCODINGS, read_time, unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.recorder.archive import ArchiveError, ArchiveWriter
 from bridge.timing.rate import RateWindow
@@ -32,6 +32,13 @@ _QUERY_TIMEOUT_S = 3.0
 _INFO_TRIES = 10
 _INFO_RETRY_S = 0.5
 _PASS_S = 0.05  # a pass takes ~5,000 messages at 100,000/s: whole batches per key
+
+
+def _read_times(samples: list[zenoh.Sample], default_ns: int) -> np.ndarray:
+    """The receive times the bridges attached to raw reads (``default_ns`` where none is)."""
+    stamps = [read_time(None if s.attachment is None else s.attachment.to_bytes())
+              for s in samples]
+    return np.array([default_ns if t is None else t for t in stamps], np.int64)
 
 
 @dataclass
@@ -72,7 +79,6 @@ class Recorder:
         self._on_written = on_written  # e.g. the Rerun logger of --rrd, fed in batches
         self._queue_size = queue_size
         self._answers: deque[RawMessage] = deque()  # Info replies, from the query threads
-        self._routes: dict[str, tuple[str, str]] = {}
         self._stop = threading.Event()
         self._lock = threading.Lock()
         leaves = (*LEAVES, "raw") if raw else LEAVES
@@ -151,12 +157,11 @@ class Recorder:
         now = time.time_ns()
         written: list[RawMessage] | None = None if self._on_written is None else []
         for sub in self._subs:
-            if sub is self._reads:  # a read's log time is when its bridge received it
-                for key, (payloads, stamps) in sub.take_reads(self._queue_size, now).items():
-                    self._write(key, payloads, np.array(stamps, np.int64), written)
-                continue
-            for key, payloads in sub.take_by_key(self._queue_size).items():
-                self._write(key, payloads, now, written)
+            for key, samples in sub.take_by_key(self._queue_size).items():
+                payloads = [s.payload.to_bytes() for s in samples]
+                # a raw read's log time is when its bridge received it
+                received = _read_times(samples, now) if sub is self._reads else now
+                self._write(key, payloads, received, written)
         while self._answers:
             msg = self._answers.popleft()
             self._write(msg.key, [msg.payload], now, written)
@@ -179,7 +184,7 @@ class Recorder:
             if not payloads:
                 return
         self.written += len(payloads)
-        unit, leaf = self._routes.get(key) or self._route(key)
+        unit, leaf = self.writer.route(key)  # written: the key is one of ours
         status = None
         if leaf == "status":
             status = Status()
@@ -216,10 +221,6 @@ class Recorder:
                 break
             kept.append(payload)
         return kept
-
-    def _route(self, key: str) -> tuple[str, str]:
-        route = self._routes[key] = unit_of(key, self.prefix), key.rsplit("/", 1)[-1]
-        return route
 
     def snapshot(self) -> list[dict[str, Any]]:
         """One row per unit for the terminal view."""

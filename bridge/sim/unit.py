@@ -51,9 +51,10 @@ LOOKAHEAD_S = 0.1
 URGENT_S = 0.005
 # Host times are monotonic seconds since boot: after months of uptime a float64 holds
 # them to ~1 ns, and a device -> host -> device round trip is off by a few of those.
-# Comparisons allow this much, far below a cycle (1 ms) or a byte's line time (>= 10 us).
+# Comparisons allow this much, far below a cycle (1 ms) or a byte's line time (>= 10 us):
+# in seconds, or as a fraction of the step counted (a cycle, a byte, a USB frame).
 _SLACK_S = 1e-7
-_SLACK_CYCLES = 1e-6
+STEP_SLACK = 1e-6
 # The manual gives no inter-byte timeout; a partial command older than this is dropped,
 # so that bytes cut short by an unplug do not swallow the next session's first command.
 INTER_BYTE_TIMEOUT_S = 0.1
@@ -215,7 +216,7 @@ class SimUnit:
 
     def _cycle_after(self, host: float) -> int:
         """Index of the first calculation cycle ending at or after ``host``."""
-        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - _SLACK_CYCLES)
+        return math.ceil(float(self.device_time(host)) / CALCULATION_CYCLE_S - STEP_SLACK)
 
     def _cycle_at(self, host: float) -> int:
         """The calculation cycle nearest ``host`` (events happen on cycle boundaries)."""
@@ -369,7 +370,7 @@ class SimUnit:
                 self.truth.append(seg.truth)
                 self.records_sent += 1
                 seg.truth = None
-            done = min(len(seg.data), int((now - seg.start) * seg.rate + 1e-6))
+            done = min(len(seg.data), int((now - seg.start) * seg.rate + STEP_SLACK))
             if done > seg.sent:
                 chunk = seg.data[seg.sent : done]
                 if out and out[-1][0] == seg.baud:

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bridge.sim.unit import STEP_SLACK
+
 
 @dataclass(frozen=True)
 class UsbDelivery:
@@ -57,7 +59,7 @@ class UsbLink:
     def frame_at(self, t: float) -> float:
         """The first frame boundary at or after host time ``t``."""
         c = self.config
-        k = math.ceil((t - c.frame_phase_s) / c.frame_s - 1e-6)  # float slack, as in unit.py
+        k = math.ceil((t - c.frame_phase_s) / c.frame_s - STEP_SLACK)
         return c.frame_phase_s + k * c.frame_s
 
     def push(self, data: bytes, finished: float) -> None:
