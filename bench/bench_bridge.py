@@ -20,7 +20,6 @@ import argparse
 import json
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -33,6 +32,7 @@ import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 
 from bridge.bus.codec import parse
+from bridge.loopback import free_port
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -91,9 +91,7 @@ def main() -> None:
     config = UnitConfig(serial="BENCH", motion=MotionConfig(seed=1), stored=Stored(
         mode_preset=2, continuous_preset=code, baud=921_600,
         sampling=Sampling(decimation=1, flags=int(Flag.CONING_SCULLING))))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp, Simulator([config], "pty") as sim:
         cfg = Path(tmp, "bridge.json5")

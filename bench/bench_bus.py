@@ -11,7 +11,6 @@ this process per sample.
 from __future__ import annotations
 
 import argparse
-import socket
 import subprocess
 import sys
 import time
@@ -23,6 +22,7 @@ from bridge.bus.codec import encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import ImuSample
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
+from bridge.loopback import free_port
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 
@@ -82,9 +82,7 @@ def main() -> None:
                           ).SerializeToString()
         proto = per_sample_us(objects, reps, k)
 
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
         n = args.samples // k * k
         sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, endpoint, str(n)],
                                stdout=subprocess.PIPE, text=True)

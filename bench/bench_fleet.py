@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from procstat import cpu_seconds
 
+from bridge.loopback import free_port
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator, unit_configs
@@ -46,9 +46,7 @@ def main() -> None:
     base = UnitConfig(serial="FLEET", motion=MotionConfig(seed=9), stored=Stored(
         mode_preset=2, continuous_preset=code, baud=921_600,
         sampling=Sampling(decimation=decimation, flags=flags)))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp, \
             Simulator(unit_configs(args.units, base), "pty") as sim:

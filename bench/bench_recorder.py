@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -23,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 from procstat import cpu_seconds, peak_rss_mb
+
+from bridge.loopback import free_port
 
 CODE = 0xCC
 
@@ -106,9 +107,7 @@ def main() -> None:
         publish(args.config, args.publish, args.rate, args.seconds)
         return
     gx3 = str(Path(sys.executable).parent / "gx3")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp:
         rec_cfg, pub_cfg = Path(tmp, "rec.json5"), Path(tmp, "pub.json5")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -21,6 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
 
+from bridge.loopback import free_port
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
@@ -89,11 +89,6 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     faulty.notes.append("bit flips, unplug")
     return units
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def write_config(path: Path, mode: str, listen: list[str], connect: list[str]) -> Path:

@@ -14,11 +14,10 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -34,6 +33,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
+from tests.waiting import free_port, wait_for
 
 
 def _gx3() -> str:
@@ -51,11 +51,6 @@ FAST = UnitConfig(
 SLOW = replace(FAST, serial="SLOW0001",
                stored=Stored(mode_preset=2, continuous_preset=0xC8))
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def zenoh_config(path: Path, listen: list[str] | None = None,
@@ -95,12 +90,6 @@ def network(tmp_path: Path) -> tuple[Path, Path]:
     return (zenoh_config(tmp_path / "bridge.json5", listen=[endpoint]),
             zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
 
-
-def wait_for(condition: Callable[[], bool], timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.05)
 
 
 def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(

@@ -28,22 +28,11 @@ from bridge.bus.gx3_pb2 import Info
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, open_session
+from tests.waiting import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def wait_for(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)
 
 
 class Publisher:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import socket
 import subprocess
 import threading
 from pathlib import Path
@@ -14,14 +13,13 @@ import pytest
 import zenoh
 
 from bridge.bus.session import SessionError, ZenohOptions, open_session
+from tests.waiting import free_port
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
 def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 def exchange(sender: zenoh.Session, receiver: zenoh.Session) -> None:

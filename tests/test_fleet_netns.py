@@ -22,7 +22,8 @@ import pytest
 
 from bridge.sim.serve import Simulator
 from tests.test_bridge_process import GX3, zenoh_config
-from tests.test_record_live import UNITS, published, samples_in, wait_for
+from tests.test_record_live import UNITS, published, samples_in
+from tests.waiting import wait_for
 
 pytestmark = pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("ip") is None,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -26,6 +26,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored
 from bridge.sim.unit import UnitConfig
+from tests.waiting import wait_for
 
 STREAMING = Stored(mode_preset=2, continuous_preset=0xC2)
 BASE = UnitConfig(serial="PIPE0001", motion=MotionConfig(seed=5, static=True), stored=STREAMING)
@@ -80,12 +81,6 @@ def running(config: UnitConfig, link: Path | None = None,
             worker.join(timeout=30)
             assert not worker.is_alive(), "the pipeline did not stop"
 
-
-def wait_for(condition: Callable[[], bool], timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 def test_every_record_once_with_increasing_ticks() -> None:

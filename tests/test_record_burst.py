@@ -23,7 +23,7 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.live import Recorder
-from tests.test_bridge_process import free_port
+from tests.waiting import free_port
 
 CODE = 0xC2
 UNITS = 40

@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,14 +23,9 @@ from pathlib import Path
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
+from bridge.loopback import free_port
 from bridge.viz.demo import DEMO_EPOCH_NS, write_demo
 from bridge.viz.layout import TIME
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def rerun_executable() -> str:
