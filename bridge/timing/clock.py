@@ -133,6 +133,11 @@ class OnlineClock:
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._snapped = np.zeros(0, np.int64)  # the window's receive times, snapped
         self._phase: int | None = None
+        # bucket minima of the whole quarter seconds gone by, and the first bucket not
+        # yet taken: each is found once, at the first fit after it is complete
+        self._lows_x = np.zeros(0, np.int64)
+        self._lows_y = np.zeros(0, np.int64)
+        self._lows_to: int | None = None
         # receive times above the last fit, for ``state``: worked out only when asked
         self._latency: Callable[[], np.ndarray] = lambda: np.zeros(0)
 
@@ -207,7 +212,7 @@ class OnlineClock:
         y_ref = int(upper[0])
         bias = 0.0
         if self.frame_ns:
-            bx, by = bucket_minima(self._x, upper, self._rate)
+            bx, by = self._bucket_minima(upper)
             centre = self._centre(bx, by)
             if centre is not None:
                 self._rate = centre[2]
@@ -269,7 +274,8 @@ class OnlineClock:
     def _snap(self, new_y: np.ndarray, dropped: int) -> np.ndarray:
         """Receive times moved down to the USB frame that carried them. The window's
         older points keep their snapped times while the grid's phase stays put (the
-        window lost its first ``dropped`` points since the last fit)."""
+        window lost its first ``dropped`` points since the last fit); when it moves,
+        every bucket minimum is found anew."""
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
         phase = grid_phase(self._grid, self.frame_ns)
@@ -279,8 +285,27 @@ class OnlineClock:
             self._snapped = np.concatenate([self._snapped[dropped:], fresh])
         else:
             self._snapped = snap_to(self._y, phase, self.frame_ns)
+            self._lows_to = None
         self._phase = phase
         return self._snapped
+
+    def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``bucket_minima`` of the window, each bucket's found at the first fit after it
+        was complete and kept (with that fit's rate) while it stays in the window: the
+        window is minutes long, a fit adds a second."""
+        x = self._x
+        first, newest = int(x[0]) // _BUCKET_TICKS, int(x[-1]) // _BUCKET_TICKS
+        if self._lows_to is None:
+            self._lows_x, self._lows_y = bucket_minima(x, upper, self._rate)
+        else:
+            start = int(np.searchsorted(x, self._lows_to * _BUCKET_TICKS))
+            lows = bucket_lows(x[start:], upper[start:], self._rate) + start
+            lows = lows[(x[lows] // _BUCKET_TICKS > first) & (x[lows] // _BUCKET_TICKS < newest)]
+            old = int(np.searchsorted(self._lows_x, (first + 1) * _BUCKET_TICKS))
+            self._lows_x = np.concatenate([self._lows_x[old:], x[lows]])
+            self._lows_y = np.concatenate([self._lows_y[old:], upper[lows]])
+        self._lows_to = newest
+        return self._lows_x, self._lows_y
 
 
 def uncovered_half(residual: np.ndarray, frame: int) -> float:
@@ -307,11 +332,12 @@ def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
 
 
 def grid_phase(histogram: np.ndarray, frame: int) -> int:
-    """Where in the frame the boundary lies, from the receive times folded onto it."""
-    h = histogram.astype(np.float64)
-    centres = (np.arange(len(h)) + 0.5) * _GRID_BIN_NS
-    edges = np.arange(len(h)) * _GRID_BIN_NS
-    cost = (h * centres).sum() - h.sum() * edges + frame * (np.cumsum(h) - h)
+    """Where in the frame the boundary lies, from the receive times folded onto it: the
+    edge the times lie least far after. Their total distance after bin edge e is
+    sum(h c) - e sum(h) + frame (the times in bins before e); the first term is the
+    same for every edge and left out."""
+    h = np.asarray(histogram, np.float64)
+    cost = frame * (np.cumsum(h) - h) - float(h.sum()) * _GRID_BIN_NS * np.arange(len(h))
     return int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
 
 
@@ -324,17 +350,27 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray
 
     Within a quarter second the unit's phase against the frame grid barely moves,
     so the point nearest the line is one that was read in the frame that carried
-    it: a lower bound on the line as well as an upper one.
+    it: a lower bound on the line as well as an upper one. The stretches at the
+    ends of ``x`` are partial and left out.
     """
+    if not len(x):
+        return x, y
+    lows = bucket_lows(x, y, rate)
+    buckets = x[lows] // _BUCKET_TICKS
+    lows = lows[(buckets > x[0] // _BUCKET_TICKS) & (buckets < x[-1] // _BUCKET_TICKS)]
+    return x[lows], y[lows]
+
+
+def bucket_lows(x: np.ndarray, y: np.ndarray, rate: float) -> np.ndarray:
+    """Index of the point least above a line of slope ``rate`` in each quarter second of
+    ticks (the first, on a tie), for every stretch ``x`` touches, in order."""
     v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
     buckets = x // _BUCKET_TICKS
     starts = np.concatenate(([0], np.flatnonzero(buckets[1:] != buckets[:-1]) + 1))
     sizes = np.diff(np.concatenate((starts, [len(v)])))
     lowest = np.flatnonzero(v == np.repeat(np.minimum.reduceat(v, starts), sizes))
     kb = buckets[lowest]
-    keep = lowest[np.concatenate(([True], kb[1:] != kb[:-1]))]  # one a bucket: the first
-    keep = keep[1:-1]  # the buckets at the window's ends are partial
-    return x[keep], y[keep]
+    return lowest[np.concatenate(([True], kb[1:] != kb[:-1]))]
 
 
 def best_centre(x: np.ndarray, y: np.ndarray, at: int, frame: int, prior: float,
