@@ -35,6 +35,8 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--usb", action="store_true",
                         help="the bridge's metadata: unit named, USB link timing")
+    parser.add_argument("--jobs", type=int, default=0,
+                        help="capture files replayed at once, as gx3 replay -j (0: a core each)")
     args = parser.parse_args()
     decimation = round(1000 / args.rate)
     with tempfile.TemporaryDirectory() as tmp:
@@ -53,12 +55,13 @@ def main() -> None:
             writer.close()
             paths.append(path)
         started = time.perf_counter()
-        results = replay(paths, Path(tmp, "out.mcap"))
+        results = replay(paths, Path(tmp, "out.mcap"), jobs=args.jobs or None)
         took = time.perf_counter() - started
         load = os.getloadavg()[0]
     samples = sum(r.samples for r in results)
     print(f"{args.units} units x {args.rate:g} Hz x {args.minutes:g} min"
-          f"{' (USB timing)' if args.usb else ''}: {samples:,} samples replayed in "
+          f"{' (USB timing)' if args.usb else ''}, {args.jobs or os.cpu_count()} job(s): "
+          f"{samples:,} samples replayed in "
           f"{took:.2f} s, {samples / took:,.0f} samples/s (load average {load:.2f})")
 
 

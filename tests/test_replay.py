@@ -130,3 +130,57 @@ def test_export_times_on_a_usb_unit_meet_the_targets(tmp_path: Path) -> None:
     assert np.percentile(best, 99) < 250_000, np.percentile(best, 99)
     assert np.percentile(live, 99) < 500_000, np.percentile(live, 99)
     assert np.percentile(naive, 99) > 5_000_000, "the filter delay alone is 7 ms"
+
+
+def usb_captures(tmp_path: Path, units: int) -> list[Path]:
+    """One 20-second USB capture file per unit, each with its bridge's metadata."""
+    paths = []
+    for i in range(units):
+        config = streaming_config(UnitConfig(motion=MotionConfig(seed=i), clock_ppm=30.0 * i),
+                                  code=0xCC, decimation=5)
+        cap = synthesize(config, UsbDelivery(seed=i), seconds=20.0)
+        meta = {"unit": f"u{i}", "record": "0xCC", "decimation": "5", "filter_width": "15",
+                "baud": "115200", "transport": "usb"}
+        writer = RawCaptureWriter(tmp_path / f"u{i}.mcap", "gx3", f"u{i}", meta)
+        for rx, data in zip(cap.rx_ns.tolist(), cap.data, strict=True):
+            writer.write(data, rx)
+        writer.close()
+        paths.append(tmp_path / f"u{i}.mcap")
+    return paths
+
+
+def test_capture_files_replayed_side_by_side_give_each_unit_the_same_samples(
+        tmp_path: Path) -> None:
+    paths = usb_captures(tmp_path, 3)
+    alone = replay(paths, tmp_path / "alone.mcap", jobs=1)
+    heard: list[str] = []
+    together = replay(paths, tmp_path / "together.mcap", jobs=2,
+                      on_unit=lambda r: heard.append(r.unit))
+    assert [r.unit for r in together] == [r.unit for r in alone] == ["u0", "u1", "u2"]
+    assert sorted(heard) == ["u0", "u1", "u2"]
+    assert [(r.samples, r.events, r.settings) for r in together] == \
+        [(r.samples, r.events, r.settings) for r in alone]
+    a, b = read_archive(tmp_path / "alone.mcap"), read_archive(tmp_path / "together.mcap")
+    assert a.complete and b.complete and b.units() == a.units()
+    for unit in a.units():
+        cols_a = {k: np.concatenate([blk.columns[k] for blk in a.samples([unit])])
+                  for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
+        cols_b = {k: np.concatenate([blk.columns[k] for blk in b.samples([unit])])
+                  for k in cols_a}
+        assert len(cols_a["ticks"]) == next(r.samples for r in alone if r.unit == unit)
+        for k in cols_a:
+            assert np.array_equal(cols_a[k], cols_b[k]), (unit, k)
+        assert [e.kind for u, e in a.events() if u == unit] == \
+            [e.kind for u, e in b.events() if u == unit]
+
+
+def test_a_bad_capture_among_several_is_a_clear_error(tmp_path: Path) -> None:
+    paths = usb_captures(tmp_path, 2)
+    rng = np.random.default_rng(1)
+    garbage = write_capture(tmp_path / "garbage.mcap", [(i, rng.bytes(64)) for i in range(500)])
+    done = subprocess.run([GX3, "replay", *map(str, [paths[0], garbage, paths[1]]), "-j", "2",
+                           "-o", str(tmp_path / "o.mcap")],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 1, done.stderr
+    assert "no record found" in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert read_archive(tmp_path / "o.mcap").complete, "what was replayed stays readable"

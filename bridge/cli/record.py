@@ -166,12 +166,16 @@ def replay_command(
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="ARCHIVE.mcap", help="Archive to write.")],
     prefix: PrefixOpt = "gx3",
+    jobs: Annotated[int, typer.Option(
+        "--jobs", "-j", min=0, help="Capture files replayed at once, each in a process of "
+                                    "its own (0: one per core).")] = 0,
 ) -> None:
     """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
 
     Gives the samples and live time_ns the bridge published when the capture was
     made. A capture from another program is understood from its bytes: record type,
-    rate and float byte order.
+    rate and float byte order. Several capture files are replayed side by side on
+    the machine's cores; each unit's samples are the same either way.
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
@@ -188,7 +192,7 @@ def replay_command(
                   + (f", {events}" if events else "") + guessed)
 
     try:
-        results = replay(captures, output, prefix, on_unit=report)
+        results = replay(captures, output, prefix, on_unit=report, jobs=jobs or None)
     except (ReplayError, ArchiveReadError, ArchiveError) as exc:
         raise fail(str(exc), 1) from None
     err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "

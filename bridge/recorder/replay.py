@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import multiprocessing
+import os
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from queue import Empty
+from typing import Any
 
 import numpy as np
 from google.protobuf.message import DecodeError
@@ -43,6 +47,7 @@ FACTORY_FILTER_WIDTH = 15
 _SNIFF_READS = 400
 _GROUP = 4096  # records timed and encoded together
 _FEED_BYTES = 1 << 20  # reads framed together
+_QUEUED = 64  # message groups a worker may have waiting for the writer
 
 #: Where replayed messages go: key, payloads, receive time (one, or one per payload).
 Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
@@ -238,14 +243,91 @@ def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterat
 
 
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
-           on_unit: Callable[[Replayed], None] | None = None) -> list[Replayed]:
-    """Replay every unit of every capture in ``paths`` into one archive at ``out``."""
-    results = []
-    with ArchiveWriter(out, prefix=prefix) as writer:
-        for path in paths:
-            for capture in captures(path, prefix):
-                result = UnitReplay(capture).run(writer.write_many, prefix)
-                results.append(result)
-                if on_unit is not None:
-                    on_unit(result)
-    return results
+           on_unit: Callable[[Replayed], None] | None = None,
+           jobs: int | None = 1) -> list[Replayed]:
+    """Replay every unit of every capture in ``paths`` into one archive at ``out``.
+
+    ``jobs`` > 1 (None: one per core) replays capture files in that many worker
+    processes at once, the archive written here: units are independent, so each gets
+    the same samples, only their messages interleave in the file differently. Results
+    come back in the order of ``paths``; ``on_unit`` hears each unit as it finishes.
+    """
+    paths = list(paths)
+    jobs = min(len(paths), (os.cpu_count() or 1) if jobs is None else jobs)
+    if jobs <= 1:
+        results = []
+        with ArchiveWriter(out, prefix=prefix) as writer:
+            for path in paths:
+                for capture in captures(path, prefix):
+                    results.append(UnitReplay(capture).run(writer.write_many, prefix))
+                    if on_unit is not None:
+                        on_unit(results[-1])
+        return results
+    return _replay_in_workers(paths, out, prefix, on_unit, jobs)
+
+
+def _replay_in_workers(paths: list[Path], out: Path, prefix: str,
+                       on_unit: Callable[[Replayed], None] | None,
+                       jobs: int) -> list[Replayed]:
+    """``replay`` with the capture files shared out by size among ``jobs`` processes,
+    started before the archive writer's thread is (a process with threads forks
+    badly). A bounded queue brings their messages here, so memory stays flat."""
+    shares: list[list[int]] = [[] for _ in range(jobs)]
+    loads = [0] * jobs
+    for i in sorted(range(len(paths)), key=lambda i: -paths[i].stat().st_size):
+        least = loads.index(min(loads))
+        shares[least].append(i)
+        loads[least] += paths[i].stat().st_size
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("fork" if "fork" in methods else None)
+    queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
+    workers = [context.Process(target=_worker, args=([(i, paths[i]) for i in share], prefix,
+                                                     queue), daemon=True)
+               for share in shares]
+    for w in workers:
+        w.start()
+    done: list[tuple[int, int, Replayed]] = []
+    try:
+        with ArchiveWriter(out, prefix=prefix) as writer:
+            running = len(workers)
+            while running:
+                try:
+                    kind, item = queue.get(timeout=1.0)
+                except Empty:
+                    dead = [w.exitcode for w in workers if w.exitcode not in (None, 0)]
+                    if dead:
+                        raise ReplayError(f"a replay worker stopped (exit code {dead[0]}); "
+                                          "try again with --jobs 1") from None
+                    continue
+                if kind == "emit":
+                    writer.write_many(*item)
+                elif kind == "unit":
+                    done.append(item)
+                    if on_unit is not None:
+                        on_unit(item[2])
+                elif kind == "error":
+                    raise item
+                else:
+                    running -= 1
+    finally:
+        for w in workers:
+            if w.is_alive():
+                w.terminate()
+            w.join()
+        queue.close()
+    return [result for _, _, result in sorted(done, key=lambda d: (d[0], d[1]))]
+
+
+def _worker(paths: list[tuple[int, Path]], prefix: str,
+            queue: multiprocessing.Queue[tuple[str, Any]]) -> None:
+    """Replay ``paths`` (with their places in the caller's list) into ``queue``."""
+    def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
+        queue.put(("emit", (key, list(payloads), receive_ns)))
+
+    try:
+        for i, path in paths:
+            for n, capture in enumerate(captures(path, prefix)):
+                queue.put(("unit", (i, n, UnitReplay(capture).run(emit, prefix))))
+    except Exception as exc:  # every error reaches the caller, to say as it would alone
+        queue.put(("error", exc))
+    queue.put(("end", None))
