@@ -23,7 +23,7 @@ from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m, euler_to_quaternion
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveError, ArchiveWriter, numbered
+from bridge.recorder.archive import ArchiveError, ArchiveWriter, frame_picks, numbered
 from bridge.recorder.read import read_archive
 from bridge.recorder.repair import repair
 
@@ -575,3 +575,31 @@ def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
             for t, (x, y, z, w) in zip(times.tolist(), xyzw.tolist(), strict=True)]
         assert frame_messages(unit, slot, times, xyzw, 0.5) == expected
     assert frame_messages("u1", 0, np.zeros(0, np.int64), np.zeros((0, 4)), 0.5) == []
+
+
+def test_frames_are_one_a_period_from_the_first_sample_due_and_start_again_on_a_reset() -> None:
+    """The jump from frame to frame (times in order) picks what looking at every sample
+    picks: the first sample at or after the due time, then the first a period after
+    each pick; a sample more than two periods before the due time starts again."""
+
+    def every_sample(times: list[int], due: int | None, period: int) -> list[int]:
+        picks = []
+        for i, t in enumerate(times):
+            if due is None or t >= due or t < due - 2 * period:
+                picks.append(i)
+                due = t + period
+        return picks
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        n, period = int(rng.integers(0, 60)), int(rng.choice([0, 7, 40, 100]))
+        times = np.cumsum(rng.integers(0, 30, n)) + 1_000
+        if rng.random() < 0.3 and n > 2:  # a reset: time goes back
+            times[n // 2 :] -= int(rng.integers(0, 2_000))
+        due = None if rng.random() < 0.2 else int(rng.integers(0, 2_500))
+        picks, next_due = frame_picks(times, due, period)
+        assert picks == every_sample(times.tolist(), due, period)
+        if picks:
+            assert next_due == int(times[picks[-1]]) + period
+        else:
+            assert next_due == due

@@ -25,7 +25,6 @@ Layout (DESIGN.md, "Archives"):
 
 from __future__ import annotations
 
-import bisect
 import functools
 import struct
 import time
@@ -136,22 +135,27 @@ def _framed(code: int) -> bool:
     return code in DATA_CODES and has_attitude(record_quantities(code))
 
 
-def frame_picks(times: list[int], ordered: bool, due: int | None,
+def frame_picks(times: np.ndarray, due: int | None,
                 period: int) -> tuple[list[int], int | None]:
-    """Which of a unit's attitude samples become frames, and when the next is due: the
-    first at or after ``due``, then one a period; time going back more than two periods
-    (a reset) starts again. ``ordered`` (times never go back) lets it jump from frame
-    to frame instead of looking at every sample."""
-    picks: list[int] = []
-    i = 0
-    while i < len(times):
-        t = times[i]
+    """Which of a unit's attitude samples (at ``times``) become frames, and when the next
+    is due: the first at or after ``due``, then one a period; time going back more than
+    two periods (a reset) starts again. Times that never go back (the usual case) let it
+    jump from frame to frame, each sample's successor found for all at once."""
+    if len(times) and (len(times) < 2 or bool((np.diff(times) >= 0).all())):
+        first = int(times[0])
+        i = 0 if due is None or first < due - 2 * period else int(np.searchsorted(times, due))
+        after = np.maximum(np.searchsorted(times, times + period),
+                           np.arange(1, len(times) + 1)).tolist()
+        picks: list[int] = []
+        while i < len(times):
+            picks.append(i)
+            i = after[i]
+        return picks, (int(times[picks[-1]]) + period if picks else due)
+    picks = []
+    for i, t in enumerate(times.tolist()):
         if due is None or t >= due or t < due - 2 * period:
             picks.append(i)
             due = t + period
-            i += 1
-        else:
-            i = bisect.bisect_left(times, due, i + 1) if ordered else i + 1
     return picks, due
 
 
@@ -412,24 +416,29 @@ class ArchiveWriter:
         kinds = set(code_list)
         if not any(map(_framed, kinds)):
             return
-        eligible = (list(range(len(code_list))) if all(map(_framed, kinds))
+        eligible = (None if all(map(_framed, kinds))
                     else [i for i, c in enumerate(code_list) if _framed(c)])
-        times = log_ns[eligible]
-        ordered = len(times) < 2 or bool((np.diff(times) >= 0).all())
-        picks, due = frame_picks(times.tolist(), ordered, self._frame_due.get(unit),
-                                 self.frame_period_ns)
+        times = log_ns if eligible is None else log_ns[eligible]
+        picks, due = frame_picks(times, self._frame_due.get(unit), self.frame_period_ns)
         if due is not None:
             self._frame_due[unit] = due
-        chosen = [eligible[k] for k in picks]
+        chosen = picks if eligible is None else [eligible[k] for k in picks]
+        if len(kinds) == 1 and units.count(units[0]) == len(units):  # a unit's own samples
+            self._frames_of(unit, units[0], code_list[0], chosen, payloads, rx)
+            return
         keys = [(units[i], code_list[i]) for i in chosen]
         for sample_unit, code in dict.fromkeys(keys):
-            group = self._pending.get((unit, sample_unit, code))
-            if group is None:
-                group = self._pending[(unit, sample_unit, code)] = _Frames(unit, sample_unit,
-                                                                           code)
             mine = [i for i, k in zip(chosen, keys, strict=True) if k == (sample_unit, code)]
-            group.payloads += [payloads[i] for i in mine]
-            group.receive_ns += [int(rx[i]) for i in mine]
+            self._frames_of(unit, sample_unit, code, mine, payloads, rx)
+
+    def _frames_of(self, unit: str, sample_unit: str, code: int, chosen: list[int],
+                   payloads: Sequence[bytes], rx: np.ndarray) -> None:
+        """Queue the ``chosen`` samples, all of ``sample_unit`` and record type ``code``."""
+        group = self._pending.get((unit, sample_unit, code))
+        if group is None:
+            group = self._pending[(unit, sample_unit, code)] = _Frames(unit, sample_unit, code)
+        group.payloads += [payloads[i] for i in chosen]
+        group.receive_ns += rx[chosen].tolist()
 
     def _write_frames(self) -> None:
         """Turn queued attitude samples into FrameTransforms, in bulk."""
