@@ -90,7 +90,6 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     return units
 
 
-
 def write_config(path: Path, mode: str, listen: list[str], connect: list[str]) -> Path:
     """A Zenoh session on loopback only, multicast scouting off."""
     path.write_text(json.dumps({

@@ -52,7 +52,6 @@ SLOW = replace(FAST, serial="SLOW0001",
                stored=Stored(mode_preset=2, continuous_preset=0xC8))
 
 
-
 def zenoh_config(path: Path, listen: list[str] | None = None,
                  connect: list[str] | None = None) -> Path:
     """A peer on loopback with multicast scouting off, as every test session is."""
@@ -89,7 +88,6 @@ def network(tmp_path: Path) -> tuple[Path, Path]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     return (zenoh_config(tmp_path / "bridge.json5", listen=[endpoint]),
             zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
-
 
 
 def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(

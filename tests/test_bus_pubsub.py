@@ -33,8 +33,6 @@ from tests.waiting import free_port, wait_for
 ROOT = Path(__file__).resolve().parent.parent
 
 
-
-
 class Publisher:
     """examples/publisher.py in its own process."""
 

@@ -82,7 +82,6 @@ def running(config: UnitConfig, link: Path | None = None,
             assert not worker.is_alive(), "the pipeline did not stop"
 
 
-
 def test_every_record_once_with_increasing_ticks() -> None:
     with running(BASE) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 150)

@@ -82,7 +82,6 @@ def samples_in(path: Path, unit: str) -> int:
     return sum(len(b) for b in read_archive(path).samples([unit]))
 
 
-
 def test_every_published_sample_is_archived(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])

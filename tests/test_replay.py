@@ -6,11 +6,15 @@ Captures come from the emulator in virtual time through the USB delivery model
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 from bridge.bus.gx3_pb2 import Event
@@ -184,3 +188,34 @@ def test_a_bad_capture_among_several_is_a_clear_error(tmp_path: Path) -> None:
     assert done.returncode == 1, done.stderr
     assert "no record found" in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert read_archive(tmp_path / "o.mcap").complete, "what was replayed stays readable"
+
+
+def test_workers_end_when_the_replay_is_killed(tmp_path: Path) -> None:
+    """kill -9 of `gx3 replay -j 2` leaves no worker behind. The archive is a FIFO nobody
+    reads, so the replay waits in opening it with its workers started."""
+    paths = usb_captures(tmp_path, 2)
+    fifo = tmp_path / "out.mcap"
+    os.mkfifo(fifo)
+    proc = subprocess.Popen([GX3, "replay", *map(str, paths), "-j", "2", "-o", str(fifo)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        parent = psutil.Process(proc.pid)
+        deadline = time.monotonic() + 60
+        while len(workers := parent.children()) < 2:
+            assert time.monotonic() < deadline and proc.poll() is None, "no workers started"
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    deadline = time.monotonic() + 30
+    while running := [p.pid for p in workers if running_process(p)]:
+        assert time.monotonic() < deadline, f"workers left running: {running}"
+        time.sleep(0.1)
+
+
+def running_process(process: psutil.Process) -> bool:
+    """Still running: not ended, and not a zombie waiting for its new parent to reap it."""
+    try:
+        return process.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False

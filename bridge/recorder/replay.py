@@ -19,6 +19,8 @@ import contextlib
 import itertools
 import multiprocessing
 import os
+import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -282,7 +284,7 @@ def _replay_in_workers(paths: list[Path], out: Path, prefix: str,
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
     workers = [context.Process(target=_worker, args=([(i, paths[i]) for i in share], prefix,
-                                                     queue), daemon=True)
+                                                     queue, os.getpid()), daemon=True)
                for share in shares]
     for w in workers:
         w.start()
@@ -319,8 +321,10 @@ def _replay_in_workers(paths: list[Path], out: Path, prefix: str,
 
 
 def _worker(paths: list[tuple[int, Path]], prefix: str,
-            queue: multiprocessing.Queue[tuple[str, Any]]) -> None:
+            queue: multiprocessing.Queue[tuple[str, Any]], parent: int) -> None:
     """Replay ``paths`` (with their places in the caller's list) into ``queue``."""
+    threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
+
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
         queue.put(("emit", (key, list(payloads), receive_ns)))
 
@@ -331,3 +335,11 @@ def _worker(paths: list[tuple[int, Path]], prefix: str,
     except Exception as exc:  # every error reaches the caller, to say as it would alone
         queue.put(("error", exc))
     queue.put(("end", None))
+
+
+def _end_when_orphaned(parent: int) -> None:
+    """A worker whose caller is gone (killed) ends: nobody will read what it sends, and
+    it would wait on the full queue for ever."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(1)
