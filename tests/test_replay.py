@@ -219,3 +219,18 @@ def running_process(process: psutil.Process) -> bool:
         return process.status() != psutil.STATUS_ZOMBIE
     except psutil.NoSuchProcess:
         return False
+
+
+def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None:
+    """What a worker sends goes through pickle; an error that does not pickle is sent as
+    its words (the queue would drop it, and the replay would end short, saying nothing)."""
+    from bridge.recorder.replay import ReplayError, _sendable
+
+    class Unsendable(Exception):
+        def __init__(self, what: str, where: int) -> None:
+            super().__init__(f"{what} at {where}")
+
+    said = _sendable(Unsendable("odd bytes", 12))
+    assert isinstance(said, RuntimeError) and str(said) == "Unsendable: odd bytes at 12"
+    plain = ReplayError("u1: no record found")
+    assert _sendable(plain) is plain

@@ -152,6 +152,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     Records that came off the wire are moved byte by byte from their wire bytes, with
     no decoding: a live bridge encodes a record or two per read.
     """
+    if not len(batch):
+        return []
     lay = layout(batch.code, unit)
     recs = np.frombuffer(bytearray(lay.template.tobytes() * len(batch)), lay.dtype)
     if batch.block is not None:

@@ -19,6 +19,7 @@ import contextlib
 import itertools
 import multiprocessing
 import os
+import pickle
 import threading
 import time
 from collections import Counter
@@ -333,8 +334,17 @@ def _worker(paths: list[tuple[int, Path]], prefix: str,
             for n, capture in enumerate(captures(path, prefix)):
                 queue.put(("unit", (i, n, UnitReplay(capture).run(emit, prefix))))
     except Exception as exc:  # every error reaches the caller, to say as it would alone
-        queue.put(("error", exc))
+        queue.put(("error", _sendable(exc)))
     queue.put(("end", None))
+
+
+def _sendable(exc: Exception) -> Exception:
+    """``exc``, or its words in one that pickles: the queue would drop it otherwise."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc
 
 
 def _end_when_orphaned(parent: int) -> None:
