@@ -48,14 +48,11 @@ def rerun_rows(path: Path, entity: str) -> int:
 
 
 def rerun_rows_so_far(path: Path, entity: str) -> int:
-    """``rerun_rows`` of a file another process is writing: a frame cut at the end is not yet."""
-    if not path.exists():
-        return 0
+    """``rerun_rows`` of a file another process is writing, 0 while Rerun's reader cannot
+    read it yet (a frame cut at the end); the finished file is checked in full."""
     try:
-        return rerun_rows(path, entity)
-    except RuntimeError as error:
-        if "exceeds file size" not in str(error):
-            raise
+        return rerun_rows(path, entity) if path.exists() else 0
+    except RuntimeError:
         return 0
 
 

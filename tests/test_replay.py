@@ -28,6 +28,7 @@ from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from tests.test_bridge_process import GX3
+from tests.test_record_live import sample_columns
 
 
 def write_capture(path: Path, reads: list[tuple[int, bytes]],
@@ -167,10 +168,8 @@ def test_capture_files_replayed_side_by_side_give_each_unit_the_same_samples(
     a, b = read_archive(tmp_path / "alone.mcap"), read_archive(tmp_path / "together.mcap")
     assert a.complete and b.complete and b.units() == a.units()
     for unit in a.units():
-        cols_a = {k: np.concatenate([blk.columns[k] for blk in a.samples([unit])])
-                  for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
-        cols_b = {k: np.concatenate([blk.columns[k] for blk in b.samples([unit])])
-                  for k in cols_a}
+        cols_a = sample_columns(tmp_path / "alone.mcap", unit)
+        cols_b = sample_columns(tmp_path / "together.mcap", unit)
         assert len(cols_a["ticks"]) == next(r.samples for r in alone if r.unit == unit)
         for k in cols_a:
             assert np.array_equal(cols_a[k], cols_b[k]), (unit, k)
