@@ -83,6 +83,11 @@ def test_records_off_the_wire_encode_from_their_bytes_as_from_their_columns(
     from_bytes = encode_batch("u-9", framed, ticks, time_ns, rx_ns)
     assert from_bytes == encode_batch("u-9", decoded, ticks, time_ns, rx_ns)
     assert from_bytes[3] == reference("u-9", decoded, 3, ticks, time_ns, rx_ns).SerializeToString()
+    for i in range(7):  # a live read mostly holds one record: the same message alone
+        one = framed.select(np.arange(7) == i)
+        assert one.block is not None
+        assert encode_batch("u-9", one, ticks[i : i + 1], time_ns[i : i + 1],
+                            rx_ns[i : i + 1]) == [from_bytes[i]]
 
 
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
