@@ -266,6 +266,25 @@ def test_help_names_only_commands_that_exist() -> None:
         assert set(re.findall(r"gx3 ([\w-]+)", done.output)) <= existing, name
 
 
+def test_help_paragraphs_fill_an_80_column_terminal() -> None:
+    """A command's description wraps at the terminal's width, not at its source's line
+    breaks as well (which left lines of a word or two on 80 columns)."""
+    from typer.testing import CliRunner
+
+    from bridge.cli import app
+
+    runner = CliRunner()
+    top = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
+    for name in set(re.findall(r"│ ([a-z][\w-]*)\s{2,}", top.output)):
+        text = runner.invoke(app, [name, "--help"], env={"COLUMNS": "80"}).output
+        lines = [line.rstrip() for line in text.split("╭")[0].splitlines()]
+        for paragraph in "\n".join(lines).split("\n\n"):
+            lines = paragraph.strip("\n").splitlines()
+            if lines and not lines[0].lstrip().startswith("Usage:"):
+                short = [line for line in lines[:-1] if len(line) < 50]
+                assert not short, (name, short)
+
+
 @pytest.mark.parametrize(("value", "message"), [
     ("zz", "'zz' is not a number such as 0xC8"),
     ("0x99", "no reply starts with 0x99; replies start with 0x21 0xC1"),

@@ -19,6 +19,7 @@ import pytest
 
 from bridge.bus.gx3_pb2 import Event
 from bridge.protocol.codec import encode_reply
+from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.read import read_archive
 from bridge.recorder.replay import captures, replay
@@ -154,9 +155,20 @@ def usb_captures(tmp_path: Path, units: int) -> list[Path]:
     return paths
 
 
-def test_capture_files_replayed_side_by_side_give_each_unit_the_same_samples(
-        tmp_path: Path) -> None:
+def fleet_archive(path: Path, files: list[Path]) -> Path:
+    """The reads of every unit in ``files`` in one archive, as `gx3 record --raw` keeps
+    them (no capture metadata: replay finds the settings from the bytes)."""
+    with ArchiveWriter(path) as writer:
+        for cap in (c for f in files for c in captures(f)):
+            writer.write_many(f"gx3/{cap.unit}/raw", cap.data, cap.rx_ns)
+    return path
+
+
+@pytest.mark.parametrize("layout", ["a file per unit", "one archive"])
+def test_units_replayed_side_by_side_get_the_same_samples(tmp_path: Path, layout: str) -> None:
     paths = usb_captures(tmp_path, 3)
+    if layout == "one archive":
+        paths = [fleet_archive(tmp_path / "fleet.mcap", paths)]
     alone = replay(paths, tmp_path / "alone.mcap", jobs=1)
     heard: list[str] = []
     together = replay(paths, tmp_path / "together.mcap", jobs=2,

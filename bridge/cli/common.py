@@ -6,6 +6,7 @@ from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
 
 import typer
+import typer.rich_utils
 from rich.console import Console
 from rich.markup import escape
 from typer.core import TyperOption
@@ -21,6 +22,15 @@ def _flag_shows_no_type(self: TyperOption, ctx: Any) -> str | None:
 
 
 TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[method-assign]
+
+
+def _wrapped_paragraphs(paragraphs: list[str], markup_mode: Any) -> str:
+    """Typer keeps a docstring's line breaks after its first paragraph, so on an
+    80-column terminal each source line wraps again half-way: let the terminal wrap."""
+    return "\n\n".join(p.replace("\n", " ") for p in paragraphs)
+
+
+typer.rich_utils._fix_linebreaks = _wrapped_paragraphs
 
 app = typer.Typer(
     name="gx3",

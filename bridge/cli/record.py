@@ -167,15 +167,15 @@ def replay_command(
         "--output", "-o", metavar="ARCHIVE.mcap", help="Archive to write.")],
     prefix: PrefixOpt = "gx3",
     jobs: Annotated[int, typer.Option(
-        "--jobs", "-j", min=0, help="Capture files replayed at once, each in a process of "
-                                    "its own (0: one per core).")] = 0,
+        "--jobs", "-j", min=0, help="Processes replaying at once, a capture file each (a unit "
+                                    "each when there are fewer files); 0: one per core.")] = 0,
 ) -> None:
     """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
 
     Gives the samples and live time_ns the bridge published when the capture was
     made. A capture from another program is understood from its bytes: record type,
-    rate and float byte order. Several capture files are replayed side by side on
-    the machine's cores; each unit's samples are the same either way.
+    rate and float byte order. Units are replayed side by side on the machine's
+    cores; each unit's samples are the same as replayed alone.
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError

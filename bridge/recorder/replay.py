@@ -23,7 +23,7 @@ import pickle
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from queue import Empty
@@ -68,10 +68,13 @@ class Capture:
     rx_ns: np.ndarray
     data: list[bytes]
     metadata: dict[str, str] = field(default_factory=dict)
+    topic: str = ""
 
 
-def captures(path: Path, prefix: str = "gx3") -> list[Capture]:
-    """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive)."""
+def captures(path: Path, prefix: str = "gx3",
+             topics: Collection[str] | None = None) -> list[Capture]:
+    """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive), or
+    those of the raw ``topics`` named."""
     archive: Archive = read_archive(path)
     meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
             if m.name == "gx3.capture"}
@@ -82,10 +85,12 @@ def captures(path: Path, prefix: str = "gx3") -> list[Capture]:
                 meta.setdefault(info.unit, capture_metadata(info))
     out = []
     for topic in archive.topics("raw"):
+        if topics is not None and topic not in topics:
+            continue
         messages = archive.messages(topic)
         unit = messages.unit
         out.append(Capture(unit, messages.log_time.astype(np.int64), messages.payloads,
-                           meta.get(unit, {})))
+                           meta.get(unit, {}), topic))
     if not out:
         raise ReplayError(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
                           "one with gx3 bridge --capture FILE.mcap")
@@ -250,14 +255,15 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
            jobs: int | None = 1) -> list[Replayed]:
     """Replay every unit of every capture in ``paths`` into one archive at ``out``.
 
-    ``jobs`` > 1 (None: one per core) replays capture files in that many worker
-    processes at once, the archive written here: units are independent, so each gets
-    the same samples, only their messages interleave in the file differently. Results
-    come back in the order of ``paths``; ``on_unit`` hears each unit as it finishes.
+    ``jobs`` > 1 (None: one per core) replays in that many worker processes at once,
+    the archive written here: a capture file each, or a unit each when there are fewer
+    files than jobs (a fleet's archive recorded with --raw). Units are independent, so
+    each gets the same samples; only their messages interleave in the file differently.
+    Results come in the order of ``paths``; ``on_unit`` hears each unit as it finishes.
     """
     paths = list(paths)
-    jobs = min(len(paths), (os.cpu_count() or 1) if jobs is None else jobs)
-    if jobs <= 1:
+    jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
+    if jobs == 1 or not paths:
         results = []
         with ArchiveWriter(out, prefix=prefix) as writer:
             for path in paths:
@@ -266,30 +272,54 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
                     if on_unit is not None:
                         on_unit(results[-1])
         return results
-    return _replay_in_workers(paths, out, prefix, on_unit, jobs)
+    tasks = _unit_tasks(paths) if len(paths) < jobs else \
+        [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
+    return _replay_in_workers(tasks, out, prefix, on_unit, min(jobs, len(tasks)))
 
 
-def _replay_in_workers(paths: list[Path], out: Path, prefix: str,
+@dataclass(frozen=True)
+class _Task:
+    """What one worker replays: a whole capture file, or one unit's raw topic in it."""
+
+    index: int  # the file's place in the caller's list
+    path: Path
+    topic: str | None
+    weight: int  # to share the work out: bytes of a file, reads of a topic
+
+
+def _unit_tasks(paths: list[Path]) -> list[_Task]:
+    """A task per unit (raw topic) of each file, a file with none a task of its own (its
+    worker says what is wrong with it)."""
+    tasks = []
+    for i, path in enumerate(paths):
+        archive = read_archive(path)
+        topics = archive.topics("raw")
+        tasks += [_Task(i, path, t, len(archive.messages(t))) for t in topics] or \
+            [_Task(i, path, None, 0)]
+    return tasks
+
+
+def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
                        jobs: int) -> list[Replayed]:
-    """``replay`` with the capture files shared out by size among ``jobs`` processes,
-    started before the archive writer's thread is (a process with threads forks
-    badly). A bounded queue brings their messages here, so memory stays flat."""
-    shares: list[list[int]] = [[] for _ in range(jobs)]
+    """``replay`` with the tasks shared out by weight among ``jobs`` processes, started
+    before the archive writer's thread is (a process with threads forks badly). A
+    bounded queue brings their messages here, so memory stays flat."""
+    shares: list[list[_Task]] = [[] for _ in range(jobs)]
     loads = [0] * jobs
-    for i in sorted(range(len(paths)), key=lambda i: -paths[i].stat().st_size):
+    for task in sorted(tasks, key=lambda t: -t.weight):
         least = loads.index(min(loads))
-        shares[least].append(i)
-        loads[least] += paths[i].stat().st_size
+        shares[least].append(task)
+        loads[least] += task.weight
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
-    workers = [context.Process(target=_worker, args=([(i, paths[i]) for i in share], prefix,
-                                                     queue, os.getpid()), daemon=True)
+    workers = [context.Process(target=_worker, args=(share, prefix, queue, os.getpid()),
+                               daemon=True)
                for share in shares]
     for w in workers:
         w.start()
-    done: list[tuple[int, int, Replayed]] = []
+    done: list[tuple[int, str, Replayed]] = []
     try:
         with ArchiveWriter(out, prefix=prefix) as writer:
             running = len(workers)
@@ -321,18 +351,21 @@ def _replay_in_workers(paths: list[Path], out: Path, prefix: str,
     return [result for _, _, result in sorted(done, key=lambda d: (d[0], d[1]))]
 
 
-def _worker(paths: list[tuple[int, Path]], prefix: str,
+def _worker(tasks: list[_Task], prefix: str,
             queue: multiprocessing.Queue[tuple[str, Any]], parent: int) -> None:
-    """Replay ``paths`` (with their places in the caller's list) into ``queue``."""
+    """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
+    its raw topic, the order it has replayed alone."""
     threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
 
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
         queue.put(("emit", (key, list(payloads), receive_ns)))
 
     try:
-        for i, path in paths:
-            for n, capture in enumerate(captures(path, prefix)):
-                queue.put(("unit", (i, n, UnitReplay(capture).run(emit, prefix))))
+        for task in tasks:
+            wanted = None if task.topic is None else [task.topic]
+            for capture in captures(task.path, prefix, wanted):
+                result = UnitReplay(capture).run(emit, prefix)
+                queue.put(("unit", (task.index, capture.topic, result)))
     except Exception as exc:  # every error reaches the caller, to say as it would alone
         queue.put(("error", _sendable(exc)))
     queue.put(("end", None))
