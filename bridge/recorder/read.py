@@ -22,6 +22,7 @@ from typing import IO, NamedTuple
 import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, Header, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
 
@@ -318,6 +319,22 @@ class Archive:
 
 def _read_stream(body: bytes) -> ReadDataStream:
     return ReadDataStream(io.BytesIO(body))
+
+
+def summary_counts(path: Path, kind: str) -> dict[str, int] | None:
+    """Messages per topic of one kind (the topic's last chunk), from the summary at the
+    end of a finished file: no chunk is read. None when the file has no usable summary
+    (cut short, or not MCAP: ``read_archive`` says which)."""
+    try:
+        with path.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+    except Exception:  # whatever the file holds: read_archive will tell
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    counts = summary.statistics.channel_message_counts
+    return {ch.topic: counts.get(cid, 0) for cid, ch in summary.channels.items()
+            if ch.topic.split("/")[-1] == kind}
 
 
 def _channel_info(ch: Channel, schemas: dict[int, Schema]) -> ChannelInfo:

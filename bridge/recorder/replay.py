@@ -39,7 +39,7 @@ from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
 from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import capture_metadata
-from bridge.recorder.read import Archive, read_archive
+from bridge.recorder.read import Archive, ArchiveReadError, read_archive, summary_counts
 from bridge.timing.stream import Settings, StreamTiming
 
 SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
@@ -263,7 +263,9 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
     """
     paths = list(paths)
     jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
-    if jobs == 1 or not paths:
+    tasks = [] if jobs == 1 else _unit_tasks(paths) if len(paths) < jobs else \
+        [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
+    if len(tasks) <= 1:
         results = []
         with ArchiveWriter(out, prefix=prefix) as writer:
             for path in paths:
@@ -272,8 +274,6 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
                     if on_unit is not None:
                         on_unit(results[-1])
         return results
-    tasks = _unit_tasks(paths) if len(paths) < jobs else \
-        [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
     return _replay_in_workers(tasks, out, prefix, on_unit, min(jobs, len(tasks)))
 
 
@@ -288,13 +288,17 @@ class _Task:
 
 
 def _unit_tasks(paths: list[Path]) -> list[_Task]:
-    """A task per unit (raw topic) of each file, a file with none a task of its own (its
-    worker says what is wrong with it)."""
+    """A task per unit (raw topic) of each file, counted from its summary (or, for a file
+    cut short, from its chunks); a file with none is a task of its own (its worker says
+    what is wrong with it)."""
     tasks = []
     for i, path in enumerate(paths):
-        archive = read_archive(path)
-        topics = archive.topics("raw")
-        tasks += [_Task(i, path, t, len(archive.messages(t))) for t in topics] or \
+        counts = summary_counts(path, "raw")
+        if counts is None:
+            with contextlib.suppress(ArchiveReadError):
+                archive = read_archive(path)
+                counts = {t: len(archive.messages(t)) for t in archive.topics("raw")}
+        tasks += [_Task(i, path, t, n) for t, n in sorted((counts or {}).items())] or \
             [_Task(i, path, None, 0)]
     return tasks
 
