@@ -175,12 +175,14 @@ def test_units_replayed_side_by_side_get_the_same_samples(tmp_path: Path, layout
         paths[0].write_bytes(data[: len(data) * 3 // 4])
         units = ["u0", "u1", "u2"][: len(read_archive(paths[0]).topics("raw"))]
         assert len(units) >= 2
-    alone = replay(paths, tmp_path / "alone.mcap", jobs=1)
+    counted: list[int] = []  # the progress a terminal shows: samples as written
+    alone = replay(paths, tmp_path / "alone.mcap", jobs=1, on_samples=counted.append)
     heard: list[str] = []
     together = replay(paths, tmp_path / "together.mcap", jobs=2,
-                      on_unit=lambda r: heard.append(r.unit))
+                      on_unit=lambda r: heard.append(r.unit), on_samples=counted.append)
     assert [r.unit for r in together] == [r.unit for r in alone] == units
     assert sorted(heard) == units
+    assert sum(counted) == 2 * sum(r.samples for r in alone) > 0
     assert [(r.samples, r.events, r.settings) for r in together] == \
         [(r.samples, r.events, r.settings) for r in alone]
     a, b = read_archive(tmp_path / "alone.mcap"), read_archive(tmp_path / "together.mcap")

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 from rich.live import Live
+from rich.progress import Progress, TextColumn
 from rich.table import Table
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
@@ -185,14 +186,30 @@ def replay_command(
         if not path.is_file():
             raise fail(f"{path}: no such file; give a raw capture (gx3 bridge --capture)")
 
+    # refreshed here, not by Rich's thread: replay forks its workers after this starts
+    progress = Progress(TextColumn("replaying"), TextColumn("{task.completed:,.0f} samples"),
+                        TextColumn("{task.fields[units]} unit(s) done"), console=err,
+                        transient=True, auto_refresh=False, disable=not err.is_terminal)
+    task = progress.add_task("replay", total=None, units=0)
+    shown = [0.0]
+
     def report(result: Replayed) -> None:
         events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
-        err.print(f"{result.unit}: {result.samples:,} samples"
-                  + (f", {events}" if events else "") + guessed)
+        progress.console.print(f"{result.unit}: {result.samples:,} samples"
+                               + (f", {events}" if events else "") + guessed)
+        progress.update(task, units=progress.tasks[0].fields["units"] + 1, refresh=True)
+
+    def advance(samples: int) -> None:
+        progress.advance(task, samples)
+        if time.monotonic() - shown[0] >= 0.2:
+            shown[0] = time.monotonic()
+            progress.refresh()
 
     try:
-        results = replay(captures, output, prefix, on_unit=report, jobs=jobs or None)
+        with progress:
+            results = replay(captures, output, prefix, on_unit=report, jobs=jobs or None,
+                             on_samples=advance)
     except (ReplayError, ArchiveReadError, ArchiveError) as exc:
         raise fail(str(exc), 1) from None
     err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "

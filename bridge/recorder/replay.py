@@ -252,29 +252,47 @@ def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterat
 
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
            on_unit: Callable[[Replayed], None] | None = None,
-           jobs: int | None = 1) -> list[Replayed]:
+           jobs: int | None = 1,
+           on_samples: Callable[[int], None] | None = None) -> list[Replayed]:
     """Replay every unit of every capture in ``paths`` into one archive at ``out``.
 
     ``jobs`` > 1 (None: one per core) replays in that many worker processes at once,
     the archive written here: a capture file each, or a unit each when there are fewer
     files than jobs (a fleet's archive recorded with --raw). Units are independent, so
     each gets the same samples; only their messages interleave in the file differently.
-    Results come in the order of ``paths``; ``on_unit`` hears each unit as it finishes.
+    Results come in the order of ``paths``; ``on_unit`` hears each unit as it finishes,
+    ``on_samples`` how many samples each write added to the archive.
     """
     paths = list(paths)
     jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
     tasks = [] if jobs == 1 else _unit_tasks(paths) if len(paths) < jobs else \
         [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
-    if len(tasks) <= 1:
-        results = []
-        with ArchiveWriter(out, prefix=prefix) as writer:
-            for path in paths:
-                for capture in captures(path, prefix):
-                    results.append(UnitReplay(capture).run(writer.write_many, prefix))
-                    if on_unit is not None:
-                        on_unit(results[-1])
-        return results
-    return _replay_in_workers(tasks, out, prefix, on_unit, min(jobs, len(tasks)))
+    if len(tasks) > 1:
+        return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
+                                  min(jobs, len(tasks)))
+    results = []
+    with ArchiveWriter(out, prefix=prefix) as writer:
+        emit = _counted(writer.write_many, on_samples)
+        for path in paths:
+            for capture in captures(path, prefix):
+                results.append(UnitReplay(capture).run(emit, prefix))
+                if on_unit is not None:
+                    on_unit(results[-1])
+    return results
+
+
+def _counted(emit: Emit, on_samples: Callable[[int], None] | None) -> Emit:
+    """``emit`` that tells ``on_samples`` how many samples each write added."""
+    if on_samples is None:
+        return emit
+    tell = on_samples
+
+    def counted(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
+        emit(key, payloads, receive_ns)
+        if key.endswith("/imu"):
+            tell(len(payloads))
+
+    return counted
 
 
 @dataclass(frozen=True)
@@ -305,6 +323,7 @@ def _unit_tasks(paths: list[Path]) -> list[_Task]:
 
 def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
+                       on_samples: Callable[[int], None] | None,
                        jobs: int) -> list[Replayed]:
     """``replay`` with the tasks shared out by weight among ``jobs`` processes, started
     before the archive writer's thread is (a process with threads forks badly). A
@@ -326,6 +345,7 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
     done: list[tuple[int, str, Replayed]] = []
     try:
         with ArchiveWriter(out, prefix=prefix) as writer:
+            emit = _counted(writer.write_many, on_samples)
             running = len(workers)
             while running:
                 try:
@@ -337,7 +357,7 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                                           "try again with --jobs 1") from None
                     continue
                 if kind == "emit":
-                    writer.write_many(*item)
+                    emit(*item)
                 elif kind == "unit":
                     done.append(item)
                     if on_unit is not None:
