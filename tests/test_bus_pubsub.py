@@ -253,6 +253,11 @@ def test_a_receiving_session_declares_each_publishers_key_as_it_appears(endpoint
             open_session(connect=[endpoint], multicast_scouting=False) as here:
         early = UnitPublisher(there, "early")
         keys = PublisherKeys(here, "gx3/*/imu")
+        gone: list[str] = []
+        watch = here.liveliness().declare_subscriber(
+            "gx3/*/imu/@adv/pub/**",
+            lambda s: gone.append(str(s.key_expr)) if s.kind == zenoh.SampleKind.DELETE
+            else None)
         try:
             wait_for(lambda: keys.keys == ["gx3/early/imu"], 20, "the early unit's key")
             late = UnitPublisher(there, "late")
@@ -260,9 +265,10 @@ def test_a_receiving_session_declares_each_publishers_key_as_it_appears(endpoint
                      "the late unit's key")
             late.close()
             early.close()
-            time.sleep(0.2)
+            wait_for(lambda: len(gone) == 2, 20, "both publishers' tokens to go")
             assert keys.keys == ["gx3/early/imu", "gx3/late/imu"]  # a unit may come back
         finally:
+            watch.undeclare()
             keys.close()
             early.close()
         assert keys.keys == []

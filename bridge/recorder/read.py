@@ -334,7 +334,7 @@ def summary_counts(path: Path, kind: str) -> dict[str, int] | None:
         return None
     counts = summary.statistics.channel_message_counts
     return {ch.topic: counts.get(cid, 0) for cid, ch in summary.channels.items()
-            if ch.topic.split("/")[-1] == kind}
+            if _channel_info(ch, summary.schemas).kind == kind}
 
 
 def _channel_info(ch: Channel, schemas: dict[int, Schema]) -> ChannelInfo:

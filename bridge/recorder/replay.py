@@ -265,8 +265,7 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
     """
     paths = list(paths)
     jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
-    tasks = [] if jobs == 1 else _unit_tasks(paths) if len(paths) < jobs else \
-        [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
+    tasks = _tasks(paths, jobs) if jobs > 1 else []
     if len(tasks) > 1:
         return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
                                   min(jobs, len(tasks)))
@@ -303,6 +302,13 @@ class _Task:
     path: Path
     topic: str | None
     weight: int  # to share the work out: bytes of a file, reads of a topic
+
+
+def _tasks(paths: list[Path], jobs: int) -> list[_Task]:
+    """A task per file when there are files enough for the jobs, else one per unit."""
+    if len(paths) < jobs:
+        return _unit_tasks(paths)
+    return [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
 
 
 def _unit_tasks(paths: list[Path]) -> list[_Task]:
@@ -384,12 +390,16 @@ def _worker(tasks: list[_Task], prefix: str,
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
         queue.put(("emit", (key, list(payloads), receive_ns)))
 
+    # one read of a file for all of its units this worker has (None: every unit)
+    files: dict[tuple[int, Path], list[str] | None] = {}
+    for task in tasks:
+        key = (task.index, task.path)
+        files[key] = None if task.topic is None else [*(files.get(key) or []), task.topic]
     try:
-        for task in tasks:
-            wanted = None if task.topic is None else [task.topic]
-            for capture in captures(task.path, prefix, wanted):
+        for (index, path), topics in files.items():
+            for capture in captures(path, prefix, topics):
                 result = UnitReplay(capture).run(emit, prefix)
-                queue.put(("unit", (task.index, capture.topic, result)))
+                queue.put(("unit", (index, capture.topic, result)))
     except Exception as exc:  # every error reaches the caller, to say as it would alone
         queue.put(("error", _sendable(exc)))
     queue.put(("end", None))

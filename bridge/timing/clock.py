@@ -418,8 +418,8 @@ def polygon_centre(x: np.ndarray, y: np.ndarray, now: int, frame: int, prior: fl
     if band.width(best)[0] > frame:
         return None
     low_rate, high_rate = band.reach(best, lo, frame), band.reach(best, hi, frame)
-    r_top, _ = _peak(dx, dy, low_rate, high_rate)
-    r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate)
+    r_top, _ = _peak(dx, dy, low_rate, high_rate, band.ranges)
+    r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate, band.ranges)
     top = float((dy - r_top * dx).min())
     bottom = float((dy - r_bottom * dx).max()) - frame
     return (now, newest + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
@@ -433,12 +433,10 @@ class _Band:
     def __init__(self, dx: np.ndarray, dy: np.ndarray) -> None:
         self.dx, self.dy = dx, dy
         self._v = np.empty_like(dy)
-        self._dx_range = float(np.abs(dx).max())
-        self._dy_range = float(np.abs(dy).max())
+        self.ranges = _ranges(dx, dy)
 
     def tie(self, r: float) -> float:
-        """float64 rounds dy - r dx by ~1e-16 of its magnitude: closer is a tie."""
-        return 1e-14 * (self._dy_range + abs(r) * self._dx_range)
+        return _tie(self.ranges, r)
 
     def width(self, r: float) -> tuple[float, float]:
         v = self._v
@@ -514,9 +512,21 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
         ppm = min(_MAX_PPM, ppm * 8)
 
 
-def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float) -> tuple[float, bool]:
+def _ranges(dx: np.ndarray, dy: np.ndarray) -> tuple[float, float]:
+    """The largest magnitudes of dx and dy, which bound float64's rounding of dy - r dx."""
+    return float(np.abs(dx).max()), float(np.abs(dy).max())
+
+
+def _tie(ranges: tuple[float, float], r: float) -> float:
+    """float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie."""
+    dx_range, dy_range = ranges
+    return 1e-14 * (dy_range + abs(r) * dx_range)
+
+
+def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float,
+          ranges: tuple[float, float] | None = None) -> tuple[float, bool]:
     """The r in [lo, hi] where ``min(dy - r dx)`` is highest, and whether it is inside
-    (not at an end).
+    (not at an end). ``ranges``: ``_ranges(dx, dy)`` when the caller has them.
 
     The function is concave; its peak is where the lowest point moves from one side
     of dx = 0 to the other. The line through the lowest points on either side is
@@ -535,8 +545,7 @@ def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float) -> tuple[float, 
         return lo, False  # falling from lo on
     if dx[j] <= 0:
         return hi, False  # still rising at hi
-    # float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie
-    tie = 1e-14 * (float(np.abs(dy).max()) + max(abs(lo), abs(hi)) * float(np.abs(dx).max()))
+    tie = _tie(ranges or _ranges(dx, dy), max(abs(lo), abs(hi)))
     for _ in range(_MAX_STEPS):
         r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
         if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
