@@ -160,7 +160,9 @@ class Subscription(Generic[T]):
                 history=HistoryConfig(detect_late_publishers=True, max_samples=history)
                 if history else None,
                 recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
-            self._listener = self._sub.sample_miss_listener(self._missed)
+            # in Zenoh's own thread, in step with the samples (not queued to another)
+            self._listener = self._sub.sample_miss_listener(
+                zenoh.handlers.Callback(self._missed, indirect=False))
         except BaseException:
             if self._routes is not None:
                 self._routes.close()

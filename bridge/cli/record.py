@@ -61,7 +61,8 @@ def record(
         min=0.1, help="Start a new numbered file after this many minutes.")] = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live view; errors only.")]
+    quiet: Annotated[bool, typer.Option("--quiet", "-q",
+                                        help="No live view; errors and warnings only.")]
     = False,
     zenoh_config: ZenohConfigOpt = None,
     connect: ConnectOpt = None,
@@ -76,6 +77,12 @@ def record(
     `rerun FILE.mcap` show its attitude. The file is flushed every second: a crash
     loses at most that second (`gx3 repair` finishes such a file). Ctrl-C or SIGTERM
     finish the archive properly.
+
+    Every message is checked before it is archived (the CRC-32 in its attachment, its
+    unit against its key). What does not reach the archive (samples lost in transit,
+    messages rejected, samples shed while the disk could not keep up) and a unit
+    published by two bridges at once are archived as events of the unit, with count
+    and span, and printed as warnings.
     """
     from bridge.bus.keys import BadName, check_prefix
     from bridge.bus.session import SessionError, open_session
@@ -129,7 +136,9 @@ def record(
             log_messages(sink, messages, prefix)
     started = time.monotonic()
     recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
-                        on_written=None if logger is None else to_rerun)
+                        on_written=None if logger is None else to_rerun,
+                        on_event=lambda unit, event: console.print(
+                            f"[yellow]warning:[/] {event.detail}", highlight=False))
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:

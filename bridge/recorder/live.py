@@ -138,7 +138,7 @@ class Recorder:
         self._stop = threading.Event()
         self._lock = threading.Lock()  # the views
         # what the receiving thread holds for the writer, guarded by _held_lock
-        self._held_lock = threading.Lock()
+        self._held_lock = threading.RLock()  # a reject is reported while it is held
         self._held: dict[str, tuple[list[bytes], list[int]]] = {}
         self._held_bytes = 0
         self._last: dict[str, bytes] = {}  # the last message of each key that arrived
@@ -170,6 +170,11 @@ class Recorder:
     @property
     def misses(self) -> int:
         return sum(sub.misses for sub in self._subs)
+
+    @property
+    def received(self) -> int:
+        """Messages taken off Zenoh so far (checked or not, held or shed)."""
+        return sum(sub.received for sub in self._subs)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         unit = unit_of(str(sample.key_expr), self.prefix)
