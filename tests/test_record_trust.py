@@ -87,7 +87,7 @@ def test_forged_and_damaged_samples_are_rejected_and_accounted_for(tmp_path: Pat
             records, ticks, times = batch(13, 10)
             pub.publish_samples(records, ticks, times)
             wait_for(lambda: samples_in(out, "a") == 20, what="the genuine samples")
-            wait_for(lambda: len(events(out, "a", Event.REJECTED)) == 2,
+            wait_for(lambda: sum(e.count for e in events(out, "a", Event.REJECTED)) == 3,
                      what="the rejections in the archive")
     finally:
         proc.send_signal(signal.SIGINT)
@@ -95,14 +95,14 @@ def test_forged_and_damaged_samples_are_rejected_and_accounted_for(tmp_path: Pat
     assert proc.returncode == 0, stderr.decode()
     np.testing.assert_array_equal(archived_ticks(out, "a"),
                                   np.r_[np.arange(10), np.arange(13, 23)] * 625)
-    rejected = {e.detail.split(": ", 1)[1].split(" ", 1)[0]: e for e in
-                events(out, "a", Event.REJECTED)}
-    by_reason = {("checksum" if "CRC" in e.detail else "key"): e.count
-                 for e in rejected.values()}
+    rejected = events(out, "a", Event.REJECTED)
+    by_reason = {"checksum": 0, "key": 0}
+    for e in rejected:
+        by_reason["checksum" if "CRC" in e.detail else "key"] += e.count
     assert by_reason == {"checksum": 2, "key": 1}
-    assert all(e.leaf == "imu" and e.unit == "a" for e in rejected.values())
+    assert all(e.leaf == "imu" and e.unit == "a" for e in rejected)
     assert read_archive(out).units() == ["a"], "the forged unit b got a channel"
-    assert stderr.decode().count("warning:") == 2
+    assert stderr.decode().count("warning:") == len(rejected)
 
 
 def test_a_router_outage_leaves_a_loss_event_equal_to_what_is_missing(

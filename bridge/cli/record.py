@@ -138,7 +138,8 @@ def record(
     recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
                         on_written=None if logger is None else to_rerun,
                         on_event=lambda unit, event: console.print(
-                            f"[yellow]warning:[/] {event.detail}", highlight=False))
+                            f"[yellow]warning:[/] {event.detail}", highlight=False,
+                            soft_wrap=True))
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:
