@@ -87,7 +87,8 @@ def run_bridge(
 
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
-    queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
+    queryable, a liveliness token, and with --publish-raw each read (raw); every
+    message carries the CRC-32 of its payload in its attachment. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
     """
