@@ -182,10 +182,11 @@ def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
     if len(sizes) == 1:
         code = peek_command(unit, payloads[0])
         if code is not None:
-            lay = layout(code, unit)
+            at, want = _constants(code, unit)
             raw = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), -1)
-            good = (raw[:, lay.const_mask] == lay.template.view(np.uint8)[lay.const_mask]
-                    ).all(axis=1)
+            good = (raw[:, at] == want).all(axis=1)
+            if good.all():
+                return [True] * len(payloads)
             out = good.tolist()
             rest = np.flatnonzero(~good).tolist()
     for i in rest:
@@ -207,6 +208,14 @@ def peek_command(unit: str, payload: bytes) -> int | None:
     if code not in DATA_CODES or len(payload) != layout(code, unit).size:
         return None
     return code
+
+
+@functools.cache
+def _constants(code: int, unit: str) -> tuple[np.ndarray, np.ndarray]:
+    """Where the tags, lengths, unit and command of ``layout(code, unit)`` are, and
+    their bytes."""
+    lay = layout(code, unit)
+    return np.flatnonzero(lay.const_mask), lay.template.view(np.uint8)[lay.const_mask]
 
 
 @functools.cache
