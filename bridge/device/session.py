@@ -350,5 +350,5 @@ def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> t
         port.close()
         raise
     port.close()
-    raise DeviceError(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
+    raise CommandTimeout(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
                       "check the cable and the unit's power")
