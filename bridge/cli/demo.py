@@ -57,11 +57,14 @@ def demo(
     dashboard shows each unit; at the end a summary compares what the bridges found
     with the truth, and says how to open the results.
     """
-    from bridge.cli.viz import live_recording
+    from bridge.cli.viz import _display, live_recording
     from bridge.demo import Demo, DemoError, fleet
 
     if viewer not in (None, "spawn", "serve"):
         raise fail(f"--viewer {viewer!r}: use spawn or serve")
+    if viewer == "spawn" and not _display():
+        raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
+                   "use --viewer serve for a remote or web viewer, or leave --viewer out")
     try:
         members = fleet(units, parse_code(record_type), rate, duration)
     except DemoError as exc:
