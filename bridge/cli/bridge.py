@@ -83,7 +83,8 @@ def run_bridge(
     give_up_after: Annotated[float | None, typer.Option(
         min=0.0, metavar="SECONDS",
         help="Exit (status 1) if the unit has not come up this many seconds after the "
-             "start. Default: keep retrying until stopped.")] = None,
+             "start (0: after the first failed try). Default: keep retrying until "
+             "stopped.")] = None,
     quiet: Annotated[bool, typer.Option(
         "--quiet", "-q", help="Print errors only (and why the unit is not up).")] = False,
 ) -> None:
@@ -166,7 +167,7 @@ def run_bridge(
                 if duration is not None and elapsed >= duration:
                     stop.set()
                 if give_up_after is not None and elapsed >= give_up_after \
-                        and not pipeline.came_up:
+                        and pipeline.last_failure and not pipeline.came_up:
                     gave_up = True
                     stop.set()
                 stop.wait(0.2)
