@@ -15,7 +15,8 @@
 #                must hold etc/passwd and etc/group; nothing is reloaded
 #   --no-venv    leave /opt/gx3 as it is (gx3 installed there some other way)
 #
-# Needs python3 with venv (Debian: apt-get install python3-venv) and useradd.
+# Needs python3 with venv (Debian: apt-get install python3-venv; PYTHON=python3.12 picks
+# another interpreter) and useradd.
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")" && pwd)
@@ -84,8 +85,8 @@ install -m 0644 "$here/systemd/gx3-bridge@.service" "$here/systemd/gx3-record.se
 echo "wrote $root/etc/systemd/system/gx3-bridge@.service and gx3-record.service"
 
 if [ -z "$root" ]; then
-    if [ -d /run/systemd/system ]; then systemctl daemon-reload; fi
-    if command -v udevadm > /dev/null; then udevadm control --reload; fi
+    systemctl daemon-reload 2> /dev/null || echo "systemd is not running: no units reloaded"
+    udevadm control --reload 2> /dev/null || echo "udev is not running: no rules reloaded"
 fi
 cat <<DONE
 next: name each unit in /etc/udev/rules.d/99-gx3.rules, then
