@@ -22,7 +22,6 @@ import numpy as np
 from bridge.device.port import Port, PortError, is_usb_cdc
 from bridge.device.session import (
     DEFAULT_RECORD,
-    CommandTimeout,
     DeviceError,
     Session,
     UnitInfo,
@@ -187,14 +186,10 @@ class Pipeline:
         """Say why the unit is not up once, and again only when the reason changes:
         a retry every few seconds must not flood the log or look like a new fault."""
         self.counters.state = "lost" if lost else "waiting"
-        if isinstance(exc, PortError):
-            why = exc.why
-        else:
-            why = "no answer" if isinstance(exc, CommandTimeout) else "bring-up failed"
-        if why != self.waiting_for:
+        if exc.why != self.waiting_for:
             self._event("waiting", detail=f"{exc}; retrying, with pauses growing to "
                                           f"{_RETRY_MAX_S:g} s")
-        self.waiting_for = why
+        self.waiting_for = exc.why
         self.last_failure = str(exc)
 
     def _open(self) -> Session:
