@@ -90,17 +90,17 @@ def run_bridge(
 ) -> None:
     """Bridge one unit onto Zenoh: bring it up, stream, time every sample, publish.
 
-    Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
-    status (once a second), event (gaps, resets, rollovers, reconnects), the info
-    queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
-    streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
-    mode and close the port.
-
     A port that is missing or busy, or a unit that does not answer, is retried with
     pauses growing to 5 s; the reason is printed once, and again when it changes.
     Exit status: 0 when stopped after the unit came up; 1 when it never came up
     (stopped, --duration or --give-up-after first) or on an internal error; 2 for
     bad options or a Zenoh configuration that does not open.
+
+    Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
+    status (once a second), event (gaps, resets, rollovers, reconnects), the info
+    queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
+    streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
+    mode and close the port.
     """
     from bridge.bus.keys import BadName, check_prefix, check_unit
     from bridge.pipeline import Options, Pipeline
