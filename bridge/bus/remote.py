@@ -3,11 +3,20 @@
 ``gx3 configure --unit NAME`` (or a key expression for the fleet) sends one JSON
 request to ``<prefix>/<unit>/command`` and prints each bridge's answer. Reading
 identity needs no permission: ``info`` asks the info queryable instead.
+
+A fresh session knows nothing of the fleet yet, and a query goes only to the
+queryables its session has discovered: sent at once, it can find none (a bridge
+reached through another peer is discovered a moment later). So the target's
+liveliness token is awaited first, then its queryable. Knowing the bridge is alive
+also tells "not running" apart from "alive but no answer", which is what a query
+that the router's access control drops looks like (it drops it without a word).
 """
 
 from __future__ import annotations
 
 import json
+import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,35 +30,88 @@ from bridge.bus.session import SessionError, ZenohOptions
 
 #: How long to wait for answers; capture-bias runs for its sampling time first.
 TIMEOUT_S = 10.0
+#: How long a fresh session waits to discover the target (its liveliness token, then
+#: its queryable): discovery takes milliseconds, a busy machine's a second or two.
+DISCOVERY_S = 5.0
 
 
 class RemoteError(RuntimeError):
-    """No bridge could be asked; the message says why."""
+    """No bridge could be asked, or none answered; the message says why."""
 
 
 def ask_units(prefix: str, unit: str, action: str, params: dict[str, Any], *,
               zenoh_config: str | Path | None = None, connect: Sequence[str] = (),
-              timeout: float = TIMEOUT_S) -> list[tuple[str, bool, dict[str, Any]]]:
+              timeout: float = TIMEOUT_S,
+              discovery: float = DISCOVERY_S) -> list[tuple[str, bool, dict[str, Any]]]:
     """(unit, ok, result or {"error": text}) for every bridge that answered."""
     if action == "capture_bias":
         timeout += int(params.get("sampling_ms", 10_000)) / 1000
+    key = f"{prefix}/{unit}/{'info' if action == 'info' else 'command'}"
     try:
         session = ZenohOptions(zenoh_config, connect).open()
     except SessionError as exc:
         raise RemoteError(str(exc)) from None
     try:
-        if action == "info":
-            replies = session.get(f"{prefix}/{unit}/info", timeout=timeout)
-        else:
-            request = json.dumps({"action": action, "params": params, "confirm": True})
-            replies = session.get(f"{prefix}/{unit}/command", payload=request, timeout=timeout)
-        out = [_answer(prefix, reply, action) for reply in replies]
+        deadline = time.monotonic() + discovery
+        alive = _alive(session, f"{prefix}/{unit}/alive", prefix, deadline)
+        if not alive:
+            raise RemoteError(
+                f"no bridge is running for {prefix}/{unit} (no liveliness token "
+                f"{prefix}/{unit}/alive within {discovery:g} s): start it, or check that "
+                "this machine reaches the fleet (--connect, --zenoh-config)")
+        querier = session.declare_querier(key, target=zenoh.QueryTarget.ALL, timeout=timeout)
+        try:
+            _await_queryable(querier, deadline)
+            if action == "info":
+                replies = querier.get()
+            else:
+                replies = querier.get(payload=json.dumps(
+                    {"action": action, "params": params, "confirm": True}))
+            out = [_answer(prefix, reply, action) for reply in replies]
+        finally:
+            querier.undeclare()
     finally:
         session.close()
     if not out:
-        raise RemoteError(f"no bridge answered for {prefix}/{unit}: is it running, and can "
-                          "this machine reach it (--connect, --zenoh-config)?")
+        what = "operator commands need an operator's certificate" if key.endswith("command") \
+            else "info needs a certificate from the fleet's CA"
+        raise RemoteError(
+            f"{', '.join(alive)} alive but no answer on {key} within {timeout:g} s: the "
+            f"router's access control may refuse this client the query ({what}; see "
+            "configs/tls/router-acl.json5), or the bridge is stuck")
     return sorted(out)
+
+
+def _alive(session: zenoh.Session, token: str, prefix: str, deadline: float) -> list[str]:
+    """The units whose liveliness token matching ``token`` this session has seen once
+    one is (or none by ``deadline``)."""
+    seen: set[str] = set()
+    found = threading.Event()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen.add(unit_of(str(sample.key_expr), prefix))
+            found.set()
+
+    watch = session.liveliness().declare_subscriber(token, on_token, history=True)
+    try:
+        found.wait(max(0.0, deadline - time.monotonic()))
+    finally:
+        watch.undeclare()
+    return sorted(seen)
+
+
+def _await_queryable(querier: zenoh.Querier, deadline: float) -> None:
+    """Return once a queryable for ``querier`` is known to its session (only then does
+    a query reach it), or at ``deadline``."""
+    matched = threading.Event()
+    listener = querier.declare_matching_listener(
+        lambda status: matched.set() if status.matching else None)
+    try:
+        if not querier.matching_status.matching:  # type: ignore[attr-defined]  # stub: bool
+            matched.wait(max(0.0, deadline - time.monotonic()))
+    finally:
+        listener.undeclare()
 
 
 def _answer(prefix: str, reply: zenoh.Reply, action: str) -> tuple[str, bool, dict[str, Any]]:
