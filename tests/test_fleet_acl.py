@@ -144,7 +144,7 @@ def test_the_recorder_reads_and_asks_info_but_cannot_command_or_publish(fleet: F
         [("slow", True, "SLOW0001")]
     with pytest.raises(RemoteError) as refused:
         ask_units("gx3", "slow", "set_timer", {"value": 7}, zenoh_config=recorder, timeout=2)
-    assert "alive but no answer on gx3/slow/command" in str(refused.value)
+    assert "slow is alive but did not answer on gx3/slow/command" in str(refused.value)
     assert "access control" in str(refused.value) and "operator" in str(refused.value)
 
     # What reaches a bridge does so in the order the recorder sent it: when its info
@@ -163,6 +163,19 @@ def test_the_recorder_reads_and_asks_info_but_cannot_command_or_publish(fleet: F
         answered = answers(rogue, "gx3/probe/info")
     assert answered
     assert got == [], f"the recorder's {got} reached the bridge"
+
+
+def test_a_fleet_command_names_each_alive_bridge_that_did_not_answer(fleet: Fleet) -> None:
+    with zenoh.open(zenoh.Config.from_file(str(fleet.config("gx3-bridge")))) as mute:
+        mute.declare_queryable("gx3/mute/command", lambda query: None)  # drops every query
+        token = mute.liveliness().declare_token("gx3/mute/alive")
+        operator = fleet.config("gx3-operator")
+        wait_for(lambda: "mute" in {u for u, _, _ in ask_units(
+            "gx3", "*", "info", {}, zenoh_config=operator, timeout=2)}, what="mute's token")
+        results = ask_units("gx3", "*", "stationary_test", {}, zenoh_config=operator, timeout=2)
+        token.undeclare()
+    assert [(unit, ok) for unit, ok, _ in results] == [("mute", False), ("slow", True)]
+    assert results[0][2] == {"error": "alive but did not answer on gx3/*/command within 2 s"}
 
 
 def one_line(options: ZenohOptions) -> str:
