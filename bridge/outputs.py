@@ -34,7 +34,7 @@ class OutputRefused(Exception):
 def lock_holder(path: Path) -> int | None:
     """The process writing ``path`` (0 when it cannot be named), or None if none is."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)  # a FIFO: no wait
     except OSError:
         return None
     try:
@@ -92,6 +92,8 @@ def refuse(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None
         return
     if stat.S_ISDIR(st.st_mode):
         raise OutputRefused(f"{path} is a folder; give a file name")
+    if not stat.S_ISREG(st.st_mode):  # a device or pipe would be replaced by a file
+        raise OutputRefused(f"{path} is not a regular file; give a file name")
     for given in inputs:
         try:
             same = os.path.samestat(st, Path(given).stat())

@@ -101,18 +101,25 @@ def record(
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
-                               mode=mode)
-    except SessionError as exc:
-        raise fail(str(exc)) from None
-    try:
+    try:  # first: a file refused (exists, being written) is said at once
         writer = ArchiveWriter(path, prefix=prefix,
                                split_bytes=None if split_mb is None else int(split_mb * 1e6),
                                split_seconds=None if split_minutes is None
                                else split_minutes * 60, force=force)
     except ArchiveError as exc:
-        session.close()
+        raise fail(str(exc)) from None
+
+    def discard() -> None:
+        """Nothing recorded yet: leave no empty archive behind."""
+        writer.close()
+        for part in writer.paths:
+            part.unlink(missing_ok=True)
+
+    try:
+        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
+                               mode=mode)
+    except SessionError as exc:
+        discard()
         raise fail(str(exc)) from None
     console = Console(stderr=True)
 
@@ -131,9 +138,7 @@ def record(
             # long recordings: bigger chunks, and no in-memory index of every chunk
             logger = RerunLogger(rrd, recording_id=path.stem, latency_s=2.0, write_footer=False)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
-            writer.close()
-            for part in writer.paths:  # nothing recorded yet: leave no empty archive
-                part.unlink(missing_ok=True)
+            discard()
             session.close()
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
             raise fail(f"--rrd {rrd}: cannot write ({why})") from None
