@@ -92,17 +92,17 @@ def large(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Path], Path]:
 
 
 @pytest.fixture
-def fleet(tmp_path: Path) -> Iterator[tuple[Path, Path]]:
+def fleet(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
     """An emulated unit bridged onto Zenoh towards a recorder's loopback port: (config for
-    the recorder, folder). Whatever recorder runs meanwhile gets its samples."""
+    the recorder, config to join them, folder). Whatever recorder runs gets its samples."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
-    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    join_cfg = zenoh_config(tmp_path / "join.json5", connect=[endpoint])
     out = tmp_path / "out"
     out.mkdir()
     with Simulator(UNITS[:1], "pty") as sim, \
-            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
-        yield rec_cfg, out
+            bridge_process(sim.endpoints[0], join_cfg, "--unit", "a"):
+        yield rec_cfg, join_cfg, out
 
 
 def ticks(path: Path) -> np.ndarray:
@@ -117,15 +117,16 @@ def stop(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT) -> bytes:
 
 
 def test_a_second_recorder_on_the_same_file_is_refused_naming_the_first(
-        fleet: tuple[Path, Path]) -> None:
-    cfg, out = fleet
+        fleet: tuple[Path, Path, Path]) -> None:
+    cfg, join_cfg, out = fleet
     path = out / "same.mcap"
     first = recorder(path, cfg)
     try:
         wait_for(lambda: samples_in(path, "a") >= 200, what="the first recorder's samples")
-        second = subprocess.run([GX3, "record", "-o", str(path), "--zenoh-config", str(cfg),
-                                 "--quiet", "--force"], capture_output=True, text=True,
-                                timeout=60, check=False)
+        second = subprocess.run([GX3, "record", "-o", str(path), "--zenoh-config",
+                                 str(join_cfg),
+                                 "--quiet", "--duration", "3"], capture_output=True,
+                                text=True, timeout=60, check=False)
         one_line_error(second, 2, f"being written by process {first.pid}")
     finally:
         stderr = stop(first)
@@ -138,9 +139,9 @@ def test_a_second_recorder_on_the_same_file_is_refused_naming_the_first(
 
 
 def test_a_restarted_split_recorder_adds_parts_and_keeps_the_crashed_one(
-        fleet: tuple[Path, Path]) -> None:
+        fleet: tuple[Path, Path, Path]) -> None:
     """What the shipped systemd unit does after a crash: the same command again."""
-    cfg, out = fleet
+    cfg, _, out = fleet
     path = out / "fleet.mcap"
     first = recorder(path, cfg, "--split-minutes", "60")
     wait_for(lambda: samples_in(numbered(path, 1), "a") >= 200, what="the first part")
@@ -200,12 +201,13 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(
     for name in (alias, alias_csv):
         os.link(archive, name)  # another name, the same file
     before = archive.read_bytes(), capture.read_bytes()
-    runs = run_all(["rrd", archive, "-o", archive, "--force"],
-                   ["rrd", archive, "-o", alias, "--force"],
-                   ["replay", capture, "-o", capture, "--force"],
-                   ["export", archive, "-o", tmp_path / "t.csv", "--events", alias_csv,
-                    "--force"],
-                   ["repair", archive, "-o", alias, "--force"])
+    commands: list[list[str | Path]] = [
+        ["rrd", archive, "-o", archive],
+        ["replay", capture, "-o", capture],
+        ["export", archive, "-o", tmp_path / "t.csv", "--events", alias_csv],
+        ["repair", archive, "-o", alias]]
+    forces: tuple[list[str | Path], ...] = ([], ["--force"])
+    runs = run_all(*[c + force for force in forces for c in commands])
     for done in runs:
         one_line_error(done, 2, "is the input")
     assert (archive.read_bytes(), capture.read_bytes()) == before

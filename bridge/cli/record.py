@@ -54,7 +54,8 @@ def record(
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
     rrd: Annotated[Path | None, typer.Option(
-        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded.")]
+        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
+                                 "existing one only with --force).")]
     = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
@@ -236,6 +237,6 @@ def replay_command(
         except ArchiveReadError as exc:
             raise fail(str(exc)) from None
         except (ReplayError, ArchiveError) as exc:
-            raise fail(str(exc), 1) from None
+            raise fail(str(exc).replace(str(temp), str(output)), 1) from None
     err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
               f"{len(results)} unit(s)")
