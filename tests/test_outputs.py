@@ -168,7 +168,7 @@ def test_existing_outputs_are_kept_unless_forced(small: tuple[Path, Path],
                                                  tmp_path: Path) -> None:
     capture, archive = small
     names = ("rec.mcap", "replayed.mcap", "table.csv", "view.rrd", "render.rrd",
-             "fixed.mcap")
+             "fixed.mcap", "raw.mcap")
     for name in names:
         (tmp_path / name).write_bytes(b"the user's " + name.encode())
     before = files_in(tmp_path)
@@ -178,7 +178,8 @@ def test_existing_outputs_are_kept_unless_forced(small: tuple[Path, Path],
                       ["export", archive, "-o", o["table"]],
                       ["view", "--save", o["view"], "--duration", "0"],
                       ["rrd", archive, "-o", o["render"]],
-                      ["repair", archive, "-o", o["fixed"]])
+                      ["repair", archive, "-o", o["fixed"]],
+                      ["bridge", "--port", tmp_path / "no-such-port", "--capture", o["raw"]])
     for done in refused:
         one_line_error(done, 2, "exists; choose another name, or --force to replace it")
     assert files_in(tmp_path) == before

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from bridge.cli.common import app, err, fail, parse_code
+from bridge.cli.common import ForceOpt, app, err, fail, parse_code, refused
 from bridge.cli.operate import BaudOpt, PortOpt, parse_baud
 from bridge.protocol.table import BAUD_RATES, DATA_CODES
 
@@ -64,7 +64,9 @@ def run_bridge(
              "out: uart (line time of each record at the baud rate), usb (the unit's own "
              "USB port), auto (usb for /dev/ttyACM*).")] = "auto",
     capture: Annotated[Path | None, typer.Option(
-        metavar="FILE.mcap", help="Also record every read raw, with its receive time.")] = None,
+        metavar="FILE.mcap", help="Also record every read raw, with its receive time "
+                                  "(an existing file is refused unless --force).")] = None,
+    force: ForceOpt = False,
     publish_raw: Annotated[bool, typer.Option(
         "--publish-raw", help="Also publish every read on PREFIX/UNIT/raw with its receive "
                               "time, for gx3 record --raw.")] = False,
@@ -120,6 +122,8 @@ def run_bridge(
             check_unit(unit)
     except BadName as exc:
         raise fail(str(exc)) from None
+    if capture is not None:
+        refused(capture, force=force)
     options = Options(url=port, baud=parse_baud(baud), record=code, decimation=decimation,
                       flags=parse_code(flags) if flags else None, filter_width=filter_width,
                       mag_filter_width=mag_filter_width, new_baud=new_baud, persist=persist,
@@ -141,13 +145,13 @@ def run_bridge(
     writer: list[RawCaptureWriter] = []
 
     def write_capture(data: bytes, rx_ns: int) -> None:
-        if not writer:
+        if not writer or writer[0].stopped:
             return
         try:
             writer[0].write(data, rx_ns)
         except CaptureError as exc:
             err.print(f"[yellow]capture stopped:[/] {exc}")
-            writer.clear()
+            writer[0].stopped = True
 
     with bus:
         sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet,
@@ -155,7 +159,8 @@ def run_bridge(
         pipeline = Pipeline(options, sink, on_read=sink.read)
         sink.attach(pipeline)
         if capture is not None:
-            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta))
+            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta,
+                                                         force))
             sink.on_read(write_capture)
         worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
         worker.start()
@@ -190,13 +195,13 @@ def run_bridge(
 
 
 def _open_capture(writer: list[Any], path: Path, prefix: str, unit: str,
-                  metadata: dict[str, str]) -> None:
+                  metadata: dict[str, str], force: bool) -> None:
     """Open the raw capture once the unit's name is known (its first bring-up)."""
     from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
 
     if writer:
         return
     try:
-        writer.append(RawCaptureWriter(path, prefix, unit, metadata))
+        writer.append(RawCaptureWriter(path, prefix, unit, metadata, force))
     except CaptureError as exc:
         err.print(f"[red]error:[/] {exc}")
