@@ -24,12 +24,14 @@ What is written follows the MCAP specification (https://mcap.dev/spec, format ve
   Attachment Index group), the Footer (0x02, with the CRC-32 of the summary up to its
   own CRC field) and the magic.
 
-A chunk is closed once its records pass ``chunk_size`` and at every ``flush``; it is
-compressed on a worker thread while the next one fills and written when that one closes
-or at the next flush, so a writer killed mid-run leaves every chunk flushed before
-readable by a streaming reader. The
-rare records go through mcap's own record classes; only Message and Message Index
-records, the bulk of every file, are built here.
+Messages go into chunks in log-time order, so chunk time ranges never overlap: ``add``
+holds them, ``release`` writes those logged up to a given time, sorted. A chunk is
+closed once its records pass ``chunk_size`` and at every ``flush``; it is compressed on
+a worker thread while the next one fills and written when that one closes or at the
+next flush, so a writer killed mid-run leaves every chunk flushed before readable by a
+streaming reader (messages still held are lost with it). The rare records go through
+mcap's own record classes; only Message and Message Index records, the bulk of every
+file, are built here.
 """
 
 from __future__ import annotations
@@ -120,6 +122,17 @@ def _record(record: McapRecord) -> bytes:
 
 
 @dataclass
+class _Held:
+    """Message records added and not yet written: end to end, with a row each."""
+
+    data: bytes
+    channel: np.ndarray
+    log_time: np.ndarray
+    start: np.ndarray
+    size: np.ndarray
+
+
+@dataclass
 class _OpenChunk:
     """Records of the chunk in progress and the index of its messages."""
 
@@ -128,29 +141,46 @@ class _OpenChunk:
     messages: int = 0
     start: int = 0
     end: int = 0
-    index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def add(self, record: bytes | memoryview) -> None:
         self.parts.append(record)
         self.size += len(record)
 
 
+def _gather(data: np.ndarray, start: np.ndarray, size: np.ndarray) -> bytes:
+    """The byte ranges (``start``, ``size``) of ``data`` end to end, in one gather."""
+    total = int(size.sum())
+    if not total:
+        return b""
+    first = np.cumsum(size) - size
+    at = np.repeat(start - first, size) + np.arange(total, dtype=np.int64)
+    return data[at].tobytes()
+
+
 class McapWriter:
     """Write one MCAP file to ``stream``: ``start``, register, ``add`` in bulk, ``finish``.
 
-    Ids of schemas and channels count from 1 in registration order, as mcap's writer
-    gives them. Errors of the stream (a full disk) propagate as OSError.
+    Messages are written in log-time order (what ``mcap doctor --strict-message-order``
+    asks): ``add`` holds them, and ``release`` (or ``flush``) writes those logged up to
+    a time, sorted, so chunks never overlap. A message added later than one already
+    written is written at that one's log time (its own time is in its payload) and
+    counted in ``late``. Ids of schemas and channels count from 1 in registration order,
+    as mcap's writer gives them. Errors of the stream (a full disk) propagate as OSError.
     """
 
     def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20) -> None:
         self.stream = stream
         self.chunk_size = chunk_size
+        self.late = 0
         self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="gx3-mcap-zstd")
         self._closed: tuple[Future[tuple[bytes, int]], _OpenChunk, int] | None = None
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
         self._chunk = _OpenChunk()
+        self._held: list[_Held] = []
+        self.held_bytes = 0
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: dict[int, int] = {}
@@ -185,56 +215,75 @@ class McapWriter:
         self._metadata += 1
 
     def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
-            publish_time: np.ndarray, payloads: Sequence[bytes],
-            stop_after_chunk: bool = False) -> int:
-        """Append messages of ``channel`` (sequence numbers from ``first_sequence``).
-
-        A chunk closes after the message that takes its records past ``chunk_size``
-        (as mcap's writer does); with ``stop_after_chunk`` the call returns there, so
-        the caller can look at the file's size. Returns how many messages were taken.
-        """
+            publish_time: np.ndarray, payloads: Sequence[bytes]) -> None:
+        """Hold messages of ``channel`` (sequence numbers from ``first_sequence``) until
+        a ``release`` reaches their log time."""
         if not len(payloads):
-            return 0
+            return
         log_time = np.asarray(log_time, np.int64)
-        publish_time = np.asarray(publish_time, np.int64)
-        records, sizes = message_records(channel, first_sequence, log_time, publish_time,
-                                         payloads)
-        ends = np.cumsum(sizes)
-        if self._chunk.size + len(records) <= self.chunk_size:  # the chunk stays open
-            self._take(channel, records, log_time, ends - sizes)
-            return len(payloads)
-        view = memoryview(records)
-        taken = 0
-        while taken < len(payloads):
-            done = int(ends[taken - 1]) if taken else 0
-            over = np.flatnonzero(self._chunk.size + ends[taken:] - done > self.chunk_size)
-            stop = taken + int(over[0]) + 1 if len(over) else len(payloads)
-            self._take(channel, view[done : int(ends[stop - 1])], log_time[taken:stop],
-                       ends[taken:stop] - sizes[taken:stop] - done)
-            taken = stop
-            if len(over):
-                self._close_chunk()
-                if stop_after_chunk:
-                    break
-        return taken
+        if self._messages:
+            behind = log_time < self._end
+            if behind.any():
+                self.late += int(behind.sum())
+                log_time = np.maximum(log_time, self._end)
+        records, sizes = message_records(channel, first_sequence, log_time,
+                                         np.asarray(publish_time, np.int64), payloads)
+        self._held.append(_Held(records, np.full(len(sizes), channel, np.uint16), log_time,
+                                np.cumsum(sizes) - sizes, sizes))
+        self.held_bytes += len(records)
 
-    def _take(self, channel: int, records: bytes | memoryview, log_time: np.ndarray,
+    def release(self, upto: int | None = None) -> None:
+        """Write the held messages logged at or before ``upto`` (None: all), in log-time
+        order (messages of one time in the order added); chunks close as they fill."""
+        held, self._held, self.held_bytes = self._held, [], 0
+        if not held:
+            return
+        data = np.frombuffer(b"".join(h.data for h in held), np.uint8)
+        base = np.cumsum([0] + [len(h.data) for h in held[:-1]])
+        log = np.concatenate([h.log_time for h in held])
+        start = np.concatenate([h.start + b for h, b in zip(held, base.tolist(), strict=True)])
+        size = np.concatenate([h.size for h in held])
+        channel = np.concatenate([h.channel for h in held])
+        order = np.argsort(log, kind="stable")
+        cut = len(order) if upto is None else int(np.searchsorted(log[order], upto, "right"))
+        kept = np.sort(order[cut:])
+        if len(kept):
+            self._held = [_Held(_gather(data, start[kept], size[kept]), channel[kept],
+                                log[kept], np.cumsum(size[kept]) - size[kept], size[kept])]
+            self.held_bytes = len(self._held[0].data)
+        out = order[:cut]
+        ends = np.cumsum(size[out])
+        done = 0
+        while done < len(out):
+            before = int(ends[done - 1]) if done else 0
+            fit = int(np.searchsorted(ends[done:] - before, self.chunk_size - self._chunk.size,
+                                      "right"))
+            stop = min(len(out), done + fit + 1)
+            part = out[done:stop]
+            self._take(_gather(data, start[part], size[part]), channel[part], log[part],
+                       ends[done:stop] - size[part] - before)
+            done = stop
+            if self._chunk.size > self.chunk_size:
+                self._close_chunk()
+
+    def _take(self, records: bytes, channel: np.ndarray, log_time: np.ndarray,
               offsets: np.ndarray) -> None:
+        """Append message records (in log-time order) to the chunk in progress."""
         chunk, n = self._chunk, len(log_time)
-        if n < _BULK:
-            times = log_time.tolist()
-            first, last = min(times), max(times)
-        else:
-            first, last = int(log_time.min()), int(log_time.max())
-        chunk.start = first if not chunk.messages else min(chunk.start, first)
-        chunk.end = max(chunk.end, last)
-        chunk.index.setdefault(channel, []).append((log_time, chunk.size + offsets))
+        first, last = int(log_time[0]), int(log_time[-1])
+        if not chunk.messages:
+            chunk.start = first
+        chunk.end = last
+        chunk.index.append((channel, log_time, chunk.size + offsets))
         chunk.add(records)
         chunk.messages += n
-        self._start = first if not self._messages else min(self._start, first)
-        self._end = max(self._end, last)
+        if not self._messages:
+            self._start = first
+        self._end = last
         self._messages += n
-        self._counts[channel] = self._counts.get(channel, 0) + n
+        ids, counts = np.unique(channel, return_counts=True)
+        for cid, count in zip(ids.tolist(), counts.tolist(), strict=True):
+            self._counts[cid] = self._counts.get(cid, 0) + count
 
     def _close_chunk(self) -> None:
         """Close the chunk in progress (none without messages: its schemas and channels
@@ -250,7 +299,7 @@ class McapWriter:
         self._chunk = _OpenChunk()
 
     def _write_closed(self) -> None:
-        """Write the chunk last closed and its message indexes."""
+        """Write the chunk last closed and its message indexes (channel by channel)."""
         if self._closed is None:
             return
         packed, chunk, size = self._closed
@@ -260,16 +309,20 @@ class McapWriter:
                                message_start_time=chunk.start, message_end_time=chunk.end,
                                uncompressed_crc=crc, uncompressed_size=size))
         chunk_at = self.stream.tell()
+        channel = np.concatenate([c for c, _, _ in chunk.index])
+        by_channel = np.argsort(channel, kind="stable")
+        entries = np.empty(len(channel), _INDEX_ENTRY)
+        entries["log_time"] = np.concatenate([t for _, t, _ in chunk.index])[by_channel]
+        entries["offset"] = np.concatenate([o for _, _, o in chunk.index])[by_channel]
+        ids, firsts = np.unique(channel[by_channel], return_index=True)
         indexes: list[bytes] = []
         offsets: dict[int, int] = {}
         at = chunk_at + len(record)
-        for channel, parts in chunk.index.items():
-            entries = np.empty(sum(len(t) for t, _ in parts), _INDEX_ENTRY)
-            entries["log_time"] = np.concatenate([t for t, _ in parts])
-            entries["offset"] = np.concatenate([o for _, o in parts])
-            body = entries.tobytes()
-            offsets[channel] = at
-            indexes.append(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(body), channel,
+        for cid, lo, hi in zip(ids.tolist(), firsts.tolist(), [*firsts[1:].tolist(),
+                                                                len(channel)], strict=True):
+            body = entries[lo:hi].tobytes()
+            offsets[cid] = at
+            indexes.append(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid,
                                             len(body)) + body)
             at += len(indexes[-1])
         self.stream.write(record)
@@ -281,7 +334,8 @@ class McapWriter:
             compression="zstd", compressed_size=len(compressed), uncompressed_size=size))
 
     def flush(self) -> None:
-        """Close the chunk in progress and hand everything to the OS."""
+        """Close the chunk in progress and hand what is written to the OS (held messages
+        wait for their ``release``)."""
         self._close_chunk()
         self._write_closed()
         self.stream.flush()
@@ -293,8 +347,10 @@ class McapWriter:
         self._worker.shutdown(wait=True)
 
     def finish(self) -> None:
-        """Close the last chunk and write the summary and footer (the stream stays open)."""
+        """Write every held message, close the last chunk and write the summary and footer
+        (the stream stays open)."""
         try:
+            self.release()
             self._close_chunk()
             self._write_closed()
         finally:

@@ -270,7 +270,7 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
         return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
                                   min(jobs, len(tasks)))
     results = []
-    with ArchiveWriter(out, prefix=prefix) as writer:
+    with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
         emit = _counted(writer.write_many, on_samples)
         for path in paths:
             for capture in captures(path, prefix):
@@ -350,7 +350,7 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
         w.start()
     done: list[tuple[int, str, Replayed]] = []
     try:
-        with ArchiveWriter(out, prefix=prefix) as writer:
+        with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
             emit = _counted(writer.write_many, on_samples)
             running = len(workers)
             while running:
