@@ -89,7 +89,9 @@ def captures(path: Path, prefix: str = "gx3",
             continue
         messages = archive.messages(topic)
         unit = messages.unit
-        out.append(Capture(unit, messages.log_time.astype(np.int64), messages.payloads,
+        # publish time: the receive time itself even where a read came later than the
+        # archive's reorder window (its log time is then the last one written before it)
+        out.append(Capture(unit, messages.publish_time.astype(np.int64), messages.payloads,
                            meta.get(unit, {}), topic))
     if not out:
         raise ReplayError(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
