@@ -103,6 +103,9 @@ def _header_dtype(unit: str) -> np.dtype[np.void]:
 _HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
 _BULK = 16  # messages; fewer are cheaper one by one than through arrays
 _HOLD = 1024  # messages ``write`` holds at most before handing them on
+#: chunks' worth of held messages that have a release go before the next flush: fewer,
+#: larger releases sort and frame in bigger batches
+_RELEASE_CHUNKS = 4
 
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
@@ -403,8 +406,7 @@ class ArchiveWriter:
                 self.write_many(key, payloads, np.array(received, np.int64))
         finally:
             self._draining = False
-        if self._current().writer.held_bytes > self.chunk_size:
-            self._release()
+        self._release_if_full()
 
     def write_many(self, key: str, payloads: Sequence[bytes],
                    receive_ns: int | np.ndarray) -> None:
@@ -441,8 +443,8 @@ class ArchiveWriter:
                                    codes[done : done + taken], log_ns[done : done + taken],
                                    payloads[done : done + taken], rx[done : done + taken])
             done += taken
-            if not self._draining and self._current().writer.held_bytes > self.chunk_size:
-                self._release()
+            if not self._draining:
+                self._release_if_full()
         if self._clock() - self._flushed >= FLUSH_EVERY_S:
             self.flush()
 
@@ -553,6 +555,11 @@ class ArchiveWriter:
         self._write_frames()
         now = self._rx_latest + int((self._clock() - self._rx_seen_at) * 1e9)
         self._guard(self._current().writer.release, now - self.reorder_ns)
+
+    def _release_if_full(self) -> None:
+        """Release before the next flush when much is held (a writer faster than live)."""
+        if self._current().writer.held_bytes > _RELEASE_CHUNKS * self.chunk_size:
+            self._release()
 
     def flush(self) -> None:
         """Write what the reorder window lets go, close the open chunk and hand it all to
