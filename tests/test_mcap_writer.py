@@ -210,3 +210,39 @@ def test_messages_are_written_in_log_time_order_and_chunks_never_overlap(
     assert len(spans) > 10 and all(a[1] <= b[0] for a, b in itertools.pairwise(spans))
     # at the time of the last message the last release wrote (up to T0 + 28,000)
     assert last == [(max(t for t in logs if t <= T0 + 28_000), late, b"x")]
+
+
+def test_a_file_sorted_whole_spills_sorted_runs_and_merges_them(tmp_path: Path) -> None:
+    """Held past ``spill_bytes``, messages go to sorted runs in an unnamed file beside the
+    output; at the end the runs are merged: the same file as sorted in memory, and the
+    writer's memory stays near ``spill_bytes``."""
+    rng = np.random.default_rng(9)
+    batches = []
+    for unit in range(4):  # a replay: unit after unit, each over the same hour
+        log = T0 + np.sort(rng.integers(0, 3600 * 10**9, 3_000))
+        payloads = [rng.bytes(int(k)) for k in rng.integers(10, 60, len(log))]
+        batches += [(unit + 1, lo, log[lo : lo + 500], payloads[lo : lo + 500])
+                    for lo in range(0, len(log), 500)]
+    log[:7] = log[0]  # messages of one time keep the order they were added in
+    files = {}
+    for spill in (1 << 30, 20_000):
+        path = tmp_path / f"{spill}.mcap"
+        with path.open("wb") as stream:
+            w = McapWriter(stream, chunk_size=4_000, spill_bytes=spill, spill_dir=tmp_path)
+            w.start("", "")
+            for c in range(4):
+                w.register_channel(f"u{c}", "octet", 0, {})
+            for channel, lo, t, p in batches:
+                w.add(channel, lo, t, t, p)
+                assert w.held_bytes <= spill + 500 * 100
+            w.finish()
+        files[spill] = path.read_bytes()
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            f"{s}.mcap" for s in files)  # the spill file has no name
+    assert files[20_000] == files[1 << 30]
+    with (tmp_path / "20000.mcap").open("rb") as f:
+        got = [(c.id, m.sequence, m.log_time) for _, c, m in
+               make_reader(f).iter_messages(log_time_order=False)]
+    expected = sorted(((ch, lo + i, int(t[i])) for ch, lo, t, _ in batches
+                       for i in range(len(t))), key=lambda m: m[2])
+    assert got == expected

@@ -269,7 +269,7 @@ class ArchiveWriter:
             stream: IO[bytes] = path.open("wb")
         except OSError as exc:
             raise self._fail(path, exc, opening=True) from None
-        writer = McapWriter(stream, chunk_size=self.chunk_size)
+        writer = McapWriter(stream, chunk_size=self.chunk_size, spill_dir=path.parent)
         self._file = _File(path, stream, writer)
         self.paths.append(path)
         self._guard(writer.start, PROFILE, LIBRARY)

@@ -37,11 +37,14 @@ file, are built here.
 from __future__ import annotations
 
 import functools
+import os
 import struct
+import tempfile
 import zlib
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -71,6 +74,7 @@ _BODY_FIXED = _MESSAGE_HEAD.size - 9  # a Message record's length without its da
 _BULK = 16  # messages; fewer are cheaper packed one by one than laid out as an array
 _INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 _INDEX_HEAD = struct.Struct("<BQHI")
+_MERGE = 1 << 16  # messages merged from spilled runs at a time
 
 
 def message_records(channel: int, first_sequence: int, log_time: np.ndarray,
@@ -148,6 +152,38 @@ class _OpenChunk:
         self.size += len(record)
 
 
+def _joined(held: list[_Held]) -> tuple[np.ndarray, ...]:
+    """Held pieces as one: bytes, and log time, start, size and channel of each record."""
+    data = np.frombuffer(b"".join(h.data for h in held), np.uint8)
+    base = np.cumsum([0] + [len(h.data) for h in held[:-1]]).tolist()
+    return (data, np.concatenate([h.log_time for h in held]),
+            np.concatenate([h.start + b for h, b in zip(held, base, strict=True)]),
+            np.concatenate([h.size for h in held]), np.concatenate([h.channel for h in held]))
+
+
+def _read(fd: int, at: int, size: int) -> bytes:
+    parts = []
+    while size:
+        part = os.pread(fd, size, at)
+        if not part:
+            raise OSError(f"the sort's spill file ends {size} bytes short")
+        parts.append(part)
+        at += len(part)
+        size -= len(part)
+    return b"".join(parts)
+
+
+@dataclass
+class _Run:
+    """Held messages spilled, sorted, to the spill file: records start at ``ends[:-1]``
+    and end at ``ends[1:]``."""
+
+    channel: np.ndarray
+    log_time: np.ndarray
+    ends: np.ndarray
+    at: int = 0  # records before it are written
+
+
 def _gather(data: np.ndarray, start: np.ndarray, size: np.ndarray) -> bytes:
     """The byte ranges (``start``, ``size``) of ``data`` end to end: the records of each
     size moved as rows of a window view, one row copy each (there are few sizes)."""
@@ -178,9 +214,12 @@ class McapWriter:
     as mcap's writer gives them. Errors of the stream (a full disk) propagate as OSError.
     """
 
-    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20) -> None:
+    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20,
+                 spill_bytes: int = 64 << 20, spill_dir: Path | None = None) -> None:
         self.stream = stream
         self.chunk_size = chunk_size
+        self.spill_bytes = spill_bytes
+        self.spill_dir = spill_dir
         self.late = 0
         self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="gx3-mcap-zstd")
@@ -189,6 +228,9 @@ class McapWriter:
         self._channels: list[Channel] = []
         self._chunk = _OpenChunk()
         self._held: list[_Held] = []
+        self._runs: list[_Run] = []
+        self._spill_fd: int | None = None
+        self._spilled = 0  # bytes in the spill file
         self.held_bytes = 0
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
@@ -240,19 +282,20 @@ class McapWriter:
         self._held.append(_Held(records, np.full(len(sizes), channel, np.uint16), log_time,
                                 np.cumsum(sizes) - sizes, sizes))
         self.held_bytes += len(records)
+        if self.held_bytes > self.spill_bytes:
+            self._spill()
 
     def release(self, upto: int | None = None) -> None:
         """Write the held messages logged at or before ``upto`` (None: all), in log-time
         order (messages of one time in the order added); chunks close as they fill."""
+        if self._runs:
+            self._spill()
+            self._merge(upto)
+            return
         held, self._held, self.held_bytes = self._held, [], 0
         if not held:
             return
-        data = np.frombuffer(b"".join(h.data for h in held), np.uint8)
-        base = np.cumsum([0] + [len(h.data) for h in held[:-1]])
-        log = np.concatenate([h.log_time for h in held])
-        start = np.concatenate([h.start + b for h, b in zip(held, base.tolist(), strict=True)])
-        size = np.concatenate([h.size for h in held])
-        channel = np.concatenate([h.channel for h in held])
+        data, log, start, size, channel = _joined(held)
         order = np.argsort(log, kind="stable")
         cut = len(order) if upto is None else int(np.searchsorted(log[order], upto, "right"))
         kept = np.sort(order[cut:])
@@ -274,6 +317,50 @@ class McapWriter:
             done = stop
             if self._chunk.size > self.chunk_size:
                 self._close_chunk()
+
+    def _spill(self) -> None:
+        """Move the held messages, sorted, to a run in a temporary file (memory stays
+        flat while a whole file waits to be sorted)."""
+        if not self._held:
+            return
+        data, log, start, size, channel = _joined(self._held)
+        order = np.argsort(log, kind="stable")
+        if self._spill_fd is None:  # a file with no name: gone with the writer
+            self._spill_fd, name = tempfile.mkstemp(prefix=".gx3-sort-", dir=self.spill_dir)
+            os.unlink(name)
+        records = memoryview(_gather(data, start[order], size[order]))
+        at = self._spilled
+        while records:
+            written = os.pwrite(self._spill_fd, records, self._spilled)
+            records = records[written:]
+            self._spilled += written
+        self._runs.append(_Run(channel[order], log[order],
+                               at + np.r_[0, np.cumsum(size[order])]))
+        self._held, self.held_bytes = [], 0
+
+    def _merge(self, upto: int | None) -> None:
+        """Write the messages of the spilled runs logged up to ``upto``, in log-time order:
+        a slice of time at a time, each run's part of it read in one piece."""
+        logs = np.concatenate([r.log_time[r.at :] for r in self._runs])
+        if upto is not None:
+            logs = logs[logs <= upto]
+        logs.sort()
+        for hi in np.unique(np.r_[logs[_MERGE - 1 :: _MERGE], logs[-1:]]).tolist():
+            for run in self._runs:
+                stop = int(np.searchsorted(run.log_time, hi, "right"))
+                if stop > run.at:
+                    sizes = np.diff(run.ends[run.at : stop + 1])
+                    assert self._spill_fd is not None
+                    self._held.append(_Held(_read(self._spill_fd, int(run.ends[run.at]),
+                                                  int(sizes.sum())),
+                                            run.channel[run.at : stop],
+                                            run.log_time[run.at : stop],
+                                            np.cumsum(sizes) - sizes, sizes))
+                    run.at = stop
+            runs, self._runs = self._runs, []
+            self.release()
+            self._runs = runs
+        self._runs = [r for r in self._runs if r.at < len(r.log_time)]
 
     def _take(self, records: bytes, channel: np.ndarray, log_time: np.ndarray,
               offsets: np.ndarray) -> None:
@@ -353,6 +440,10 @@ class McapWriter:
         """Stop the compression thread (``finish`` does; call this when not finishing,
         after a write error). Safe to call twice."""
         self._closed = None
+        self._runs = []
+        if self._spill_fd is not None:
+            os.close(self._spill_fd)
+            self._spill_fd = None
         self._worker.shutdown(wait=True)
 
     def finish(self) -> None:
