@@ -627,14 +627,15 @@ def _after(chunks: dict[int, ChunkIndex], chunk: ChunkIndex) -> int:
     return chunk.chunk_start_offset + chunk.chunk_length + chunk.message_index_length
 
 
-def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str) -> None:
+def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str,
+            channels: dict[int, Channel]) -> None:
     """Note a chunk skipped: its time span from the chunk index, its messages per topic
     from its message indexes (when those are intact)."""
     lost: dict[str, int] | None = {}
     for cid, offset in index.message_index_offsets.items():
         stream.seek(offset)
         head = stream.read(9 + 6)
-        ch = archive.channels.get(cid)
+        ch = channels.get(cid)
         if len(head) < 15 or head[0] != Opcode.MESSAGE_INDEX or ch is None or lost is None:
             lost = None
             continue
@@ -662,10 +663,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     with stream:
         index = _summary(stream)
         chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
-        if index is not None:  # a damaged first chunk takes no channel with it
-            archive.schemas.update(index.schemas)
-            for ch in index.channels.values():
-                archive.channels[ch.id] = _channel_info(ch, archive.schemas)
+        summary_channels = {} if index is None else index.channels
         while True:
             head = stream.read(9)
             if len(head) < 9:
@@ -679,7 +677,8 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
                 inside = _inside(chunks, pos)
             if inside is not None:  # a corrupt record head in a chunk or its indexes
                 if inside.chunk_start_offset == pos:
-                    _damage(archive, stream, inside, f"corrupt record head at byte {pos}")
+                    _damage(archive, stream, inside, f"corrupt record head at byte {pos}",
+                            summary_channels)
                 pos = _after(chunks, inside)
                 stream.seek(pos)
                 continue
@@ -692,7 +691,8 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
                     try:
                         _chunk(archive, body, _message_indexes(stream, pos + 9 + length, size))
                     except Exception as exc:  # a corrupt chunk: on at the next
-                        _damage(archive, stream, chunks[pos], f"{type(exc).__name__}: {exc}")
+                        _damage(archive, stream, chunks[pos], f"{type(exc).__name__}: {exc}",
+                                summary_channels)
                     pos = _after(chunks, chunks[pos])
                     stream.seek(pos)
                     continue
@@ -721,6 +721,12 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     archive.dropped_bytes = size - pos
     if archive.dropped_bytes and archive.complete:
         archive.problem = f"{archive.dropped_bytes} bytes after the end of the file"
+    if index is not None:  # the summary's channels stand in for those lost with a chunk
+        for b in archive.blocks:
+            for cid in set(np.unique(b.channel).tolist()) - set(archive.channels):
+                if cid in index.channels:
+                    archive.schemas.update(index.schemas)
+                    archive.channels[cid] = _channel_info(index.channels[cid], index.schemas)
     if archive.damage:
         warn(describe_damage(archive))
     return archive
