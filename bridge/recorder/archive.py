@@ -21,7 +21,8 @@ Layout (DESIGN.md, "Archives"):
   before it, then is written at the next flush, at least once a second: a killed
   recorder loses at most the last 1.5 s and the file still opens with read.py. A
   message that comes later than that is written at the log time of the last one
-  written (its own time stays in its payload) and counted (``late``, and a
+  written (its own time stays in its payload; a raw read's in its publish time, the
+  receive time too) and counted (``late``, and a
   ``gx3.order`` metadata record). ``reorder_s=None`` sorts the whole file when it is
   finished (a replay writes unit after unit).
   ``write_many`` takes a batch of one key at once (bridge/recorder/mcap_writer.py lays
@@ -589,7 +590,8 @@ class ArchiveWriter:
                         "reorder_window_ns": str(self.reorder_ns),
                         "note": "messages that came later than the reorder window are "
                                 "logged at the time of the last message written before "
-                                "them; their own time is in their payload"})
+                                "them; their own time is in their payload (a raw read's "
+                                "in its publish time)"})
                 self._guard(f.writer.finish)
         finally:
             self._file = None
