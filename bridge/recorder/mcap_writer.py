@@ -215,7 +215,7 @@ class McapWriter:
     """
 
     def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20,
-                 spill_bytes: int = 64 << 20, spill_dir: Path | None = None) -> None:
+                 spill_bytes: int = 16 << 20, spill_dir: Path | None = None) -> None:
         self.stream = stream
         self.chunk_size = chunk_size
         self.spill_bytes = spill_bytes
