@@ -114,6 +114,9 @@ class Pipeline:
         self.info: UnitInfo | None = None
         self.timing = StreamTiming()
         self.error: Exception | None = None
+        self.came_up = False  # the unit was brought up at least once
+        self.waiting_for: str | None = None  # why the unit is not up, while it is not
+        self.last_failure = ""  # the last failed attempt's message
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
     def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
@@ -149,33 +152,45 @@ class Pipeline:
         backoff = _RETRY_FIRST_S
         lost_at: int | None = None
         while not stop.is_set():
+            session: Session | None = None
             try:
                 session = self._open()
+                self._bring_up(session)
             except (PortError, DeviceError) as exc:
-                if backoff == _RETRY_FIRST_S and lost_at is None:
-                    self._event("error", detail=str(exc))  # a lost link was reported then
-                self.counters.state = "waiting"
+                if session is not None:
+                    self._close(session, clean=stop.is_set())
+                self._wait(exc, lost=lost_at is not None)
                 stop.wait(backoff)
                 backoff = min(_RETRY_MAX_S, backoff * 2)
                 continue
             backoff = _RETRY_FIRST_S
+            self.waiting_for = None
+            if lost_at is not None:
+                self.counters.reconnects += 1
+                gap = (time.time_ns() - lost_at) / 1e9
+                self._event("reconnect", detail=f"back after {gap:.1f} s")
+            lost_at = None
             try:
-                self._bring_up(session)
-                if lost_at is not None:
-                    self.counters.reconnects += 1
-                    gap = (time.time_ns() - lost_at) / 1e9
-                    self._event("reconnect", detail=f"back after {gap:.1f} s")
-                lost_at = None
                 self._stream(session, stop)
             except _Restart:
                 self.counters.state = "bring-up"
             except (PortError, DeviceError) as exc:
-                lost_at = lost_at or time.time_ns()
+                lost_at = time.time_ns()
                 self.counters.state = "lost"
                 self._event("disconnect", detail=str(exc))
             finally:
                 self._close(session, clean=stop.is_set())
         self.counters.state = "stopped"
+
+    def _wait(self, exc: PortError | DeviceError, lost: bool) -> None:
+        """Say why the unit is not up once, and again only when the reason changes:
+        a retry every few seconds must not flood the log or look like a new fault."""
+        self.counters.state = "lost" if lost else "waiting"
+        if exc.why != self.waiting_for:
+            self._event("waiting", detail=f"{exc}; retrying, with pauses growing to "
+                                          f"{_RETRY_MAX_S:g} s")
+        self.waiting_for = exc.why
+        self.last_failure = str(exc)
 
     def _open(self) -> Session:
         o = self.options
@@ -216,6 +231,7 @@ class Pipeline:
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz")
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
+        self.came_up = True
 
     def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
         self.timing.configure(Settings(

@@ -35,8 +35,7 @@ _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "stopped": Status.STOPPED}
 _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
           "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
-          "error": Event.DISCONNECT, "resync": Event.RESYNC, "bring_up": Event.BRING_UP,
-          "command": Event.COMMAND}
+          "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND}
 
 
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
@@ -185,9 +184,10 @@ class BusSink:
             self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
 
     def event(self, event: UnitEvent) -> None:
-        if not self.quiet or event.kind in ("disconnect", "error"):
+        if not self.quiet or event.kind in ("disconnect", "waiting"):
             _print_event(event)
-        if self.publisher is not None and self.unit is not None:
+        # "waiting" (why the unit is not up yet) is for the log; status carries the state
+        if self.publisher is not None and self.unit is not None and event.kind in _KINDS:
             self.publisher.publish_event(event_message(self.unit, event))
 
     def status(self, status: dict[str, Any]) -> None:

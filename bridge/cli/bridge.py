@@ -80,9 +80,21 @@ def run_bridge(
     mode: ModeOpt = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print errors only.")] = False,
+    give_up_after: Annotated[float | None, typer.Option(
+        min=0.0, metavar="SECONDS",
+        help="Exit (status 1) if the unit has not come up this many seconds after the "
+             "start (0: after the first failed try). Default: keep retrying until "
+             "stopped.")] = None,
+    quiet: Annotated[bool, typer.Option(
+        "--quiet", "-q", help="Print errors only (and why the unit is not up).")] = False,
 ) -> None:
     """Bridge one unit onto Zenoh: bring it up, stream, time every sample, publish.
+
+    A port that is missing or busy, or a unit that does not answer, is retried with
+    pauses growing to 5 s; the reason is printed once, and again when it changes.
+    Exit status: 0 when stopped after the unit came up; 1 when it never came up
+    (stopped, --duration or --give-up-after first) or on an internal error; 2 for
+    bad options or a Zenoh configuration that does not open.
 
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
@@ -147,10 +159,16 @@ def run_bridge(
             sink.on_read(write_capture)
         worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
         worker.start()
-        deadline = None if duration is None else time.monotonic() + duration
+        started = time.monotonic()
+        gave_up = False
         try:
             while worker.is_alive() and not stop.is_set():
-                if deadline is not None and time.monotonic() >= deadline:
+                elapsed = time.monotonic() - started
+                if duration is not None and elapsed >= duration:
+                    stop.set()
+                if give_up_after is not None and elapsed >= give_up_after \
+                        and pipeline.last_failure and not pipeline.came_up:
+                    gave_up = True
                     stop.set()
                 stop.wait(0.2)
         finally:
@@ -162,6 +180,11 @@ def run_bridge(
     if pipeline.error is not None:
         raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
                    f"{pipeline.error}", 1)
+    if not pipeline.came_up:
+        why = pipeline.last_failure or "stopped before the first try ended"
+        if gave_up:
+            why += f" (gave up after {give_up_after:g} s)"
+        raise fail(f"no unit came up on {port}; the last try: {why}", 1)
     if not quiet:
         err.print(sink.summary())
 

@@ -40,11 +40,16 @@ _MAX_SETTLE_S = float(wake_time_seconds(32)) + 0.02  # Equation 1 at the widest 
 
 
 class DeviceError(Exception):
-    """A unit did not do what was asked; the message says what and what to try."""
+    """A unit did not do what was asked; the message says what and what to try.
+    ``why`` names the cause in a few words, as ``PortError.why`` does."""
+
+    why = "unit refused"
 
 
 class CommandTimeout(DeviceError):
     """No reply within the timeout, after every retry."""
+
+    why = "no answer"
 
 
 class CommandRejected(DeviceError):
@@ -350,5 +355,5 @@ def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> t
         port.close()
         raise
     port.close()
-    raise DeviceError(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
+    raise CommandTimeout(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
                       "check the cable and the unit's power")

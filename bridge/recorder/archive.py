@@ -33,7 +33,9 @@ Layout (DESIGN.md, "Archives"):
 from __future__ import annotations
 
 import functools
+import glob
 import importlib.metadata
+import re
 import struct
 import time
 from collections.abc import Callable, Sequence
@@ -50,6 +52,7 @@ from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
+from bridge.outputs import OutputRefused, create_locked, refuse_if_written
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
 from bridge.recorder.mcap_writer import McapWriter
@@ -85,6 +88,22 @@ def frame_topic(prefix: str, unit: str) -> str:
 def numbered(path: Path, index: int) -> Path:
     """The ``index``-th file (from 1) of a recording split into several."""
     return path.with_name(f"{path.stem}_{index:04d}{path.suffix}")
+
+
+def next_part(path: Path) -> int:
+    """The index after the highest part of the recording ``path`` already there: a
+    restarted recorder adds parts, never replaces one. Refused while another process
+    writes that last part (one writer per recording)."""
+    pattern = re.compile(rf"{re.escape(path.stem)}_(\d{{4,}}){re.escape(path.suffix)}")
+    found = [int(m[1]) for p in path.parent.glob(f"{glob.escape(path.stem)}_*")
+             if (m := pattern.fullmatch(p.name))]
+    last = max(found, default=0)
+    if last:
+        try:
+            refuse_if_written(numbered(path, last))
+        except OutputRefused as exc:
+            raise ArchiveError(str(exc)) from None
+    return last + 1
 
 
 @functools.cache
@@ -217,7 +236,9 @@ class ArchiveWriter:
 
     Units and message types get their channels on first sight. ``split_bytes`` or
     ``split_seconds`` (of receive time) start a new numbered file (``run_0001.mcap``,
-    ``run_0002.mcap``, ...) when the current one reaches that size or age. Call
+    ``run_0002.mcap``, ...) when the current one reaches that size or age, numbered on
+    after any parts already there. An existing file is refused (``force`` replaces it
+    unless another process writes it); each file is locked while written. Call
     ``tick()`` at least once a second while no messages arrive, so the last ones reach
     the disk; ``close()`` finishes the file with its summary and index. Messages are
     written in log-time order, each once ``reorder_s`` of receive time has passed its
@@ -230,8 +251,10 @@ class ArchiveWriter:
                  frames: bool = True, frame_rate_hz: float | None = 25.0,
                  frame_spacing: float = 0.5, reorder_s: float | None = REORDER_S,
                  metadata: dict[str, str] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, force: bool = False) -> None:
         self.path = Path(path)
+        self.force = force
+        self._first_part = 1
         self.prefix = check_prefix(prefix)
         self.chunk_size = chunk_size
         self.split_bytes = split_bytes
@@ -265,16 +288,23 @@ class ArchiveWriter:
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        path = numbered(self.path, len(self.paths) + 1) if self._splits else self.path
+        """Create the next file exclusively and lock it (bridge/outputs.py): an existing
+        one is never truncated; split parts continue after those already there."""
+        if self._splits and not self.paths:
+            self._first_part = next_part(self.path)
+        index = self._first_part + len(self.paths)
+        path = numbered(self.path, index) if self._splits else self.path
         try:
-            stream: IO[bytes] = path.open("wb")
+            stream = create_locked(path, self.force and not self._splits)
+        except OutputRefused as exc:
+            raise ArchiveError(str(exc)) from None
         except OSError as exc:
             raise self._fail(path, exc, opening=True) from None
         writer = McapWriter(stream, chunk_size=self.chunk_size, spill_dir=path.parent)
         self._file = _File(path, stream, writer)
         self.paths.append(path)
         self._guard(writer.start, PROFILE, LIBRARY)
-        meta = {"prefix": self.prefix, "file_index": str(len(self.paths)),
+        meta = {"prefix": self.prefix, "file_index": str(index),
                 "frame_convention": "world = north-east-down; FrameTransform rotation = "
                                     "sensor-to-earth (M transposed), quaternion x y z w",
                 **self.metadata}

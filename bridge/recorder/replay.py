@@ -20,6 +20,7 @@ import itertools
 import multiprocessing
 import os
 import pickle
+import signal
 import threading
 import time
 from collections import Counter
@@ -386,7 +387,10 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
 def _worker(tasks: list[_Task], prefix: str,
             queue: multiprocessing.Queue[tuple[str, Any]], parent: int) -> None:
     """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
-    its raw topic, the order it has replayed alone."""
+    its raw topic, the order it has replayed alone. Ctrl-C is the caller's to handle (it
+    ends the workers and removes its output), and its SIGTERM ends a worker at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
 
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
