@@ -368,7 +368,9 @@ class Archive:
     def summary(self) -> str:
         """Units, record types, message counts and time ranges, one line each."""
         lines = [f"{self.path}: {self.size} bytes, {self.message_count} messages, "
-                 f"{self.chunks} chunks, " + ("complete" if self.complete else
+                 f"{self.chunks} chunks, "
+                 + (f"{len(self.damage)} corrupt chunk(s) skipped, " if self.damage else "")
+                 + ("complete" if self.complete else
                  f"not finished ({self.dropped_bytes} bytes dropped"
                  + (f": {self.problem}" if self.problem else "") + ")")]
         for topic, (n, t0, t1) in self.counts().items():
