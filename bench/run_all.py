@@ -28,6 +28,8 @@ BENCHMARKS: tuple[tuple[str, list[str], list[str]], ...] = (
     ("one bridge at 1 kHz, 0xCC", ["bench_bridge.py", "--seconds", "30"],
      ["bench_bridge.py", "--seconds", "5"]),
     ("archive writing and export", ["bench_archive.py"], ["bench_archive.py"]),
+    ("one flipped byte in an archive", ["bench_damage.py"],
+     ["bench_damage.py", "--minutes", "2"]),
     ("gx3 replay", ["bench_replay.py", "--units", "4", "--rate", "100", "--minutes", "10"],
      ["bench_replay.py", "--units", "1", "--rate", "100", "--minutes", "1"]),
     ("recorder: 100 units at 1 kHz",

@@ -29,6 +29,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
+from tests.mcap_order import order_problems
 from tests.test_bridge_process import GX3
 from tests.test_record_live import sample_columns
 
@@ -188,6 +189,8 @@ def test_units_replayed_side_by_side_get_the_same_samples(tmp_path: Path, layout
         [(r.samples, r.events, r.settings) for r in alone]
     a, b = read_archive(tmp_path / "alone.mcap"), read_archive(tmp_path / "together.mcap")
     assert a.complete and b.complete and b.units() == a.units()
+    for out in ("alone.mcap", "together.mcap"):  # units replayed one after another
+        assert order_problems(tmp_path / out) == [], out
     for unit in a.units():
         cols_a = sample_columns(tmp_path / "alone.mcap", unit)
         cols_b = sample_columns(tmp_path / "together.mcap", unit)

@@ -40,17 +40,22 @@ def _read(path: Path) -> Archive:
 
 @app.command()
 def repair(
-    file: Annotated[Path, typer.Argument(help="Archive whose recorder did not finish it.")],
+    file: Annotated[Path, typer.Argument(
+        help="Archive whose recorder did not finish it, or with a damaged chunk.")],
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap); it appears "
                                "when complete.")] = None,
     force: ForceOpt = False,
 ) -> None:
-    """Rebuild a finished, indexed archive from one cut short (a killed recorder).
+    """Rebuild a finished, indexed archive from one cut short (a killed recorder) or
+    damaged (a corrupt chunk).
 
-    Every schema, channel, metadata record and message up to the last complete chunk
-    is copied into a new file with its index and summary; what follows is dropped and
-    counted. The input is never overwritten.
+    Every schema, channel, metadata record and message of every intact chunk is
+    copied into a new file with its index and summary: a file cut short up to its last
+    complete chunk, the rest dropped and counted; in a finished file a chunk that fails
+    its CRC is skipped (found again by the summary's chunk index) and what it held is
+    said (time span, messages per topic). Exits 2 when nothing can be recovered. The
+    input is never overwritten.
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
@@ -104,6 +109,8 @@ def export(
     quantity columns (accel_x .. accel_z, m11 .. m33, roll pitch yaw, q0 .. q3,
     temperature_0 .. temperature_3, ...), NaN where a record lacks a quantity; rows in
     time order. M maps earth (north-east-down) to sensor; the quaternion is scalar first.
+    A corrupt chunk, or a message that is not what its topic says (another unit's
+    sample), is left out with a warning that says what was lost; the rest is exported.
     """
     from bridge.recorder.export import (
         align_table,

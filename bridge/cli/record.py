@@ -79,10 +79,12 @@ def record(
     Units are found by their bridges' liveliness tokens and may join late, leave and
     come back. Samples keep the very protobuf bytes from Zenoh, with the schemas
     embedded; each unit also gets a foxglove.FrameTransform channel, so Foxglove and
-    `rerun FILE.mcap` show its attitude. The file is flushed every second: a crash
-    loses at most that second (`gx3 repair` finishes such a file). Ctrl-C or SIGTERM
-    finish the archive properly. Each file is locked while it is written: a second
-    recorder given the same file is refused at once, naming the first one's process.
+    `rerun FILE.mcap` show its attitude. Messages are written in log-time order: each
+    waits half a second for any logged before it, and the file is flushed every
+    second, so a crash loses at most the last 1.5 s (`gx3 repair` finishes such a
+    file). Ctrl-C or SIGTERM finish the archive properly. Each file is locked while it
+    is written: a second recorder given the same file is refused at once, naming the
+    first one's process.
     """
     from bridge.bus.keys import BadName, check_prefix
     from bridge.bus.session import SessionError, open_session

@@ -29,7 +29,8 @@ def rrd(
 
     Every unit's attitude in a north-east-down scene, its signals by quantity, status
     and events, on the timelines `time` and `device_time`. An archive cut short (a
-    killed recorder) is rendered up to its last complete chunk.
+    killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
+    message that is not what its topic says is left out with a warning.
     """
     from bridge.recorder.read import ArchiveReadError, describe_problem, read_archive
     from bridge.viz.logger import RerunLogger
