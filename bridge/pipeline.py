@@ -21,7 +21,6 @@ import numpy as np
 
 from bridge.device.port import Port, PortError, is_usb_cdc
 from bridge.device.session import (
-    DEFAULT_RECORD,
     DeviceError,
     Session,
     UnitInfo,
@@ -218,7 +217,7 @@ class Pipeline:
                                filter_width=o.filter_width, mag_filter_width=o.mag_filter_width)
         if o.new_baud is not None:
             session.change_baud(info, o.new_baud, o.persist)
-        info.record = o.record or info.continuous_preset or DEFAULT_RECORD
+        info.record = o.record or info.stream_record
         self.info = info
         # streaming restarts on a new phase of the output lattice: announce it
         self._start_timing(info, discontinuity=True)
@@ -227,9 +226,12 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
+        warning = info.line_warning() if o.poll_hz is None and self.transport == "uart" \
+            else None
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
-                    f"0x{info.record:02X} at {info.output_hz:g} Hz")
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz"
+                    + (f"; {warning}" if warning else ""))
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
         self.came_up = True
 
