@@ -43,14 +43,15 @@ class Timeline:
         self.unwrapper.expect_discontinuity(period_ticks)
 
     def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike) -> TimelineBatch:
-        timers = np.asarray(timer)
         rx = np.asarray(rx_ns, np.int64)
-        u = self.unwrapper.update(timers, rx, ask=True)
-        out = self._timed(u, rx[: len(u.ticks)])
-        done = len(u.ticks)
-        while u.pending is not None:  # rare: a jump ahead of its receive time
+        u = self.unwrapper.update(timer, rx, True)
+        if u.pending is None:
+            return self._timed(u, rx)
+        timers, done = np.asarray(timer), u.pending
+        out = self._timed(u, rx[:done])
+        while done < len(rx):  # rare: a jump ahead of its receive time, judged
             self.unwrapper.judge(self.clock.horizon(int(rx[done])))
-            u = self.unwrapper.update(timers[done:], rx[done:], ask=True)
+            u = self.unwrapper.update(timers[done:], rx[done:], True)
             out = _joined(out, self._timed(u, rx[done : done + len(u.ticks)]), done)
             done += len(u.ticks)
         return out

@@ -161,19 +161,17 @@ class TimerUnwrapper:
             raise ValueError(f"timer and rx_ns differ in length: {timers.shape} vs {rx.shape}")
         parts: list[tuple[int, Unwrapped]] = []
         done, rest, rest_rx = 0, timers, rx
-        try:
-            while True:
-                out = self._fast(rest, rest_rx) or self._slow(rest, rest_rx, ask)
-                parts.append((done, out))
-                self._records += len(out.ticks)
-                done += len(out.ticks)
-                if self._asking or done >= len(timers):
-                    joined = _joined(parts)
-                    joined.pending = done if self._asking else None
-                    return joined
-                rest, rest_rx = timers[done:], None if rx is None else rx[done:]
-        finally:
-            self._asking, self._horizon = False, None
+        while True:
+            out = self._fast(rest, rest_rx) or self._slow(rest, rest_rx, ask)
+            parts.append((done, out))
+            self._records += len(out.ticks)
+            done += len(out.ticks)
+            if self._asking or done >= len(timers):
+                joined = _joined(parts)
+                if self._asking:
+                    joined.pending, self._asking = done, False
+                return joined
+            rest, rest_rx = timers[done:], None if rx is None else rx[done:]
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
         """The common case in one go: the leading records each exactly one period after
