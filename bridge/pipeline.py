@@ -264,13 +264,16 @@ class Pipeline:
                     next_poll = max(next_poll + 1.0 / poll_hz, time.monotonic())
                     session.poll()
                 wait = max(0.0, min(wait, next_poll - time.monotonic()))
+            # Silence is judged from before the read: a host that stalls this thread
+            # after a read that held no whole record has not heard a silent unit.
+            asked = time.monotonic()
             batches = session.read(wait)
             now = time.monotonic()
             if batches:
                 last_data = now
                 for batch in batches:
                     self._process(batch)
-            elif now - last_data > self.options.silence_s:
+            elif asked - last_data > self.options.silence_s:
                 raise DeviceError(f"{self.options.url}: the unit fell silent for "
                                   f"{now - last_data:.1f} s")
             if now >= next_status:

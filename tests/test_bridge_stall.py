@@ -16,12 +16,15 @@ import os
 import re
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
+from bridge.pipeline import Options, Pipeline
+from bridge.protocol.framer import Framer
 from bridge.recorder.export import offline_times, sample_table
 from bridge.recorder.read import read_archive
 from bridge.service import GAP_LINE_S
@@ -30,6 +33,7 @@ from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 from tests.test_bridge_process import GX3, bridge_process, zenoh_config
+from tests.test_pipeline import BASE, ListSink
 from tests.test_record_live import recorder, samples_in
 from tests.waiting import free_port, wait_for
 
@@ -151,3 +155,30 @@ def test_a_line_too_slow_for_its_rate_is_named_and_its_gaps_summed(tmp_path: Pat
     counts = [re.search(r" gap(?: \(([\d,]+))?", line) for line in lines]
     summed = sum(int((m.group(1) or "1").replace(",", "")) for m in counts if m)
     assert summed == sum(e.count for e in gaps), "the lines count every missing sample"
+
+
+def test_a_host_stall_after_a_read_with_no_whole_record_is_not_a_silent_unit() -> None:
+    """The pipeline's thread stops for 1.5 s just after a read that held only part of a
+    record (what a stopped or starved host does at any moment): the unit kept talking,
+    the port kept its bytes, so there is nothing to report and nothing is lost."""
+    sink, framer, stalled = ListSink(), Framer(expect=[0xC2]), threading.Event()
+
+    def on_read(data: bytes, rx_ns: int) -> None:
+        whole = framer.feed(data, rx_ns)  # the same bytes the session frames
+        if not whole and not stalled.is_set() and len(sink.column("ticks")) >= 50:
+            stalled.set()
+            time.sleep(1.5)
+
+    with Simulator([BASE], "pty") as sim:
+        pipeline = Pipeline(Options(url=sim.endpoints[0]), sink, on_read=on_read)
+        stop = threading.Event()
+        worker = threading.Thread(target=pipeline.run, args=(stop,))
+        worker.start()
+        try:
+            wait_for(stalled.is_set, what="a read with no whole record")
+            wait_for(lambda: len(sink.column("ticks")) >= 300, what="samples after the stall")
+        finally:
+            stop.set()
+            worker.join(timeout=30)
+    assert sink.kinds() == ["bring_up"], "the unit was never silent"
+    assert (np.diff(sink.column("ticks")) == 625).all(), "a record was lost"

@@ -178,3 +178,25 @@ def test_a_reset_in_a_backlog_is_still_a_reset(reset_to: int) -> None:
     out = Timeline(KHZ).update(timer, rx)
     assert _kinds(out.events) == ["reset"] and out.dropped == 0
     assert np.all(np.diff(out.ticks[out.valid]) > 0)
+
+
+@pytest.mark.parametrize("reset_to", [None, 0])
+def test_a_reconnect_after_a_backlog_is_judged_by_the_clock_model(
+        reset_to: int | None) -> None:
+    """The host woke from a stall, read what the port had kept (the last record it will
+    get, seconds late) and lost the link; the unit came back a second later. Its timer
+    ran on: a gap of exactly the records lost; or it restarted: a reset."""
+    timer, rx, cycles, sampled = _backlog(2.0, buffered_s=0.4, reset_to=reset_to)
+    back = int(np.searchsorted(cycles, 7_000))
+    rx[back:] = sampled[back:] + 200_000  # the link was down: nothing came with the backlog
+    timeline = Timeline(KHZ)
+    before = timeline.update(timer[:back], rx[:back])
+    timeline.expect_discontinuity()
+    after = timeline.update(timer[back:], rx[back:])
+    assert not before.events
+    if reset_to is None:
+        assert [(e.kind, e.count) for e in after.events] == [("gap", 1600)]
+        assert np.array_equal(after.ticks, (cycles[back:] * 125 + 1) >> 1)
+        assert np.abs(after.time_ns - sampled[back:]).max() < 1_000_000
+    else:
+        assert _kinds(after.events) == ["reset"] and after.valid.all()

@@ -20,7 +20,9 @@ the records before the stall and the first after the records lost in it arrive
 together, so receive times cannot back the jump between them. Such a jump (forward,
 on the lattice) is judged against the clock model instead: a timer that ran on is
 no further ahead than the model's prediction at the record's receive time, while a
-reset starts again near 0 or at the value set. ``update(..., ask=True)`` stops
+reset starts again near 0 or at the value set. So is the first record after an
+announced discontinuity whose receive times disagree (a reconnect after a backlog:
+the last record before it came late). ``update(..., ask=True)`` stops
 before such a record for the caller to ``judge`` it (``Timeline`` does, with its
 clock model fed every record before it, so the outcome does not depend on how the
 records are cut into calls).
@@ -276,7 +278,15 @@ class TimerUnwrapper:
             self._fresh = False
             return self._accept(ref, t, r, step, i, out, held)
         if self._fresh:
-            d = self._continuation(ref, t, r)
+            host = None if r is None or ref.rx is None else (r - ref.rx) / NS_PER_TICK
+            d = self._continuation(ref, t, host)
+            if d is None and ask and host is not None:  # the receive times may be late
+                if self._horizon is None:
+                    self._asking = True
+                    return None
+                horizon, self._horizon = self._horizon[0], None
+                if horizon is not None:
+                    d = self._continuation(ref, t, horizon - ref.ticks)
             if d is not None:
                 self._drop_candidate(out)
                 self._fresh = False
@@ -318,20 +328,21 @@ class TimerUnwrapper:
         return None
 
     @staticmethod
-    def _continuation(ref: _Anchor, t: int, r: int | None) -> int | None:
+    def _continuation(ref: _Anchor, t: int, elapsed: float | None) -> int | None:
         """Ticks since ``ref`` if the timer ran on through an announced discontinuity.
 
         A restarted stream starts on a new phase of the decimation lattice, so only
         host time can tell a timer that ran on (a reconnect: count the gap) from one
-        that restarted (a reset): the advance must match the host's elapsed time.
+        that restarted (a reset): the advance must match the ticks ``elapsed`` since
+        ``ref`` by the host's clock (receive times, or the clock model when ``ref`` was
+        received late).
         """
-        if r is None or ref.rx is None or r < ref.rx:
+        if elapsed is None or elapsed < 0:
             return None
-        host = (r - ref.rx) / NS_PER_TICK
         d = (t - ref.timer) % TIMER_MODULUS
-        d += round((host - d) / TIMER_MODULUS) * TIMER_MODULUS
-        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * host
-        return d if d > 0 and abs(d - host) <= tolerance else None
+        d += round((elapsed - d) / TIMER_MODULUS) * TIMER_MODULUS
+        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * elapsed
+        return d if d > 0 and abs(d - elapsed) <= tolerance else None
 
     def _host_ticks(self, r: int | None) -> int:
         """Ticks a new epoch starts at: after the last, by the host's elapsed time."""
