@@ -100,7 +100,7 @@ class UnitInfo:
 
         The line carries baud/10 bytes a second and the unit skips every record that
         finds it busy (the manual's Data Output Rate table): record bytes x rate must
-        fit, or records go missing at every other sample.
+        fit, or records go missing.
         """
         record, decimation = self.stream_record, max(1, self.sampling.get("decimation", 1))
         size = REPLIES[record].length
