@@ -21,7 +21,6 @@ import numpy as np
 
 from bridge.device.port import Port, PortError, is_usb_cdc
 from bridge.device.session import (
-    DEFAULT_RECORD,
     DeviceError,
     Session,
     UnitInfo,
@@ -218,7 +217,7 @@ class Pipeline:
                                filter_width=o.filter_width, mag_filter_width=o.mag_filter_width)
         if o.new_baud is not None:
             session.change_baud(info, o.new_baud, o.persist)
-        info.record = o.record or info.continuous_preset or DEFAULT_RECORD
+        info.record = o.record or info.stream_record
         self.info = info
         # streaming restarts on a new phase of the output lattice: announce it
         self._start_timing(info, discontinuity=True)
@@ -227,9 +226,12 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
+        warning = info.line_warning() if o.poll_hz is None and self.transport == "uart" \
+            else None
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
-                    f"0x{info.record:02X} at {info.output_hz:g} Hz")
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz"
+                    + (f"; {warning}" if warning else ""))
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
         self.came_up = True
 
@@ -262,13 +264,16 @@ class Pipeline:
                     next_poll = max(next_poll + 1.0 / poll_hz, time.monotonic())
                     session.poll()
                 wait = max(0.0, min(wait, next_poll - time.monotonic()))
+            # Silence is judged from before the read: a host that stalls this thread
+            # after a read that held no whole record has not heard a silent unit.
+            asked = time.monotonic()
             batches = session.read(wait)
             now = time.monotonic()
             if batches:
                 last_data = now
                 for batch in batches:
                     self._process(batch)
-            elif now - last_data > self.options.silence_s:
+            elif asked - last_data > self.options.silence_s:
                 raise DeviceError(f"{self.options.url}: the unit fell silent for "
                                   f"{now - last_data:.1f} s")
             if now >= next_status:

@@ -103,6 +103,10 @@ def run_bridge(
     queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
+
+    Events are printed as they happen, gaps summed into a line every 5 s at most
+    (each stays an event of its own on the bus). Bring-up warns when the serial
+    line is too slow for the record at its rate, and says what to change.
     """
     from bridge.bus.keys import BadName, check_prefix, check_unit
     from bridge.pipeline import Options, Pipeline
