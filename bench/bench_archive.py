@@ -56,7 +56,7 @@ def gx3_seconds(command: str, archive: Path, out: Path) -> float:
     """Wall time of ``gx3 COMMAND ARCHIVE -o OUT`` as a user runs it (start-up included)."""
     gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
     start = time.perf_counter()
-    subprocess.run([gx3, command, str(archive), "-o", str(out)], check=True)
+    subprocess.run([gx3, command, str(archive), "-o", str(out), "--force"], check=True)
     return time.perf_counter() - start
 
 
@@ -82,7 +82,8 @@ def main() -> None:
     total = n * units
     one_by_one = [(key, payloads, rx.tolist()) for key, payloads, rx in feeds]
     start = time.perf_counter()
-    with ArchiveWriter(workdir / "one_by_one.mcap") as writer:
+    # force: a re-run with the same --dir replaces its own files
+    with ArchiveWriter(workdir / "one_by_one.mcap", force=True) as writer:
         for i in range(n):
             for key, payloads, received in one_by_one:
                 writer.write(key, payloads[i], received[i])
@@ -90,7 +91,7 @@ def main() -> None:
     print(f"write: {total:,} samples in {elapsed:.2f} s = {total / elapsed:,.0f} samples/s; "
           f"{load()}")
     start = time.perf_counter()
-    with ArchiveWriter(path) as writer:
+    with ArchiveWriter(path, force=True) as writer:
         for i in range(0, n, args.batch):
             for key, payloads, rx in feeds:
                 writer.write_many(key, payloads[i : i + args.batch], rx[i : i + args.batch])

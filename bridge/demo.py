@@ -144,6 +144,7 @@ class Demo:
     router: bool = False
     viewer: Any = None  # a Rerun recording to mirror the live data into
     show: Callable[[list[dict[str, Any]], float], None] = lambda rows, elapsed: None
+    force: bool = False  # replace an earlier run's archive in ``output``
     stop: threading.Event = field(default_factory=threading.Event)
     rows: list[dict[str, Any]] = field(default_factory=list)
 
@@ -157,35 +158,40 @@ class Demo:
 
     def run(self) -> None:
         from bridge.bus.session import open_session
-        from bridge.recorder.archive import ArchiveWriter
+        from bridge.recorder.archive import ArchiveError, ArchiveWriter
         from bridge.recorder.live import Recorder
         from bridge.viz.logger import RerunLogger
         from bridge.viz.sources import log_messages
 
         self.output.mkdir(parents=True, exist_ok=True)
+        # first: its lock keeps a second demo out of this folder before anything is written
+        writer = ArchiveWriter(self.archive, force=self.force)
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         procs = Processes()
-        if self.router:
-            mode = "client"
-            procs.start("router", ["router", "--listen", endpoint],
-                        self.output / "router.log")
-            recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [],
-                                        [endpoint])
-        else:
-            mode = "peer"
-            recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [endpoint],
-                                        [])
-        bridge_cfg = write_config(self.output / "zenoh-bridges.json5", mode, [], [endpoint])
-        links = [self.output / f"{u.name}.tty" for u in self.units]
-        loggers = [RerunLogger(self.rrd, [u.name for u in self.units], recording_id="demo")]
-        if self.viewer is not None:
-            loggers.append(RerunLogger(self.viewer, [u.name for u in self.units], window_s=30))
+        loggers: list[RerunLogger] = []
         session = None
         try:
             if self.router:
+                mode = "client"
+                procs.start("router", ["router", "--listen", endpoint],
+                            self.output / "router.log")
+                recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [],
+                                            [endpoint])
+            else:
+                mode = "peer"
+                recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode,
+                                            [endpoint], [])
+            bridge_cfg = write_config(self.output / "zenoh-bridges.json5", mode, [],
+                                      [endpoint])
+            links = [self.output / f"{u.name}.tty" for u in self.units]
+            loggers.append(RerunLogger(self.rrd, [u.name for u in self.units],
+                                       recording_id="demo"))
+            if self.viewer is not None:
+                loggers.append(RerunLogger(self.viewer, [u.name for u in self.units],
+                                           window_s=30))
+            if self.router:
                 time.sleep(0.5)  # the router's port opens as it starts
             session = open_session(recorder_cfg)
-            writer = ArchiveWriter(self.archive)
 
             def to_rerun(messages: list[Any]) -> None:
                 for logger in loggers:
@@ -203,8 +209,12 @@ class Demo:
                 procs.stop()
                 recorder.run_once(1.0)
             recorder.close()
-            writer.close()
+            try:
+                writer.close()
+            except ArchiveError as exc:
+                raise DemoError(str(exc)) from None
         finally:
+            writer.close()
             procs.stop()
             for logger in loggers:
                 logger.close()

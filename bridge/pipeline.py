@@ -21,7 +21,6 @@ import numpy as np
 
 from bridge.device.port import Port, PortError, is_usb_cdc
 from bridge.device.session import (
-    DEFAULT_RECORD,
     DeviceError,
     Session,
     UnitInfo,
@@ -114,6 +113,9 @@ class Pipeline:
         self.info: UnitInfo | None = None
         self.timing = StreamTiming()
         self.error: Exception | None = None
+        self.came_up = False  # the unit was brought up at least once
+        self.waiting_for: str | None = None  # why the unit is not up, while it is not
+        self.last_failure = ""  # the last failed attempt's message
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
 
     def submit(self, action: Action, effect: str = "none", timeout: float = 120.0
@@ -149,33 +151,45 @@ class Pipeline:
         backoff = _RETRY_FIRST_S
         lost_at: int | None = None
         while not stop.is_set():
+            session: Session | None = None
             try:
                 session = self._open()
+                self._bring_up(session)
             except (PortError, DeviceError) as exc:
-                if backoff == _RETRY_FIRST_S and lost_at is None:
-                    self._event("error", detail=str(exc))  # a lost link was reported then
-                self.counters.state = "waiting"
+                if session is not None:
+                    self._close(session, clean=stop.is_set())
+                self._wait(exc, lost=lost_at is not None)
                 stop.wait(backoff)
                 backoff = min(_RETRY_MAX_S, backoff * 2)
                 continue
             backoff = _RETRY_FIRST_S
+            self.waiting_for = None
+            if lost_at is not None:
+                self.counters.reconnects += 1
+                gap = (time.time_ns() - lost_at) / 1e9
+                self._event("reconnect", detail=f"back after {gap:.1f} s")
+            lost_at = None
             try:
-                self._bring_up(session)
-                if lost_at is not None:
-                    self.counters.reconnects += 1
-                    gap = (time.time_ns() - lost_at) / 1e9
-                    self._event("reconnect", detail=f"back after {gap:.1f} s")
-                lost_at = None
                 self._stream(session, stop)
             except _Restart:
                 self.counters.state = "bring-up"
             except (PortError, DeviceError) as exc:
-                lost_at = lost_at or time.time_ns()
+                lost_at = time.time_ns()
                 self.counters.state = "lost"
                 self._event("disconnect", detail=str(exc))
             finally:
                 self._close(session, clean=stop.is_set())
         self.counters.state = "stopped"
+
+    def _wait(self, exc: PortError | DeviceError, lost: bool) -> None:
+        """Say why the unit is not up once, and again only when the reason changes:
+        a retry every few seconds must not flood the log or look like a new fault."""
+        self.counters.state = "lost" if lost else "waiting"
+        if exc.why != self.waiting_for:
+            self._event("waiting", detail=f"{exc}; retrying, with pauses growing to "
+                                          f"{_RETRY_MAX_S:g} s")
+        self.waiting_for = exc.why
+        self.last_failure = str(exc)
 
     def _open(self) -> Session:
         o = self.options
@@ -203,7 +217,7 @@ class Pipeline:
                                filter_width=o.filter_width, mag_filter_width=o.mag_filter_width)
         if o.new_baud is not None:
             session.change_baud(info, o.new_baud, o.persist)
-        info.record = o.record or info.continuous_preset or DEFAULT_RECORD
+        info.record = o.record or info.stream_record
         self.info = info
         # streaming restarts on a new phase of the output lattice: announce it
         self._start_timing(info, discontinuity=True)
@@ -212,10 +226,14 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
+        warning = info.line_warning() if o.poll_hz is None and self.transport == "uart" \
+            else None
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
-                    f"0x{info.record:02X} at {info.output_hz:g} Hz")
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz"
+                    + (f"; {warning}" if warning else ""))
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
+        self.came_up = True
 
     def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
         self.timing.configure(Settings(
@@ -246,13 +264,16 @@ class Pipeline:
                     next_poll = max(next_poll + 1.0 / poll_hz, time.monotonic())
                     session.poll()
                 wait = max(0.0, min(wait, next_poll - time.monotonic()))
+            # Silence is judged from before the read: a host that stalls this thread
+            # after a read that held no whole record has not heard a silent unit.
+            asked = time.monotonic()
             batches = session.read(wait)
             now = time.monotonic()
             if batches:
                 last_data = now
                 for batch in batches:
                     self._process(batch)
-            elif now - last_data > self.options.silence_s:
+            elif asked - last_data > self.options.silence_s:
                 raise DeviceError(f"{self.options.url}: the unit fell silent for "
                                   f"{now - last_data:.1f} s")
             if now >= next_status:

@@ -30,6 +30,7 @@ from bridge.recorder.rawcapture import capture_metadata
 
 DECLARE_SETTLE_S = 1.0
 NAME_QUERY_S = 3.0  # how long a bridge waits for a running bridge to answer for its name
+GAP_LINE_S = 5.0  # gaps on the terminal: at most one line this often
 EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
@@ -38,8 +39,7 @@ _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "stopped": Status.STOPPED}
 _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
           "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
-          "error": Event.DISCONNECT, "resync": Event.RESYNC, "bring_up": Event.BRING_UP,
-          "command": Event.COMMAND}
+          "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND}
 
 
 class NameTaken(RuntimeError):
@@ -143,6 +143,7 @@ class BusSink:
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
+        self._lines = EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
         self.pipeline = pipeline
@@ -204,17 +205,20 @@ class BusSink:
             self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
 
     def event(self, event: UnitEvent) -> None:
-        if not self.quiet or event.kind in ("disconnect", "error"):
-            _print_event(event)
-        if self.publisher is not None and self.unit is not None:
+        if not self.quiet or event.kind in ("disconnect", "waiting"):
+            self._lines.event(event)
+        # "waiting" (why the unit is not up yet) is for the log; status carries the state
+        if self.publisher is not None and self.unit is not None and event.kind in _KINDS:
             self.publisher.publish_event(event_message(self.unit, event))
 
     def status(self, status: dict[str, Any]) -> None:
+        self._lines.flush(time.monotonic())
         if self.publisher is not None and self.unit is not None:
             self.publisher.publish_status(status_message(self.unit, self.port, self._info,
                                                          status))
 
     def close(self) -> None:
+        self._lines.flush(None)
         if self.publisher is not None:
             self.publisher.close()
             self.publisher = None
@@ -234,7 +238,43 @@ def _name_from_serial(serial: str) -> str:
     return name or "gx3-unit"
 
 
+def _stamp(time_ns: int) -> str:
+    return time.strftime("%H:%M:%S", time.localtime(time_ns / 1e9))
+
+
 def _print_event(event: UnitEvent) -> None:
-    stamp = time.strftime("%H:%M:%S", time.localtime(event.time_ns / 1e9))
     count = f" ({event.count})" if event.count > 1 else ""
-    _err.print(f"[dim]{stamp}[/] [bold]{event.kind}[/]{count} {event.detail}".rstrip())
+    _err.print(f"[dim]{_stamp(event.time_ns)}[/] [bold]{event.kind}[/]{count} "
+               f"{event.detail}".rstrip())
+
+
+class EventLines:
+    """Events on the terminal, a line each, but gaps summed into a line every
+    ``GAP_LINE_S`` at most: a line too slow for the output rate gaps at every other
+    record. (On the bus and in archives each gap stays an event of its own.)"""
+
+    def __init__(self) -> None:
+        self._gaps: list[UnitEvent] = []
+        self._printed: float | None = None  # monotonic time of the last gap line
+
+    def event(self, event: UnitEvent) -> None:
+        if event.kind != "gap":
+            _print_event(event)
+            return
+        self._gaps.append(event)
+        self.flush(time.monotonic())
+
+    def flush(self, now: float | None) -> None:
+        """Print the gaps held back once ``GAP_LINE_S`` has passed since the last gap
+        line (``now`` None: at once)."""
+        gaps = self._gaps
+        if not gaps or (now is not None and self._printed is not None
+                        and now - self._printed < GAP_LINE_S):
+            return
+        self._gaps, self._printed = [], now
+        if len(gaps) == 1:
+            _print_event(gaps[0])
+            return
+        missing = sum(e.count for e in gaps)
+        _err.print(f"[dim]{_stamp(gaps[-1].time_ns)}[/] [bold]gap[/] ({missing:,} samples "
+                   f"missing in {len(gaps):,} gaps since {_stamp(gaps[0].time_ns)})")

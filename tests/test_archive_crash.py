@@ -1,4 +1,5 @@
-"""A recorder killed with SIGKILL loses at most about its last second of messages."""
+"""A recorder killed with SIGKILL loses at most its last REORDER_S + FLUSH_EVERY_S (1.5 s)
+of messages."""
 
 from __future__ import annotations
 
@@ -8,6 +9,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from bridge.bus.codec import encode_batch
+from bridge.recorder.archive import FLUSH_EVERY_S, REORDER_S, ArchiveWriter
 from bridge.recorder.read import read_archive
 from bridge.recorder.repair import repair
 
@@ -35,7 +40,7 @@ while True:
 """
 
 
-def test_sigkill_keeps_everything_older_than_about_a_second(tmp_path: Path) -> None:
+def test_sigkill_keeps_everything_older_than_the_bound(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path)], stdout=subprocess.PIPE,
                             text=True, cwd=Path(__file__).parent.parent)
@@ -58,8 +63,9 @@ def test_sigkill_keeps_everything_older_than_about_a_second(tmp_path: Path) -> N
             proc.stdout.close()
     assert progress and progress[-1][1] - progress[0][1] >= 3.5, progress
     last_seen = progress[-1][1]
-    # what the writer had written 2 s before its last report (1 s flush plus wide margin)
-    safe = max(n for n, when in progress if when <= last_seen - 2.0)
+    # what the writer had written 2.5 s before its last report (the 1.5 s bound plus a
+    # wide margin)
+    safe = max(n for n, when in progress if when <= last_seen - 2.5)
     archive = read_archive(path)
     assert not archive.complete
     got = archive.messages("gx3/u1/imu")
@@ -70,3 +76,30 @@ def test_sigkill_keeps_everything_older_than_about_a_second(tmp_path: Path) -> N
     report = repair(path, tmp_path / "fixed.mcap")
     assert report.messages == archive.message_count
     assert read_archive(report.output).complete
+
+
+def test_what_is_on_disk_lags_the_last_message_by_at_most_the_bound(tmp_path: Path) -> None:
+    """Two units at 100 Hz on a virtual clock, the file read as a kill would leave it after
+    every write: it holds every message received REORDER_S + FLUSH_EVERY_S before the
+    last one, and in the order of their log times."""
+    from tests.test_archive_writer import T0, synthetic_batch
+
+    path = tmp_path / "a.mcap"
+    now = [0.0]
+    bound_ns = int((REORDER_S + FLUSH_EVERY_S) * 1e9)
+    batch = synthetic_batch(0xC2, 10, 1)
+    sent: list[int] = []
+    with ArchiveWriter(path, clock=lambda: now[0]) as writer:
+        for step in range(60):  # 6 s, a write of each unit every 100 ms
+            rx = T0 + step * 100_000_000
+            for k, unit in enumerate(("u1", "u2")):
+                t = rx - 8_000_000 - k * 1_000_000 + np.arange(10, dtype=np.int64) * 10_000_000
+                t -= 100_000_000
+                writer.write_many(f"gx3/{unit}/imu", encode_batch(
+                    unit, batch, np.arange(10), t, t), rx)
+                sent += [rx] * 10
+            now[0] += 0.1
+            writer.tick()
+            on_disk = read_archive(path).counts()
+            kept = sum(on_disk.get(f"gx3/{u}/imu", (0, 0, 0))[0] for u in ("u1", "u2"))
+            assert kept >= sum(1 for r in sent if r <= rx - bound_ns), step

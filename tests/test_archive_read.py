@@ -137,20 +137,22 @@ def test_garbage_after_the_magic_reads_as_nothing_with_the_reason(tmp_path: Path
     assert archive.dropped_bytes > 0 and archive.problem
 
 
-def test_a_corrupt_chunk_keeps_the_chunks_before_it(fleet: Path, tmp_path: Path) -> None:
+def test_a_corrupt_chunk_of_a_file_cut_short_keeps_the_chunks_before_it(
+        fleet: Path, tmp_path: Path) -> None:
+    """No summary, so no index to find the next chunk by: the reading stops there."""
     data = bytearray(fleet.read_bytes())
     with fleet.open("rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
-    third = summary.chunk_indexes[3]
+    third, sixth = summary.chunk_indexes[3], summary.chunk_indexes[6]
     middle = third.chunk_start_offset + third.chunk_length // 2
     data[middle : middle + 16] = bytes(16)
     path = tmp_path / "corrupt.mcap"
-    path.write_bytes(bytes(data))
+    path.write_bytes(bytes(data[: sixth.chunk_start_offset]))
     archive = read_archive(path)
-    assert archive.chunks == 3 and not archive.complete
+    assert archive.chunks == 3 and not archive.complete and not archive.damage
     assert archive.problem and "corrupt record" in archive.problem
-    assert archive.dropped_bytes == len(data) - third.chunk_start_offset
+    assert archive.dropped_bytes == sixth.chunk_start_offset - third.chunk_start_offset
 
 
 def test_raw_captures_read_with_their_receive_times(tmp_path: Path) -> None:

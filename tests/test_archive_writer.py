@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 
@@ -577,29 +579,118 @@ def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
     assert frame_messages("u1", 0, np.zeros(0, np.int64), np.zeros((0, 4)), 0.5) == []
 
 
-def test_frames_are_one_a_period_from_the_first_sample_due_and_start_again_on_a_reset() -> None:
+def test_frames_are_one_a_tick_of_a_grid_and_start_again_on_a_reset() -> None:
     """The jump from frame to frame (times in order) picks what looking at every sample
-    picks: the first sample at or after the due time, then the first a period after
-    each pick; a sample more than two periods before the due time starts again."""
+    picks: the first sample at or after each tick of a grid one period apart, from the
+    first sample; a sample more than two periods before the due tick starts again."""
 
-    def every_sample(times: list[int], due: int | None, period: int) -> list[int]:
+    def every_sample(times: list[int], due: int | None,
+                     period: int) -> tuple[list[int], int | None]:
         picks = []
         for i, t in enumerate(times):
-            if due is None or t >= due or t < due - 2 * period:
+            if due is None or t < due - 2 * period:
+                due = t
+            if t >= due:
                 picks.append(i)
-                due = t + period
-        return picks
+                while due <= t:
+                    due += period
+        return picks, due
 
     rng = np.random.default_rng(5)
     for _ in range(300):
-        n, period = int(rng.integers(0, 60)), int(rng.choice([0, 7, 40, 100]))
+        n, period = int(rng.integers(0, 60)), int(rng.choice([7, 40, 100]))
         times = np.cumsum(rng.integers(0, 30, n)) + 1_000
         if rng.random() < 0.3 and n > 2:  # a reset: time goes back
             times[n // 2 :] -= int(rng.integers(0, 2_000))
         due = None if rng.random() < 0.2 else int(rng.integers(0, 2_500))
-        picks, next_due = frame_picks(times, due, period)
-        assert picks == every_sample(times.tolist(), due, period)
-        if picks:
-            assert next_due == int(times[picks[-1]]) + period
-        else:
-            assert next_due == due
+        assert frame_picks(times, due, period) == every_sample(times.tolist(), due, period)
+
+
+def _picks_in_bursts(times: np.ndarray, burst: int, period: int) -> list[int]:
+    """Frames of ``times`` fed ``burst`` samples at a time, as a recorder takes them."""
+    picks: list[int] = []
+    due = None
+    for lo in range(0, len(times), burst):
+        found, due = frame_picks(times[lo : lo + burst], due, period)
+        picks += [lo + i for i in found]
+    return picks
+
+
+@pytest.mark.parametrize("ppm", [42.0, -27.0, 0.0])
+def test_frames_come_at_the_display_rate_whatever_the_units_drift(ppm: float) -> None:
+    """100 Hz samples of a unit whose clock runs ``ppm`` fast or slow: 25 frames a second
+    (a grid restarted at each pick gave 20 Hz at +42 ppm)."""
+    period = int(1e9 / 25)
+    times = T0 + np.round(np.arange(10_000) * 1e7 / (1 + ppm * 1e-6)).astype(np.int64)
+    picks = _picks_in_bursts(times, 37, period)
+    assert abs(len(picks) - 1 - (times[-1] - times[0]) / period) <= 1
+    steps = np.diff(times[picks])
+    assert steps.min() > period - 10_000_000 and steps.max() < period + 10_000_000
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-500, 500), st.integers(2, 400), st.sampled_from([5, 10, 20, 40]),
+       st.integers(1, 50))
+def test_frame_rate_is_the_display_rate_for_any_drift_sample_rate_and_burst(
+        ppm: float, n: int, sample_ms: int, burst: int) -> None:
+    """Over any span the frames number the span over the period (within one), as long as
+    samples come at least as often as frames; picks are a period apart less than one
+    sample step, never two in one period."""
+    period = 40_000_000
+    step = sample_ms * 1e6 / (1 + ppm * 1e-6)
+    times = T0 + np.round(np.arange(n) * step).astype(np.int64)
+    picks = _picks_in_bursts(times, burst, period)
+    assert picks[0] == 0
+    assert abs(len(picks) - 1 - (times[-1] - times[0]) / period) <= 1
+    assert (np.diff(times[picks]) > period - step - 1).all()
+
+
+@pytest.mark.parametrize("bulk", [False, True], ids=["write", "write_many"])
+def test_the_file_is_in_log_time_order_with_no_overlapping_chunks(tmp_path: Path,
+                                                                  bulk: bool) -> None:
+    """Three units, status, events, info, raw and frames, taken key by key every 250 ms
+    as a recorder does, in small chunks: log time never goes back in file order, chunks
+    never overlap, nothing comes later than the reorder window (on main 40 % of the
+    messages came out of order). Profile and library as the registry asks."""
+    from tests.mcap_order import header, order_problems
+
+    written, feed = fleet_feed()
+    path = tmp_path / "a.mcap"
+    if bulk:
+        write_bulk(path, in_bursts(feed), chunk_size=3_000)
+    else:
+        with ArchiveWriter(path, chunk_size=3_000) as writer:
+            for receive_ns, key, payload, _ in in_bursts(feed):
+                writer.write(key, payload, receive_ns)
+            assert writer.late == 0
+    assert order_problems(path) == []
+    assert (header(path).profile, header(path).library) == ("", "gx3-bridge 0.1.0")
+    archive = read_archive(path)
+    assert not [m for m in archive.metadata if m.name == "gx3.order"]
+    for topic, expected in written.messages.items():  # every message at its own time
+        got = archive.messages(topic)
+        assert sorted(got.log_time.tolist()) == sorted(t for t, _, _ in expected), topic
+
+
+def test_a_message_later_than_the_reorder_window_keeps_the_order_and_is_counted(
+        tmp_path: Path) -> None:
+    """An Info whose bring-up was long ago (as a recorder gets it when it finds a unit
+    already running): logged at the last time written, counted in ``late`` and the
+    ``gx3.order`` metadata; its own time stays in its payload."""
+    from tests.mcap_order import order_problems
+
+    path = tmp_path / "a.mcap"
+    now = [0.0]
+    with ArchiveWriter(path, clock=lambda: now[0]) as writer:
+        for k in range(30):
+            status = Status(unit="u1", time_ns=T0 + k * 10**8).SerializeToString()
+            writer.write("gx3/u1/status", status, T0 + k * 10**8 + 1)
+            now[0] += 0.1
+        info = Info(unit="u1", bring_up_time_ns=T0 - 60 * 10**9).SerializeToString()
+        writer.write("gx3/u1/info", info, T0 + 3 * 10**9)
+    assert writer.late == 1 and order_problems(path) == []
+    archive = read_archive(path)
+    logged = archive.messages("gx3/u1/info")
+    assert T0 < logged.log_time[0] <= T0 + 3 * 10**9 and logged.payloads == [info]
+    order = next(m for m in archive.metadata if m.name == "gx3.order")
+    assert order.metadata["late_messages"] == "1"

@@ -10,6 +10,7 @@ bridge's liveliness token goes away while a restarted one picks up again.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -231,3 +232,94 @@ def test_sigint_stops_continuous_mode_and_capture_holds_every_read(
     data = b"".join(d for _, d in reads)
     assert data.count(bytes((0xC8,))) >= 150, "the capture lacks the streamed records"
     assert all(b[0] <= a[0] for a, b in zip(reads[1:], reads, strict=False))
+
+
+class Stderr:
+    """What a child has written to its stderr pipe so far, read without blocking."""
+
+    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stderr is not None
+        self.fd = proc.stderr.fileno()
+        os.set_blocking(self.fd, False)
+        self.text = ""
+
+    def read(self) -> str:
+        with contextlib.suppress(BlockingIOError):
+            while chunk := os.read(self.fd, 1 << 16):
+                self.text += chunk.decode()
+        return self.text
+
+    def waiting(self) -> list[str]:
+        """The bridge's lines saying why the unit is not up."""
+        return [line for line in self.read().splitlines() if " waiting " in line]
+
+
+def test_a_missing_port_is_said_once_and_given_up_with_exit_1(
+        network: tuple[Path, Path], tmp_path: Path) -> None:
+    bridge_cfg, _ = network
+    port = tmp_path / "imu1"
+    with bridge_process(str(port), bridge_cfg, "--give-up-after", "3") as proc:
+        assert proc.wait(timeout=60) == 1
+        out = Stderr(proc)
+        (waiting,) = out.waiting()
+        lines = out.read().splitlines()
+    assert f"{port}: no such port" in waiting and "retrying" in waiting
+    assert "disconnect" not in out.text
+    assert lines[-1].startswith(f"error: no unit came up on {port}; ")
+    assert lines[-1].endswith("(gave up after 3 s)")
+    assert "Traceback" not in out.text
+
+
+def test_a_silent_unit_is_said_once_never_a_disconnect_and_exits_1(
+        network: tuple[Path, Path]) -> None:
+    bridge_cfg, _ = network
+    master, slave = os.openpty()
+    asked = bytearray()
+
+    def tries() -> int:
+        """Bring-up attempts seen on the line: each asks 0xE9 three times."""
+        with contextlib.suppress(BlockingIOError):
+            asked.extend(os.read(master, 1 << 16))
+        return asked.count(0xE9) // 3
+
+    os.set_blocking(master, False)
+    try:
+        with bridge_process(os.ttyname(slave), bridge_cfg) as proc:
+            out = Stderr(proc)
+            wait_for(lambda: tries() >= 3, what="three bring-up attempts")
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=60) == 1
+            (waiting,) = out.waiting()
+            text = out.read()
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert "no reply to 0xE9" in waiting and "retrying" in waiting
+    assert "disconnect" not in text
+    assert text.splitlines()[-1].startswith("error: no unit came up on ")
+
+
+def test_a_busy_port_is_told_apart_and_a_new_reason_said_again(
+        network: tuple[Path, Path]) -> None:
+    import serial
+
+    bridge_cfg, _ = network
+    master, slave = os.openpty()
+    holder = serial.Serial(os.ttyname(slave), exclusive=True)  # another program has it
+    try:
+        with bridge_process(os.ttyname(slave), bridge_cfg) as proc:
+            out = Stderr(proc)
+            wait_for(lambda: len(out.waiting()) == 1, what="the busy port reported")
+            holder.close()  # free, but nobody answers on it
+            wait_for(lambda: len(out.waiting()) == 2, what="the silent unit reported")
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(timeout=60) == 1
+            busy, silent = out.waiting()
+            text = out.read()
+    finally:
+        holder.close()
+        os.close(master)
+        os.close(slave)
+    assert "port is busy: another program has it open" in busy
+    assert "no reply to 0xE9" in silent
+    assert "disconnect" not in text

@@ -177,14 +177,20 @@ def test_truncated_record_is_skipped_and_counted(tmp_path: Path, content: bytes)
     assert "bytes skipped: 40 of" in summary
 
 
-def test_empty_input_is_not_an_error() -> None:
-    done = gx3("decode", "-")
-    assert done.returncode == 0
-    assert done.stderr.decode().startswith("records: none;")
+@pytest.mark.parametrize("source", ["-", "/dev/null"])
+def test_empty_input_decodes_nothing_and_exits_1(source: str) -> None:
+    done = gx3("decode", source)
+    assert done.returncode == 1
+    assert done.stdout == b""
+    summary, error = done.stderr.decode().splitlines()
+    assert summary.startswith("records: none;")
+    assert error == "error: no record decoded: the input is empty"
 
 
-@pytest.mark.parametrize("content", [b"\x00\x01\x02garbage\xff" * 50, C8[:40]],
-                         ids=["garbage", "truncated"])
+@pytest.mark.parametrize("content", [
+    b"\x00\x01\x02garbage\xff" * 50, C8[:40],
+    b"\x00\x01\x02garbage\xff" * 50 + LE_C2 + b"\x00\x01\x02garbage\xff" * 50,
+], ids=["garbage", "truncated", "garbage-with-one-chance-record-the-other-way"])
 def test_nothing_decoded_from_garbage_exits_1(content: bytes) -> None:
     done = gx3("decode", "-", stdin=content)
     assert done.returncode == 1

@@ -1,19 +1,24 @@
-"""The operator commands on a port: `gx3 info`, `gx3 configure`, `gx3 set-timer` as a user
-types them, against the emulator on a pseudo-terminal."""
+"""The operator commands as a user types them: `gx3 info`, `gx3 configure`, `gx3 set-timer`
+on a port, against the emulator on a pseudo-terminal, and `gx3 info --unit` through a
+running bridge."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
+import zenoh
 
+from bridge.bus.remote import RemoteError, ask_units
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
-from tests.test_bridge_process import GX3
+from tests.test_bridge_process import GX3, bridge_process
+from tests.waiting import free_port, wait_for
 
 UNIT = UnitConfig(serial="OPER0001", motion=MotionConfig(seed=5),
                   stored=Stored(mode_preset=1, baud=115_200, sampling=Sampling(decimation=10)))
@@ -49,3 +54,43 @@ def test_a_lasting_change_needs_yes_and_a_target_is_required(port: str) -> None:
     assert "Traceback" not in refused.stderr
     nowhere = gx3("reset")
     assert nowhere.returncode != 0 and "--port" in nowhere.stderr and "--unit" in nowhere.stderr
+
+
+def peer(path: Path, listen: list[str] | None = None, connect: list[str] | None = None) -> Path:
+    """A peer on loopback, multicast scouting off, gossip on (Zenoh's default)."""
+    path.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": listen or []},
+                                "connect": {"endpoints": connect or []},
+                                "scouting": {"multicast": {"enabled": False}}}))
+    return path
+
+
+def info_ok(config: Path) -> bool:
+    """Whether `gx3 info --unit oper` (its code, in this process, a fresh session) works."""
+    try:
+        answers = ask_units("gx3", "oper", "info", {}, zenoh_config=config)
+    except RemoteError:
+        return False
+    return [(unit, ok, result["serial"]) for unit, ok, result in answers] == \
+        [("oper", True, "OPER0001")]
+
+
+def test_info_finds_a_bridge_reached_through_another_peer_every_time(
+        port: str, tmp_path: Path) -> None:
+    """The operator's peer connects to another peer (a recorder's; here the test's),
+    learns of the bridge from it by gossip and connects to it a moment after its own
+    session opened: a query sent at once found no bridge about a third of the time."""
+    bridge_at, hub_at = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
+    operator = peer(tmp_path / "operator.json5", connect=[hub_at])
+    hub = peer(tmp_path / "hub.json5", listen=[hub_at], connect=[bridge_at])
+    with bridge_process(port, peer(tmp_path / "bridge.json5", listen=[bridge_at]),
+                        "--unit", "oper"), \
+            zenoh.open(zenoh.Config.from_file(str(hub))):
+        wait_for(lambda: info_ok(operator), what="the bridge")
+        answered = sum(info_ok(operator) for _ in range(100))
+        assert answered == 100
+        cli = [gx3("info", "--unit", "oper", "--zenoh-config", str(operator), "--json")
+               for _ in range(3)]
+        with pytest.raises(RemoteError, match="no bridge is running for gx3/ghost"):
+            ask_units("gx3", "ghost", "info", {}, zenoh_config=operator, discovery=0.5)
+    assert [(c.returncode, json.loads(c.stdout or "{}").get("serial")) for c in cli] == \
+        [(0, "OPER0001")] * 3, [c.stderr for c in cli]

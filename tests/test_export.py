@@ -101,10 +101,11 @@ def test_filters_by_unit_type_and_time(fleet: tuple[Path, Written], tmp_path: Pa
     assert set(table.column("unit").to_pylist()) == {"u1"}
     assert "q0" not in table.column_names
     iso = np.datetime_as_string(np.datetime64(T0 + PERIOD * 100, "ns"))
-    result = gx3("export", path, "-o", out, "--start", iso + "Z", "--unit", "u3")
+    late = tmp_path / "late.parquet"
+    result = gx3("export", path, "-o", late, "--start", iso + "Z", "--unit", "u3")
     assert result.returncode == 0, result.stderr
     t3 = written.times["u3"]
-    assert pq.read_table(out).column("time_ns").to_pylist() == t3[t3 >= T0 + PERIOD * 100].tolist()
+    assert pq.read_table(late).column("time_ns").to_pylist() == t3[t3 >= T0 + PERIOD * 100].tolist()
 
 
 def test_events_file_lists_every_event_per_unit(fleet: tuple[Path, Written],
@@ -171,8 +172,8 @@ def test_bad_input_gives_one_line_errors(fleet: tuple[Path, Written], tmp_path: 
         (["export", path, "-o", tmp_path / "o.xlsx"], "name the file .parquet or .csv"),
         (["export", path, "-o", tmp_path / "o.csv", "--start", "noon"], "neither an ISO time"),
         (["export", path, "-o", tmp_path / "o.csv", "--unit", "nobody"], "no samples match"),
-        (["export", path, "-o", tmp_path / "no" / "o.csv"], "choose a writable path"),
-        (["repair", path, "-o", path], "overwrite"),
+        (["export", path, "-o", tmp_path / "no" / "o.csv"], "does not exist"),
+        (["repair", path, "-o", path], "is the input"),
     ]
     assert GX3
     runs = [(subprocess.Popen([GX3, *map(str, args)], stdout=subprocess.DEVNULL,

@@ -5,6 +5,7 @@ footer's CRC covers the summary, and mcap's readers agree with what was written.
 from __future__ import annotations
 
 import io
+import itertools
 import struct
 import zlib
 from pathlib import Path
@@ -23,7 +24,8 @@ Written = list[tuple[int, int, int, int, bytes]]  # channel, sequence, log, publ
 
 def write(path: Path, chunk_size: int = 2_000) -> Written:
     """Three channels: fixed-size payloads in bulk, payloads of every size (and empty ones)
-    a few at a time, log times out of order within a call."""
+    a few at a time, log times out of order within a call. Returned in the order the
+    file holds them: by log time, messages of one time in the order added."""
     rng = np.random.default_rng(5)
     out: Written = []
     with path.open("wb") as stream:
@@ -45,17 +47,16 @@ def write(path: Path, chunk_size: int = 2_000) -> Written:
                 payloads = [rng.bytes(int(k)) for k in rng.integers(0, 90, n)]
             log = T0 + step * 10**9 + rng.integers(0, 10**9, n)
             pub = log + 5
-            done = 0
-            while done < n:
-                done += w.add(channel, sequence[channel] + done, log[done:], pub[done:],
-                              payloads[done:], stop_after_chunk=step % 2 == 0)
+            w.add(channel, sequence[channel], log, pub, payloads)
             out += [(channel, sequence[channel] + i, int(log[i]), int(pub[i]), payloads[i])
                     for i in range(n)]
             sequence[channel] += n
             if step % 13 == 12:
+                w.release(T0 + step * 10**9 + 5 * 10**8)
                 w.flush()
         w.finish()
-    return out
+    assert w.late == 0
+    return sorted(out, key=lambda m: m[2])
 
 
 def test_standard_readers_give_back_every_message_with_its_times(tmp_path: Path) -> None:
@@ -156,17 +157,16 @@ def test_footer_crc_covers_the_summary_and_summary_offsets_name_their_groups(
 
 
 def test_a_chunk_closes_after_the_message_that_passes_its_size(tmp_path: Path) -> None:
-    """As mcap's writer does: records past ``chunk_size`` by the last message added."""
+    """As mcap's writer does: records past ``chunk_size`` by the last message written."""
     path = tmp_path / "a.mcap"
     with path.open("wb") as stream:
         w = McapWriter(stream, chunk_size=1_000)
         w.start("", "")
         channel = w.register_channel("t", "octet", 0, {})
-        sizes = [w.add(channel, i, np.array([T0 + i]), np.array([T0]), [bytes(100)],
-                       stop_after_chunk=True) for i in range(25)]
-        assert sizes == [1] * 25
-        taken = w.add(channel, 25, np.full(30, T0), np.full(30, T0), [bytes(100)] * 30,
-                      stop_after_chunk=True)
+        for i in range(25):
+            w.add(channel, i, np.array([T0 + i]), np.array([T0]), [bytes(100)])
+            w.release()
+        w.add(channel, 25, np.full(30, T0 + 30), np.full(30, T0), [bytes(100)] * 30)
         w.finish()
     with path.open("rb") as f:
         summary = make_reader(f).get_summary()
@@ -174,5 +174,75 @@ def test_a_chunk_closes_after_the_message_that_passes_its_size(tmp_path: Path) -
     # the channel record (31 bytes) and 131-byte messages: 8 messages pass 1,000 bytes,
     # and 8 more each chunk after it
     assert [ci.uncompressed_size for ci in summary.chunk_indexes] == [
-        31 + 8 * 131, 8 * 131, 8 * 131, 8 * 131]
-    assert taken == 7  # the 25th message opened the 4th chunk: 7 more close it (and stop)
+        31 + 8 * 131, 8 * 131, 8 * 131, 8 * 131, 8 * 131, 8 * 131, 7 * 131]
+
+
+def test_messages_are_written_in_log_time_order_and_chunks_never_overlap(
+        tmp_path: Path) -> None:
+    """Held messages go out sorted up to each release; one added behind what is written
+    is written at the time of the last one written, and counted."""
+    path = tmp_path / "a.mcap"
+    rng = np.random.default_rng(2)
+    with path.open("wb") as stream:
+        w = McapWriter(stream, chunk_size=500)
+        w.start("", "")
+        channels = [w.register_channel(f"t/{k}", "octet", 0, {}) for k in range(3)]
+        sequence = dict.fromkeys(channels, 0)
+        for step in range(30):
+            for c in channels:
+                log = T0 + step * 1000 + np.sort(rng.integers(-1500, 1000, 7))
+                w.add(c, sequence[c], log, log, [bytes(20)] * 7)
+                sequence[c] += 7
+            w.release(T0 + step * 1000 - 1000)
+        late = T0 + 10
+        w.add(channels[0], sequence[channels[0]], np.array([late]), np.array([late]), [b"x"])
+        w.finish()
+        assert w.late == 1
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        logs = [m.log_time for _, _, m in reader.iter_messages(log_time_order=False)]
+        last = [(m.log_time, m.publish_time, m.data) for _, _, m in reader.iter_messages(
+            log_time_order=False) if m.data == b"x"]
+    assert summary is not None
+    assert logs == sorted(logs) and len(logs) == 30 * 3 * 7 + 1
+    spans = [(ci.message_start_time, ci.message_end_time) for ci in summary.chunk_indexes]
+    assert len(spans) > 10 and all(a[1] <= b[0] for a, b in itertools.pairwise(spans))
+    # at the time of the last message the last release wrote (up to T0 + 28,000)
+    assert last == [(max(t for t in logs if t <= T0 + 28_000), late, b"x")]
+
+
+def test_a_file_sorted_whole_spills_sorted_runs_and_merges_them(tmp_path: Path) -> None:
+    """Held past ``spill_bytes``, messages go to sorted runs in an unnamed file beside the
+    output; at the end the runs are merged: the same file as sorted in memory, and the
+    writer's memory stays near ``spill_bytes``."""
+    rng = np.random.default_rng(9)
+    batches = []
+    for unit in range(4):  # a replay: unit after unit, each over the same hour
+        log = T0 + np.sort(rng.integers(0, 3600 * 10**9, 3_000))
+        payloads = [rng.bytes(int(k)) for k in rng.integers(10, 60, len(log))]
+        batches += [(unit + 1, lo, log[lo : lo + 500], payloads[lo : lo + 500])
+                    for lo in range(0, len(log), 500)]
+    log[:7] = log[0]  # messages of one time keep the order they were added in
+    files = {}
+    for spill in (1 << 30, 20_000):
+        path = tmp_path / f"{spill}.mcap"
+        with path.open("wb") as stream:
+            w = McapWriter(stream, chunk_size=4_000, spill_bytes=spill, spill_dir=tmp_path)
+            w.start("", "")
+            for c in range(4):
+                w.register_channel(f"u{c}", "octet", 0, {})
+            for channel, lo, t, p in batches:
+                w.add(channel, lo, t, t, p)
+                assert w.held_bytes <= spill + 500 * 100
+            w.finish()
+        files[spill] = path.read_bytes()
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            f"{s}.mcap" for s in files)  # the spill file has no name
+    assert files[20_000] == files[1 << 30]
+    with (tmp_path / "20000.mcap").open("rb") as f:
+        got = [(c.id, m.sequence, m.log_time) for _, c, m in
+               make_reader(f).iter_messages(log_time_order=False)]
+    expected = sorted(((ch, lo + i, int(t[i])) for ch, lo, t, _ in batches
+                       for i in range(len(t))), key=lambda m: m[2])
+    assert got == expected

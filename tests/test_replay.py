@@ -6,6 +6,7 @@ Captures come from the emulator in virtual time through the USB delivery model
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -28,6 +29,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
+from tests.mcap_order import order_problems
 from tests.test_bridge_process import GX3
 from tests.test_record_live import sample_columns
 
@@ -187,6 +189,8 @@ def test_units_replayed_side_by_side_get_the_same_samples(tmp_path: Path, layout
         [(r.samples, r.events, r.settings) for r in alone]
     a, b = read_archive(tmp_path / "alone.mcap"), read_archive(tmp_path / "together.mcap")
     assert a.complete and b.complete and b.units() == a.units()
+    for out in ("alone.mcap", "together.mcap"):  # units replayed one after another
+        assert order_problems(tmp_path / out) == [], out
     for unit in a.units():
         cols_a = sample_columns(tmp_path / "alone.mcap", unit)
         cols_b = sample_columns(tmp_path / "together.mcap", unit)
@@ -206,17 +210,24 @@ def test_a_bad_capture_among_several_is_a_clear_error(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 1, done.stderr
     assert "no record found" in done.stderr and "Traceback" not in done.stderr, done.stderr
-    assert read_archive(tmp_path / "o.mcap").complete, "what was replayed stays readable"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.mcap", "u0.mcap",
+                                                          "u1.mcap"], "a failed replay left a file"
 
 
 def test_workers_end_when_the_replay_is_killed(tmp_path: Path) -> None:
-    """kill -9 of `gx3 replay -j 2` leaves no worker behind. The archive is a FIFO nobody
-    reads, so the replay waits in opening it with its workers started."""
+    """kill -9 of `gx3 replay -j 2` leaves no worker behind. Its stderr is a full pipe
+    nobody reads, so the replay waits in its first report with its workers started."""
     paths = usb_captures(tmp_path, 2)
-    fifo = tmp_path / "out.mcap"
-    os.mkfifo(fifo)
-    proc = subprocess.Popen([GX3, "replay", *map(str, paths), "-j", "2", "-o", str(fifo)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    with contextlib.suppress(BlockingIOError):
+        while True:
+            os.write(write_end, bytes(4096))
+    os.set_blocking(write_end, True)
+    proc = subprocess.Popen([GX3, "replay", *map(str, paths), "-j", "2", "-o",
+                             str(tmp_path / "out.mcap")],
+                            stdout=subprocess.DEVNULL, stderr=write_end)
+    os.close(write_end)
     try:
         parent = psutil.Process(proc.pid)
         deadline = time.monotonic() + 60
@@ -226,6 +237,7 @@ def test_workers_end_when_the_replay_is_killed(tmp_path: Path) -> None:
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
+        os.close(read_end)
     deadline = time.monotonic() + 30
     while running := [p.pid for p in workers if running_process(p)]:
         assert time.monotonic() < deadline, f"workers left running: {running}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bridge.protocol.codec import checksum
 from bridge.protocol.framer import Framer
@@ -10,7 +11,7 @@ from bridge.protocol.table import REPLIES
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from bridge.timing import TimerUnwrapper, TimingEvent
+from bridge.timing import Timeline, TimerUnwrapper, TimingEvent
 
 PERIOD = 625  # decimation 10
 RX0 = 1_700_000_000_000_000_000
@@ -116,3 +117,86 @@ def test_without_a_period_host_time_still_refuses_a_wild_jump() -> None:
     timer[1] ^= np.uint32(1 << 28)
     out = TimerUnwrapper(None).update(timer, rx)
     assert out.valid.tolist() == [True, False, True]
+
+
+KHZ = 62.5  # ticks per output period at 1 kHz (decimation 1)
+
+
+def _backlog(stall_s: float, buffered_s: float, reset_to: int | None = None,
+             n_s: float = 12.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A 1 kHz stream read by a host that stalls at 5 s for ``stall_s``: the port's buffer
+    keeps the first ``buffered_s`` of records, the rest of the stall is lost, and the
+    backlog is read at once on waking. With ``reset_to`` the unit's timer restarts at
+    that value where the records start to be lost. Returns timer, rx_ns, the cycle of
+    each record and each record's sample instant."""
+    cycles = np.arange(int(n_s * 1000), dtype=np.int64)
+    ticks = (cycles * 125 + 1) >> 1  # 62.5 a cycle, rounded half up as the unit does
+    sampled = RX0 + cycles * 1_000_000
+    rx = sampled + 200_000
+    stall, wake = 5_000, 5_000 + int(stall_s * 1000)
+    lost = (cycles >= stall + int(buffered_s * 1000)) & (cycles < wake)
+    rx[(cycles >= stall) & (cycles < wake + 3)] = sampled[wake] + 3_000_000  # all at once
+    if reset_to is not None:
+        start = stall + int(buffered_s * 1000)
+        ticks[start:] = reset_to + ((cycles[start:] - start) * 125 + 1 >> 1)
+    keep = ~lost
+    timer = (ticks % (1 << 32)).astype(np.uint32)
+    return timer[keep], rx[keep], cycles[keep], sampled[keep]
+
+
+@pytest.mark.parametrize("stall_s", [1.0, 1.5, 3.0])
+def test_a_backlog_after_a_host_stall_is_a_gap_not_a_reset(stall_s: float) -> None:
+    timer, rx, cycles, sampled = _backlog(stall_s, buffered_s=0.4)
+    out = Timeline(KHZ, floor_ns=0).update(timer, rx)
+    missing = int(np.diff(cycles).max()) - 1
+    assert missing == round((stall_s - 0.4) * 1000)
+    assert _kinds(out.events) == ["gap"] and out.events[0].count == missing
+    assert out.dropped == missing and out.valid.all()
+    assert np.array_equal(out.ticks, (cycles * 125 + 1) >> 1), "ticks ran on through the stall"
+    after = cycles >= 5_000 + stall_s * 1000
+    error = np.abs(out.time_ns - sampled)[after]
+    assert error.max() < 1_000_000, f"time_ns off by {error.max() / 1e6:.1f} ms after the stall"
+
+
+@pytest.mark.parametrize("cut", [1, 5_399, 5_400, 5_401, 5_403, 7_000])
+def test_a_judged_backlog_does_not_depend_on_how_records_are_split(cut: int) -> None:
+    timer, rx, _, _ = _backlog(2.0, buffered_s=0.4)
+    whole = Timeline(KHZ).update(timer, rx)
+    timeline = Timeline(KHZ)
+    parts = [timeline.update(timer[a:b], rx[a:b])
+             for a, b in ((0, cut), (cut, cut + 3), (cut + 3, len(timer)))]
+    assert np.array_equal(whole.ticks, np.concatenate([p.ticks for p in parts]))
+    assert np.array_equal(whole.time_ns, np.concatenate([p.time_ns for p in parts]))
+    assert [(e.kind, e.count) for p in parts for e in p.events] == [("gap", 1600)]
+
+
+@pytest.mark.parametrize("reset_to", [0, 12_345, 5_400 * 63 + 200_000])
+def test_a_reset_in_a_backlog_is_still_a_reset(reset_to: int) -> None:
+    """0xFE or a power cycle restarts the timer near 0, 0xD7 at the value set: not where
+    the clock model says a timer that ran on would be."""
+    timer, rx, _, _ = _backlog(2.0, buffered_s=0.4, reset_to=reset_to)
+    out = Timeline(KHZ).update(timer, rx)
+    assert _kinds(out.events) == ["reset"] and out.dropped == 0
+    assert np.all(np.diff(out.ticks[out.valid]) > 0)
+
+
+@pytest.mark.parametrize("reset_to", [None, 0])
+def test_a_reconnect_after_a_backlog_is_judged_by_the_clock_model(
+        reset_to: int | None) -> None:
+    """The host woke from a stall, read what the port had kept (the last record it will
+    get, seconds late) and lost the link; the unit came back a second later. Its timer
+    ran on: a gap of exactly the records lost; or it restarted: a reset."""
+    timer, rx, cycles, sampled = _backlog(2.0, buffered_s=0.4, reset_to=reset_to)
+    back = int(np.searchsorted(cycles, 7_000))
+    rx[back:] = sampled[back:] + 200_000  # the link was down: nothing came with the backlog
+    timeline = Timeline(KHZ)
+    before = timeline.update(timer[:back], rx[:back])
+    timeline.expect_discontinuity()
+    after = timeline.update(timer[back:], rx[back:])
+    assert not before.events
+    if reset_to is None:
+        assert [(e.kind, e.count) for e in after.events] == [("gap", 1600)]
+        assert np.array_equal(after.ticks, (cycles[back:] * 125 + 1) >> 1)
+        assert np.abs(after.time_ns - sampled[back:]).max() < 1_000_000
+    else:
+        assert _kinds(after.events) == ["reset"] and after.valid.all()

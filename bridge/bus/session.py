@@ -3,7 +3,8 @@
 The file carries whatever the user's network needs (TLS, ACLs, routers, scouting);
 ``--connect``/``--listen``/``--mode`` override it for the common cases. Zenoh's
 own errors name Rust source files and dump parser state: ``condense`` keeps the
-part a user can act on.
+part a user can act on. When a client cannot connect, Zenoh does not say why;
+``bridge.bus.linkcheck`` finds out (router down, TLS trust, certificate, protocol).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import zenoh
+
+from bridge.bus.linkcheck import why_not
 
 MODES = ("peer", "client", "router")
 
@@ -79,15 +82,26 @@ class ZenohOptions:
         return config
 
     def open(self) -> zenoh.Session:
-        """A session, or a SessionError naming what failed (endpoint, router)."""
+        """A session, or a SessionError naming what failed (endpoint, router, TLS)."""
         config = self.config()
         try:
             return zenoh.open(config)
         except zenoh.ZError as exc:
-            hint = ""
             if "Unable to connect" in str(exc):
-                hint = " (is the router or peer running and reachable?)"
-            raise SessionError(f"zenoh session: {condense(exc)}{hint}") from None
+                raise SessionError(f"zenoh session: {unreachable(config)}") from None
+            raise SessionError(f"zenoh session: {condense(exc)}") from None
+
+
+def unreachable(config: zenoh.Config) -> str:
+    """Why none of ``config``'s connect endpoints opened, endpoint by endpoint."""
+    endpoints = json.loads(config.get_json("connect/endpoints"))
+    if isinstance(endpoints, dict):  # endpoints per mode
+        endpoints = endpoints.get(json.loads(config.get_json("mode")) or "peer") or []
+    tls = json.loads(config.get_json("transport/link/tls"))
+    reasons = [why_not(str(e), tls) for e in endpoints]
+    said = reasons[0] if len(reasons) == 1 else \
+        "; ".join(f"{e}: {r}" for e, r in zip(endpoints, reasons, strict=True))
+    return f"Unable to connect to any of [{', '.join(map(str, endpoints))}]: {said}"
 
 
 def open_session(config_file: str | Path | None = None, *, connect: Sequence[str] = (),

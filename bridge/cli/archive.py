@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
-from bridge.cli.common import app, err, fail, parse_code
+from bridge.cli.common import ForceOpt, app, err, fail, parse_code, written
 
 if TYPE_CHECKING:
     from bridge.recorder.read import Archive
@@ -38,32 +40,45 @@ def _read(path: Path) -> Archive:
 
 @app.command()
 def repair(
-    file: Annotated[Path, typer.Argument(help="Archive whose recorder did not finish it.")],
+    file: Annotated[Path, typer.Argument(
+        help="Archive whose recorder did not finish it, or with a damaged chunk.")],
     output: Annotated[Path | None, typer.Option(
-        "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap).")] = None,
+        "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap); it appears "
+                               "when complete.")] = None,
+    force: ForceOpt = False,
 ) -> None:
-    """Rebuild a finished, indexed archive from one cut short (a killed recorder).
+    """Rebuild a finished, indexed archive from one cut short (a killed recorder) or
+    damaged (a corrupt chunk).
 
-    Every schema, channel, metadata record and message up to the last complete chunk
-    is copied into a new file with its index and summary; what follows is dropped and
-    counted. The input is never overwritten.
+    Every schema, channel, metadata record and message of every intact chunk is
+    copied into a new file with its index and summary: a file cut short up to its last
+    complete chunk, the rest dropped and counted; in a finished file a chunk that fails
+    its CRC is skipped (found again by the summary's chunk index) and what it held is
+    said (time span, messages per topic). Exits 2 when nothing can be recovered. The
+    input is never overwritten.
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.repair import default_output
     from bridge.recorder.repair import repair as repair_archive
 
-    try:
-        report = repair_archive(file, output)
-    except (ArchiveReadError, ArchiveError) as exc:
-        raise fail(str(exc)) from None
-    typer.echo(report.text())
+    output = default_output(file) if output is None else output
+    with written(output, [file], force) as temp:
+        try:
+            report = repair_archive(file, temp)
+        except ArchiveReadError as exc:
+            raise fail(str(exc)) from None
+        except ArchiveError as exc:
+            raise fail(str(exc).replace(str(temp), str(output)), 1) from None
+    typer.echo(replace(report, output=output).text())
 
 
 @app.command()
 def export(
     archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv.")],
+        "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv; it "
+                                               "appears when complete.")],
     unit: Annotated[list[str] | None, typer.Option(
         "--unit", "-u", metavar="NAME",
         help="Only this unit (repeatable). Default: every unit.")] = None,
@@ -85,6 +100,7 @@ def export(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
+    force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline.
 
@@ -93,8 +109,9 @@ def export(
     quantity columns (accel_x .. accel_z, m11 .. m33, roll pitch yaw, q0 .. q3,
     temperature_0 .. temperature_3, ...), NaN where a record lacks a quantity; rows in
     time order. M maps earth (north-east-down) to sensor; the quaternion is scalar first.
+    A corrupt chunk, or a message that is not what its topic says (another unit's
+    sample), is left out with a warning that says what was lost; the rest is exported.
     """
-    from bridge.recorder.archive import ArchiveError
     from bridge.recorder.export import (
         align_table,
         check_format,
@@ -110,34 +127,44 @@ def export(
         check_format(output)
         if events is not None:
             check_format(events)
+            if events.absolute() == output.absolute():
+                raise ValueError(f"--events {events} is the table's own file; give it "
+                                 "another name")
         codes = [parse_code(c) for c in record_type] if record_type else None
         lo = parse_time(start) if start else None
         hi = parse_time(end) if end else None
-        data = _read(archive)
-        first = data.first_sample_ns() or 0
-        lo_ns = lo.resolve(first) if lo else None
-        hi_ns = hi.resolve(first) if hi else None
-        table = sample_table(data, unit, codes, lo_ns, hi_ns, offline_times(data))
-        rows = len(table["time_ns"])
-        if not rows:
-            raise ValueError(f"{archive}: no samples match (units: "
-                             f"{', '.join(data.units()) or 'none'}); check --unit, --type, "
-                             "--start and --end")
-        n_units = len(set(table["unit"].tolist()))
-        if align is not None:
-            table = align_table(table, align)
-            msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} samples "
-                   f"of {n_units} units to {output}")
-        else:
-            msg = f"wrote {rows} samples of {n_units} units to {output}"
-        write_table(table, output)
-        if events is not None:
-            ev = event_table(data, unit, lo_ns, hi_ns)
-            write_table(ev, events)
-            msg += f"; {len(ev['time_ns'])} events to {events}"
-    except (ArchiveReadError, ArchiveError, ValueError, typer.BadParameter) as exc:
+    except (ValueError, typer.BadParameter) as exc:
         raise fail(str(exc)) from None
-    except OSError as exc:
-        raise fail(f"cannot write the export ({exc.strerror or exc}); "
-                   "choose a writable path") from None
+    with ExitStack() as outputs:
+        table_file = outputs.enter_context(written(output, [archive], force))
+        events_file = (None if events is None
+                       else outputs.enter_context(written(events, [archive], force)))
+        try:
+            data = _read(archive)
+            first = data.first_sample_ns() or 0
+            lo_ns = lo.resolve(first) if lo else None
+            hi_ns = hi.resolve(first) if hi else None
+            table = sample_table(data, unit, codes, lo_ns, hi_ns, offline_times(data))
+            rows = len(table["time_ns"])
+            if not rows:
+                raise ValueError(f"{archive}: no samples match (units: "
+                                 f"{', '.join(data.units()) or 'none'}); check --unit, "
+                                 "--type, --start and --end")
+            n_units = len(set(table["unit"].tolist()))
+            if align is not None:
+                table = align_table(table, align)
+                msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} "
+                       f"samples of {n_units} units to {output}")
+            else:
+                msg = f"wrote {rows} samples of {n_units} units to {output}"
+            write_table(table, table_file)
+            if events_file is not None:
+                ev = event_table(data, unit, lo_ns, hi_ns)
+                write_table(ev, events_file)
+                msg += f"; {len(ev['time_ns'])} events to {events}"
+        except (ArchiveReadError, ValueError) as exc:
+            raise fail(str(exc)) from None
+        except OSError as exc:
+            raise fail(f"cannot write the export ({exc.strerror or exc}); check the space "
+                       "and permissions where it goes", 1) from None
     err.print(msg)

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from bridge.cli.common import app, err, fail, parse_code
+from bridge.cli.common import ForceOpt, app, err, fail, parse_code, refused
 from bridge.cli.operate import BaudOpt, PortOpt, parse_baud
 from bridge.protocol.table import BAUD_RATES, DATA_CODES
 
@@ -65,7 +65,9 @@ def run_bridge(
              "out: uart (line time of each record at the baud rate), usb (the unit's own "
              "USB port), auto (usb for /dev/ttyACM*).")] = "auto",
     capture: Annotated[Path | None, typer.Option(
-        metavar="FILE.mcap", help="Also record every read raw, with its receive time.")] = None,
+        metavar="FILE.mcap", help="Also record every read raw, with its receive time "
+                                  "(an existing file is refused unless --force).")] = None,
+    force: ForceOpt = False,
     publish_raw: Annotated[bool, typer.Option(
         "--publish-raw", help="Also publish every read on PREFIX/UNIT/raw with its receive "
                               "time, for gx3 record --raw.")] = False,
@@ -81,9 +83,21 @@ def run_bridge(
     mode: ModeOpt = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print errors only.")] = False,
+    give_up_after: Annotated[float | None, typer.Option(
+        min=0.0, metavar="SECONDS",
+        help="Exit (status 1) if the unit has not come up this many seconds after the "
+             "start (0: after the first failed try). Default: keep retrying until "
+             "stopped.")] = None,
+    quiet: Annotated[bool, typer.Option(
+        "--quiet", "-q", help="Print errors only (and why the unit is not up).")] = False,
 ) -> None:
     """Bridge one unit onto Zenoh: bring it up, stream, time every sample, publish.
+
+    A port that is missing or busy, or a unit that does not answer, is retried with
+    pauses growing to 5 s; the reason is printed once, and again when it changes.
+    Exit status: 0 when stopped after the unit came up; 1 when it never came up
+    (stopped, --duration or --give-up-after first) or on an internal error; 2 for
+    bad options or a Zenoh configuration that does not open.
 
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
@@ -91,6 +105,10 @@ def run_bridge(
     message carries the CRC-32 of its payload in its attachment. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
+
+    Events are printed as they happen, gaps summed into a line every 5 s at most
+    (each stays an event of its own on the bus). Bring-up warns when the serial
+    line is too slow for the record at its rate, and says what to change.
     """
     from bridge.bus.keys import BadName, check_prefix, check_unit
     from bridge.pipeline import Options, Pipeline
@@ -110,6 +128,8 @@ def run_bridge(
             check_unit(unit)
     except BadName as exc:
         raise fail(str(exc)) from None
+    if capture is not None:
+        refused(capture, force=force)
     options = Options(url=port, baud=parse_baud(baud), record=code, decimation=decimation,
                       flags=parse_code(flags) if flags else None, filter_width=filter_width,
                       mag_filter_width=mag_filter_width, new_baud=new_baud, persist=persist,
@@ -137,13 +157,13 @@ def run_bridge(
     writer: list[RawCaptureWriter] = []
 
     def write_capture(data: bytes, rx_ns: int) -> None:
-        if not writer:
+        if not writer or writer[0].stopped:
             return
         try:
             writer[0].write(data, rx_ns)
         except CaptureError as exc:
             err.print(f"[yellow]capture stopped:[/] {exc}")
-            writer.clear()
+            writer[0].stopped = True
 
     with bus:
         sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet,
@@ -151,14 +171,21 @@ def run_bridge(
         pipeline = Pipeline(options, sink, on_read=sink.read)
         sink.attach(pipeline)
         if capture is not None:
-            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta))
+            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta,
+                                                         force))
             sink.on_read(write_capture)
         worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
         worker.start()
-        deadline = None if duration is None else time.monotonic() + duration
+        started = time.monotonic()
+        gave_up = False
         try:
             while worker.is_alive() and not stop.is_set():
-                if deadline is not None and time.monotonic() >= deadline:
+                elapsed = time.monotonic() - started
+                if duration is not None and elapsed >= duration:
+                    stop.set()
+                if give_up_after is not None and elapsed >= give_up_after \
+                        and pipeline.last_failure and not pipeline.came_up:
+                    gave_up = True
                     stop.set()
                 stop.wait(0.2)
         finally:
@@ -172,18 +199,23 @@ def run_bridge(
     if pipeline.error is not None:
         raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
                    f"{pipeline.error}", 1)
+    if not pipeline.came_up:
+        why = pipeline.last_failure or "stopped before the first try ended"
+        if gave_up:
+            why += f" (gave up after {give_up_after:g} s)"
+        raise fail(f"no unit came up on {port}; the last try: {why}", 1)
     if not quiet:
         err.print(sink.summary())
 
 
 def _open_capture(writer: list[Any], path: Path, prefix: str, unit: str,
-                  metadata: dict[str, str]) -> None:
+                  metadata: dict[str, str], force: bool) -> None:
     """Open the raw capture once the unit's name is known (its first bring-up)."""
     from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
 
     if writer:
         return
     try:
-        writer.append(RawCaptureWriter(path, prefix, unit, metadata))
+        writer.append(RawCaptureWriter(path, prefix, unit, metadata, force))
     except CaptureError as exc:
         err.print(f"[red]error:[/] {exc}")

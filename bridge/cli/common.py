@@ -1,8 +1,13 @@
-"""What every `gx3` command shares: the Typer app, the stderr console and one-line errors."""
+"""What every `gx3` command shares: the Typer app, the stderr console, one-line errors and
+the safe writing of outputs."""
 
 from __future__ import annotations
 
+import signal
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -48,6 +53,44 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     """Print a one-line error for a person and return the exit to raise."""
     err.print(f"[bold red]error:[/] {escape(message)}")
     return typer.Exit(code)
+
+
+ForceOpt = Annotated[bool, typer.Option(
+    "--force", help="Replace an output file that exists (never an input, nor a file "
+                    "another process is writing).")]
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
+    """The temporary file a batch command writes ``path`` through (bridge/outputs.py
+    ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
+    130, and like any failure leave nothing under ``path``."""
+    from bridge.outputs import OutputRefused, staged
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        with staged(path, inputs, force) as temp:
+            yield temp
+    except OutputRefused as exc:
+        raise fail(str(exc)) from None
+    except KeyboardInterrupt:
+        raise fail(f"interrupted; {path} was not written", 130) from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
+    """bridge/outputs.py ``refuse`` for a live output, as a one-line error (exit 2)."""
+    from bridge.outputs import OutputRefused, refuse
+
+    try:
+        refuse(path, inputs, force)
+    except OutputRefused as exc:
+        raise fail(str(exc)) from None
 
 
 def parse_code(text: str | None) -> int:

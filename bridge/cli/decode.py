@@ -54,7 +54,8 @@ def decode(
     are nested lists, matrices row-major. NaN and infinities are written as null.
     Corrupt bytes are skipped and counted; every intact record after them is still
     decoded. From a pipe, records are written as they arrive. Exit status 1 when
-    nothing decodes from a non-empty input, 130 on Ctrl-C (after the summary so far).
+    no record decodes (an empty input included), 2 when the input cannot be read,
+    130 on Ctrl-C (after the summary so far).
     """
     codes = {*([reply_code("--expect", c) for c in expect] if expect else DATA_CODES),
              BYTE_ORDER_REPLY}
@@ -86,15 +87,18 @@ def decode(
         raise typer.Exit(0) from None
     stats = framer.stats
     err.print(stats.summary())
-    if stats.bytes_fed and not stats.records:
+    if not stats.records:
         raise fail(_nothing_decoded(bytes(kept), codes, little_endian), 1)
 
 
 def _nothing_decoded(kept: bytes, codes: set[int], little_endian: bool) -> str:
-    """Why nothing decoded, with the option to change when the other byte order works."""
+    """Why nothing decoded, with the option to change when the other byte order works:
+    its records must make up most of the input, not be a chance match in garbage."""
+    if not kept:
+        return "no record decoded: the input is empty"
     other = Framer(codes, little_endian=not little_endian)
     found = sum(len(b) for b in other.feed(kept) + other.flush())
-    if found:
+    if found and other.stats.bytes_skipped <= len(kept) // 2:
         fix = "--little-endian" if not little_endian else "without --little-endian"
         return (f"no record decoded, but {found} did with floats "
                 f"{'little' if not little_endian else 'big'}-endian: try {fix}")

@@ -32,10 +32,11 @@ def _summary(rows: list[dict[str, Any]]) -> Table:
 
 @app.command("demo")
 def demo(
-    output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="DIR", help="Folder for the archive, the Rerun "
-                                              "recording, the configs and the logs.")] = Path(
-        "gx3-demo"),
+    output: Annotated[Path | None, typer.Option(
+        "--output", "-o", metavar="DIR", show_default=False,
+        help="Folder for the archive, the Rerun recording, the configs and the logs "
+             "(default: gx3-demo here, or gx3-demo-2, -3, ... when an earlier run's results "
+             "are there). A folder that is not empty is refused unless --force.")] = None,
     duration: Annotated[float, typer.Option(
         min=1.0, help="Seconds of streaming (after every bridge is up); Ctrl-C stops "
                       "earlier.")] = 20.0,
@@ -48,6 +49,10 @@ def demo(
     viewer: Annotated[str | None, typer.Option(
         metavar="spawn|serve", help="Also show it live in Rerun: spawn a viewer here, or "
                                     "serve one for a browser.")] = None,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Write into a --output folder that is not empty, replacing an "
+                        "earlier run's results (never those of a demo still running).")]
+    = False,
 ) -> None:
     """Run an emulated fleet through the whole product: bridges, Zenoh, recorder, Rerun.
 
@@ -57,14 +62,20 @@ def demo(
     dashboard shows each unit; at the end a summary compares what the bridges found
     with the truth, and says how to open the results.
     """
-    from bridge.cli.viz import live_recording
+    from bridge.cli.viz import _display, live_recording
     from bridge.demo import Demo, DemoError, fleet
+    from bridge.outputs import OutputRefused, free_folder
+    from bridge.recorder.archive import ArchiveError
 
     if viewer not in (None, "spawn", "serve"):
         raise fail(f"--viewer {viewer!r}: use spawn or serve")
+    if viewer == "spawn" and not _display():
+        raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
+                   "use --viewer serve for a remote or web viewer, or leave --viewer out")
     try:
         members = fleet(units, parse_code(record_type), rate, duration)
-    except DemoError as exc:
+        output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
+    except (DemoError, OutputRefused) as exc:
         raise fail(str(exc)) from None
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
@@ -76,13 +87,15 @@ def demo(
     recording = None
     if viewer is not None:
         recording = live_recording("demo-live", viewer == "spawn", viewer == "serve", None)
-    run = Demo(output, members, duration, router, recording, show)
+    run = Demo(output, members, duration, router, recording, show, force=force)
     signal.signal(signal.SIGINT, lambda *_: run.stop.set())
     signal.signal(signal.SIGTERM, lambda *_: run.stop.set())
     started = time.monotonic()
     try:
         with live:
             run.run()
+    except ArchiveError as exc:  # refused before it started: another demo writes there
+        raise fail(str(exc)) from None
     except DemoError as exc:
         raise fail(str(exc), 1) from None
     console.print(_summary(run.summary()))

@@ -23,7 +23,7 @@ from rich.table import Table
 
 from bridge.cli.common import app, err, fail, parse_code
 from bridge.device.actions import ACTIONS, run_action
-from bridge.device.port import Port, PortError
+from bridge.device.port import Port, PortError, is_usb_cdc
 from bridge.device.session import DeviceError, Session, find_baud
 from bridge.protocol.table import BAUD_RATES
 
@@ -156,6 +156,7 @@ def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
         raise fail(str(exc)) from None
     try:
         session = Session(port)
+        session.paced = not is_usb_cdc(port_url)  # the line's bandwidth matters
         session.quiesce()
         info = session.identify()
         result = run_action(name, session, info, params, confirmed=True)
@@ -175,7 +176,7 @@ def show(result: dict[str, Any], as_json: bool) -> None:
     for key, value in result.items():
         text = ", ".join(f"{k}={v}" for k, v in value.items()) if isinstance(value, dict) \
             else str(value)
-        table.add_row(f"[bold]{key}[/]", text)
+        table.add_row(f"[bold yellow]{key}[/]" if key == "warning" else f"[bold]{key}[/]", text)
     Console().print(table)
 
 
@@ -219,7 +220,9 @@ def configure(
 
     Sampling and baud changes are temporary unless --persist (on firmware before
     1.1.27 any sampling change is stored: that needs --persist too). Presets are
-    always stored. Lasting changes ask for confirmation.
+    always stored. Lasting changes ask for confirmation. A rate the serial line is
+    too slow for (record bytes x rate above baud/10) is set, with a warning that
+    says what to change.
     """
     if new_baud is not None and new_baud not in BAUD_RATES:
         raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))

@@ -15,7 +15,7 @@ from rich.progress import Progress, TextColumn
 from rich.table import Table
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
-from bridge.cli.common import app, err, fail
+from bridge.cli.common import ForceOpt, app, err, fail, refused, written
 
 
 def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path) -> Table:
@@ -42,7 +42,8 @@ def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path)
 def record(
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", metavar="FILE.mcap",
-        help="Archive to write (default: gx3-DATE-TIME.mcap here).")] = None,
+        help="Archive to write (default: gx3-DATE-TIME.mcap here). An existing file is "
+             "refused unless --force; one another recorder is writing, always.")] = None,
     units: Annotated[str, typer.Option(
         metavar="KEYEXPR", help="Units to record: a name, or a key expression chunk "
                                 "such as '*' (every unit) or 'lab-*'.")] = "*",
@@ -53,17 +54,22 @@ def record(
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
     rrd: Annotated[Path | None, typer.Option(
-        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded.")]
+        metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
+                                 "existing one only with --force).")]
     = None,
     split_mb: Annotated[float | None, typer.Option(
-        min=1.0, help="Start a new numbered file when one reaches this size, MB.")] = None,
+        min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
+                      "one reaches this size, MB. Numbers go on after the parts already "
+                      "there: a restarted recorder adds parts, never replaces one.")] = None,
     split_minutes: Annotated[float | None, typer.Option(
-        min=0.1, help="Start a new numbered file after this many minutes.")] = None,
+        min=0.1, help="Start a new numbered file after this many minutes (numbered as "
+                      "--split-mb).")] = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q",
                                         help="No live view; errors and warnings only.")]
     = False,
+    force: ForceOpt = False,
     zenoh_config: ZenohConfigOpt = None,
     connect: ConnectOpt = None,
     listen: ListenOpt = None,
@@ -74,9 +80,12 @@ def record(
     Units are found by their bridges' liveliness tokens and may join late, leave and
     come back. Samples keep the very protobuf bytes from Zenoh, with the schemas
     embedded; each unit also gets a foxglove.FrameTransform channel, so Foxglove and
-    `rerun FILE.mcap` show its attitude. The file is flushed every second: a crash
-    loses at most that second (`gx3 repair` finishes such a file). Ctrl-C or SIGTERM
-    finish the archive properly.
+    `rerun FILE.mcap` show its attitude. Messages are written in log-time order: each
+    waits half a second for any logged before it, and the file is flushed every
+    second, so a crash loses at most the last 1.5 s (`gx3 repair` finishes such a
+    file). Ctrl-C or SIGTERM finish the archive properly. Each file is locked while it
+    is written: a second recorder given the same file is refused at once, naming the
+    first one's process.
 
     Every message is checked before it is archived (the CRC-32 in its attachment, its
     unit against its key). What does not reach the archive (samples lost in transit,
@@ -94,21 +103,33 @@ def record(
     except BadName as exc:
         raise fail(str(exc)) from None
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
+    if rrd is not None:
+        if rrd.absolute() == path.absolute():
+            raise fail(f"--rrd {rrd} is the archive's own file; give the recording "
+                       "another name")
+        refused(rrd, force=force)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:  # first: a file refused (exists, being written) is said at once
+        writer = ArchiveWriter(path, prefix=prefix,
+                               split_bytes=None if split_mb is None else int(split_mb * 1e6),
+                               split_seconds=None if split_minutes is None
+                               else split_minutes * 60, force=force)
+    except ArchiveError as exc:
+        raise fail(str(exc)) from None
+
+    def discard() -> None:
+        """Nothing recorded yet: leave no empty archive behind."""
+        writer.close()
+        for part in writer.paths:
+            part.unlink(missing_ok=True)
+
     try:
         session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
                                mode=mode)
     except SessionError as exc:
-        raise fail(str(exc)) from None
-    try:
-        writer = ArchiveWriter(path, prefix=prefix,
-                               split_bytes=None if split_mb is None else int(split_mb * 1e6),
-                               split_seconds=None if split_minutes is None
-                               else split_minutes * 60)
-    except ArchiveError as exc:
-        session.close()
+        discard()
         raise fail(str(exc)) from None
     console = Console(stderr=True)
 
@@ -126,10 +147,11 @@ def record(
         try:
             # long recordings: bigger chunks, and no in-memory index of every chunk
             logger = RerunLogger(rrd, recording_id=path.stem, latency_s=2.0, write_footer=False)
-        except OSError as exc:
-            writer.close()
+        except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
+            discard()
             session.close()
-            raise fail(f"--rrd {rrd}: cannot write ({exc.strerror or exc})") from None
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise fail(f"--rrd {rrd}: cannot write ({why})") from None
         sink = logger
 
         def to_rerun(messages: list[Any]) -> None:
@@ -175,11 +197,14 @@ def replay_command(
         metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
                                         "recorded with --raw).")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="ARCHIVE.mcap", help="Archive to write.")],
+        "--output", "-o", metavar="ARCHIVE.mcap",
+        help="Archive to write; it appears when complete (nothing is left there if the "
+             "replay fails or is interrupted).")],
     prefix: PrefixOpt = "gx3",
     jobs: Annotated[int, typer.Option(
         "--jobs", "-j", min=0, help="Processes replaying at once, a capture file each (a unit "
                                     "each when there are fewer files); 0: one per core.")] = 0,
+    force: ForceOpt = False,
 ) -> None:
     """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
 
@@ -216,11 +241,14 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    try:
-        with progress:
-            results = replay(captures, output, prefix, on_unit=report, jobs=jobs or None,
-                             on_samples=advance)
-    except (ReplayError, ArchiveReadError, ArchiveError) as exc:
-        raise fail(str(exc), 1) from None
+    with written(output, captures, force) as temp:
+        try:
+            with progress:
+                results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
+                                 on_samples=advance)
+        except ArchiveReadError as exc:
+            raise fail(str(exc)) from None
+        except (ReplayError, ArchiveError) as exc:
+            raise fail(str(exc).replace(str(temp), str(output)), 1) from None
     err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
               f"{len(results)} unit(s)")

@@ -13,7 +13,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
-from bridge.cli.common import app, err, fail
+from bridge.cli.common import ForceOpt, app, err, fail, refused, written
 
 
 @app.command("rrd")
@@ -21,13 +21,16 @@ def rrd(
     archive: Annotated[Path, typer.Argument(metavar="ARCHIVE.mcap",
                                             help="Archive from gx3 record or gx3 replay.")],
     output: Annotated[Path, typer.Option("--output", "-o", metavar="OUT.rrd",
-                                         help="Rerun recording to write.")],
+                                         help="Rerun recording to write; it appears when "
+                                              "complete.")],
+    force: ForceOpt = False,
 ) -> None:
     """Render an archive into a Rerun recording with the live view's layout.
 
     Every unit's attitude in a north-east-down scene, its signals by quantity, status
     and events, on the timelines `time` and `device_time`. An archive cut short (a
-    killed recorder) is rendered up to its last complete chunk.
+    killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
+    message that is not what its topic says is left out with a warning.
     """
     from bridge.recorder.read import ArchiveReadError, describe_problem, read_archive
     from bridge.viz.logger import RerunLogger
@@ -35,26 +38,28 @@ def rrd(
 
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
-    try:
-        found = read_archive(archive)
-    except ArchiveReadError as exc:
-        raise fail(str(exc), 1) from None
-    if not found.complete:
-        err.print(f"[yellow]{describe_problem(found)}[/]")
-    counts = found.counts()
-    total = sum(counts[t][0] for t in found.topics("imu") if t in counts)
-    if total == 0:
-        raise fail(f"{archive}: no samples in it", 1)
-    progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
-                        console=err, transient=True, disable=not err.is_terminal)
-    try:
-        logger = RerunLogger(output, found.units(), recording_id=archive.stem)
-    except OSError as exc:
-        raise fail(f"{output}: cannot write ({exc.strerror or exc})") from None
-    with progress:
-        task = progress.add_task("rrd", total=total)
-        logged = log_archive(found, logger, lambda n: progress.advance(task, n))
-        logger.close()
+    with written(output, [archive], force) as temp:
+        try:
+            found = read_archive(archive)
+        except ArchiveReadError as exc:
+            raise fail(str(exc)) from None
+        if not found.complete:
+            err.print(f"[yellow]{describe_problem(found)}[/]")
+        counts = found.counts()
+        total = sum(counts[t][0] for t in found.topics("imu") if t in counts)
+        if total == 0:
+            raise fail(f"{archive}: no samples in it; give an archive gx3 recorded units "
+                       "into")
+        progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
+                            console=err, transient=True, disable=not err.is_terminal)
+        try:
+            logger = RerunLogger(temp, found.units(), recording_id=archive.stem)
+        except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
+            raise fail(f"{output}: cannot write ({exc})", 1) from None
+        with progress:
+            task = progress.add_task("rrd", total=total)
+            logged = log_archive(found, logger, lambda n: progress.advance(task, n))
+            logger.close()
     err.print(f"wrote {output}: {logged:,} samples of {len(found.units())} unit(s); "
               f"open it with: rerun {output}")
 
@@ -101,7 +106,9 @@ def view(
     = 9876,
     web_port: Annotated[int, typer.Option(help="Web viewer port of --serve.")] = 9090,
     save: Annotated[Path | None, typer.Option(
-        metavar="FILE.rrd", help="Also write the recording to this file.")] = None,
+        metavar="FILE.rrd", help="Also write the recording to this file (an existing one "
+                                 "only with --force).")] = None,
+    force: ForceOpt = False,
     window: Annotated[float, typer.Option(
         min=1.0, metavar="SECONDS", help="Plots show the last so many seconds.")] = 30.0,
     units: Annotated[str, typer.Option(
@@ -128,13 +135,19 @@ def view(
     if not (spawn or serve or save):
         raise fail("no display here to spawn a viewer: use --serve (remote or web viewer) "
                    "and/or --save FILE.rrd")
-    recording = live_recording(time.strftime("live-%Y%m%d-%H%M%S"), spawn, serve, save,
-                               bind, grpc_port, web_port)
-    try:
+    if save is not None:
+        refused(save, force=force)
+    try:  # first: a session that cannot open leaves no empty FILE.rrd
         session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
                                mode=mode)
     except SessionError as exc:
         raise fail(str(exc)) from None
+    try:
+        recording = live_recording(time.strftime("live-%Y%m%d-%H%M%S"), spawn, serve, save,
+                                   bind, grpc_port, web_port)
+    except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
+        session.close()
+        raise fail(f"cannot start the Rerun recording ({exc})") from None
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -69,6 +69,9 @@ def _configure(session: Session, info: UnitInfo, params: Params) -> Params:
         raise DeviceError("nothing to configure: give a setting to change")
     if info.notes:
         done["notes"] = list(info.notes)
+    warning = info.line_warning() if session.paced else None
+    if warning:
+        done["warning"] = warning
     return done
 
 

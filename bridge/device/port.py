@@ -23,25 +23,37 @@ _READ_SIZE = 1 << 16
 
 
 class PortError(OSError):
-    """The port cannot be used; the message says why and what to do, in one line."""
+    """The port cannot be used; the message says why and what to do, in one line.
+
+    ``why`` names the cause in a few words (port missing, port busy, ...), so whoever
+    waits for the port can tell one cause from another without parsing the message.
+    """
+
+    def __init__(self, message: str, why: str = "port error") -> None:
+        super().__init__(message)
+        self.why = why
 
 
-def _describe(url: str, exc: BaseException) -> str:
+def _error(url: str, exc: BaseException) -> PortError:
     text = str(exc)
     code = getattr(exc, "errno", None)
     if code == errno.ENOENT or "No such file" in text:
-        return f"{url}: no such port; check the cable and the device name (ls /dev/tty*)"
+        return PortError(f"{url}: no such port; check the cable and the device name "
+                         "(ls /dev/tty*)", "port missing")
     if code in (errno.EACCES, errno.EPERM) or "Permission denied" in text:
-        return (f"{url}: permission denied; add your user to the 'dialout' group "
-                "(then log in again) or use a udev rule")
-    if code == errno.EBUSY or "exclusively lock" in text or "Resource temporarily" in text:
-        return f"{url}: port is busy: another program has it open (is a bridge already running?)"
+        return PortError(f"{url}: permission denied; add your user to the 'dialout' group "
+                         "(then log in again) or use a udev rule", "permission denied")
+    if code in (errno.EBUSY, errno.EAGAIN) or "exclusively lock" in text:
+        return PortError(f"{url}: port is busy: another program has it open (is a bridge "
+                         "already running?)", "port busy")
     if "returned no data" in text or code == errno.EIO:
-        return f"{url}: the device went away (cable pulled, or the unit lost power)"
+        return PortError(f"{url}: the device went away (cable pulled, or the unit lost "
+                         "power)", "port gone")
     if code == errno.ECONNREFUSED or "Connection refused" in text:
-        return f"{url}: connection refused; is the serial server (or gx3 sim) running?"
+        return PortError(f"{url}: connection refused; is the serial server (or gx3 sim) "
+                         "running?", "connection refused")
     first = text.splitlines()[0] if text else type(exc).__name__
-    return f"{url}: {first}"
+    return PortError(f"{url}: {first}")
 
 
 @dataclass
@@ -60,7 +72,7 @@ class Port:
         try:
             raw = serial.serial_for_url(url, **kwargs)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise PortError(_describe(url, exc)) from None
+            raise _error(url, exc) from None
         return cls(url, raw)
 
     @property
@@ -72,7 +84,7 @@ class Port:
         try:
             self.raw.baudrate = value
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise PortError(_describe(self.url, exc)) from None
+            raise _error(self.url, exc) from None
 
     def _fileno(self) -> int | None:
         try:
@@ -94,7 +106,8 @@ class Port:
                 data = os.read(fd, _READ_SIZE)  # pyserial's read would select again
                 rx_ns = time.time_ns()
                 if not data:
-                    raise PortError(f"{self.url}: the device went away (cable pulled?)")
+                    raise PortError(f"{self.url}: the device went away (cable pulled?)",
+                                    "port gone")
                 return bytes(data), rx_ns
             self.raw.timeout = wait_s
             data = self.raw.read(max(1, self.raw.in_waiting))
@@ -104,14 +117,14 @@ class Port:
         except PortError:
             raise
         except (serial.SerialException, OSError) as exc:
-            raise PortError(_describe(self.url, exc)) from None
+            raise _error(self.url, exc) from None
 
     def write(self, data: bytes) -> None:
         try:
             self.raw.write(data)
             self.raw.flush()
         except (serial.SerialException, OSError) as exc:
-            raise PortError(_describe(self.url, exc)) from None
+            raise _error(self.url, exc) from None
 
     def close(self) -> None:
         with contextlib.suppress(serial.SerialException, OSError):

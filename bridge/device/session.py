@@ -12,6 +12,7 @@ persists, taking the firmware into account (DESIGN.md, "Safety of commands").
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -40,11 +41,16 @@ _MAX_SETTLE_S = float(wake_time_seconds(32)) + 0.02  # Equation 1 at the widest 
 
 
 class DeviceError(Exception):
-    """A unit did not do what was asked; the message says what and what to try."""
+    """A unit did not do what was asked; the message says what and what to try.
+    ``why`` names the cause in a few words, as ``PortError.why`` does."""
+
+    why = "unit refused"
 
 
 class CommandTimeout(DeviceError):
     """No reply within the timeout, after every retry."""
+
+    why = "no answer"
 
 
 class CommandRejected(DeviceError):
@@ -82,6 +88,33 @@ class UnitInfo:
     @property
     def output_hz(self) -> float:
         return 1000.0 / max(1, self.sampling.get("decimation", 1))
+
+    @property
+    def stream_record(self) -> int:
+        """The record a stream of this unit carries: the one chosen, else its continuous
+        preset, else ``DEFAULT_RECORD``."""
+        return self.record or self.continuous_preset or DEFAULT_RECORD
+
+    def line_warning(self) -> str | None:
+        """What to change when its serial line cannot carry the stream (None if it can).
+
+        The line carries baud/10 bytes a second and the unit skips every record that
+        finds it busy (the manual's Data Output Rate table): record bytes x rate must
+        fit, or records go missing.
+        """
+        record, decimation = self.stream_record, max(1, self.sampling.get("decimation", 1))
+        size = REPLIES[record].length
+        need = size * 1000 / decimation
+        if need <= self.baud / 10:
+            return None
+        fixes = [f"--new-baud {b}" for b in BAUD_RATES if need <= b / 10][:1]
+        fits = math.ceil(size * 10_000 / self.baud)
+        if fits <= 1000:
+            fixes.append(f"--decimation {fits} or more")
+        return (f"the line cannot carry the stream: 0x{record:02X} ({size} bytes) at "
+                f"{1000 / decimation:g} Hz needs {need:,.0f} bytes/s, {self.baud} baud "
+                f"carries {self.baud // 10:,}; records will go missing (use "
+                f"{' or '.join(fixes) or 'a shorter record'})")
 
     @property
     def period_ticks(self) -> float:
@@ -350,5 +383,5 @@ def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> t
         port.close()
         raise
     port.close()
-    raise DeviceError(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
+    raise CommandTimeout(f"{url}: no unit answered at {', '.join(str(b) for b in order)} baud; "
                       "check the cable and the unit's power")

@@ -16,8 +16,15 @@ Layout (DESIGN.md, "Archives"):
   channel; a viewer gains nothing from more transforms than it draws).
 - Raw captures (``<prefix>/<unit>/raw``) keep their receive time as log time,
   octet-stream, no schema, as bridge/recorder/rawcapture.py writes them.
-- Chunked (1 MiB), zstd, indexed, with a summary; flushed at least once a second, so a
-  killed recorder loses at most that second and the file still opens with read.py.
+- Chunked (1 MiB), zstd, indexed, with a summary, in log-time order (chunks never
+  overlap). A message waits ``reorder_s`` (0.5 s of receive time) for any logged
+  before it, then is written at the next flush, at least once a second: a killed
+  recorder loses at most the last 1.5 s and the file still opens with read.py. A
+  message that comes later than that is written at the log time of the last one
+  written (its own time stays in its payload; a raw read's in its publish time, the
+  receive time too) and counted (``late``, and a
+  ``gx3.order`` metadata record). ``reorder_s=None`` sorts the whole file when it is
+  finished (a replay writes unit after unit).
   ``write_many`` takes a batch of one key at once (bridge/recorder/mcap_writer.py lays
   out its records in bulk): the same file as ``write`` per message, at a fraction of
   the cost.
@@ -26,6 +33,9 @@ Layout (DESIGN.md, "Archives"):
 from __future__ import annotations
 
 import functools
+import glob
+import importlib.metadata
+import re
 import struct
 import time
 from collections.abc import Callable, Sequence
@@ -42,6 +52,7 @@ from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
+from bridge.outputs import OutputRefused, create_locked, refuse_if_written
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
 from bridge.recorder.mcap_writer import McapWriter
@@ -51,8 +62,11 @@ T = TypeVar("T")
 PROTOBUF = "protobuf"
 FRAME_LEAF = "frame"
 FLUSH_EVERY_S = 1.0
-LIBRARY = "gx3-bridge"
-PROFILE = "gx3"
+#: How long (receive time) a message waits for ones logged before it: not longer than
+#: FLUSH_EVERY_S, so a killed recorder loses at most the last REORDER_S + FLUSH_EVERY_S.
+REORDER_S = 0.5
+LIBRARY = f"gx3-bridge {importlib.metadata.version('gx3-bridge')}"
+PROFILE = ""  # no registered MCAP profile fits ours (https://mcap.dev/spec/registry)
 
 #: Message type of each key leaf, and the field that holds its time.
 MESSAGES: dict[str, tuple[type[Message], str]] = {
@@ -76,6 +90,22 @@ def numbered(path: Path, index: int) -> Path:
     return path.with_name(f"{path.stem}_{index:04d}{path.suffix}")
 
 
+def next_part(path: Path) -> int:
+    """The index after the highest part of the recording ``path`` already there: a
+    restarted recorder adds parts, never replaces one. Refused while another process
+    writes that last part (one writer per recording)."""
+    pattern = re.compile(rf"{re.escape(path.stem)}_(\d{{4,}}){re.escape(path.suffix)}")
+    found = [int(m[1]) for p in path.parent.glob(f"{glob.escape(path.stem)}_*")
+             if (m := pattern.fullmatch(p.name))]
+    last = max(found, default=0)
+    if last:
+        try:
+            refuse_if_written(numbered(path, last))
+        except OutputRefused as exc:
+            raise ArchiveError(str(exc)) from None
+    return last + 1
+
+
 @functools.cache
 def _header(unit: str) -> struct.Struct:
     """The fixed header of the bulk ImuSample layout: unit, command, timer, ticks, time_ns."""
@@ -93,6 +123,9 @@ def _header_dtype(unit: str) -> np.dtype[np.void]:
 _HEADER_TAGS = (0x0A, 0x15, 0x1D, 0x21, 0x29)
 _BULK = 16  # messages; fewer are cheaper one by one than through arrays
 _HOLD = 1024  # messages ``write`` holds at most before handing them on
+#: chunks' worth of held messages that have a release go before the next flush: fewer,
+#: larger releases sort and frame in bigger batches
+_RELEASE_CHUNKS = 4
 
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
@@ -138,25 +171,41 @@ def _framed(code: int) -> bool:
 def frame_picks(times: np.ndarray, due: int | None,
                 period: int) -> tuple[list[int], int | None]:
     """Which of a unit's attitude samples (at ``times``) become frames, and when the next
-    is due: the first at or after ``due``, then one a period; time going back more than
-    two periods (a reset) starts again. Times that never go back (the usual case) let it
-    jump from frame to frame, each sample's successor found for all at once."""
+    is due: the first sample at or after each tick of a grid ``period`` apart, from the
+    first sample on, so frames come exactly 1/period a second whatever the unit's clock
+    drift (a grid from each pick would wait for the sample after, at 9.9996 ms steps
+    20 Hz instead of 25). A tick with no sample of its own is skipped; time going back
+    more than two periods (a reset) starts the grid again. Times that never go back (the
+    usual case) let it jump from frame to frame, each sample's successor found for all
+    at once."""
+    if not period:
+        return list(range(len(times))), due
     if len(times) and (len(times) < 2 or bool((np.diff(times) >= 0).all())):
         first = int(times[0])
-        i = 0 if due is None or first < due - 2 * period else int(np.searchsorted(times, due))
-        after = np.maximum(np.searchsorted(times, times + period),
+        if due is None or first < due - 2 * period:
+            due = first
+        i = int(np.searchsorted(times, due))
+        after = np.maximum(np.searchsorted(times, _next_tick(times, due, period)),
                            np.arange(1, len(times) + 1)).tolist()
         picks: list[int] = []
         while i < len(times):
             picks.append(i)
             i = after[i]
-        return picks, (int(times[picks[-1]]) + period if picks else due)
+        return picks, (int(_next_tick(times[picks[-1:]], due, period)[0]) if picks else due)
     picks = []
     for i, t in enumerate(times.tolist()):
-        if due is None or t >= due or t < due - 2 * period:
+        if due is None or t < due - 2 * period:
+            due = t
+        if t >= due:
             picks.append(i)
-            due = t + period
+            due = int(_next_tick(np.array([t]), due, period)[0])
     return picks, due
+
+
+def _next_tick(times: np.ndarray, due: int, period: int) -> np.ndarray:
+    """The first tick of the grid through ``due`` (``period`` apart) after each time."""
+    times = np.asarray(times, np.int64)
+    return due + ((times - due) // period + 1) * period
 
 
 @dataclass
@@ -187,18 +236,25 @@ class ArchiveWriter:
 
     Units and message types get their channels on first sight. ``split_bytes`` or
     ``split_seconds`` (of receive time) start a new numbered file (``run_0001.mcap``,
-    ``run_0002.mcap``, ...) when the current one reaches that size or age. Call
+    ``run_0002.mcap``, ...) when the current one reaches that size or age, numbered on
+    after any parts already there. An existing file is refused (``force`` replaces it
+    unless another process writes it); each file is locked while written. Call
     ``tick()`` at least once a second while no messages arrive, so the last ones reach
-    the disk; ``close()`` finishes the file with its summary and index.
+    the disk; ``close()`` finishes the file with its summary and index. Messages are
+    written in log-time order, each once ``reorder_s`` of receive time has passed its
+    log time (the receive clock runs on with ``clock`` while none arrive); with
+    ``reorder_s=None``, when the file is finished.
     """
 
     def __init__(self, path: Path, *, prefix: str = PREFIX, chunk_size: int = 1 << 20,
                  split_bytes: int | None = None, split_seconds: float | None = None,
                  frames: bool = True, frame_rate_hz: float | None = 25.0,
-                 frame_spacing: float = 0.5,
+                 frame_spacing: float = 0.5, reorder_s: float | None = REORDER_S,
                  metadata: dict[str, str] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, force: bool = False) -> None:
         self.path = Path(path)
+        self.force = force
+        self._first_part = 1
         self.prefix = check_prefix(prefix)
         self.chunk_size = chunk_size
         self.split_bytes = split_bytes
@@ -206,9 +262,13 @@ class ArchiveWriter:
         self.frames = frames
         self.frame_period_ns = int(1e9 / frame_rate_hz) if frame_rate_hz else 0
         self.frame_spacing = frame_spacing
+        self.reorder_ns = None if reorder_s is None else int(reorder_s * 1e9)
         self.metadata = dict(metadata or {})
         self.paths: list[Path] = []
         self.messages = 0
+        self.late = 0
+        self._rx_latest: int | None = None
+        self._rx_seen_at = 0.0
         self._clock = clock
         self._flushed = clock()
         self._slots: dict[str, int] = {}
@@ -222,21 +282,29 @@ class ArchiveWriter:
         # messages ``write`` holds for ``write_many``, by key: payloads, receive times
         self._held: dict[str, tuple[list[bytes], list[int]]] = {}
         self._holding = 0
+        self._draining = False
         self._open()
 
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        path = numbered(self.path, len(self.paths) + 1) if self._splits else self.path
+        """Create the next file exclusively and lock it (bridge/outputs.py): an existing
+        one is never truncated; split parts continue after those already there."""
+        if self._splits and not self.paths:
+            self._first_part = next_part(self.path)
+        index = self._first_part + len(self.paths)
+        path = numbered(self.path, index) if self._splits else self.path
         try:
-            stream: IO[bytes] = path.open("wb")
+            stream = create_locked(path, self.force and not self._splits)
+        except OutputRefused as exc:
+            raise ArchiveError(str(exc)) from None
         except OSError as exc:
             raise self._fail(path, exc, opening=True) from None
-        writer = McapWriter(stream, chunk_size=self.chunk_size)
+        writer = McapWriter(stream, chunk_size=self.chunk_size, spill_dir=path.parent)
         self._file = _File(path, stream, writer)
         self.paths.append(path)
         self._guard(writer.start, PROFILE, LIBRARY)
-        meta = {"prefix": self.prefix, "file_index": str(len(self.paths)),
+        meta = {"prefix": self.prefix, "file_index": str(index),
                 "frame_convention": "world = north-east-down; FrameTransform rotation = "
                                     "sensor-to-earth (M transposed), quaternion x y z w",
                 **self.metadata}
@@ -292,16 +360,27 @@ class ArchiveWriter:
 
     def _add(self, topic: str, unit: str, leaf: str, log_ns: np.ndarray,
              payloads: Sequence[bytes], receive_ns: np.ndarray) -> int:
-        """Append messages of one topic; returns how many were taken (all, unless the
-        file splits by size and a chunk closed on the way: then the caller looks)."""
+        """Hand messages of one topic to the file's writer; returns how many were taken
+        (all, unless the file splits by size: then about a chunk's worth, so the caller
+        can look at the file's size)."""
         f = self._current()
         cid = f.channels.get(topic) or self._register(topic, unit, leaf)
+        n = len(payloads)
+        if self.split_bytes is not None and n > 1:
+            sizes = np.cumsum(np.fromiter(map(len, payloads), np.int64, n))
+            n = min(n, int(np.searchsorted(sizes, self.chunk_size)) + 1)
         seq = self._sequence.get(topic, 0)
-        taken = self._guard(f.writer.add, cid, seq, log_ns, receive_ns, payloads,
-                            self.split_bytes is not None)
-        self._sequence[topic] = seq + taken
-        self.messages += taken
-        return taken
+        self._guard(f.writer.add, cid, seq, log_ns[:n], receive_ns[:n], payloads[:n])
+        self._sequence[topic] = seq + n
+        self.messages += n
+        if n:
+            self._saw(int(receive_ns[:n].max()))
+        return n
+
+    def _saw(self, rx: int) -> None:
+        """Keep the latest receive time and when it came: the reorder window's clock."""
+        if self._rx_latest is None or rx > self._rx_latest:
+            self._rx_latest, self._rx_seen_at = rx, self._clock()
 
     def route(self, key: str) -> tuple[str, str]:
         """(unit, leaf) of a key, checked once per key (ValueError: not one it archives)."""
@@ -342,15 +421,23 @@ class ArchiveWriter:
         payloads, received = self._held.setdefault(key, ([], []))
         payloads.append(payload)
         received.append(time.time_ns() if receive_ns is None else receive_ns)
+        self._saw(received[-1])
         self._holding += 1
         if self._holding >= _HOLD or self._clock() - self._flushed >= FLUSH_EVERY_S:
             self._drain()
 
     def _drain(self) -> None:
         """Hand the messages ``write`` holds to ``write_many``, key by key."""
+        if not self._held:
+            return
         held, self._held, self._holding = self._held, {}, 0
-        for key, (payloads, received) in held.items():
-            self.write_many(key, payloads, np.array(received, np.int64))
+        self._draining = True  # every key in before the reorder window lets any go
+        try:
+            for key, (payloads, received) in held.items():
+                self.write_many(key, payloads, np.array(received, np.int64))
+        finally:
+            self._draining = False
+        self._release_if_full()
 
     def write_many(self, key: str, payloads: Sequence[bytes],
                    receive_ns: int | np.ndarray) -> None:
@@ -387,6 +474,8 @@ class ArchiveWriter:
                                    codes[done : done + taken], log_ns[done : done + taken],
                                    payloads[done : done + taken], rx[done : done + taken])
             done += taken
+            if not self._draining:
+                self._release_if_full()
         if self._clock() - self._flushed >= FLUSH_EVERY_S:
             self.flush()
 
@@ -481,7 +570,8 @@ class ArchiveWriter:
         if f.opened_ns is None:
             f.opened_ns = rx
         old = self.split_ns is not None and rx - f.opened_ns >= self.split_ns
-        if old or (self.split_bytes is not None and f.stream.tell() >= self.split_bytes):
+        if old or (self.split_bytes is not None
+                   and f.stream.tell() + f.writer.held_bytes >= self.split_bytes):
             self._roll()
             self._current().opened_ns = rx
 
@@ -489,10 +579,25 @@ class ArchiveWriter:
         self._finish()
         self._open()
 
+    def _release(self) -> None:
+        """Write, in log-time order, the messages ``reorder_s`` of receive time has passed."""
+        if self.reorder_ns is None or self._rx_latest is None:
+            return
+        self._write_frames()
+        now = self._rx_latest + int((self._clock() - self._rx_seen_at) * 1e9)
+        self._guard(self._current().writer.release, now - self.reorder_ns)
+
+    def _release_if_full(self) -> None:
+        """Release before the next flush when much is held (a writer faster than live)."""
+        if self._current().writer.held_bytes > _RELEASE_CHUNKS * self.chunk_size:
+            self._release()
+
     def flush(self) -> None:
-        """Close the open chunk and hand everything to the OS (a crash keeps it)."""
+        """Write what the reorder window lets go, close the open chunk and hand it all to
+        the OS (a crash keeps it)."""
         self._drain()
         self._write_frames()
+        self._release()
         self._guard(self._current().writer.flush)
         self._flushed = self._clock()
 
@@ -506,6 +611,17 @@ class ArchiveWriter:
         try:
             if self._broken is None:
                 self._write_frames()
+                self._guard(f.writer.release)
+                self.late += f.writer.late
+                if f.writer.late:
+                    self._guard(f.writer.flush)
+                    self._guard(f.writer.add_metadata, "gx3.order", {
+                        "late_messages": str(f.writer.late),
+                        "reorder_window_ns": str(self.reorder_ns),
+                        "note": "messages that came later than the reorder window are "
+                                "logged at the time of the last message written before "
+                                "them; their own time is in their payload (a raw read's "
+                                "in its publish time)"})
                 self._guard(f.writer.finish)
         finally:
             self._file = None

@@ -107,10 +107,10 @@ def _unit_times(unit: str, blocks: Sequence[Samples],
 def unit_settings(archive: Archive, unit: str) -> Settings | None:
     """What decided a unit's timing, from the last Info its bridge published."""
     topic = f"{archive_prefix(archive)}/{unit}/info"
-    messages = archive.messages(topic) if topic in archive.topics("info") else None
-    if messages is None or not len(messages):
+    infos = archive.decoded(topic, Info) if topic in archive.topics("info") else []
+    if not infos:
         return None
-    info = Info.FromString(messages.payloads[-1])
+    info = infos[-1][1]
     if not (info.command and info.baud and info.decimation and info.filter_width):
         return None
     return Settings(record=info.command, decimation=info.decimation,

@@ -24,22 +24,27 @@ What is written follows the MCAP specification (https://mcap.dev/spec, format ve
   Attachment Index group), the Footer (0x02, with the CRC-32 of the summary up to its
   own CRC field) and the magic.
 
-A chunk is closed once its records pass ``chunk_size`` and at every ``flush``; it is
-compressed on a worker thread while the next one fills and written when that one closes
-or at the next flush, so a writer killed mid-run leaves every chunk flushed before
-readable by a streaming reader. The
-rare records go through mcap's own record classes; only Message and Message Index
-records, the bulk of every file, are built here.
+Messages go into chunks in log-time order, so chunk time ranges never overlap: ``add``
+holds them, ``release`` writes those logged up to a given time, sorted. A chunk is
+closed once its records pass ``chunk_size`` and at every ``flush``; it is compressed on
+a worker thread while the next one fills and written when that one closes or at the
+next flush, so a writer killed mid-run leaves every chunk flushed before readable by a
+streaming reader (messages still held are lost with it). The rare records go through
+mcap's own record classes; only Message and Message Index records, the bulk of every
+file, are built here.
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import struct
+import tempfile
 import zlib
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -69,6 +74,7 @@ _BODY_FIXED = _MESSAGE_HEAD.size - 9  # a Message record's length without its da
 _BULK = 16  # messages; fewer are cheaper packed one by one than laid out as an array
 _INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 _INDEX_HEAD = struct.Struct("<BQHI")
+_MERGE = 1 << 16  # messages merged from spilled runs at a time
 
 
 def message_records(channel: int, first_sequence: int, log_time: np.ndarray,
@@ -120,6 +126,17 @@ def _record(record: McapRecord) -> bytes:
 
 
 @dataclass
+class _Held:
+    """Message records added and not yet written: end to end, with a row each."""
+
+    data: bytes
+    channel: np.ndarray
+    log_time: np.ndarray
+    start: np.ndarray
+    size: np.ndarray
+
+
+@dataclass
 class _OpenChunk:
     """Records of the chunk in progress and the index of its messages."""
 
@@ -128,29 +145,93 @@ class _OpenChunk:
     messages: int = 0
     start: int = 0
     end: int = 0
-    index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict)
+    index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def add(self, record: bytes | memoryview) -> None:
         self.parts.append(record)
         self.size += len(record)
 
 
+def _joined(held: list[_Held]) -> tuple[np.ndarray, ...]:
+    """Held pieces as one: bytes, and log time, start, size and channel of each record."""
+    data = np.frombuffer(b"".join(h.data for h in held), np.uint8)
+    base = np.cumsum([0] + [len(h.data) for h in held[:-1]]).tolist()
+    return (data, np.concatenate([h.log_time for h in held]),
+            np.concatenate([h.start + b for h, b in zip(held, base, strict=True)]),
+            np.concatenate([h.size for h in held]), np.concatenate([h.channel for h in held]))
+
+
+def _read(fd: int, at: int, size: int) -> bytes:
+    parts = []
+    while size:
+        part = os.pread(fd, size, at)
+        if not part:
+            raise OSError(f"the sort's spill file ends {size} bytes short")
+        parts.append(part)
+        at += len(part)
+        size -= len(part)
+    return b"".join(parts)
+
+
+@dataclass
+class _Run:
+    """Held messages spilled, sorted, to the spill file: records start at ``ends[:-1]``
+    and end at ``ends[1:]``."""
+
+    channel: np.ndarray
+    log_time: np.ndarray
+    ends: np.ndarray
+    at: int = 0  # records before it are written
+
+
+def _gather(data: np.ndarray, start: np.ndarray, size: np.ndarray) -> bytes:
+    """The byte ranges (``start``, ``size``) of ``data`` end to end: the records of each
+    size moved as rows of a window view, one row copy each (there are few sizes)."""
+    total = int(size.sum())
+    out = np.empty(total, np.uint8)
+    at = np.cumsum(size) - size
+    for width in np.unique(size).tolist():
+        if width:
+            pick = np.flatnonzero(size == width)
+            _windows(out, width, True)[at[pick]] = _windows(data, width)[start[pick]]
+    return out.tobytes()
+
+
+def _windows(buf: np.ndarray, width: int, writeable: bool = False) -> np.ndarray:
+    """Every ``width`` bytes of ``buf`` as a row, row k starting at byte k (a view)."""
+    return np.lib.stride_tricks.as_strided(buf, (max(len(buf) - width + 1, 0), width),
+                                           (1, 1), writeable=writeable)
+
+
 class McapWriter:
     """Write one MCAP file to ``stream``: ``start``, register, ``add`` in bulk, ``finish``.
 
-    Ids of schemas and channels count from 1 in registration order, as mcap's writer
-    gives them. Errors of the stream (a full disk) propagate as OSError.
+    Messages are written in log-time order (what ``mcap doctor --strict-message-order``
+    asks): ``add`` holds them, and ``release`` (or ``flush``) writes those logged up to
+    a time, sorted, so chunks never overlap. A message added later than one already
+    written is written at that one's log time (its own time is in its payload) and
+    counted in ``late``. Ids of schemas and channels count from 1 in registration order,
+    as mcap's writer gives them. Errors of the stream (a full disk) propagate as OSError.
     """
 
-    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20) -> None:
+    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20,
+                 spill_bytes: int = 16 << 20, spill_dir: Path | None = None) -> None:
         self.stream = stream
         self.chunk_size = chunk_size
+        self.spill_bytes = spill_bytes
+        self.spill_dir = spill_dir
+        self.late = 0
         self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="gx3-mcap-zstd")
         self._closed: tuple[Future[tuple[bytes, int]], _OpenChunk, int] | None = None
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
         self._chunk = _OpenChunk()
+        self._held: list[_Held] = []
+        self._runs: list[_Run] = []
+        self._spill_fd: int | None = None
+        self._spilled = 0  # bytes in the spill file
+        self.held_bytes = 0
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._counts: dict[int, int] = {}
@@ -185,56 +266,120 @@ class McapWriter:
         self._metadata += 1
 
     def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
-            publish_time: np.ndarray, payloads: Sequence[bytes],
-            stop_after_chunk: bool = False) -> int:
-        """Append messages of ``channel`` (sequence numbers from ``first_sequence``).
-
-        A chunk closes after the message that takes its records past ``chunk_size``
-        (as mcap's writer does); with ``stop_after_chunk`` the call returns there, so
-        the caller can look at the file's size. Returns how many messages were taken.
-        """
+            publish_time: np.ndarray, payloads: Sequence[bytes]) -> None:
+        """Hold messages of ``channel`` (sequence numbers from ``first_sequence``) until
+        a ``release`` reaches their log time."""
         if not len(payloads):
-            return 0
+            return
         log_time = np.asarray(log_time, np.int64)
-        publish_time = np.asarray(publish_time, np.int64)
-        records, sizes = message_records(channel, first_sequence, log_time, publish_time,
-                                         payloads)
-        ends = np.cumsum(sizes)
-        if self._chunk.size + len(records) <= self.chunk_size:  # the chunk stays open
-            self._take(channel, records, log_time, ends - sizes)
-            return len(payloads)
-        view = memoryview(records)
-        taken = 0
-        while taken < len(payloads):
-            done = int(ends[taken - 1]) if taken else 0
-            over = np.flatnonzero(self._chunk.size + ends[taken:] - done > self.chunk_size)
-            stop = taken + int(over[0]) + 1 if len(over) else len(payloads)
-            self._take(channel, view[done : int(ends[stop - 1])], log_time[taken:stop],
-                       ends[taken:stop] - sizes[taken:stop] - done)
-            taken = stop
-            if len(over):
-                self._close_chunk()
-                if stop_after_chunk:
-                    break
-        return taken
+        if self._messages:
+            behind = log_time < self._end
+            if behind.any():
+                self.late += int(behind.sum())
+                log_time = np.maximum(log_time, self._end)
+        records, sizes = message_records(channel, first_sequence, log_time,
+                                         np.asarray(publish_time, np.int64), payloads)
+        self._held.append(_Held(records, np.full(len(sizes), channel, np.uint16), log_time,
+                                np.cumsum(sizes) - sizes, sizes))
+        self.held_bytes += len(records)
+        if self.held_bytes > self.spill_bytes:
+            self._spill()
 
-    def _take(self, channel: int, records: bytes | memoryview, log_time: np.ndarray,
+    def release(self, upto: int | None = None) -> None:
+        """Write the held messages logged at or before ``upto`` (None: all), in log-time
+        order (messages of one time in the order added); chunks close as they fill."""
+        if self._runs:
+            self._spill()
+            self._merge(upto)
+            return
+        held, self._held, self.held_bytes = self._held, [], 0
+        if not held:
+            return
+        data, log, start, size, channel = _joined(held)
+        order = np.argsort(log, kind="stable")
+        cut = len(order) if upto is None else int(np.searchsorted(log[order], upto, "right"))
+        kept = np.sort(order[cut:])
+        if len(kept):
+            self._held = [_Held(_gather(data, start[kept], size[kept]), channel[kept],
+                                log[kept], np.cumsum(size[kept]) - size[kept], size[kept])]
+            self.held_bytes = len(self._held[0].data)
+        out = order[:cut]
+        ends = np.cumsum(size[out])
+        done = 0
+        while done < len(out):
+            before = int(ends[done - 1]) if done else 0
+            fit = int(np.searchsorted(ends[done:] - before, self.chunk_size - self._chunk.size,
+                                      "right"))
+            stop = min(len(out), done + fit + 1)
+            part = out[done:stop]
+            self._take(_gather(data, start[part], size[part]), channel[part], log[part],
+                       ends[done:stop] - size[part] - before)
+            done = stop
+            if self._chunk.size > self.chunk_size:
+                self._close_chunk()
+
+    def _spill(self) -> None:
+        """Move the held messages, sorted, to a run in a temporary file (memory stays
+        flat while a whole file waits to be sorted)."""
+        if not self._held:
+            return
+        data, log, start, size, channel = _joined(self._held)
+        order = np.argsort(log, kind="stable")
+        if self._spill_fd is None:  # a file with no name: gone with the writer
+            self._spill_fd, name = tempfile.mkstemp(prefix=".gx3-sort-", dir=self.spill_dir)
+            os.unlink(name)
+        records = memoryview(_gather(data, start[order], size[order]))
+        at = self._spilled
+        while records:
+            written = os.pwrite(self._spill_fd, records, self._spilled)
+            records = records[written:]
+            self._spilled += written
+        self._runs.append(_Run(channel[order], log[order],
+                               at + np.r_[0, np.cumsum(size[order])]))
+        self._held, self.held_bytes = [], 0
+
+    def _merge(self, upto: int | None) -> None:
+        """Write the messages of the spilled runs logged up to ``upto``, in log-time order:
+        a slice of time at a time, each run's part of it read in one piece."""
+        logs = np.concatenate([r.log_time[r.at :] for r in self._runs])
+        if upto is not None:
+            logs = logs[logs <= upto]
+        logs.sort()
+        for hi in np.unique(np.r_[logs[_MERGE - 1 :: _MERGE], logs[-1:]]).tolist():
+            for run in self._runs:
+                stop = int(np.searchsorted(run.log_time, hi, "right"))
+                if stop > run.at:
+                    sizes = np.diff(run.ends[run.at : stop + 1])
+                    assert self._spill_fd is not None
+                    self._held.append(_Held(_read(self._spill_fd, int(run.ends[run.at]),
+                                                  int(sizes.sum())),
+                                            run.channel[run.at : stop],
+                                            run.log_time[run.at : stop],
+                                            np.cumsum(sizes) - sizes, sizes))
+                    run.at = stop
+            runs, self._runs = self._runs, []
+            self.release()
+            self._runs = runs
+        self._runs = [r for r in self._runs if r.at < len(r.log_time)]
+
+    def _take(self, records: bytes, channel: np.ndarray, log_time: np.ndarray,
               offsets: np.ndarray) -> None:
+        """Append message records (in log-time order) to the chunk in progress."""
         chunk, n = self._chunk, len(log_time)
-        if n < _BULK:
-            times = log_time.tolist()
-            first, last = min(times), max(times)
-        else:
-            first, last = int(log_time.min()), int(log_time.max())
-        chunk.start = first if not chunk.messages else min(chunk.start, first)
-        chunk.end = max(chunk.end, last)
-        chunk.index.setdefault(channel, []).append((log_time, chunk.size + offsets))
+        first, last = int(log_time[0]), int(log_time[-1])
+        if not chunk.messages:
+            chunk.start = first
+        chunk.end = last
+        chunk.index.append((channel, log_time, chunk.size + offsets))
         chunk.add(records)
         chunk.messages += n
-        self._start = first if not self._messages else min(self._start, first)
-        self._end = max(self._end, last)
+        if not self._messages:
+            self._start = first
+        self._end = last
         self._messages += n
-        self._counts[channel] = self._counts.get(channel, 0) + n
+        ids, counts = np.unique(channel, return_counts=True)
+        for cid, count in zip(ids.tolist(), counts.tolist(), strict=True):
+            self._counts[cid] = self._counts.get(cid, 0) + count
 
     def _close_chunk(self) -> None:
         """Close the chunk in progress (none without messages: its schemas and channels
@@ -250,7 +395,7 @@ class McapWriter:
         self._chunk = _OpenChunk()
 
     def _write_closed(self) -> None:
-        """Write the chunk last closed and its message indexes."""
+        """Write the chunk last closed and its message indexes (channel by channel)."""
         if self._closed is None:
             return
         packed, chunk, size = self._closed
@@ -260,16 +405,20 @@ class McapWriter:
                                message_start_time=chunk.start, message_end_time=chunk.end,
                                uncompressed_crc=crc, uncompressed_size=size))
         chunk_at = self.stream.tell()
+        channel = np.concatenate([c for c, _, _ in chunk.index])
+        by_channel = np.argsort(channel, kind="stable")
+        entries = np.empty(len(channel), _INDEX_ENTRY)
+        entries["log_time"] = np.concatenate([t for _, t, _ in chunk.index])[by_channel]
+        entries["offset"] = np.concatenate([o for _, _, o in chunk.index])[by_channel]
+        ids, firsts = np.unique(channel[by_channel], return_index=True)
         indexes: list[bytes] = []
         offsets: dict[int, int] = {}
         at = chunk_at + len(record)
-        for channel, parts in chunk.index.items():
-            entries = np.empty(sum(len(t) for t, _ in parts), _INDEX_ENTRY)
-            entries["log_time"] = np.concatenate([t for t, _ in parts])
-            entries["offset"] = np.concatenate([o for _, o in parts])
-            body = entries.tobytes()
-            offsets[channel] = at
-            indexes.append(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(body), channel,
+        for cid, lo, hi in zip(ids.tolist(), firsts.tolist(), [*firsts[1:].tolist(),
+                                                                len(channel)], strict=True):
+            body = entries[lo:hi].tobytes()
+            offsets[cid] = at
+            indexes.append(_INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid,
                                             len(body)) + body)
             at += len(indexes[-1])
         self.stream.write(record)
@@ -281,7 +430,8 @@ class McapWriter:
             compression="zstd", compressed_size=len(compressed), uncompressed_size=size))
 
     def flush(self) -> None:
-        """Close the chunk in progress and hand everything to the OS."""
+        """Close the chunk in progress and hand what is written to the OS (held messages
+        wait for their ``release``)."""
         self._close_chunk()
         self._write_closed()
         self.stream.flush()
@@ -290,11 +440,17 @@ class McapWriter:
         """Stop the compression thread (``finish`` does; call this when not finishing,
         after a write error). Safe to call twice."""
         self._closed = None
+        self._runs = []
+        if self._spill_fd is not None:
+            os.close(self._spill_fd)
+            self._spill_fd = None
         self._worker.shutdown(wait=True)
 
     def finish(self) -> None:
-        """Close the last chunk and write the summary and footer (the stream stays open)."""
+        """Write every held message, close the last chunk and write the summary and footer
+        (the stream stays open)."""
         try:
+            self.release()
             self._close_chunk()
             self._write_closed()
         finally:

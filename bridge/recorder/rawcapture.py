@@ -18,6 +18,7 @@ from typing import IO, Any, TypeVar
 from mcap.writer import CompressionType, Writer
 
 from bridge.bus.gx3_pb2 import Info
+from bridge.outputs import OutputRefused, create_locked
 from bridge.protocol.table import Mode
 
 T = TypeVar("T")
@@ -48,10 +49,12 @@ class RawCaptureWriter:
     """Append reads to an MCAP raw capture; ``metadata`` describes the unit and link."""
 
     def __init__(self, path: Path, prefix: str, unit: str,
-                 metadata: dict[str, str] | None = None) -> None:
+                 metadata: dict[str, str] | None = None, force: bool = False) -> None:
         self.path = path
         try:
-            self._file: IO[bytes] = path.open("wb")
+            self._file: IO[bytes] = create_locked(path, force)
+        except OutputRefused as exc:
+            raise CaptureError(str(exc)) from None
         except OSError as exc:
             raise CaptureError(f"{path}: cannot write the capture ({exc.strerror}); "
                                "choose a writable path") from None
@@ -66,6 +69,7 @@ class RawCaptureWriter:
         self._flushed = time.monotonic()
         self.reads = 0
         self.bytes = 0
+        self.stopped = False  # a write failed: what is on disk stays as it is
 
     def _guard(self, call: Callable[..., T], *args: Any) -> T:
         try:
@@ -90,6 +94,7 @@ class RawCaptureWriter:
         if self._file.closed:
             return
         try:
-            self._guard(self._writer.finish)
+            if not self.stopped:
+                self._guard(self._writer.finish)
         finally:
             self._file.close()

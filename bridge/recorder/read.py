@@ -14,20 +14,26 @@ from __future__ import annotations
 
 import io
 import struct
+import sys
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, NamedTuple
+from typing import IO, NamedTuple, TypeVar
 
 import numpy as np
+from google.protobuf.message import DecodeError, Message
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, Header, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Header, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
+from mcap.summary import Summary
 
-from bridge.bus.codec import decode_batch, layout, peek
+from bridge.bus.codec import decode_batch, layout, parse, peek
 from bridge.bus.gx3_pb2 import Event
+
+M = TypeVar("M", bound=Message)
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD = struct.Struct("<BQ")
@@ -41,6 +47,21 @@ _OPCODE_MESSAGE = int(Opcode.MESSAGE)
 
 class ArchiveReadError(ValueError):
     """A file that cannot be read as an archive; the message says what it is instead."""
+
+
+def _to_stderr(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A chunk skipped because it is corrupt, and what the index says it held."""
+
+    offset: int
+    start_ns: int
+    end_ns: int
+    why: str
+    lost: dict[str, int] | None  # messages per topic (None: its indexes are damaged too)
 
 
 @dataclass(frozen=True)
@@ -83,7 +104,10 @@ class _Block:
         out[long_enough] = _rows(buf, at + 3 + n, 4).copy().view("<u4")[:, 0]
         for i in np.flatnonzero(~fits).tolist():
             s = int(start[i])
-            out[i] = peek(self.data[s : s + int(length[i])])[1]
+            try:
+                out[i] = peek(self.data[s : s + int(length[i])])[1]
+            except ValueError:
+                out[i] = -1  # not an ImuSample: left out, and counted, by ``samples``
         return out
 
     def __len__(self) -> int:
@@ -165,6 +189,17 @@ class Archive:
     metadata: list[Metadata] = field(default_factory=list)
     attachments: list[Attachment] = field(default_factory=list)
     blocks: list[_Block] = field(default_factory=list)
+    damage: list[Damage] = field(default_factory=list)
+    skipped: Counter[str] = field(default_factory=Counter)
+    warn: Callable[[str], None] = _to_stderr
+
+    def skip(self, topic: str, count: int, why: str) -> None:
+        """Leave out ``count`` bad messages of ``topic`` and say so (once per topic and
+        reason)."""
+        if count:
+            if not self.skipped[f"{topic}: {why}"]:
+                self.warn(f"{self.path}: {topic}: skipped {count} message(s) {why}")
+            self.skipped[f"{topic}: {why}"] += count
 
     # -- what is in it -------------------------------------------------------------------
 
@@ -272,19 +307,50 @@ class Archive:
                             (block, picked[commands == code]))
         out: list[Samples] = []
         for (unit, code), parts in sorted(groups.items(), key=lambda g: g[0]):
-            order = np.argsort(np.concatenate([b.log_time[p] for b, p in parts]), kind="stable")
+            topic = self._topic(unit, "imu")
             try:
-                size = layout(code, unit).size
-                found: np.ndarray | list[bytes]
-                if all((b.length[p] == size).all() for b, p in parts):
-                    found = np.concatenate([b.rows(p, size) for b, p in parts])
-                else:
-                    found = [payload for b, p in parts for payload in b.payloads(p)]
-                cols = decode_batch(unit, code, found)
-            except ValueError as exc:
-                raise ArchiveReadError(f"{self.path}: unit {unit}: {exc}") from None
+                layout(code, unit)
+            except ValueError:
+                self.skip(topic, sum(len(p) for _, p in parts), "that are not ImuSamples "
+                          "of a known record type")
+                continue
+            try:
+                cols = _decode(unit, code, parts)
+            except ValueError:  # a message that is not this unit's, or corrupt: leave it out
+                kept = [(b, p[_decodable(unit, code, b, p)]) for b, p in parts]
+                bad = sum(len(p) for _, p in parts) - sum(len(p) for _, p in kept)
+                self.skip(topic, bad, f"that do not decode as {unit}'s 0x{code:02X} samples "
+                          "(another unit's name, or corrupt)")
+                parts = [(b, p) for b, p in kept if len(p)]
+                if not parts:
+                    continue
+                cols = _decode(unit, code, parts)
+            order = np.argsort(np.concatenate([b.log_time[p] for b, p in parts]), kind="stable")
             out.append(Samples(unit, code, {k: v[order] for k, v in cols.items()},
                                np.concatenate([b.publish_time[p] for b, p in parts])[order]))
+        return out
+
+    def _topic(self, unit: str, kind: str) -> str:
+        return next((c.topic for c in self.channels.values()
+                     if c.unit == unit and c.kind == kind), f"{unit}/{kind}")
+
+    def decoded(self, topic: str, cls: type[M]) -> list[tuple[int, M]]:
+        """(log time, message) of every message of ``topic`` that parses as ``cls`` and
+        names the topic's unit; the others are left out and counted."""
+        msgs = self.messages(topic)
+        out: list[tuple[int, M]] = []
+        bad = 0
+        for t, payload in zip(msgs.log_time.tolist(), msgs.payloads, strict=True):
+            try:
+                msg = cls.FromString(payload)
+            except DecodeError:
+                bad += 1
+                continue
+            if getattr(msg, "unit", msgs.unit) not in (msgs.unit, ""):
+                bad += 1
+                continue
+            out.append((t, msg))
+        self.skip(topic, bad, f"that are not {cls.DESCRIPTOR.full_name}s of unit {msgs.unit}")
         return out
 
     def events(self, units: Iterable[str] | None = None) -> list[tuple[str, Event]]:
@@ -292,18 +358,19 @@ class Archive:
         wanted = None if units is None else set(units)
         out: list[tuple[int, str, Event]] = []
         for topic in self.topics("event"):
-            msgs = self.messages(topic)
-            if wanted is not None and msgs.unit not in wanted:
+            unit = next(c.unit for c in self.channels.values() if c.topic == topic)
+            if wanted is not None and unit not in wanted:
                 continue
-            for t, p in zip(msgs.log_time.tolist(), msgs.payloads, strict=True):
-                out.append((t, msgs.unit, Event.FromString(p)))
+            out += [(t, unit, event) for t, event in self.decoded(topic, Event)]
         out.sort(key=lambda e: e[0])
         return [(u, e) for _, u, e in out]
 
     def summary(self) -> str:
         """Units, record types, message counts and time ranges, one line each."""
         lines = [f"{self.path}: {self.size} bytes, {self.message_count} messages, "
-                 f"{self.chunks} chunks, " + ("complete" if self.complete else
+                 f"{self.chunks} chunks, "
+                 + (f"{len(self.damage)} corrupt chunk(s) skipped, " if self.damage else "")
+                 + ("complete" if self.complete else
                  f"not finished ({self.dropped_bytes} bytes dropped"
                  + (f": {self.problem}" if self.problem else "") + ")")]
         for topic, (n, t0, t1) in self.counts().items():
@@ -312,6 +379,38 @@ class Archive:
         for s in self.samples():
             lines.append(f"  {s.unit} 0x{s.code:02X}: {len(s)} samples")
         return "\n".join(lines)
+
+
+def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
+            ) -> dict[str, np.ndarray]:
+    """decode_batch of the messages ``parts`` pick out of their chunks: rows read straight
+    out of the chunks when all have the bulk layout's size, else a bytes object each."""
+    size = layout(code, unit).size
+    found: np.ndarray | list[bytes]
+    if all((b.length[p] == size).all() for b, p in parts):
+        found = np.concatenate([b.rows(p, size) for b, p in parts])
+    else:
+        found = [payload for b, p in parts for payload in b.payloads(p)]
+    return decode_batch(unit, code, found)
+
+
+def _decodable(unit: str, code: int, block: _Block, picked: np.ndarray) -> np.ndarray:
+    """Which of the messages at ``picked`` decode as ``unit``'s samples of ``code``: the
+    bulk layout's fixed bytes checked at once, any other message parsed on its own."""
+    lay = layout(code, unit)
+    ok = np.zeros(len(picked), bool)
+    sized = np.flatnonzero(block.length[picked] == lay.size)
+    if len(sized):
+        rows = block.rows(picked[sized], lay.size)
+        ok[sized] = (rows[:, lay.const_mask] == lay.template.view(np.uint8)[lay.const_mask]
+                     ).all(axis=1)
+    for i in np.flatnonzero(~ok).tolist():
+        try:
+            msg = parse(block.payloads(picked[i : i + 1])[0])
+        except ValueError:
+            continue
+        ok[i] = msg.unit == unit and msg.command == code
+    return ok
 
 
 # -- scanning --------------------------------------------------------------------------
@@ -507,19 +606,66 @@ def _message_indexes(stream: IO[bytes], pos: int, size: int) -> list[bytes]:
         return out
 
 
-def read_archive(path: Path | str, progress: Callable[[int], None] | None = None) -> Archive:
+def _summary(stream: IO[bytes]) -> Summary | None:
+    """The summary at the end of a finished file (None when there is none to trust)."""
+    try:
+        stream.seek(0)
+        summary = make_reader(stream, validate_crcs=True).get_summary()
+    except Exception:  # no footer, or a damaged one: read without it
+        return None
+    finally:
+        stream.seek(len(MAGIC))
+    return summary
+
+
+def _inside(chunks: dict[int, ChunkIndex], pos: int) -> ChunkIndex | None:
+    """The indexed chunk whose record or message indexes hold byte ``pos``."""
+    return next((c for start, c in chunks.items()
+                 if start <= pos < _after(chunks, c)), None)
+
+
+def _after(chunks: dict[int, ChunkIndex], chunk: ChunkIndex) -> int:
+    """Where the records after ``chunk`` and its message indexes start."""
+    return chunk.chunk_start_offset + chunk.chunk_length + chunk.message_index_length
+
+
+def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str,
+            channels: dict[int, Channel]) -> None:
+    """Note a chunk skipped: its time span from the chunk index, its messages per topic
+    from its message indexes (when those are intact)."""
+    lost: dict[str, int] | None = {}
+    for cid, offset in index.message_index_offsets.items():
+        stream.seek(offset)
+        head = stream.read(9 + 6)
+        ch = channels.get(cid)
+        if len(head) < 15 or head[0] != Opcode.MESSAGE_INDEX or ch is None or lost is None:
+            lost = None
+            continue
+        (length,) = _U32.unpack_from(head, 11)
+        lost[ch.topic] = lost.get(ch.topic, 0) + length // 16
+    archive.damage.append(Damage(index.chunk_start_offset, index.message_start_time,
+                                 index.message_end_time, why, lost))
+
+
+def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
+                 warn: Callable[[str], None] = _to_stderr) -> Archive:
     """Read what is readable of an MCAP file; ``progress`` gets the bytes read so far.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
-    ``dropped_bytes``, ``problem``). Raises ArchiveReadError when the file is missing,
-    empty or not MCAP at all.
+    ``dropped_bytes``, ``problem``). In a finished file, the summary's chunk index lets a
+    corrupt chunk (its CRC, compression or records) be skipped and the reading go on
+    after it; ``damage`` says what was lost, ``warn`` hears it once. Raises
+    ArchiveReadError when the file is missing, empty or not MCAP at all.
     """
     path = Path(path)
     stream, size = _open(path)
-    archive = Archive(path, size)
+    archive = Archive(path, size, warn=warn)
     pos = len(MAGIC)
     summary = False
     with stream:
+        index = _summary(stream)
+        chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
+        summary_channels = {} if index is None else index.channels
         while True:
             head = stream.read(9)
             if len(head) < 9:
@@ -527,11 +673,31 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
                     if not head else "a record header is cut short"
                 break
             opcode, length = _RECORD.unpack(head)
+            inside = None
+            if chunks and not summary and (
+                    pos + 9 + length > size or (opcode == Opcode.CHUNK) != (pos in chunks)):
+                inside = _inside(chunks, pos)
+            if inside is not None:  # a corrupt record head in a chunk or its indexes
+                if inside.chunk_start_offset == pos:
+                    _damage(archive, stream, inside, f"corrupt record head at byte {pos}",
+                            summary_channels)
+                pos = _after(chunks, inside)
+                stream.seek(pos)
+                continue
             if pos + 9 + length > size:
                 archive.problem = f"a record at byte {pos} is cut short"
                 break
             body = stream.read(length)
             try:
+                if opcode == Opcode.CHUNK and pos in chunks:
+                    try:
+                        _chunk(archive, body, _message_indexes(stream, pos + 9 + length, size))
+                    except Exception as exc:  # a corrupt chunk: on at the next
+                        _damage(archive, stream, chunks[pos], f"{type(exc).__name__}: {exc}",
+                                summary_channels)
+                    pos = _after(chunks, chunks[pos])
+                    stream.seek(pos)
+                    continue
                 if opcode == Opcode.CHUNK:
                     indexes = _message_indexes(stream, pos + 9 + length, size)
                     _chunk(archive, body, indexes)
@@ -557,7 +723,37 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     archive.dropped_bytes = size - pos
     if archive.dropped_bytes and archive.complete:
         archive.problem = f"{archive.dropped_bytes} bytes after the end of the file"
+    if index is not None:  # the summary's channels stand in for those lost with a chunk
+        for b in archive.blocks:
+            for cid in set(np.unique(b.channel).tolist()) - set(archive.channels):
+                if cid in index.channels:
+                    archive.schemas.update(index.schemas)
+                    archive.channels[cid] = _channel_info(index.channels[cid], index.schemas)
+    if archive.damage:
+        warn(describe_damage(archive))
     return archive
+
+
+def describe_damage(archive: Archive) -> str:
+    """One line about the corrupt chunks skipped: where, when, and what was lost."""
+    lost: Counter[str] = Counter()
+    unknown = 0
+    for d in archive.damage:
+        if d.lost is None:
+            unknown += 1
+        else:
+            lost.update(d.lost)
+    start = min(d.start_ns for d in archive.damage)
+    end = max(d.end_ns for d in archive.damage)
+    topics = ", ".join(f"{t} {n}" for t, n in sorted(lost.items()))
+    return (f"{archive.path}: skipped {len(archive.damage)} corrupt chunk(s) at byte(s) "
+            + ", ".join(str(d.offset) for d in archive.damage)
+            + f" ({archive.damage[0].why}): lost {sum(lost.values())} messages"
+            + (f" ({topics})" if topics else "")
+            + (f" and those of {unknown} chunk(s) whose index is damaged too" if unknown
+               else "")
+            + f", logged from {np.datetime64(start, 'ns')}Z to {np.datetime64(end, 'ns')}Z"
+            "; the rest is read")
 
 
 def describe_problem(archive: Archive) -> str:

@@ -1,9 +1,10 @@
 """Rebuild a finished, indexed archive from one whose writer never finished.
 
 A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
-half-written chunk at the end. Tools that seek (``make_reader``, most viewers) refuse
-it. Repair copies what read.py can read (schemas, channels, every message of the
-complete chunks, metadata, attachments) into a new file with chunk index and summary.
+half-written chunk at the end; a damaged disk leaves a finished file with a corrupt
+chunk. Tools that seek (``make_reader``, most viewers) refuse both. Repair copies what
+read.py can read (schemas, channels, every message of every intact chunk, metadata,
+attachments) into a new file with chunk index and summary, and says what was lost.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from bridge.recorder.archive import ArchiveError
-from bridge.recorder.read import Archive, ArchiveReadError, read_archive
+from bridge.recorder.read import Archive, ArchiveReadError, describe_damage, read_archive
 
 
 @dataclass(frozen=True)
@@ -29,13 +30,14 @@ class RepairReport:
     dropped_bytes: int
     was_complete: bool
     problem: str | None
+    damage: str = ""
 
     def text(self) -> str:
-        state = "was already complete" if self.was_complete else \
-            f"was not finished ({self.problem})"
+        state = "was finished" if self.was_complete else f"was not finished ({self.problem})"
         return (f"{self.source} {state}: recovered {self.messages} messages on "
                 f"{self.channels} channels from {self.chunks} chunks, dropped "
-                f"{self.dropped_bytes} bytes; wrote {self.output}")
+                f"{self.dropped_bytes} bytes; wrote {self.output}"
+                + (f"\n{self.damage}" if self.damage else ""))
 
 
 def default_output(source: Path) -> Path:
@@ -46,10 +48,14 @@ def repair(source: Path, output: Path | None = None) -> RepairReport:
     """Copy the readable part of ``source`` into a finished archive at ``output``."""
     source = Path(source)
     output = default_output(source) if output is None else Path(output)
-    archive = read_archive(source)
+    archive = read_archive(source, warn=lambda _: None)
     if output.resolve() == source.resolve():
         raise ArchiveReadError(f"{output}: the output would overwrite the file being "
                                "repaired; choose another path with -o")
+    if not archive.message_count:
+        raise ArchiveReadError(f"{source}: no message could be recovered ("
+                               + (describe_damage(archive) if archive.damage else
+                                  archive.problem or "it holds none") + "); nothing written")
     try:
         with output.open("wb") as stream:
             _copy(archive, Writer(stream, compression=CompressionType.ZSTD))
@@ -58,7 +64,7 @@ def repair(source: Path, output: Path | None = None) -> RepairReport:
                            f"({exc.strerror or exc}); choose a writable path") from None
     return RepairReport(source, output, archive.message_count, len(archive.channels),
                         archive.chunks, archive.dropped_bytes, archive.complete,
-                        archive.problem)
+                        archive.problem, describe_damage(archive) if archive.damage else "")
 
 
 def _copy(archive: Archive, writer: Writer) -> None:

@@ -20,6 +20,7 @@ import itertools
 import multiprocessing
 import os
 import pickle
+import signal
 import threading
 import time
 from collections import Counter
@@ -89,7 +90,9 @@ def captures(path: Path, prefix: str = "gx3",
             continue
         messages = archive.messages(topic)
         unit = messages.unit
-        out.append(Capture(unit, messages.log_time.astype(np.int64), messages.payloads,
+        # publish time: the receive time itself even where a read came later than the
+        # archive's reorder window (its log time is then the last one written before it)
+        out.append(Capture(unit, messages.publish_time.astype(np.int64), messages.payloads,
                            meta.get(unit, {}), topic))
     if not out:
         raise ReplayError(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
@@ -270,7 +273,7 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
         return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
                                   min(jobs, len(tasks)))
     results = []
-    with ArchiveWriter(out, prefix=prefix) as writer:
+    with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
         emit = _counted(writer.write_many, on_samples)
         for path in paths:
             for capture in captures(path, prefix):
@@ -350,7 +353,7 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
         w.start()
     done: list[tuple[int, str, Replayed]] = []
     try:
-        with ArchiveWriter(out, prefix=prefix) as writer:
+        with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
             emit = _counted(writer.write_many, on_samples)
             running = len(workers)
             while running:
@@ -384,7 +387,10 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
 def _worker(tasks: list[_Task], prefix: str,
             queue: multiprocessing.Queue[tuple[str, Any]], parent: int) -> None:
     """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
-    its raw topic, the order it has replayed alone."""
+    its raw topic, the order it has replayed alone. Ctrl-C is the caller's to handle (it
+    ends the workers and removes its output), and its SIGTERM ends a worker at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
 
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:

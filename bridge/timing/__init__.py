@@ -5,7 +5,9 @@
   timers, flagged ``valid = False``: drop those records).
 - ``OnlineClock``: valid (ticks, rx_ns) -> ``time_ns``, the host-clock instant the
   values describe, robust to late delivery, following drift; ``state`` for status.
-- ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns).
+- ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns); the
+  clock judges a timer jump the receive times cannot back (a backlog read after
+  a host stall): a gap if the timer ran on, a reset if it restarted.
 - ``OfflineClock`` (``bridge.timing.offline``): the recorder's second pass, one
   epoch's (ticks, rx_ns) at once, using records on both sides of each.
 

@@ -31,6 +31,7 @@ not on how they are split into ``update`` calls.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -93,6 +94,10 @@ class _Line:
         round-half-to-even, so the same result without NumPy's cost per call."""
         return self.y_ref + round(self.rate * float(ticks - self.x_ref) - self.bias)
 
+    def ticks_at(self, host: int) -> int:
+        """The inverse of ``at``: the ticks the line puts at host instant ``host``."""
+        return self.x_ref + math.floor((float(host - self.y_ref) + self.bias) / self.rate)
+
 
 class OnlineClock:
     """Maps unwrapped ticks to host ns, one ``update`` per batch of valid records.
@@ -152,6 +157,12 @@ class OnlineClock:
         spread = int(np.median(latency)) if len(latency) else 0
         return ClockState(offset, (NS_PER_TICK / line.rate - 1.0) * 1e6, spread,
                           len(self._x))
+
+    def horizon(self, rx_ns: int) -> int | None:
+        """The most ticks a record received at ``rx_ns`` can carry by the model (it was
+        sampled at least the transport's floor earlier); None before the first fit."""
+        line = self._line
+        return None if line is None else line.ticks_at(rx_ns - self.floor_ns)
 
     def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
         """Sample instants (host ns) of records with increasing ``ticks`` received at

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
 
 from bridge.timing.clock import ClockState, OnlineClock
-from bridge.timing.unwrap import TimerUnwrapper, TimingEvent
+from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, Unwrapped
 
 
 @dataclass
@@ -25,7 +25,9 @@ class TimelineBatch:
 
 class Timeline:
     """Feeds each batch's timers through the unwrapper and its valid records through
-    the clock, restarting the clock at each reset (the tick base moved)."""
+    the clock, restarting the clock at each reset (the tick base moved). A jump the
+    receive times cannot back (a backlog read after a host stall) is judged by the
+    clock as fed every record before it."""
 
     def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
                  floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None) -> None:
@@ -42,7 +44,21 @@ class Timeline:
 
     def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike) -> TimelineBatch:
         rx = np.asarray(rx_ns, np.int64)
-        u = self.unwrapper.update(timer, rx)
+        u = self.unwrapper.update(timer, rx, True)
+        if u.pending is None:
+            return self._timed(u, rx)
+        timers, done = np.asarray(timer), u.pending
+        out = self._timed(u, rx[:done])
+        while done < len(rx):  # rare: a jump ahead of its receive time, judged
+            self.unwrapper.judge(self.clock.horizon(int(rx[done])))
+            u = self.unwrapper.update(timers[done:], rx[done:], True)
+            out = _joined(out, self._timed(u, rx[done : done + len(u.ticks)]), done)
+            done += len(u.ticks)
+        return out
+
+    def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64]) -> TimelineBatch:
+        """Host times of one unwrapped stretch's valid records, the clock restarted at
+        each reset in it."""
         resets = [e.index for e in u.events if e.kind == "reset"]
         if not resets and u.all_valid:  # the common case, without index arithmetic
             return TimelineBatch(u.ticks, self.clock.update(u.ticks, rx), u.valid, u.events,
@@ -58,3 +74,11 @@ class Timeline:
                 self.clock.reset()
             begin = end
         return TimelineBatch(u.ticks, time_ns, u.valid, u.events, u.dropped)
+
+
+def _joined(a: TimelineBatch, b: TimelineBatch, start: int) -> TimelineBatch:
+    """Two consecutive stretches of one batch as one; ``b`` begins at ``start``."""
+    return TimelineBatch(np.concatenate([a.ticks, b.ticks]), np.concatenate([a.time_ns, b.time_ns]),
+                         np.concatenate([a.valid, b.valid]),
+                         a.events + [replace(e, index=e.index + start) for e in b.events],
+                         a.dropped + b.dropped, a.intact and b.intact)

@@ -14,6 +14,18 @@ itself resets the unit, sets the timer or changes the sampling calls
 ``expect_discontinuity`` and loses nothing. A single bit flip never lands on the
 lattice (62.5 x decimation never divides a power of two), and with receive times
 a jump the host clock does not back is refused too.
+
+A host that stalls (a suspended or starved bridge) then reads a backlog at once:
+the records before the stall and the first after the records lost in it arrive
+together, so receive times cannot back the jump between them. Such a jump (forward,
+on the lattice) is judged against the clock model instead: a timer that ran on is
+no further ahead than the model's prediction at the record's receive time, while a
+reset starts again near 0 or at the value set. So is the first record after an
+announced discontinuity whose receive times disagree (a reconnect after a backlog:
+the last record before it came late). ``update(..., ask=True)`` stops
+before such a record for the caller to ``judge`` it (``Timeline`` does, with its
+clock model fed every record before it, so the outcome does not depend on how the
+records are cut into calls).
 """
 
 from __future__ import annotations
@@ -33,6 +45,9 @@ HOST_SLACK_NS = 500_000_000
 #: How far a timer that ran on through a reconnect may disagree with the host's elapsed
 #: time (receive latency on both sides of the outage, and a stalled read).
 CONTINUATION_SLACK_S = 0.1
+#: How far past the clock model's prediction a record may be and still be believed: the
+#: model rests on the earliest receipts, a few ms after the sample instants on a busy host.
+MODEL_SLACK_TICKS = TICKS_PER_SECOND // 10
 _LATTICE_TOLERANCE = 0.5  # ticks: each timer value is rounded to the nearest half up
 _SCALAR_BATCH = 16  # records; below this plain integers beat NumPy's cost per call
 _FAST_WINDOW = 8192  # records the bulk path looks at in one go
@@ -64,6 +79,9 @@ class Unwrapped:
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0  # samples the unit produced that never arrived (gaps)
     intact: bool = False  # known without looking: every record is valid
+    #: With ``ask``: the index of a record whose jump only the clock model can judge;
+    #: the result stops before it (``judge``, then ``update`` from there on).
+    pending: int | None = None
 
     @property
     def all_valid(self) -> bool:
@@ -91,6 +109,8 @@ class TimerUnwrapper:
         self._ref: _Anchor | None = None
         self._candidate: tuple[_Anchor, int] | None = None  # and its record number
         self._fresh = True
+        self._asking = False  # a record waits for the model's judgement
+        self._horizon: tuple[int | None] | None = None  # the model's answer, once given
         self._records = 0
         self._last_ticks = -1
         self.dropped = 0
@@ -103,6 +123,12 @@ class TimerUnwrapper:
         if period_ticks is not None:
             self.period_ticks = period_ticks
         self._fresh = True
+
+    def judge(self, horizon: int | None) -> None:
+        """The clock model's answer for the record an ``update`` stopped before: the most
+        ticks a record received when it was can carry (None: the model has no line yet,
+        so the jump is doubted as any other)."""
+        self._horizon = (horizon,)
 
     # --- classification ----------------------------------------------------------------
     def _advance(self, ref: _Anchor, timer: int, rx: int | None) -> tuple[int, int] | None:
@@ -122,12 +148,14 @@ class TimerUnwrapper:
         return d, n
 
     # --- update --------------------------------------------------------------------------
-    def update(self, timer: npt.ArrayLike,
-               rx_ns: npt.ArrayLike | None = None) -> Unwrapped:
+    def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike | None = None,
+               ask: bool = False) -> Unwrapped:
         """Unwrap one batch of timers (uint32), with each record's receive time if known.
 
         Runs of records one period apart go through in bulk, the rest record by record;
-        the result does not depend on where the batch is cut.
+        the result does not depend on where the batch is cut. With ``ask`` the result
+        may stop at a ``pending`` record, a jump ahead of its receive time that only
+        the clock model can judge; without, such a jump is doubted like any other.
         """
         timers = np.asarray(timer).astype(np.int64)
         rx = None if rx_ns is None else np.asarray(rx_ns, np.int64)
@@ -136,12 +164,15 @@ class TimerUnwrapper:
         parts: list[tuple[int, Unwrapped]] = []
         done, rest, rest_rx = 0, timers, rx
         while True:
-            out = self._fast(rest, rest_rx) or self._slow(rest, rest_rx)
+            out = self._fast(rest, rest_rx) or self._slow(rest, rest_rx, ask)
             parts.append((done, out))
             self._records += len(out.ticks)
             done += len(out.ticks)
-            if done >= len(timers):
-                return _joined(parts)
+            if self._asking or done >= len(timers):
+                joined = _joined(parts)
+                if self._asking:
+                    joined.pending, self._asking = done, False
+                return joined
             rest, rest_rx = timers[done:], None if rx is None else rx[done:]
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
@@ -210,9 +241,10 @@ class TimerUnwrapper:
         return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events,
                          intact=True)
 
-    def _slow(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped:
+    def _slow(self, timers: np.ndarray, rx: np.ndarray | None, ask: bool) -> Unwrapped:
         """Record by record, at least ``_SLOW_RUN`` of them and on until the state is
-        plain again (an anchor, nothing in doubt), so the bulk path can take over."""
+        plain again (an anchor, nothing in doubt), so the bulk path can take over; or
+        up to a record that waits for the clock model."""
         n = len(timers)
         ticks = np.full(n, -1, np.int64)
         valid = np.zeros(n, bool)
@@ -220,7 +252,10 @@ class TimerUnwrapper:
         for i in range(n):
             t = int(timers[i])
             r = None if rx is None else int(rx[i])
-            value = self._step(t, r, i, out)
+            value = self._step(t, r, i, out, ask)
+            if self._asking:
+                out.ticks, out.valid = ticks[:i], valid[:i]
+                break
             if value is not None:
                 ticks[i] = value
                 valid[i] = True
@@ -230,7 +265,7 @@ class TimerUnwrapper:
                 break
         return out
 
-    def _step(self, t: int, r: int | None, i: int, out: Unwrapped) -> int | None:
+    def _step(self, t: int, r: int | None, i: int, out: Unwrapped, ask: bool) -> int | None:
         ref = self._ref
         if ref is None:
             self._ref = _Anchor(t, t, r)
@@ -243,7 +278,15 @@ class TimerUnwrapper:
             self._fresh = False
             return self._accept(ref, t, r, step, i, out, held)
         if self._fresh:
-            d = self._continuation(ref, t, r)
+            host = None if r is None or ref.rx is None else (r - ref.rx) / NS_PER_TICK
+            d = self._continuation(ref, t, host)
+            if d is None and ask and host is not None:  # the receive times may be late
+                if self._horizon is None:
+                    self._asking = True
+                    return None
+                horizon, self._horizon = self._horizon[0], None
+                if horizon is not None:
+                    d = self._continuation(ref, t, horizon - ref.ticks)
             if d is not None:
                 self._drop_candidate(out)
                 self._fresh = False
@@ -268,25 +311,38 @@ class TimerUnwrapper:
             self.resets += 1
             out.events.append(TimingEvent("reset", i, value, dropped))
             return value
+        step = self._advance(ref, t, None) if ask and r is not None and ref.rx is not None \
+            else None
+        if step is not None:  # on the lattice, only too far ahead of the receive times
+            if self._horizon is None:
+                self._asking = True
+                return None
+            horizon = self._horizon[0]
+            self._horizon = None
+            if horizon is not None and ref.ticks + step[0] <= horizon + MODEL_SLACK_TICKS:
+                held = int(cand is not None)
+                self._drop_candidate(out)
+                return self._accept(ref, t, r, step, i, out, held)
         self._drop_candidate(out)
         self._candidate = (_Anchor(t, -1, r), self._records + i)
         return None
 
     @staticmethod
-    def _continuation(ref: _Anchor, t: int, r: int | None) -> int | None:
+    def _continuation(ref: _Anchor, t: int, elapsed: float | None) -> int | None:
         """Ticks since ``ref`` if the timer ran on through an announced discontinuity.
 
         A restarted stream starts on a new phase of the decimation lattice, so only
         host time can tell a timer that ran on (a reconnect: count the gap) from one
-        that restarted (a reset): the advance must match the host's elapsed time.
+        that restarted (a reset): the advance must match the ticks ``elapsed`` since
+        ``ref`` by the host's clock (receive times, or the clock model when ``ref`` was
+        received late).
         """
-        if r is None or ref.rx is None or r < ref.rx:
+        if elapsed is None or elapsed < 0:
             return None
-        host = (r - ref.rx) / NS_PER_TICK
         d = (t - ref.timer) % TIMER_MODULUS
-        d += round((host - d) / TIMER_MODULUS) * TIMER_MODULUS
-        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * host
-        return d if d > 0 and abs(d - host) <= tolerance else None
+        d += round((elapsed - d) / TIMER_MODULUS) * TIMER_MODULUS
+        tolerance = CONTINUATION_SLACK_S * TICKS_PER_SECOND + 2e-4 * elapsed
+        return d if d > 0 and abs(d - elapsed) <= tolerance else None
 
     def _host_ticks(self, r: int | None) -> int:
         """Ticks a new epoch starts at: after the last, by the host's elapsed time."""

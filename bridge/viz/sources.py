@@ -7,11 +7,13 @@ as they arrive. Both hand the logger whole columns, never one call per sample.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections import defaultdict
 from collections.abc import Callable
 
 import zenoh
+from google.protobuf.message import DecodeError
 
 from bridge.bus.codec import decode_batch, peek
 from bridge.bus.gx3_pb2 import Event, Status
@@ -31,9 +33,9 @@ def log_archive(archive: Archive, logger: RerunLogger,
         if progress is not None:
             progress(len(block))
     for topic in archive.topics("status"):
-        msgs = archive.messages(topic)
-        if len(msgs):
-            logger.log_status(msgs.unit, [Status.FromString(p) for p in msgs.payloads])
+        statuses = [status for _, status in archive.decoded(topic, Status)]
+        if statuses:
+            logger.log_status(archive.messages(topic).unit, statuses)
     by_unit: dict[str, list[Event]] = defaultdict(list)
     for unit, event in archive.events():
         by_unit[unit].append(event)
@@ -56,10 +58,12 @@ def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str) -
                 samples[(unit, peek(msg.payload)[1])].append(msg.payload)
             except ValueError:
                 continue
-        elif leaf == "status":
-            logger.log_status(unit, Status.FromString(msg.payload))
-        elif leaf == "event":
-            logger.log_event(unit, Event.FromString(msg.payload))
+        elif leaf in ("status", "event"):  # one that does not parse is left out
+            with contextlib.suppress(DecodeError):
+                if leaf == "status":
+                    logger.log_status(unit, Status.FromString(msg.payload))
+                else:
+                    logger.log_event(unit, Event.FromString(msg.payload))
     for (unit, code), payloads in samples.items():
         try:
             columns = decode_batch(unit, code, payloads)
