@@ -245,5 +245,5 @@ def test_a_stalled_writer_sheds_into_the_archive_not_onto_zenoh(tmp_path: Path) 
     kept = set((ticks // 625).tolist())
     for e in shed:
         span = set(range(e.ticks // 625, e.end_ticks // 625 + 1))
-        assert not span & kept
+        assert not span & kept and len(span) == e.count, "the event spans its hole exactly"
     assert rec.losses[Event.SHED] == n - len(ticks)

@@ -7,8 +7,9 @@ its key) and holds it in memory; the thread calling ``run_once`` hands the
 file is flushed at least once a second. So a writer that stalls (a slow disk) never
 holds Zenoh's receive path, and through it the publishers, which Zenoh 1.10 answers
 after ``wait_before_close`` by closing the link mid-write and splicing bytes into a
-payload. The memory held is capped (``buffer_bytes``); samples that arrive when it is
-full are shed.
+payload. The memory held is capped (``buffer_bytes``); once it is full, imu and raw
+samples are shed until the writer takes what is held (so each key's shed samples are one
+run, a hole in the archive that one event spans).
 
 Nothing is lost unrecorded: samples Zenoh reports missed (LOST), messages that fail
 their checks (REJECTED) and samples shed (SHED) go into the archive as events of
@@ -143,6 +144,7 @@ class Recorder:
         self._held_lock = threading.RLock()  # a reject is reported while it is held
         self._held: dict[str, tuple[list[bytes], list[int]]] = {}
         self._held_bytes = 0
+        self._shedding = False
         self._last: dict[str, bytes] = {}  # the last message of each key that arrived
         self._open_losses: dict[str, list[_Loss]] = {}
         self._losses: list[tuple[_Loss, bytes | None]] = []  # with the message after them
@@ -236,7 +238,10 @@ class Recorder:
                 self._losses.append((loss, payloads[0]))
             self._last[key] = payloads[-1]
             size = sum(map(len, payloads)) + _OVERHEAD * len(payloads)
-            if leaf in _SHEDDABLE and self._held_bytes + size > self.buffer_bytes:
+            if leaf in _SHEDDABLE and (self._shedding or
+                                       self._held_bytes + size > self.buffer_bytes):
+                # until the writer takes what is held: each key's shed samples are one run
+                self._shedding = True
                 first_ns, first_ticks = _instant(leaf, payloads[0], now)
                 last_ns, last_ticks = _instant(leaf, payloads[-1], now)
                 self._shed.setdefault(key, _Span()).add(len(payloads), first_ns, last_ns,
@@ -308,6 +313,7 @@ class Recorder:
         now = time.time_ns()
         with self._held_lock:
             held, self._held, self._held_bytes = self._held, {}, 0
+            self._shedding = False
             notes, self._notes = self._notes, []
             losses, self._losses = self._losses, []
             rejects, self._rejects = self._rejects, {}
