@@ -17,8 +17,12 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import get_typestore
 
 from bridge.protocol.convert import STANDARD_GRAVITY, quaternion_to_m
+from bridge.recorder import ros2_export
+from bridge.recorder.export import sample_table
 from bridge.recorder.rawcapture import RawCaptureWriter
+from bridge.recorder.read import read_archive
 from bridge.recorder.replay import replay
+from bridge.recorder.ros2_export import write_ros2
 from bridge.ros2 import messages
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
@@ -52,6 +56,7 @@ class Bag:
     topics: list[str]
     decoded: dict[str, list[Any]]  # topic -> messages, by mcap-ros2-support
     raw: dict[str, list[bytes]]
+    sequence: dict[str, list[int]]
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +83,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Fleet:
 
 
 def read_bag(path: Path) -> Bag:
-    bag = Bag("", {}, [], [], {}, {})
+    bag = Bag("", {}, [], [], {}, {}, {})
     with path.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         bag.profile = reader.get_header().profile
@@ -93,6 +98,7 @@ def read_bag(path: Path) -> Bag:
             bag.topics.append(channel.topic)
             bag.decoded.setdefault(channel.topic, []).append(decoded)
             bag.raw.setdefault(channel.topic, []).append(message.data)
+            bag.sequence.setdefault(channel.topic, []).append(message.sequence)
     return bag
 
 
@@ -144,6 +150,19 @@ def test_the_bag_is_what_rosbag2_writes(exported: tuple[Bag, dict[str, np.ndarra
         assert {m.header.frame_id for m in decoded} == {f"gx3_{unit}"}
         assert np.array_equal(stamps(decoded), [t for t, k in zip(bag.log_time, bag.topics,
                                                                   strict=True) if k == topic])
+        assert bag.sequence[topic] == list(range(len(decoded)))
+
+
+def test_a_long_export_is_encoded_in_slices_to_the_same_bag(
+        fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    table = sample_table(read_archive(fleet.archive), re_estimate=None)
+    write_ros2(table, tmp_path / "whole.mcap")
+    monkeypatch.setattr(ros2_export, "SLICE", 97)
+    write_ros2(table, tmp_path / "sliced.mcap")
+    whole, sliced = read_bag(tmp_path / "whole.mcap"), read_bag(tmp_path / "sliced.mcap")
+    assert sliced.raw == whole.raw and sliced.sequence == whole.sequence
+    assert sliced.log_time == whole.log_time
+    assert len(whole.log_time) == len(table["time_ns"]) + (table["unit"] == "u0").sum()
 
 
 def test_stamps_are_the_table_exports_time_ns(

@@ -11,6 +11,7 @@ logged and published at its stamp, and messages are in log-time order.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +26,15 @@ from bridge.ros2 import messages
 PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
+#: Samples encoded at a time: the messages wait in the writer (spilled to disk when many),
+#: not as Python objects.
+SLICE = 1 << 16
+_Keep = Callable[[Mapping[str, np.ndarray], int], np.ndarray]
+_Encode = Callable[[np.ndarray, str, Mapping[str, np.ndarray]], list[bytes]]
+#: Topic name, message type, which records get one, and how they are encoded.
+_TOPICS: tuple[tuple[str, str, _Keep, _Encode], ...] = (
+    ("imu", messages.IMU, messages.has_imu, messages.imu_cdr_batch),
+    ("mag", messages.MAGNETIC_FIELD, messages.has_mag, messages.mag_cdr_batch))
 
 
 @dataclass(frozen=True)
@@ -57,24 +67,30 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
             schemas = {msgtype: writer.register_schema(
                 msgtype, SCHEMA_ENCODING, messages.message_definition(msgtype).encode())
                 for msgtype in (messages.IMU, messages.MAGNETIC_FIELD)}
+            channels: dict[tuple[str, str], int] = {}  # (unit, topic name) -> channel id
+            sent: dict[tuple[str, str], int] = {}  # messages, the next one's sequence number
             for unit in sorted(set(units.tolist())):
-                rows = np.flatnonzero(units == unit)
-                columns = quantities(table, rows)
-                time_ns = table["time_ns"][rows]
+                unit_rows = np.flatnonzero(units == unit)
                 frame = messages.frame_id(unit, prefix)
-                for name, msgtype, keep, encode in (
-                        ("imu", messages.IMU, messages.has_imu, messages.imu_cdr_batch),
-                        ("mag", messages.MAGNETIC_FIELD, messages.has_mag,
-                         messages.mag_cdr_batch)):
-                    mine = keep(columns, len(rows))
-                    if not mine.any():
-                        continue
-                    channel = writer.register_channel(f"/{prefix}/{unit}/{name}",
-                                                      MESSAGE_ENCODING, schemas[msgtype], {})
-                    stamps = time_ns[mine]
-                    payloads = encode(stamps, frame, {k: v[mine] for k, v in columns.items()})
-                    writer.add(channel, 0, stamps, stamps, payloads)
-                    counts[name] += len(payloads)
+                for at in range(0, len(unit_rows), SLICE):
+                    rows = unit_rows[at : at + SLICE]
+                    columns = quantities(table, rows)
+                    for name, msgtype, keep, encode in _TOPICS:
+                        mine = keep(columns, len(rows))
+                        if not mine.any():
+                            continue
+                        if (unit, name) not in channels:
+                            channels[unit, name] = writer.register_channel(
+                                f"/{prefix}/{unit}/{name}", MESSAGE_ENCODING, schemas[msgtype],
+                                {})
+                            sent[unit, name] = 0
+                        stamps = table["time_ns"][rows][mine]
+                        payloads = encode(stamps, frame,
+                                          {k: v[mine] for k, v in columns.items()})
+                        writer.add(channels[unit, name], sent[unit, name], stamps, stamps,
+                                   payloads)
+                        sent[unit, name] += len(payloads)
+                        counts[name] += len(payloads)
             writer.finish()
         finally:
             writer.close()
