@@ -77,9 +77,9 @@ def repair(
 def export(
     archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, or "
-                                               "with --format ros2 a .mcap ROS 2 bag; it "
-                                               "appears when complete.")],
+        "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, or a "
+                                               ".mcap ROS 2 bag (--format ros2); it appears "
+                                               "when complete.")],
     output_format: Annotated[str | None, typer.Option(
         "--format", metavar="FORMAT",
         help="parquet, csv or ros2 (sensor_msgs/Imu and MagneticField in an MCAP bag that "
@@ -101,7 +101,7 @@ def export(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
              "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
-             "empty inside gaps.")] = None,
+             "empty inside gaps. Tables only.")] = None,
     events: Annotated[Path | None, typer.Option(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
@@ -120,9 +120,10 @@ def export(
     sample), is left out with a warning that says what was lost; the rest is exported.
 
     ROS 2 (--format ros2): per unit /gx3/<unit>/imu (sensor_msgs/msg/Imu) and, for
-    records with a magnetometer, /gx3/<unit>/mag (sensor_msgs/msg/MagneticField), in an
-    MCAP file with profile ros2, ros2msg definitions and CDR messages (ROS 2 Jazzy
-    types). REP-103/145 frames: body forward-left-up in frame gx3_<unit>, world
+    records with a magnetometer, /gx3/<unit>/mag (sensor_msgs/msg/MagneticField), gx3
+    being the archive's key prefix, in an MCAP file with profile ros2, ros2msg
+    definitions and CDR messages (ROS 2 Jazzy types). REP-103/145 frames: body
+    forward-left-up in frame gx3_<unit>, world
     east-north-up; orientation body to world, linear acceleration as specific force in
     m/s² (+9.81 up when level), angular velocity rad/s, field tesla; covariance element
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
