@@ -92,6 +92,7 @@ def read_bag(path: Path) -> Bag:
         for c in summary.channels.values():
             s = summary.schemas[c.schema_id]
             bag.channels[c.topic] = (c.message_encoding, s.encoding, s.name, s.data)
+            assert c.metadata == {"offered_qos_profiles": "[]"}  # required by the ros2 profile
         for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             assert message.publish_time == message.log_time
             bag.log_time.append(message.log_time)

@@ -26,6 +26,9 @@ from bridge.ros2 import messages
 PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
+#: Channel metadata the ros2 profile requires: the publishers' QoS profiles as rosbag2's
+#: YAML; none recorded (an empty list), so playback uses its defaults.
+CHANNEL_METADATA = {"offered_qos_profiles": "[]"}
 #: Samples encoded at a time: the messages wait in the writer (spilled to disk when many),
 #: not as Python objects.
 SLICE = 1 << 16
@@ -82,7 +85,7 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
                         if (unit, name) not in channels:
                             channels[unit, name] = writer.register_channel(
                                 f"/{prefix}/{unit}/{name}", MESSAGE_ENCODING, schemas[msgtype],
-                                {})
+                                CHANNEL_METADATA)
                             sent[unit, name] = 0
                         stamps = table["time_ns"][rows][mine]
                         payloads = encode(stamps, frame,
