@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
@@ -50,11 +51,17 @@ def test_aligned_rows_interpolate_vectors_and_attitude_and_leave_gaps_empty(
     table = pq.read_table(out)
     grid = np.array(table.column("time_ns").to_pylist())
     assert np.all(np.diff(grid) == 20_000_000) and grid[0] % 20_000_000 == 0
-    assert "u1/accel_x" in table.column_names and "u2/m33" in table.column_names
+    assert "u1__accel_x" in table.column_names and "u2__m33" in table.column_names
     s = (grid - T0) / 1e9
     for unit, first, last in (("u1", 0.003, 1.993), ("u2", 0.011, 1.986)):
-        acc = np.array(table.column(f"{unit}/accel_x").to_pylist(), float)
-        m = np.stack([np.array(table.column(f"{unit}/m{r}{c}").to_pylist(), float)
+        names = [f"{unit}__accel_x"] + [f"{unit}__m{r}{c}" for r in "123" for c in "123"]
+        # no value is null, not NaN: nothing is a NaN, and the nulls are where NaN was
+        assert not any(pc.any(pc.is_nan(table.column(n))).as_py() for n in names)
+        nulls = [table.column(n).is_null().to_numpy(zero_copy_only=False) for n in names]
+        assert all((n == nulls[0]).all() for n in nulls)
+        acc = np.array(table.column(f"{unit}__accel_x").to_pylist(), float)
+        assert (np.isnan(acc) == nulls[0]).all()
+        m = np.stack([np.array(table.column(f"{unit}__m{r}{c}").to_pylist(), float)
                       for r in "123" for c in "123"], axis=1).reshape(-1, 3, 3)
         inside = (s >= first) & (s <= last)
         if unit == "u2":  # samples 40..51 missing: 1.011 s .. 1.311 s has no data
