@@ -11,6 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from bridge.bus.codec import encode_batch
+from bridge.bus.gx3_pb2 import Info
 from bridge.protocol.convert import euler_to_m
 from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.export import align_table, sample_table
@@ -22,11 +23,15 @@ YAW_RATE = 0.5  # rad/s
 ACCEL_RATE = 0.25  # g/s
 
 
-def write_two_units(path: Path) -> None:
-    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing."""
+def write_two_units(path: Path, names: tuple[str, str] = ("u1", "u2"),
+                    infos: dict[str, Info] | None = None) -> None:
+    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing; the
+    Info in ``infos`` archived first."""
     with ArchiveWriter(path) as writer:
-        for unit, period, offset, gap in (("u1", 10_000_000, 3_000_000, None),
-                                          ("u2", 25_000_000, 11_000_000, (40, 52))):
+        for unit, info in (infos or {}).items():
+            writer.write(f"gx3/{unit}/info", info.SerializeToString(), T0)
+        for unit, period, offset, gap in ((names[0], 10_000_000, 3_000_000, None),
+                                          (names[1], 25_000_000, 11_000_000, (40, 52))):
             n = 2_000_000_000 // period
             keep = np.ones(n, bool)
             if gap:
