@@ -61,6 +61,11 @@ def test_pandas_polars_and_duckdb_read_one_row_per_sample_with_types_intact(
     assert schema.field("time_ns").type == pa.int64()
     assert schema.field("accel_x").type == pa.float32()
     assert schema.field("command").type == pa.uint8()
+    chunks = pq.ParquetFile(path).metadata.row_group(0)
+    stored = {chunks.column(i).path_in_schema: chunks.column(i).encodings
+              for i in range(chunks.num_columns)}  # what every reader below must decode
+    assert "DELTA_BINARY_PACKED" in stored["time_utc"] and "DELTA_BINARY_PACKED" in stored["rx_ns"]
+    assert "BYTE_STREAM_SPLIT" in stored["accel_x"]
 
     frame = pd.read_parquet(path)
     assert str(frame.time_utc.dtype) == "datetime64[ns, UTC]"

@@ -234,6 +234,19 @@ def _arrow(col: np.ndarray) -> pa.Array:
     return pa.array(col)
 
 
+def _encoding(kind: pa.DataType) -> str | None:
+    """How a Parquet column is stored best (None: a dictionary, for names and codes).
+
+    Clocks and counters step by about a period: as deltas they take a few bits a row,
+    where zstd of the plain values leaves six bytes. Noisy floats compress a fifth
+    better, and faster, with their bytes split into streams of like significance."""
+    if pa.types.is_timestamp(kind) or (pa.types.is_integer(kind) and kind.bit_width >= 32):
+        return "DELTA_BINARY_PACKED"
+    if pa.types.is_floating(kind):
+        return "BYTE_STREAM_SPLIT"
+    return None
+
+
 def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None = None) -> None:
     """Write columns as Parquet (zstd) or CSV, chosen by the extension, with a ``time_utc``
     timestamp beside ``time_ns``; in Parquet each column's unit and frame, and ``about``
@@ -251,7 +264,9 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
     schema = pa.schema(fields, metadata=about.metadata() if about else None)
     table = pa.Table.from_arrays(arrays, schema=schema)
     if suffix == ".parquet":
-        pq.write_table(table, path, compression="zstd")
+        encodings = {f.name: e for f in fields if (e := _encoding(f.type))}
+        pq.write_table(table, path, compression="zstd", column_encoding=encodings,
+                       use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
         pa_csv.write_csv(table, path)
 
