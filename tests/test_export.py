@@ -116,14 +116,14 @@ def test_events_file_lists_every_event_per_unit(fleet: tuple[Path, Written],
     result = gx3("export", path, "-o", tmp_path / "s.csv", "--events", events)
     assert result.returncode == 0, result.stderr
     table = pa_csv.read_csv(events)
-    assert table.column_names == ["unit", "time_ns", "time_utc", "ticks", "kind", "count",
+    assert table.column_names == ["unit", "time_ns", "time_utc", "ticks", "kind", "amount",
                                   "detail"]
     rows = table.to_pylist()
     assert [r["unit"] for r in rows] == ["u3", "u1", "u2"]  # in time order
     for r in rows:
         n = FLEET[r["unit"]][1]
         assert r["time_ns"] == written.times[r["unit"]][n // 2]
-        assert (r["kind"], r["count"], r["detail"]) == ("GAP", 3, "3 records missing")
+        assert (r["kind"], r["amount"], r["detail"]) == ("GAP", 3, "3 records missing")
 
 
 def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written]) -> None:

@@ -143,7 +143,9 @@ def test_every_column_name_works_unquoted_in_sql_and_as_an_attribute(
             got = db.sql(f"SELECT {', '.join(names)} FROM read_parquet('{path}')").columns
             assert got == names
             frame = pd.read_parquet(path)
-            assert all(getattr(frame, c) is not None for c in names)
+            for column in names:  # the column itself, not a DataFrame method of that name
+                assert not hasattr(pd.DataFrame, column), column
+                assert getattr(frame, column).equals(frame[column]), column
     assert "imu_1__m33" in pq.read_schema(exported["aligned"]).names
 
 

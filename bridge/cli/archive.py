@@ -95,12 +95,16 @@ def export(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
              "columns named <unit>__<column> (the unit name lower-cased, characters other "
-             "than a-z 0-9 _ made _); linear for vectors, slerp for orientation, empty "
-             "(null) outside a unit's samples and inside gaps.")] = None,
+             "than a-z 0-9 _ made _, unit_ before one that starts with no letter; a Parquet "
+             "file's gx3.units metadata names each unit's prefix); linear for vectors, "
+             "slerp for orientation, empty (null) outside a unit's samples and inside "
+             "gaps.")] = None,
     events: Annotated[Path | None, typer.Option(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
-             "its time to this .parquet or .csv file.")] = None,
+             "its time to this .parquet or .csv file: unit, time_ns, time_utc, ticks, "
+             "kind, amount (records dropped for a GAP, bytes skipped for a RESYNC, else "
+             "1), detail.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline.

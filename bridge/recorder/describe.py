@@ -3,8 +3,8 @@ and frame, and the file's provenance (units' Info, source archive, options, sche
 so a Parquet file read years later, or by someone who never saw this project, needs nothing
 else to be understood.
 
-Column names are lower-case identifiers that no DuckDB keyword takes, so they work unquoted
-in SQL and as pandas / polars attributes.
+Column names are lower-case identifiers that no DuckDB keyword and no pandas DataFrame
+attribute takes, so they work unquoted in SQL and with pandas attribute access.
 """
 
 from __future__ import annotations
@@ -53,16 +53,17 @@ _HEAD: dict[str, tuple[str, str]] = {
                                   "second, wraps after about 19 h"),
     "ticks": ("tick (1/62500 s)", "timer unwrapped to 64 bits; starts again near 0 only "
                                   "after a device reset or timer set"),
-    "time_ns": ("ns", "best estimate of the instant the values describe, ns since the Unix "
-                      "epoch (UTC): each unit's clock re-estimated over the whole recording "
-                      "(live times where the unit's Info is not archived), filter delay "
-                      "taken out"),
+    "time_ns": ("ns", "the row's instant, ns since the Unix epoch (UTC) on the host clock; "
+                      "of a sample, the best estimate of the instant its values describe: "
+                      "each unit's clock re-estimated over the whole recording (live times "
+                      "where the unit's Info is not archived), filter delay taken out"),
     "time_utc": ("ns", "time_ns as a UTC timestamp"),
     "live_time_ns": ("ns", "time_ns as the bridge published it live (from the past only)"),
     "rx_ns": ("ns", "host receive time (ns since the Unix epoch) of the read that completed "
                     "the record; includes transport latency"),
     "kind": ("", "what happened: GAP, RESET, ROLLOVER, RECONNECT, ..."),
-    "count": ("unitless", "how many (records missing, for a GAP)"),
+    "amount": ("unitless", "how many: records dropped for a GAP, bytes skipped for a "
+                           "RESYNC, else 1"),
     "detail": ("", "the event in words"),
 }
 _QUANTITY: dict[str, tuple[str, str]] = {

@@ -202,7 +202,8 @@ def _cat(ordered: list[tuple[Samples, np.ndarray]], name: str, dtype: type) -> n
 
 def event_table(archive: Archive, units: Iterable[str] | None = None,
                 start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
-    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time."""
+    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time; the
+    Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame)."""
     lo = -(1 << 63) if start_ns is None else start_ns
     hi = (1 << 63) - 1 if end_ns is None else end_ns
     rows = [(u, e) for u, e in archive.events(units) if lo <= e.time_ns < hi]
@@ -211,7 +212,7 @@ def event_table(archive: Archive, units: Iterable[str] | None = None,
         "time_ns": np.array([e.time_ns for _, e in rows], np.int64),
         "ticks": np.array([e.ticks for _, e in rows], np.int64),
         "kind": np.array([Event.Kind.Name(e.kind) for _, e in rows], str),
-        "count": np.array([e.count for _, e in rows], np.uint64),
+        "amount": np.array([e.count for _, e in rows], np.uint64),
         "detail": np.array([e.detail for _, e in rows], str),
     }
 
