@@ -103,8 +103,8 @@ def export(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file: unit, time_ns, time_utc, ticks, "
-             "kind, amount (records dropped for a GAP, bytes skipped for a RESYNC, else "
-             "1), detail.")] = None,
+             "kind, amount (records dropped for a GAP, bytes skipped for a RESYNC, "
+             "messages for LOST, REJECTED and SHED, else 1), detail.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline.

@@ -63,7 +63,7 @@ _HEAD: dict[str, tuple[str, str]] = {
                     "the record; includes transport latency"),
     "kind": ("", "what happened: GAP, RESET, ROLLOVER, RECONNECT, ..."),
     "amount": ("unitless", "how many: records dropped for a GAP, bytes skipped for a "
-                           "RESYNC, else 1"),
+                           "RESYNC, messages for LOST, REJECTED and SHED, else 1"),
     "detail": ("", "the event in words"),
 }
 _QUANTITY: dict[str, tuple[str, str]] = {
