@@ -5,8 +5,8 @@ the sample instant: the live estimate unless a re-estimate is given), ``live_tim
 (as the bridge published it), ``rx_ns`` (host receive time), then each quantity any
 exported record holds, flattened as DESIGN.md names them (``accel_x``, ``m11`` ..
 ``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN in the arrays where a record
-lacks it. Temperatures are A/D codes stored as float32 (exact) so they can be missing too. Rows are
-in ``time_ns`` order across units. Orientation columns keep the manual's convention:
+lacks it. Temperatures are A/D codes stored as float32 (exact) so they can be missing
+too. Rows are in ``time_ns`` order across units. Orientation columns keep the manual's convention:
 M maps earth (NED) to sensor, the quaternion is scalar first.
 
 A written file describes itself: beside ``time_ns`` a ``time_utc`` column of type
