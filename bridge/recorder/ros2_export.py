@@ -19,7 +19,7 @@ import numpy as np
 
 from bridge.bus.codec import elements
 from bridge.recorder.archive import LIBRARY
-from bridge.recorder.export import QUANTITY_ORDER, flat_names
+from bridge.recorder.describe import QUANTITY_ORDER, flat_names
 from bridge.recorder.mcap_writer import McapWriter
 from bridge.ros2 import messages
 
