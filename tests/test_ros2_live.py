@@ -17,16 +17,17 @@ from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, UInt8, z_serialize
 
 from bridge.bus.session import open_session
+from bridge.ros2.messages import IMU, type_hash
 from bridge.ros2.rmw import (
-    IMU_HASH,
-    IMU_TYPE,
     NodeName,
     Qos,
     Ros2Node,
     attachment,
+    dds_type,
     parse_attachment,
     qos_keyexpr,
     ros_token,
+    ros_topic,
     topic_key,
 )
 from tests.waiting import free_port, wait_for
@@ -46,6 +47,8 @@ DOC_LISTENER_NODE = "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/list
 DOC_TALKER_PUB = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
                   f"{STRING_TYPE}/{STRING_HASH}/::,7:,:,:,,")
 DOC_LISTENER_QOS = "::,10:,:,:,,"
+IMU_TYPE = "sensor_msgs::msg::dds_::Imu_"
+IMU_HASH = type_hash(IMU)
 
 
 @pytest.mark.parametrize(("args", "expected"), list(DOC_KEYS.items()))
@@ -72,7 +75,10 @@ def test_the_imu_type_hash_is_rep_2011s() -> None:
         types = get_typestore(store)
         assert types.hash_rihs01("std_msgs/msg/String") == STRING_HASH
         assert types.hash_rihs01("sensor_msgs/msg/Imu") == IMU_HASH
-    assert IMU_TYPE == "sensor_msgs::msg::dds_::Imu_"
+    assert IMU_HASH.startswith("RIHS01_7d9a")  # the issue's example
+    assert dds_type("std_msgs/msg/String") == STRING_TYPE
+    assert dds_type("example_interfaces/srv/AddTwoInts") == ADD_TYPE
+    assert dds_type(IMU) == IMU_TYPE
 
 
 def test_the_attachment_is_zenohs_serialization_of_seq_stamp_gid() -> None:
@@ -95,6 +101,7 @@ def test_the_attachment_is_zenohs_serialization_of_seq_stamp_gid() -> None:
     ("6234.12345", "u6234_12345"), ("gx3", "gx3"), ("_x_", "x"), ("--", "unit")])
 def test_unit_names_become_ros_name_tokens(name: str, token: str) -> None:
     assert ros_token(name) == token
+    assert ros_topic("lab/gx3", name, "imu") == f"/lab/gx3/{token}/imu"
 
 
 @pytest.fixture
@@ -117,7 +124,7 @@ def test_a_node_publishes_with_attachments_and_announces_itself(
     sub = here.declare_subscriber("0/gx3/imu1/imu/**", received.append)
     node = Ros2Node(there, 0, "gx3_bridge_imu1")
     try:
-        pub = node.publisher("/gx3/imu1/imu")
+        pub = node.publisher("/gx3/imu1/imu", IMU)
         assert pub.key == f"0/gx3/imu1/imu/{IMU_TYPE}/{IMU_HASH}"
         zid = str(there.info.zid())
         expected = [f"@ros2_lv/0/{zid}/0/0/NN/%/%/gx3_bridge_imu1",

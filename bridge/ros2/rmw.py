@@ -26,17 +26,28 @@ import re
 import struct
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import zenoh
 
+from bridge.bus.codec import RecordBatch, record_quantities
+from bridge.ros2.messages import (
+    ATTITUDE,
+    IMU,
+    MAGNETIC_FIELD,
+    MAGNETOMETER,
+    frame_id,
+    has_imu,
+    has_mag,
+    imu_cdr_batch,
+    mag_cdr_batch,
+    type_hash,
+)
+
 ADMIN_SPACE = "@ros2_lv"
-#: sensor_msgs/msg/Imu as rmw_zenoh names it in keys and tokens.
-IMU_TYPE = "sensor_msgs::msg::dds_::Imu_"
-#: REP-2011 hash of sensor_msgs/msg/Imu (the same in Humble, Jazzy and Rolling).
-IMU_HASH = "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b"
 MAX_DOMAIN = 232  # the highest ROS_DOMAIN_ID ROS 2 documents
 GID_SIZE = 16
 _ATTACHMENT = struct.Struct(f"<qqB{GID_SIZE}s")
@@ -91,8 +102,14 @@ def ros_token(name: str) -> str:
     return f"u{token}" if token[0].isdigit() else token
 
 
-def topic_key(domain: int, topic: str, type_name: str = IMU_TYPE,
-              type_hash: str = IMU_HASH) -> str:
+def dds_type(msgtype: str) -> str:
+    """The type name in keys and tokens: ``sensor_msgs/msg/Imu`` ->
+    ``sensor_msgs::msg::dds_::Imu_`` (as CDR names it in DDS)."""
+    package, kind, name = msgtype.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def topic_key(domain: int, topic: str, type_name: str, type_hash: str) -> str:
     """The key a topic's samples travel on, e.g. ``0/chatter/std_msgs::msg::dds_::String_/
     RIHS01_df66…``."""
     return f"{domain}/{topic.strip('/')}/{type_name}/{type_hash}"
@@ -199,11 +216,11 @@ class Ros2Node:
         self._publishers: list[Ros2Publisher] = []
         self._lock = threading.Lock()
 
-    def publisher(self, topic: str, type_name: str = IMU_TYPE, type_hash: str = IMU_HASH,
-                  qos: Qos = SENSOR_QOS) -> Ros2Publisher:
+    def publisher(self, topic: str, msgtype: str, qos: Qos = SENSOR_QOS) -> Ros2Publisher:
+        """A publisher of ``msgtype`` (e.g. ``sensor_msgs/msg/Imu``) on ``topic``."""
         with self._lock:
             pub = Ros2Publisher(self.session, self.name, len(self._publishers) + 1, topic,
-                                type_name, type_hash, qos)
+                                dds_type(msgtype), type_hash(msgtype), qos)
             self._publishers.append(pub)
         return pub
 
@@ -216,3 +233,48 @@ class Ros2Node:
             pub.close()
         if token is not None:
             token.undeclare()
+
+
+def ros_topic(prefix: str, unit: str, leaf: str) -> str:
+    """A unit's ROS topic, its Zenoh key chunks made ROS name tokens: ``/gx3/imu1/imu``."""
+    return "/" + "/".join(ros_token(c) for c in (*prefix.split("/"), unit, leaf))
+
+
+class UnitTopics:
+    """One unit on ROS 2: a node ``<prefix>_bridge_<unit>`` publishing ``sensor_msgs/Imu``
+    on ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
+    ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
+    ROS 2 export uses."""
+
+    def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str) -> None:
+        self.frame = frame_id(unit, prefix)
+        self.node = Ros2Node(session, domain,
+                             f"{ros_token(prefix)}_bridge_{ros_token(unit)}")
+        try:
+            self.imu = self.node.publisher(ros_topic(prefix, unit, "imu"), IMU)
+            self.mag = self.node.publisher(ros_topic(prefix, unit, "mag"), MAGNETIC_FIELD)
+        except BaseException:
+            self.node.close()
+            raise
+
+    def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
+        """The records of ``batch``, stamped with their ``time_ns``."""
+        names = record_quantities(batch.code)
+        columns = {name: batch[name] for name in names}
+        n = len(batch)
+        if not {*ATTITUDE, "ang_rate", "accel"}.isdisjoint(names):
+            self._put(self.imu, imu_cdr_batch, has_imu(columns, n), time_ns, columns)
+        if not set(MAGNETOMETER).isdisjoint(names):
+            self._put(self.mag, mag_cdr_batch, has_mag(columns, n), time_ns, columns)
+
+    def _put(self, pub: Ros2Publisher, build: Callable[..., list[bytes]], rows: np.ndarray,
+             time_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
+        """Messages of the records that carry what the message holds (all, usually)."""
+        if rows.all():
+            pub.put_all(build(time_ns, self.frame, columns))
+        elif rows.any():
+            pub.put_all(build(time_ns[rows], self.frame,
+                              {k: v[rows] for k, v in columns.items()}))
+
+    def close(self) -> None:
+        self.node.close()
