@@ -9,27 +9,37 @@ Zenoh's own serializer, and payloads with rosbags' CDR decoder.
 
 from __future__ import annotations
 
+import json
+import re
+import signal
+import subprocess
+import time
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, UInt8, z_serialize
 
 from bridge.bus.session import open_session
-from bridge.ros2.messages import IMU, type_hash
+from bridge.ros2.messages import IMU, MAGNETIC_FIELD, type_hash
 from bridge.ros2.rmw import (
     NodeName,
     Qos,
     Ros2Node,
     attachment,
     dds_type,
+    gid,
     parse_attachment,
     qos_keyexpr,
     ros_token,
     ros_topic,
     topic_key,
 )
+from tests.test_bridge_process import GX3, bridge_process
 from tests.waiting import free_port, wait_for
 
 # Examples quoted from the design doc.
@@ -151,3 +161,101 @@ def test_a_node_publishes_with_attachments_and_announces_itself(
 def test_a_domain_out_of_range_is_refused(sessions: tuple[zenoh.Session, zenoh.Session]) -> None:
     with pytest.raises(ValueError, match="use 0 to 232"):
         Ros2Node(sessions[0], 233, "n")
+
+
+def _quat_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion x, y, z, w (body -> world)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
+    """A still emulated unit on a pty, `gx3 bridge --ros2` and a plain Zenoh subscriber
+    through a `gx3 router`, as ROS 2 nodes meet: rmw_zenoh's keys, CDR that rosbags
+    decodes to the physics of a still unit (specific force +g up in the world frame),
+    attachments in sequence, and the graph's tokens."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    client = tmp_path / "client.json5"
+    client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
+                                  "scouting": {"multicast": {"enabled": False}}}))
+    types = get_typestore(Stores.ROS2_JAZZY)
+    received: dict[str, list[tuple[bytes, bytes]]] = {"imu": [], "mag": []}
+
+    def keep(sample: zenoh.Sample) -> None:
+        leaf = str(sample.key_expr).split("/")[3]
+        attached = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        received[leaf].append((sample.payload.to_bytes(), attached))
+
+    router = subprocess.Popen([GX3, "router", "--listen", endpoint],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", "ROS0001",
+                            "--mode-preset", "2", "--continuous-preset", "0xCC"],
+                           stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE)
+    try:
+        assert router.stdout is not None and router.stdout.readline().strip() == b"READY"
+        assert sim.stdout is not None
+        pty = sim.stdout.readline().decode().strip()
+        with open_session(connect=[endpoint], mode="client",
+                          multicast_scouting=False) as here:
+            subs = [here.declare_subscriber(f"0/gx3/imu_1/{leaf}/**", keep)
+                    for leaf in ("imu", "mag")]
+            with bridge_process(pty, client, "--unit", "imu-1", "--ros2") as bridge:
+                wait_for(lambda: len(received["imu"]) >= 50 and len(received["mag"]) >= 50,
+                         60, "ROS 2 samples")
+                tokens = _tokens(here, "@ros2_lv/0/**")
+            assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
+            for sub in subs:
+                sub.undeclare()
+            wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == [], 20, "the tokens to go")
+    finally:
+        for proc in (sim, router):
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=30)
+
+    zid = tokens[0].split("/")[2]
+    node = "gx3_bridge_imu_1"
+    qos = DOC_LISTENER_QOS
+    mag_type, mag_hash = dds_type(MAGNETIC_FIELD), type_hash(MAGNETIC_FIELD)
+    imu_token = (f"@ros2_lv/0/{zid}/0/1/MP/%/%/{node}/%gx3%imu_1%imu/{IMU_TYPE}/{IMU_HASH}/"
+                 f"{qos}")
+    assert re.fullmatch(r"[0-9a-f]{1,32}", zid)
+    assert tokens == sorted([
+        f"@ros2_lv/0/{zid}/0/0/NN/%/%/{node}", imu_token,
+        f"@ros2_lv/0/{zid}/0/2/MP/%/%/{node}/%gx3%imu_1%mag/{mag_type}/{mag_hash}/{qos}"])
+
+    imu: list[Any] = [types.deserialize_cdr(payload, IMU) for payload, _ in received["imu"]]
+    attached = [parse_attachment(a) for _, a in received["imu"]]
+    sequence = [a[0] for a in attached]
+    assert sequence == sorted(set(sequence)) and sequence[0] >= 1
+    assert all(a[2] == gid(imu_token) for a in attached)
+    sources = [a[1] for a in attached]
+    stamps = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in imu]
+    assert sources == sorted(sources) and stamps == sorted(stamps)
+    now = time.time_ns()
+    assert now - 120e9 < stamps[0] < now and now - 120e9 < sources[0] < now
+    for m in imu:
+        assert m.header.frame_id == "gx3_imu-1"
+        q = np.array([m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w])
+        assert abs(np.linalg.norm(q) - 1) < 1e-4
+        force = np.array([m.linear_acceleration.x, m.linear_acceleration.y,
+                          m.linear_acceleration.z])
+        assert _quat_matrix(q) @ force == pytest.approx([0, 0, 9.80665], abs=0.05)
+        rate = m.angular_velocity
+        assert np.abs([rate.x, rate.y, rate.z]).max() < 0.01
+        assert m.orientation_covariance[0] == 0 and m.linear_acceleration_covariance[0] == 0
+    mag: list[Any] = [types.deserialize_cdr(payload, MAGNETIC_FIELD)
+                      for payload, _ in received["mag"]]
+    for m in mag:
+        field = np.array([m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z])
+        assert 10e-6 < np.linalg.norm(field) < 100e-6  # the Earth's field is 25-65 µT
+    assert [parse_attachment(a)[0] for _, a in received["mag"]][:1] >= [1]
+
+
+def test_ros2_domain_needs_ros2() -> None:
+    done = subprocess.run([GX3, "bridge", "--port", "/dev/null", "--ros2-domain", "3"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 2 and "add --ros2" in done.stderr
