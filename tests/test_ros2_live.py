@@ -4,7 +4,7 @@ No ROS 2 runs here, so every string and byte is checked against the examples of
 ros2/rmw_zenoh's docs/design.md (commit 99a6a2bd10b949052f4f12c5854825dc005e95a5,
 quoted below), the type hash against rosbags' REP-2011 implementation (which must
 reproduce the design doc's std_msgs/String hash first), the attachment against
-Zenoh's own serializer, and payloads with rosbags' CDR decoder.
+Zenoh's own serializer, and payloads with rosbags' CDR decoder and mcap-ros2-support's.
 """
 
 from __future__ import annotations
@@ -21,11 +21,12 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from mcap_ros2._dynamic import generate_dynamic
 from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, UInt8, z_serialize
 
 from bridge.bus.session import open_session
-from bridge.ros2.messages import IMU, MAGNETIC_FIELD, type_hash
+from bridge.ros2.messages import IMU, MAGNETIC_FIELD, message_definition, type_hash
 from bridge.ros2.rmw import (
     NodeName,
     Qos,
@@ -247,6 +248,14 @@ def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
         rate = m.angular_velocity
         assert np.abs([rate.x, rate.y, rate.z]).max() < 0.01
         assert m.orientation_covariance[0] == 0 and m.linear_acceleration_covariance[0] == 0
+    # a second decoder, from the text definition rosbag2 embeds, reads the same values
+    second = generate_dynamic(IMU, message_definition(IMU))[IMU]
+    for (payload, _), m in zip(received["imu"], imu, strict=True):
+        other: Any = second(payload)
+        assert other.header.frame_id == m.header.frame_id
+        assert other.header.stamp.nanosec == m.header.stamp.nanosec
+        assert [other.orientation.w, other.linear_acceleration.z, other.angular_velocity.x] \
+            == [m.orientation.w, m.linear_acceleration.z, m.angular_velocity.x]
     mag: list[Any] = [types.deserialize_cdr(payload, MAGNETIC_FIELD)
                       for payload, _ in received["mag"]]
     for m in mag:
