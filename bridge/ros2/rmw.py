@@ -21,12 +21,13 @@ BLAKE2b-128 of the same token (equally stable and unique; ROS 2 only compares GI
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,7 +41,6 @@ from bridge.ros2.messages import (
     MAGNETIC_FIELD,
     MAGNETOMETER,
     frame_id,
-    has_imu,
     has_mag,
     imu_cdr_batch,
     mag_cdr_batch,
@@ -259,22 +259,25 @@ class UnitTopics:
 
     def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
         """The records of ``batch``, stamped with their ``time_ns``."""
-        names = record_quantities(batch.code)
+        names, imu, mag = _contents(batch.code)
         columns = {name: batch[name] for name in names}
-        n = len(batch)
-        if not {*ATTITUDE, "ang_rate", "accel"}.isdisjoint(names):
-            self._put(self.imu, imu_cdr_batch, has_imu(columns, n), time_ns, columns)
-        if not set(MAGNETOMETER).isdisjoint(names):
-            self._put(self.mag, mag_cdr_batch, has_mag(columns, n), time_ns, columns)
-
-    def _put(self, pub: Ros2Publisher, build: Callable[..., list[bytes]], rows: np.ndarray,
-             time_ns: np.ndarray, columns: dict[str, np.ndarray]) -> None:
-        """Messages of the records that carry what the message holds (all, usually)."""
-        if rows.all():
-            pub.put_all(build(time_ns, self.frame, columns))
-        elif rows.any():
-            pub.put_all(build(time_ns[rows], self.frame,
-                              {k: v[rows] for k, v in columns.items()}))
+        if imu:  # every record: a NaN quantity is told by its covariance (-1)
+            self.imu.put_all(imu_cdr_batch(time_ns, self.frame, columns))
+        if mag:
+            rows = has_mag(columns, len(time_ns))
+            if rows.all():
+                self.mag.put_all(mag_cdr_batch(time_ns, self.frame, columns))
+            elif rows.any():
+                self.mag.put_all(mag_cdr_batch(time_ns[rows], self.frame,
+                                               {k: v[rows] for k, v in columns.items()}))
 
     def close(self) -> None:
         self.node.close()
+
+
+@functools.cache
+def _contents(code: int) -> tuple[tuple[str, ...], bool, bool]:
+    """A record's quantities, and whether it makes an Imu and a MagneticField message."""
+    names = record_quantities(code)
+    return (names, not {*ATTITUDE, "ang_rate", "accel"}.isdisjoint(names),
+            not set(MAGNETOMETER).isdisjoint(names))
