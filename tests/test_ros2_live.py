@@ -40,6 +40,7 @@ from bridge.ros2.rmw import (
     ros_topic,
     topic_key,
 )
+from bridge.ros2.xxh3 import xxh3_128, xxh3_128_bytes
 from tests.test_bridge_process import GX3, bridge_process
 from tests.waiting import free_port, wait_for
 
@@ -105,6 +106,41 @@ def test_the_attachment_is_zenohs_serialization_of_seq_stamp_gid() -> None:
     assert parse_attachment(data) == (7, 1_764_000_000_123_456_789, gid)
     with pytest.raises(ValueError, match="33 bytes"):
         parse_attachment(data[:-1])
+
+
+# xxHash's sanity-check vectors (cli/xsum_sanity_check.c): XXH3-128, seed 0, of the
+# first n bytes of its pseudo-random test buffer, as (low64, high64)
+XXH128_VECTORS = {
+    24: (0x1E7044D28B1B901D, 0x0CE966E4678D3761), 48: (0xF942219AED80F67B, 0xA002AC4E5478227E),
+    81: (0x5E8BAFB9F95FB803, 0x4952F58181AB0042), 222: (0xF1AEBD597CEC6B3A, 0x337E09641B948717),
+    403: (0xCDEB804D65C6DEA4, 0x1B6DE21E332DD73D), 512: (0x617E49599013CB6B, 0x18D2D110DCC9BCA1),
+    2048: (0xDD59E2C3A5F038E0, 0xF736557FD47073A5),
+    2240: (0x6E73A90539CF2948, 0xCCB134FBFA7CE49D),
+    2367: (0xCB37AEB9E5D361ED, 0xE89C0F6FF369B427)}
+
+
+def _xxh_test_buffer(n: int) -> bytes:
+    byte_gen, out = 2654435761, bytearray()
+    for _ in range(n):
+        out.append(byte_gen >> 56)
+        byte_gen = (byte_gen * 11400714785074694797) % 2**64
+    return bytes(out)
+
+
+@pytest.mark.parametrize("n", sorted(XXH128_VECTORS))
+def test_gids_are_xxh3_128_of_the_token_as_rmw_zenohs(n: int) -> None:
+    """Every length class of XXH3-128 (17-128, 129-240, one and several 1 KiB blocks)."""
+    data = _xxh_test_buffer(n)
+    assert xxh3_128(data) == XXH128_VECTORS[n]
+    low, high = XXH128_VECTORS[n]
+    assert xxh3_128_bytes(data) == low.to_bytes(8, "little") + high.to_bytes(8, "little")
+
+
+def test_a_gid_is_the_hash_of_the_token() -> None:
+    token = DOC_TALKER_PUB
+    assert gid(token) == xxh3_128_bytes(token.encode()) and len(gid(token)) == 16
+    with pytest.raises(ValueError, match="more than 16 bytes"):
+        xxh3_128(b"@ros2_lv")
 
 
 @pytest.mark.parametrize(("name", "token"), [

@@ -13,16 +13,14 @@ KEEP_LAST publisher, no encoding) of the same tree.
 - graph: a liveliness token for the node
   ``@ros2_lv/<domain>/<zid>/<nid>/<nid>/NN/<enclave>/<namespace>/<node>`` and one per
   publisher ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/MP/<enclave>/<namespace>/<node>/
-  <topic>/<dds type>/<hash>/<qos>``, names mangled ('/' -> '%').
-
-One difference: rmw_zenoh's GID is the XXH3-128 of the publisher's token; ours is a
-BLAKE2b-128 of the same token (equally stable and unique; ROS 2 only compares GIDs).
+  <topic>/<dds type>/<hash>/<qos>``, names mangled ('/' -> '%');
+- a publisher's GID is the XXH3-128 of its token (low 64 bits, then high, little-endian),
+  which is what every rmw_zenoh node computes for it from the token.
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
 import re
 import struct
 import threading
@@ -46,6 +44,7 @@ from bridge.ros2.messages import (
     mag_cdr_batch,
     type_hash,
 )
+from bridge.ros2.xxh3 import xxh3_128_bytes
 
 ADMIN_SPACE = "@ros2_lv"
 MAX_DOMAIN = 232  # the highest ROS_DOMAIN_ID ROS 2 documents
@@ -140,8 +139,8 @@ class NodeName:
 
 
 def gid(token: str) -> bytes:
-    """A publisher's 16-byte GID, a hash of its liveliness token (see the module doc)."""
-    return hashlib.blake2b(token.encode(), digest_size=GID_SIZE).digest()
+    """An entity's 16-byte GID, from its liveliness token as rmw_zenoh makes it."""
+    return xxh3_128_bytes(token.encode())
 
 
 def attachment(sequence: int, source_ns: int, source_gid: bytes) -> bytes:
