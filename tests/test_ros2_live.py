@@ -26,11 +26,14 @@ from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, UInt8, z_serialize
 
 from bridge.bus.session import open_session
+from bridge.protocol.codec import Batch
+from bridge.protocol.convert import euler_to_m
 from bridge.ros2.messages import IMU, MAGNETIC_FIELD, message_definition, type_hash
 from bridge.ros2.rmw import (
     NodeName,
     Qos,
     Ros2Node,
+    UnitTopics,
     attachment,
     dds_type,
     gid,
@@ -304,3 +307,42 @@ def test_ros2_domain_needs_ros2() -> None:
     done = subprocess.run([GX3, "bridge", "--port", "/dev/null", "--ros2-domain", "3"],
                           capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 2 and "add --ros2" in done.stderr
+
+
+def test_a_units_topics_follow_the_domain_prefix_and_leave_out_records_without_a_field(
+        sessions: tuple[zenoh.Session, zenoh.Session]) -> None:
+    """0xCC records (accel, ang_rate, mag, M) in domain 7 under prefix lab/gx3: every
+    record an Imu, only those with a field a MagneticField, on ROS-legal names."""
+    there, here = sessions
+    received: list[zenoh.Sample] = []
+    sub = here.declare_subscriber("7/lab/gx3/u6234_1/**", received.append)
+    n = 4
+    mag = np.tile(np.array([0.2, 0.0, 0.4], np.float32), (n, 1))
+    mag[1] = np.nan
+    columns = {"accel": np.tile(np.array([0, 0, -1], np.float32), (n, 1)),
+               "ang_rate": np.zeros((n, 3), np.float32), "mag": mag,
+               "m": euler_to_m(np.zeros((n, 3))).astype(np.float32),
+               "timer": np.arange(n, dtype=np.uint32)}
+    stamps = time.time_ns() + np.arange(n, dtype=np.int64) * 10_000_000
+    topics = UnitTopics(there, 7, "lab/gx3", "6234.1")
+    try:
+        wait_for(lambda: topics.imu.matched and topics.mag.matched, 20, "the subscriber")
+        topics.publish(Batch(0xCC, columns, np.arange(n), np.zeros(n, np.int64), False), stamps)
+        wait_for(lambda: len(received) == n + n - 1, 20, "4 Imu and 3 MagneticField")
+    finally:
+        topics.close()
+        sub.undeclare()
+    types = get_typestore(Stores.ROS2_JAZZY)
+    by_key: dict[str, list[Any]] = {}
+    for s in received:
+        by_key.setdefault(str(s.key_expr), []).append(s)
+    assert sorted(by_key) == [f"7/lab/gx3/u6234_1/imu/{IMU_TYPE}/{IMU_HASH}",
+                              f"7/lab/gx3/u6234_1/mag/{dds_type(MAGNETIC_FIELD)}/"
+                              f"{type_hash(MAGNETIC_FIELD)}"]
+    imu, fields = by_key.values()
+    decoded: list[Any] = [types.deserialize_cdr(s.payload.to_bytes(), MAGNETIC_FIELD)
+                          for s in fields]
+    assert [m.header.stamp.nanosec for m in decoded] == [int(t % 10**9) for t in stamps[[0, 2, 3]]]
+    assert decoded[0].magnetic_field.z == pytest.approx(-0.4e-4)  # gauss down -> tesla up
+    assert [parse_attachment(s.attachment.to_bytes())[0] for s in imu] == [1, 2, 3, 4]
+    assert [parse_attachment(s.attachment.to_bytes())[0] for s in fields] == [1, 2, 3]
