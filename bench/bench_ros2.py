@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 from bench_bus import batch_of, per_sample_us
 
 from bridge.bus.session import open_session
 from bridge.loopback import free_port
+from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m
 from bridge.ros2.rmw import UnitTopics
 
@@ -37,12 +39,12 @@ def main() -> None:
             for per_read in (1, 10):
                 batch = batch_of(code, per_read, rng)
                 if "m" in batch.columns:  # a rotation, as a unit sends
-                    batch.columns["m"] = euler_to_m(rng.normal(size=(per_read, 3))).astype(
-                        np.float32)
+                    m = euler_to_m(rng.normal(size=(per_read, 3))).astype(np.float32)
+                    batch = replace(batch, columns={**batch.columns, "m": m})
                 stamps = time.time_ns() + np.arange(per_read, dtype=np.int64)
 
-                def publish(b: object = batch, t: np.ndarray = stamps) -> None:
-                    topics.publish(b, t)  # type: ignore[arg-type]
+                def publish(b: Batch = batch, t: np.ndarray = stamps) -> None:
+                    topics.publish(b, t)
                 us = per_sample_us(publish, max(1, args.samples // per_read), per_read)
                 print(f"0x{code:02X}     {per_read:8d} {us:16.1f}")
         topics.close()
