@@ -189,11 +189,11 @@ class Ros2Publisher:
     def put_all(self, payloads: Iterable[bytes]) -> None:
         """Publish CDR messages, each with the next sequence number; the source
         timestamp is the publication time, as rmw_zenoh's."""
-        put, pack, source_gid = self._pub.put, _ATTACHMENT.pack, self.gid
+        put, source_gid = self._pub.put, self.gid
         sequence, now = self.sequence, time.time_ns()
         for payload in payloads:
             sequence += 1
-            put(payload, attachment=pack(sequence, now, GID_SIZE, source_gid))
+            put(payload, attachment=attachment(sequence, now, source_gid))
         self.sequence = sequence
 
     def close(self) -> None:
