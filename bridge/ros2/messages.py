@@ -25,7 +25,7 @@ messages are the same in Humble).
 from __future__ import annotations
 
 import functools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import numpy.typing as npt
@@ -84,17 +84,18 @@ def body_flu(frd: npt.ArrayLike) -> np.ndarray:
     return out
 
 
-def earth_to_sensor(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
-    """(n, 3, 3) M (earth NED -> sensor FRD) of records, from m, the quaternion or the
-    Euler angles, whichever the record holds; None if it holds none of them."""
-    if "m" in columns:
-        m = np.asarray(columns["m"], np.float64)
-        return m.reshape(*m.shape[:-1], 3, 3) if m.shape[-1] == 9 else m
-    if "quaternion" in columns:
-        return quaternion_to_m(columns["quaternion"])
-    if "euler" in columns:
-        return euler_to_m(columns["euler"])
-    return None
+def earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """(n, 3, 3) M (earth NED -> sensor FRD) of n records, each from m, the quaternion or
+    the Euler angles, whichever it holds first in that order; NaN where it holds none."""
+    as_m: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+        "m": lambda v: v.reshape(n, 3, 3), "quaternion": quaternion_to_m, "euler": euler_to_m}
+    out = np.full((n, 3, 3), np.nan)
+    for name in ATTITUDE:
+        if name in columns:
+            m = as_m[name](np.asarray(columns[name], np.float64).reshape(n, -1))
+            fill = np.isnan(out[:, 0, 0]) & np.isfinite(m).all(axis=(1, 2))
+            out[fill] = m[fill]
+    return out
 
 
 def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
@@ -110,14 +111,16 @@ def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
 
 def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
           width: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, width) float64 values of the first of ``names`` present, and which rows hold
-    them (finite); zeros and all-False when none is."""
+    """(n, width) float64 values, each row from the first of ``names`` that it holds
+    (finite), and which rows hold one; zeros where none."""
+    values, present = np.zeros((n, width)), np.zeros(n, bool)
     for name in names:
         if name in columns:
-            values = np.asarray(columns[name], np.float64).reshape(n, width)
-            present = np.asarray(np.isfinite(values).all(axis=1))
-            return values, present
-    return np.zeros((n, width)), np.zeros(n, bool)
+            mine = np.asarray(columns[name], np.float64).reshape(n, width)
+            fill = ~present & np.isfinite(mine).all(axis=1)
+            values[fill] = mine[fill]
+            present |= fill
+    return values, present
 
 
 def _stamp_layout(frame: str, doubles: int) -> np.dtype:
@@ -163,13 +166,9 @@ def imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN rows are absent.
     """
     out = np.zeros((n, 37))
-    m = earth_to_sensor(columns)
-    if m is not None:
-        m = m.reshape(n, 3, 3)
-        has = np.isfinite(m).all(axis=(1, 2))
-        out[has, 0:4] = orientation_xyzw(m[has])
-    else:
-        has = np.zeros(n, bool)
+    m = earth_to_sensor(columns, n)
+    has = np.isfinite(m).all(axis=(1, 2))
+    out[has, 0:4] = orientation_xyzw(m[has])
     out[~has, 3] = 1.0  # geometry_msgs/Quaternion's default: the identity
     out[~has, 4] = -1.0
     rate, has_rate = _rows(columns, ("ang_rate",), n, 3)
@@ -183,9 +182,8 @@ def imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
 
 def has_imu(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     """Which of n records carry anything an Imu message holds (attitude, rate, accel)."""
-    names = (*ATTITUDE, "ang_rate", "accel")
     found = np.zeros(n, bool)
-    for name in names:
+    for name in (*ATTITUDE, "ang_rate", "accel"):
         if name in columns:
             found |= np.isfinite(np.asarray(columns[name], np.float64).reshape(n, -1)).all(axis=1)
     return found
