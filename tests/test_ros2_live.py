@@ -28,7 +28,14 @@ from zenoh.ext import Int64, UInt8, z_serialize
 from bridge.bus.session import open_session
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m
-from bridge.ros2.messages import IMU, MAGNETIC_FIELD, message_definition, type_hash
+from bridge.ros2.messages import (
+    IMU,
+    MAGNETIC_FIELD,
+    message_definition,
+    ros_token,
+    ros_topic,
+    type_hash,
+)
 from bridge.ros2.rmw import (
     NodeName,
     Qos,
@@ -39,8 +46,6 @@ from bridge.ros2.rmw import (
     gid,
     parse_attachment,
     qos_keyexpr,
-    ros_token,
-    ros_topic,
     topic_key,
 )
 from bridge.ros2.xxh3 import xxh3_128, xxh3_128_bytes

@@ -84,8 +84,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
                             continue
                         if (unit, name) not in channels:
                             channels[unit, name] = writer.register_channel(
-                                f"/{prefix}/{unit}/{name}", MESSAGE_ENCODING, schemas[msgtype],
-                                CHANNEL_METADATA)
+                                messages.ros_topic(prefix, unit, name), MESSAGE_ENCODING,
+                                schemas[msgtype], CHANNEL_METADATA)
                             sent[unit, name] = 0
                         stamps = table["time_ns"][rows][mine]
                         payloads = encode(stamps, frame,

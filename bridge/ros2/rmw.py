@@ -21,7 +21,6 @@ KEEP_LAST publisher, no encoding) of the same tree.
 from __future__ import annotations
 
 import functools
-import re
 import struct
 import threading
 import time
@@ -42,6 +41,8 @@ from bridge.ros2.messages import (
     has_mag,
     imu_cdr_batch,
     mag_cdr_batch,
+    ros_token,
+    ros_topic,
     type_hash,
 )
 from bridge.ros2.xxh3 import xxh3_128_bytes
@@ -50,7 +51,6 @@ ADMIN_SPACE = "@ros2_lv"
 MAX_DOMAIN = 232  # the highest ROS_DOMAIN_ID ROS 2 documents
 GID_SIZE = 16
 _ATTACHMENT = struct.Struct(f"<qqB{GID_SIZE}s")
-_NOT_ROS = re.compile(r"[^A-Za-z0-9_]+")
 
 # rmw_qos_profile_t enum values (rmw/types.h)
 RELIABLE, BEST_EFFORT = 1, 2
@@ -91,14 +91,6 @@ def qos_keyexpr(qos: Qos) -> str:
 def mangle(name: str) -> str:
     """A ROS name as one key chunk: each '/' becomes '%' (so '/' alone is '%')."""
     return name.replace("/", "%")
-
-
-def ros_token(name: str) -> str:
-    """A unit name or key prefix as one ROS name token (letters, digits, single '_',
-    not starting with a digit): ``imu-1`` -> ``imu_1``, ``6234.1`` -> ``u6234_1``."""
-    token = _NOT_ROS.sub("_", name).strip("_")
-    token = re.sub("_+", "_", token) or "unit"
-    return f"u{token}" if token[0].isdigit() else token
 
 
 def dds_type(msgtype: str) -> str:
@@ -232,11 +224,6 @@ class Ros2Node:
             pub.close()
         if token is not None:
             token.undeclare()
-
-
-def ros_topic(prefix: str, unit: str, leaf: str) -> str:
-    """A unit's ROS topic, its Zenoh key chunks made ROS name tokens: ``/gx3/imu1/imu``."""
-    return "/" + "/".join(ros_token(c) for c in (*prefix.split("/"), unit, leaf))
 
 
 class UnitTopics:
