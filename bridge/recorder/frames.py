@@ -1,11 +1,17 @@
 """Per-unit ``foxglove.FrameTransform`` messages, so viewers show every unit's attitude in 3-D.
 
-Foxglove and Rerun (``rerun archive.mcap``) both turn this well-known schema into a
-transform with no plugin. The parent frame is ``world``, north-east-down; the child
-frame is the unit name; the rotation is the sensor-to-earth rotation Mᵀ (a Hamilton
-quaternion x, y, z, w that turns a sensor-frame vector into NED). Units stand side by
-side along east, ``spacing`` metres apart, in the order they were first seen, so their
-axes do not overlap on screen.
+Foxglove and Rerun both turn this well-known schema into a transform with no plugin.
+Frame names follow REP-103, prefixed so they cannot collide with another system's:
+
+- ``gx3_world``: the root, east-north-up, as ROS and Foxglove take any world frame;
+- ``gx3_world_ned``: north-east-down, under the root (one static transform: x and y
+  swapped, z turned over);
+- ``gx3_<unit>_frd``: the unit's body (sensor) frame, forward-right-down, under
+  ``gx3_world_ned``; the rotation is the sensor-to-earth rotation Mᵀ (a Hamilton
+  quaternion x, y, z, w that turns a sensor-frame vector into NED).
+
+Units stand side by side along east, ``spacing`` metres apart, in the order they were
+first seen, so their axes do not overlap on screen.
 """
 
 from __future__ import annotations
@@ -15,14 +21,34 @@ from collections.abc import Mapping
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
 
 from bridge.protocol.convert import euler_to_quaternion, m_to_quaternion, sensor_to_earth_xyzw
 
-WORLD = "world"
+ROOT = "gx3_world"
+NED = "gx3_world_ned"
+#: gx3_world -> gx3_world_ned: a half turn about (north + east) / √2 of ENU, which maps
+#: NED north to ENU y, east to x, down to -z.
+NED_IN_ROOT = (np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0)
 #: Quantities that give a unit's attitude, in order of preference.
 ATTITUDE = ("m", "quaternion", "euler")
 FRAME_CLASS = FrameTransform
+
+
+def body_frame(unit: str) -> str:
+    """The frame id of a unit's body: forward-right-down, as the GX3's sensor axes."""
+    return f"gx3_{unit}_frd"
+
+
+def root_message(time_ns: int) -> bytes:
+    """The static transform gx3_world (ENU) -> gx3_world_ned, stamped ``time_ns``."""
+    x, y, z, w = NED_IN_ROOT
+    return FrameTransform(timestamp=Timestamp(seconds=time_ns // 1_000_000_000,
+                                              nanos=time_ns % 1_000_000_000),
+                          parent_frame_id=ROOT, child_frame_id=NED,
+                          rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
 
 
 def has_attitude(quantities: tuple[str, ...]) -> bool:
@@ -46,13 +72,13 @@ def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray:
 
 def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,
                    spacing: float) -> list[bytes]:
-    """Serialized FrameTransforms of ``unit`` (world -> unit) at ``time_ns``.
+    """Serialized FrameTransforms gx3_world_ned -> gx3_<unit>_frd at ``time_ns``.
 
     Built for all frames at once, byte for byte what protobuf's serializer gives
     (fields in number order, zeros left out): the fields every frame shares once,
     timestamp and rotation as columns of bytes, a mask for the bytes present.
     """
-    shared = FrameTransform(parent_frame_id=WORLD, child_frame_id=unit,
+    shared = FrameTransform(parent_frame_id=NED, child_frame_id=body_frame(unit),
                             translation=Vector3(x=0.0, y=slot * spacing, z=0.0))
     seconds, nanos = np.divmod(np.asarray(time_ns, np.int64), 1_000_000_000)
     stamp = [*_varint_field(1, seconds), *_varint_field(2, nanos)]
