@@ -165,7 +165,7 @@ def test_data_channels_hold_the_zenoh_bytes_logged_at_sample_time(tmp_path: Path
             assert schemas[ch.schema_id].name == {
                 "imu": "gx3.v1.ImuSample", "status": "gx3.v1.Status", "event": "gx3.v1.Event",
                 "info": "gx3.v1.Info", "frame": "foxglove.FrameTransform",
-                "log": "foxglove.Log"}[kind]
+                "axes": "foxglove.PointCloud", "log": "foxglove.Log"}[kind]
         assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
 
 
@@ -186,6 +186,8 @@ with open(sys.argv[1], "rb") as f:
                         list(decoded.accel) or list(decoded.quaternion)])
         elif schema.name == "foxglove.FrameTransform":
             row.append([decoded.child_frame_id, decoded.parent_frame_id])
+        elif schema.name == "foxglove.PointCloud":
+            row.append([decoded.frame_id, len(decoded.data) // decoded.point_stride])
         elif schema.name == "foxglove.Log":
             row.append([decoded.name, decoded.level, decoded.message])
         else:
@@ -218,6 +220,8 @@ def test_a_standard_protobuf_decoder_reads_the_archive_from_its_embedded_schemas
     assert {r[0] for r in topics["gx3/u1/frame"]} == {"gx3_u1_frd"}
     assert {r[1] for r in topics["gx3/u2/frame"]} == {"gx3_world_ned"}
     assert topics["gx3/frame"] == [["gx3_world_ned", "gx3_world"]]
+    assert {tuple(r) for r in topics["gx3/u1/axes"]} == {("gx3_u1_frd", 17)}
+    assert len(topics["gx3/u1/axes"]) == len(topics["gx3/u1/frame"])
     assert "gx3/u3/frame" not in topics  # 0xC2 carries no attitude
 
 

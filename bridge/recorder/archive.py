@@ -16,6 +16,9 @@ Layout (DESIGN.md, "Archives"):
   full-rate attitude stays in the imu channel; a viewer gains nothing from more
   transforms than it draws). ``<prefix>/frame`` holds, once per file at its first
   frame's time, the static gx3_world (ENU, REP-103) -> gx3_world_ned: frames.py.
+  ``<prefix>/<unit>/axes``: with each frame, a ``foxglove.PointCloud`` of dots along
+  the unit's body axes in its frame, which Foxglove and Rerun draw (Rerun makes no
+  3-D view for transforms alone).
 - ``<prefix>/log``: every archived Event again as a ``foxglove.Log`` (name = unit), at
   the event's log time, for Foxglove's Log panel and Rerun's text log: eventlog.py.
 - Raw captures (``<prefix>/<unit>/raw``) keep their receive time as log time,
@@ -61,8 +64,10 @@ from bridge.protocol.table import DATA_CODES
 from bridge.recorder.eventlog import LOG_CLASS, log_message
 from bridge.recorder.frames import (
     FRAME_CLASS,
+    MARKER_CLASS,
     frame_messages,
     has_attitude,
+    marker_messages,
     root_message,
     sensor_to_earth,
 )
@@ -72,9 +77,11 @@ from bridge.recorder.rawcapture import RAW_ENCODING
 T = TypeVar("T")
 PROTOBUF = "protobuf"
 FRAME_LEAF = "frame"
+AXES_LEAF = "axes"
 LOG_LEAF = "log"
 #: Message type of the channels the archive adds beside Zenoh's.
-ADDED: dict[str, type[Message]] = {FRAME_LEAF: FRAME_CLASS, LOG_LEAF: LOG_CLASS}
+ADDED: dict[str, type[Message]] = {FRAME_LEAF: FRAME_CLASS, AXES_LEAF: MARKER_CLASS,
+                                   LOG_LEAF: LOG_CLASS}
 FLUSH_EVERY_S = 1.0
 #: How long (receive time) a message waits for ones logged before it: not longer than
 #: FLUSH_EVERY_S, so a killed recorder loses at most the last REORDER_S + FLUSH_EVERY_S.
@@ -326,10 +333,9 @@ class ArchiveWriter:
         self.paths.append(path)
         self._guard(writer.start, PROFILE, LIBRARY)
         meta = {"prefix": self.prefix, "file_index": str(index),
-                "frame_convention": "REP-103: gx3_world east-north-up -> gx3_world_ned "
-                                    "north-east-down -> gx3_<unit>_frd sensor "
-                                    "forward-right-down; FrameTransform rotation = "
-                                    "sensor-to-earth (M transposed), quaternion x y z w",
+                "frame_convention": "REP-103: gx3_world (ENU) > gx3_world_ned > "
+                                    "gx3_<unit>_frd; rotation = sensor-to-earth "
+                                    "(M transposed), x y z w",
                 **self.metadata}
         self._guard(writer.add_metadata, "gx3.archive", meta)
         self._guard(stream.flush)  # a file killed in its first second still opens
@@ -600,6 +606,8 @@ class ArchiveWriter:
             f.rooted = True
         for unit, times, frames, rx in made:
             self._add_all(frame_topic(self.prefix, unit), FRAME_LEAF, times, frames, rx, unit)
+            self._add_all(f"{self.prefix}/{unit}/{AXES_LEAF}", AXES_LEAF, times,
+                          marker_messages(unit, times), rx, unit)
 
     @staticmethod
     def _decodable(g: _Frames) -> _Frames:

@@ -21,6 +21,9 @@ from collections.abc import Mapping
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
@@ -35,6 +38,7 @@ NED_IN_ROOT = (np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0)
 #: Quantities that give a unit's attitude, in order of preference.
 ATTITUDE = ("m", "quaternion", "euler")
 FRAME_CLASS = FrameTransform
+MARKER_CLASS = PointCloud
 
 
 def body_frame(unit: str) -> str:
@@ -80,13 +84,59 @@ def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,
     """
     shared = FrameTransform(parent_frame_id=NED, child_frame_id=body_frame(unit),
                             translation=Vector3(x=0.0, y=slot * spacing, z=0.0))
+    rotation = [part for k in range(4) for part in _double_field(k + 1, xyzw[:, k])]
+    n = len(time_ns)
+    return _serialized([*_stamp(time_ns), _constant(n, shared.SerializeToString()),
+                        _constant(n, b"\x2a"), _length(rotation), *rotation])
+
+
+def marker_messages(unit: str, time_ns: np.ndarray) -> list[bytes]:
+    """Serialized PointClouds of the unit's axes in its body frame, at ``time_ns``: what
+    a viewer draws for it (Rerun makes a 3-D view for points, none for transforms
+    alone; Foxglove draws a point cloud where its frame was at its timestamp, so it
+    comes with every frame)."""
+    shared = PointCloud(frame_id=body_frame(unit), pose=Pose(orientation=Quaternion(w=1.0)),
+                        point_stride=_POINT.itemsize, fields=_POINT_FIELDS,
+                        data=_AXES.tobytes())
+    return _serialized([*_stamp(time_ns),
+                        _constant(len(time_ns), shared.SerializeToString())])
+
+
+#: One point: x, y, z in metres, then its colour.
+_LAYOUT = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+           ("blue", "u1"), ("alpha", "u1")]
+_POINT = np.dtype(_LAYOUT)
+_POINT_FIELDS = [PackedElementField(name=name, offset=_POINT.fields[name][1],  # type: ignore[index]
+                                    type=(PackedElementField.FLOAT32 if kind == "<f4"
+                                          else PackedElementField.UINT8))
+                 for name, kind in _LAYOUT]
+
+
+def _axes() -> np.ndarray:
+    """Dots along the body axes from the origin: x (forward) red and 0.24 m, y (right)
+    green and z (down) blue 0.12 m, so a unit's heading and which side is down show."""
+    out = np.zeros(1, _POINT)
+    out[["red", "green", "blue", "alpha"]] = (255, 255, 255, 255)
+    for axis, length in enumerate((0.24, 0.12, 0.12)):
+        dots = np.zeros(round(length / 0.03), _POINT)
+        dots["xyz"[axis]] = np.linspace(0.03, length, len(dots))
+        dots[("red", "green", "blue")[axis]] = dots["alpha"] = 255
+        out = np.concatenate([out, dots])
+    return out
+
+
+_AXES = _axes()
+
+
+def _stamp(time_ns: np.ndarray) -> list[_Column]:
+    """Field 1 of a Foxglove message, its google.protobuf.Timestamp, per time."""
     seconds, nanos = np.divmod(np.asarray(time_ns, np.int64), 1_000_000_000)
     stamp = [*_varint_field(1, seconds), *_varint_field(2, nanos)]
-    rotation = [part for k in range(4) for part in _double_field(k + 1, xyzw[:, k])]
-    n = len(seconds)
-    columns = [_constant(n, b"\x0a"), _length(stamp), *stamp,
-               _constant(n, shared.SerializeToString()),
-               _constant(n, b"\x2a"), _length(rotation), *rotation]
+    return [_constant(len(seconds), b"\x0a"), _length(stamp), *stamp]
+
+
+def _serialized(columns: list[_Column]) -> list[bytes]:
+    """One message per row of ``columns``: the bytes present, row by row."""
     rows = np.concatenate([c for c, _ in columns], axis=1)
     present = np.concatenate([m for _, m in columns], axis=1)
     data = rows[present].tobytes()
