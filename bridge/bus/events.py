@@ -29,6 +29,6 @@ def event_text(unit: str, event: Event, rate_hz: float = 0.0) -> str:
     if event.count > 1 or (event.kind in _LOST and event.count):
         text += f" ({event.count:,}"
         if event.kind in _LOST and rate_hz > 0:
-            text += f" records, {event.count / rate_hz:.3g} s"
+            text += f" record{'s' * (event.count != 1)}, {event.count / rate_hz:.3g} s"
         text += ")"
     return f"{text}: {event.detail}" if event.detail else text
