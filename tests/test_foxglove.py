@@ -128,7 +128,7 @@ def test_a_unit_heading_north_points_along_y_and_east_along_x(tmp_path: Path) ->
     """Euler records, level, yaw 0 and 90°: body x is the ENU root's +y, then +x."""
     units = {}
     for unit, yaw in (("north", 0.0), ("east", np.pi / 2)):
-        euler = np.tile(np.float32([0.0, 0.0, yaw]), (5, 1))
+        euler = np.tile(np.array([0.0, 0.0, yaw], np.float32), (5, 1))
         batch = Batch(0xCE, {"euler": euler, "timer": np.arange(5, dtype=np.uint32) * 625},
                       np.arange(5), np.zeros(5, np.int64), False)
         units[unit] = (batch, T0 + np.arange(5, dtype=np.int64) * 10_000_000)
