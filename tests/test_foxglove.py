@@ -25,6 +25,7 @@ from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.read import read_archive
 from bridge.recorder.replay import replay
 from bridge.sim.motion import Motion, MotionConfig
+from tests.mcap_order import order_problems
 from tests.test_archive_writer import rotation
 from tests.test_replay import write_capture
 
@@ -105,6 +106,7 @@ def test_each_unit_stands_the_right_way_up_in_the_enu_root(tmp_path: Path, code:
     units = {"level": emulated(level, code, 40), "moving": emulated(moving, code, 40)}
     path = tmp_path / "fleet.mcap"
     write_units(path, {u: (b, t) for u, (b, t, _) in units.items()})
+    assert order_problems(path) == []
     lookup = tree(decoded(path))
     truth_fields = [f.name for f in REPLIES[code].fields]
     for unit, (_, times, truth) in units.items():
@@ -207,6 +209,7 @@ def test_events_are_foxglove_logs_in_log_time_order(tmp_path: Path, one_by_one: 
     in log-time order whatever order they were written in."""
     path = tmp_path / "events.mcap"
     write_events(path, one_by_one)
+    assert order_problems(path) == []
     logs = [(t, msg) for topic, t, msg in decoded(path) if topic == "gx3/log"]
     times = [t for t, _ in logs]
     assert times == sorted(times) == sorted(T0 + ms * 1_000_000 for *_, ms in EVENTS)
