@@ -184,6 +184,7 @@ EVENTS = [  # unit, kind, count, detail, ms after T0
     ("u1", Event.DISCONNECT, 1, "port closed", 500),
     ("u1", Event.RECONNECT, 1, "back after 1.8 s", 2300),
     ("u2", Event.ROLLOVER, 1, "", 900),
+    ("u2", Event.SHED, 40, "", 1200),
 ]
 
 
@@ -194,8 +195,10 @@ def write_events(path: Path, one_by_one: bool) -> None:
             writer.write_many(f"gx3/{unit}/info", [info.SerializeToString()], T0)
         for unit, kind, count, detail, ms in EVENTS:
             at = T0 + ms * 1_000_000
-            payload = Event(unit=unit, time_ns=at, kind=kind, count=count,
-                            detail=detail).SerializeToString()
+            end = at + 390_000_000 if kind == Event.SHED else 0  # 40 samples at 100 Hz
+            payload = Event(unit=unit, time_ns=at, kind=kind, count=count, detail=detail,
+                            leaf="imu" * (kind == Event.SHED),
+                            end_time_ns=end).SerializeToString()
             if one_by_one:
                 writer.write(f"gx3/{unit}/event", payload, at + 5_000_000)
             else:
@@ -204,9 +207,9 @@ def write_events(path: Path, one_by_one: bool) -> None:
 
 @pytest.mark.parametrize("one_by_one", [False, True], ids=["write_many", "write"])
 def test_events_are_foxglove_logs_in_log_time_order(tmp_path: Path, one_by_one: bool) -> None:
-    """One fleet channel: name = unit, gaps and resets warn with their count and span,
-    a disconnect is an error, the rest inform; stamped and logged at the event's time,
-    in log-time order whatever order they were written in."""
+    """One fleet channel: name = unit, lost records or messages warn with their count and
+    span, a disconnect is an error, the rest inform; stamped and logged at the event's
+    time, in log-time order whatever order they were written in."""
     path = tmp_path / "events.mcap"
     write_events(path, one_by_one)
     assert order_problems(path) == []
@@ -220,7 +223,8 @@ def test_events_are_foxglove_logs_in_log_time_order(tmp_path: Path, one_by_one: 
                    ("u2", warning, "u2 RESET (3 records, 0.03 s)"),
                    ("u1", error, "u1 DISCONNECT: port closed"),
                    ("u1", info, "u1 RECONNECT: back after 1.8 s"),
-                   ("u2", info, "u2 ROLLOVER")}
+                   ("u2", info, "u2 ROLLOVER"),
+                   ("u2", warning, "u2 SHED (40 imu messages, 0.39 s)")}
     archive = read_archive(path)  # our reader: the fleet channel belongs to no unit
     assert archive.units() == ["u1", "u2"]
     assert [(u, e.kind) for u, e in archive.events()] == [
