@@ -579,7 +579,7 @@ def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
     from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
     from google.protobuf.timestamp_pb2 import Timestamp
 
-    from bridge.recorder.frames import NED, frame_messages
+    from bridge.recorder.frames import frame_messages
 
     rng = np.random.default_rng(11)
     times = np.concatenate([rng.integers(-(1 << 62), 1 << 62, 300),
@@ -589,8 +589,9 @@ def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
     xyzw[rng.random(xyzw.shape) < 0.05] = -0.0
     for unit, slot in (("u1", 0), ("a-unit-with-a-long-name" * 7, 3)):
         expected = [FrameTransform(
-            timestamp=Timestamp(seconds=t // 10**9, nanos=t % 10**9), parent_frame_id=NED,
-            child_frame_id=f"gx3_{unit}_frd", translation=Vector3(x=0.0, y=slot * 0.5, z=0.0),
+            timestamp=Timestamp(seconds=t // 10**9, nanos=t % 10**9),
+            parent_frame_id="gx3_world_ned", child_frame_id=f"gx3_{unit}_frd",
+            translation=Vector3(x=0.0, y=slot * 0.5, z=0.0),
             rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
             for t, (x, y, z, w) in zip(times.tolist(), xyzw.tolist(), strict=True)]
         assert frame_messages(unit, slot, times, xyzw, 0.5) == expected

@@ -246,15 +246,23 @@ def test_a_replayed_capture_logs_its_gap(tmp_path: Path) -> None:
         (gap.time_ns, "u1", 3, "u1 GAP (5 records, 0.05 s)")]
 
 
-def test_a_fleet_channel_under_a_prefix_of_two_levels_names_no_unit(tmp_path: Path) -> None:
-    """``site/gx3/log`` is the fleet's, not a unit called gx3's."""
+def test_under_a_prefix_of_two_levels_frames_and_fleet_channels_follow_it(
+        tmp_path: Path) -> None:
+    """``site/gx3/log`` is the fleet's, not a unit called gx3's; frame names take the
+    prefix as the ROS 2 export does (site_gx3_<unit> is its FLU body frame)."""
     path = tmp_path / "site.mcap"
-    with ArchiveWriter(path, prefix="site/gx3") as writer:
+    batch, times, _ = emulated(Motion(MotionConfig(seed=3)), 0xCE, 3)
+    with ArchiveWriter(path, prefix="site/gx3", frame_rate_hz=None) as writer:
+        writer.write_many("site/gx3/u1/imu", encode_batch("u1", batch, np.arange(3), times,
+                                                          times), times)
         event = Event(unit="u1", time_ns=T0, kind=Event.GAP, count=2)
         writer.write_many("site/gx3/u1/event", [event.SerializeToString()], T0)
     archive = read_archive(path)
-    assert archive.topics() == ["site/gx3/log", "site/gx3/u1/event"]
+    assert archive.topics() == ["site/gx3/frame", "site/gx3/log", "site/gx3/u1/axes",
+                                "site/gx3/u1/event", "site/gx3/u1/frame", "site/gx3/u1/imu"]
     assert archive.units() == ["u1"]
+    root, _ = tree(decoded(path))("site_gx3_u1_frd", int(times[-1]))
+    assert root == "site_gx3_world"
 
 
 def test_rerun_reads_a_frame_tree_a_3d_marker_and_a_text_log(tmp_path: Path) -> None:

@@ -593,7 +593,7 @@ class ArchiveWriter:
             ok = np.isfinite(xyzw).all(axis=1)
             times = cols["time_ns"][ok]
             frames = frame_messages(g.unit, self._slots[g.unit], times, xyzw[ok],
-                                    self.frame_spacing)
+                                    self.frame_spacing, self.prefix)
             if frames:
                 made.append((g.unit, times, frames, np.asarray(g.receive_ns, np.int64)[ok]))
         f = self._current()
@@ -601,13 +601,13 @@ class ArchiveWriter:
             at = min(int(m[1].min()) for m in made)
             received = min(int(m[3].min()) for m in made)
             self._add_all(fleet_topic(self.prefix, FRAME_LEAF), FRAME_LEAF,
-                          np.array([at], np.int64), [root_message(at)],
+                          np.array([at], np.int64), [root_message(at, self.prefix)],
                           np.array([received], np.int64))
             f.rooted = True
         for unit, times, frames, rx in made:
             self._add_all(frame_topic(self.prefix, unit), FRAME_LEAF, times, frames, rx, unit)
             self._add_all(f"{self.prefix}/{unit}/{AXES_LEAF}", AXES_LEAF, times,
-                          marker_messages(unit, times), rx, unit)
+                          marker_messages(unit, times, self.prefix), rx, unit)
 
     @staticmethod
     def _decodable(g: _Frames) -> _Frames:
