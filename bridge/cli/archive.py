@@ -129,11 +129,11 @@ def export(
     sample), is left out with a warning that says what was lost; the rest is exported.
 
     ROS 2 (--format ros2): per unit /gx3/<unit>/imu (sensor_msgs/msg/Imu) and, for
-    records with a magnetometer, /gx3/<unit>/mag (sensor_msgs/msg/MagneticField), gx3
-    being the archive's key prefix, in an MCAP file with profile ros2, ros2msg
-    definitions and CDR messages (ROS 2 Jazzy types). REP-103/145 frames: body
-    forward-left-up in frame gx3_<unit>, world
-    east-north-up; orientation body to world, linear acceleration as specific force in
+    records with a magnetometer, /gx3/<unit>/mag (sensor_msgs/msg/MagneticField), the
+    first part being the archive's key prefix and names made ROS name tokens (imu-1:
+    imu_1), in an MCAP file with profile ros2, ros2msg definitions and CDR messages
+    (ROS 2 Jazzy types). REP-103/145 frames: body forward-left-up in frame gx3_<unit>,
+    world east-north-up; orientation body to world, linear acceleration as specific force in
     m/s² (+9.81 up when level), angular velocity rad/s, field tesla; covariance element
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
     time_ns a table export with the same options gives.
