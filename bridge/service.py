@@ -11,13 +11,12 @@ pipeline's thread, only when the bridge was started with ``--allow-commands``.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
 from importlib.metadata import version
 from typing import Any
-
-from rich.console import Console
 
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
@@ -29,7 +28,7 @@ from bridge.recorder.rawcapture import capture_metadata
 DECLARE_SETTLE_S = 1.0
 GAP_LINE_S = 5.0  # gaps on the terminal: at most one line this often
 EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
-_err = Console(stderr=True, highlight=False, soft_wrap=True)
+_log = logging.getLogger(__name__)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
            "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
@@ -225,8 +224,8 @@ def _stamp(time_ns: int) -> str:
 
 def _print_event(event: UnitEvent) -> None:
     count = f" ({event.count})" if event.count > 1 else ""
-    _err.print(f"[dim]{_stamp(event.time_ns)}[/] [bold]{event.kind}[/]{count} "
-               f"{event.detail}".rstrip())
+    _log.info(f"{event.kind}{count} {event.detail}".rstrip(), extra={
+        "event": event.kind, "count": event.count, "time_ns": event.time_ns})
 
 
 class EventLines:
@@ -257,5 +256,7 @@ class EventLines:
             _print_event(gaps[0])
             return
         missing = sum(e.count for e in gaps)
-        _err.print(f"[dim]{_stamp(gaps[-1].time_ns)}[/] [bold]gap[/] ({missing:,} samples "
-                   f"missing in {len(gaps):,} gaps since {_stamp(gaps[0].time_ns)})")
+        _log.info(f"gap ({missing:,} samples missing in {len(gaps):,} gaps since "
+                  f"{_stamp(gaps[0].time_ns)})", extra={
+                      "event": "gap", "count": missing, "gaps": len(gaps),
+                      "time_ns": gaps[-1].time_ns})
