@@ -126,7 +126,8 @@ def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
             bridge_process(sim.endpoints[0], cfg, "--unit", "lib1",
                            "--log-format", "json") as proc:
         stderr = Stderr(proc)
-        wait_for(lambda: '"bring_up"' in stderr.read(), what="the bring-up line")
+        wait_for(lambda: '"bring_up"' in stderr.read() or proc.poll() is not None,
+                 what="the bring-up line")
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=30)
         text = stderr.read()
