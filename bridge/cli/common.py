@@ -136,10 +136,11 @@ class LogLevel(StrEnum):
 
 
 LogLevelOpt = Annotated[LogLevel, typer.Option(
-    "--log-level", case_sensitive=False,
-    help="The least severe log lines shown (events such as gaps and reconnects are info).")]
+    "--log-level", case_sensitive=False, metavar="LEVEL",
+    help="The least severe log lines shown: debug, info, warning or error (events such "
+         "as gaps and reconnects are info).")]
 LogFormatOpt = Annotated[LogFormat, typer.Option(
-    "--log-format", case_sensitive=False,
+    "--log-format", case_sensitive=False, metavar="FORMAT",
     help="text: lines for a person; json: every line on stderr one JSON object (time, "
          "level, logger, message and the record's fields such as event, count, time_ns), "
          "for journald and log shippers.")]
