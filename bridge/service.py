@@ -6,6 +6,8 @@ the unit's keys; every read can also go out raw (``--publish-raw``) and into a r
 capture file beside it.
 Operator commands that reach the unit's command queryable run on the
 pipeline's thread, only when the bridge was started with ``--allow-commands``.
+One unit name, one live bridge: a bridge asks for the name's liveliness token before
+it declares its own, and does not start under a name a running bridge holds.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
 
 DECLARE_SETTLE_S = 1.0
+NAME_QUERY_S = 3.0  # how long a bridge waits for a running bridge to answer for its name
 GAP_LINE_S = 5.0  # gaps on the terminal: at most one line this often
 EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
 _log = logging.getLogger(__name__)
@@ -36,6 +39,21 @@ _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
 _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
           "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
           "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND}
+
+
+class NameTaken(RuntimeError):
+    """A running bridge holds the unit name; the message says what to do."""
+
+
+def claim_name(session: Any, prefix: str, unit: str) -> None:
+    """Raise NameTaken if a running bridge answers for ``unit``'s liveliness token (two
+    bridges under one name would mix two units' samples under one key)."""
+    from bridge.bus.keys import UnitKeys
+
+    key = UnitKeys(unit, prefix).alive
+    if any(r.ok is not None for r in session.liveliness().get(key, timeout=NAME_QUERY_S)):
+        raise NameTaken(f"a running bridge already publishes unit {unit!r} ({key} is "
+                        "alive): stop it first, or give this unit another name with --unit")
 
 
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
@@ -145,6 +163,7 @@ class BusSink:
         if self.publisher is not None:
             self.publisher.set_info(message)
             return
+        claim_name(self.session, self.prefix, self.unit)
         self.publisher = UnitPublisher(
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),

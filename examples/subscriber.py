@@ -4,7 +4,10 @@ It compiles the schema at start (grpcio-tools), or imports a module you made onc
 
     python -m grpc_tools.protoc -I schemas --python_out=. schemas/gx3.proto   # -> gx3_pb2.py
 
-then prints, once a second per unit, the latest sample and how many arrived:
+then prints, once a second per unit, the latest sample and how many arrived. Each
+message is checked first, as schemas/gx3.proto asks: the CRC-32 of its payload must be
+the one in its attachment, and the unit it names must be its key's; those that fail
+are counted as rejected, never shown:
 
     python examples/subscriber.py --connect tcp/127.0.0.1:7447
 """
@@ -12,6 +15,7 @@ then prints, once a second per unit, the latest sample and how many arrived:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import importlib
 import importlib.resources
@@ -20,11 +24,13 @@ import sys
 import tempfile
 import threading
 import time
+import zlib
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
 import zenoh
+from google.protobuf.message import DecodeError
 from zenoh.ext import HistoryConfig, RecoveryConfig, declare_advanced_subscriber
 
 SCHEMAS = Path(__file__).resolve().parent.parent / "schemas"
@@ -44,6 +50,14 @@ def load_messages(schemas: Path, workdir: str) -> ModuleType:
         raise SystemExit(f"error: protoc could not compile {schemas / 'gx3.proto'}")
     sys.path.insert(0, workdir)
     return importlib.import_module("gx3_pb2")
+
+
+def intact(zs: zenoh.Sample) -> bool:
+    """Whether the payload's CRC-32 is the one its publisher attached (the attachment's
+    first 4 bytes, little-endian)."""
+    attachment = b"" if zs.attachment is None else zs.attachment.to_bytes()
+    return (len(attachment) >= 4 and
+            int.from_bytes(attachment[:4], "little") == zlib.crc32(zs.payload.to_bytes()))
 
 
 def describe(sample: Any) -> str:
@@ -76,10 +90,18 @@ def main() -> int:
         latest: dict[str, Any] = {}
         counts: dict[str, int] = {}
         misses = [0]
+        rejected = [0]
         lock = threading.Lock()
 
         def on_sample(zs: zenoh.Sample) -> None:
-            sample = gx3.ImuSample.FromString(zs.payload.to_bytes())
+            sample = None
+            if intact(zs):
+                with contextlib.suppress(DecodeError):
+                    sample = gx3.ImuSample.FromString(zs.payload.to_bytes())
+            if sample is None or sample.unit != str(zs.key_expr).split("/")[-2]:
+                with lock:
+                    rejected[0] += 1
+                return
             with lock:
                 latest[sample.unit] = sample
                 counts[sample.unit] = counts.get(sample.unit, 0) + 1
@@ -115,8 +137,8 @@ def main() -> int:
                         latest.clear()
                         counts.clear()
                     for unit, sample in ready:
-                        print(f"{describe(sample)} ({rates[unit]}/s, missed {misses[0]})",
-                              flush=True)
+                        print(f"{describe(sample)} ({rates[unit]}/s, missed {misses[0]}, "
+                              f"rejected {rejected[0]})", flush=True)
                         printed += 1
             except KeyboardInterrupt:
                 pass

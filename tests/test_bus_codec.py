@@ -12,6 +12,7 @@ from bridge.bus.codec import (
     layout,
     peek,
     record_quantities,
+    units_agree,
 )
 from bridge.bus.gx3_pb2 import ImuSample
 from bridge.protocol.codec import Batch, decode_block, encode_replies
@@ -155,3 +156,17 @@ def test_a_sample_of_another_unit_or_garbage_is_a_clear_error() -> None:
         peek(b"\xff\xff\xff")
     with pytest.raises(ValueError, match="0xD4 is not a data record"):
         record_quantities(0xD4)
+
+
+def test_units_agree_reads_the_unit_as_a_protobuf_parser_does() -> None:
+    n = 20
+    payloads = encode_batch("a", wire_batch(0xC8, n, 3), np.arange(n), np.arange(n),
+                            np.arange(n))
+    assert units_agree("a", payloads) == [True] * n
+    assert units_agree("b", payloads) == [False] * n
+    # a second unit field wins in every parser, though the bulk header names "a"
+    relabelled = payloads[4] + ImuSample(unit="b").SerializeToString()
+    damaged = payloads[5][:-3]
+    mixed = [*payloads[:4], relabelled, damaged, *payloads[6:]]
+    assert units_agree("a", mixed) == [True] * 4 + [False, False] + [True] * (n - 6)
+    assert units_agree("b", [relabelled]) == [True]

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -25,9 +26,11 @@ import zenoh
 
 import bridge
 from bridge.bus.gx3_pb2 import Info
+from bridge.bus.integrity import seal
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, open_session
+from tests.test_record_trust import payloads
 from tests.waiting import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -323,16 +326,60 @@ def test_example_subscriber_decodes_from_the_schema_alone(
     assert "import bridge" not in source and "from bridge" not in source
     pub = publisher("--count", "4000", "--rate", "1000", "--code", "0xC2")
     pub.start()
-    done = subprocess.run([sys.executable, str(script), "--connect", endpoint, "--lines", "2"],
-                          capture_output=True, text=True, timeout=60)
+    forging = threading.Event()
+
+    def forge() -> None:
+        """A damaged sample now and then: unit imu0's, its CRC not its payload's."""
+        good = payloads("imu0", 0, 1)[0]
+        bad = good[:-4] + b"\x00\x00\x80\x7f"
+        with open_session(connect=[endpoint], multicast_scouting=False) as s:
+            while not forging.wait(0.1):
+                s.put("gx3/imu0/imu", bad, attachment=seal(good))
+
+    forger = threading.Thread(target=forge)
+    forger.start()
+    try:
+        done = subprocess.run([sys.executable, str(script), "--connect", endpoint,
+                               "--lines", "3"], capture_output=True, text=True, timeout=60)
+    finally:
+        forging.set()
+        forger.join()
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
-    assert len(lines) == 2, done.stdout
+    assert len(lines) == 3, done.stdout
+    assert not lines[-1].endswith("rejected 0)"), "damaged samples were not rejected"
     for line in lines:
         match = re.fullmatch(r"imu0 0xC2 ticks=(\d+) time=\S+ accel=\[(.*)\] ang_rate=\[(.*)\] "
-                             r"\((\d+)/s, missed 0\)", line)
+                             r"\((\d+)/s, missed 0, rejected \d+\)", line)
         assert match, line
         index = int(match[1]) // 62
         assert match[2] == match[3] == ", ".join([f"{float(index)}"] * 3)
         # a second's count: a loaded machine may print late, so only bound it loosely
         assert 0 < int(match[4]) <= 4000, "the samples that arrived in that second"
+
+
+def test_an_app_gets_only_intact_samples_of_their_key(endpoint: str) -> None:
+    """Damaged (CRC), unchecked (no CRC) and forged (another unit's sample on this key)
+    messages never reach the app; each is counted and reported."""
+    rejects: list[tuple[str, str, int]] = []
+    with open_session(listen=[endpoint], multicast_scouting=False) as a, \
+            open_session(connect=[endpoint], multicast_scouting=False) as b, \
+            bridge.subscribe("gx3/*/imu", session=a, output="samples",
+                             on_reject=lambda *r: rejects.append(r)) as sub:
+        good = payloads("u", 0, 4)
+        forged = payloads("v", 9, 1)[0]
+        pub = b.declare_publisher("gx3/u/imu")
+        # the stub says bool; it is a MatchingStatus (stack-facts)
+        wait_for(lambda: bool(cast(Any, pub.matching_status).matching), what="the subscriber")
+        pub.put(good[0], attachment=seal(good[0]))
+        pub.put(good[1][:-1] + b"\x01", attachment=seal(good[1]))
+        pub.put(good[2])
+        pub.put(forged, attachment=seal(forged))
+        pub.put(good[3], attachment=seal(good[3]))
+        got = [sub.get(timeout=20), sub.get(timeout=20)]
+        assert sub.get(timeout=0.5) is None
+    assert [(s.unit, s.ticks) for s in got if s is not None] == [("u", 0), ("u", 3 * 625)]
+    assert sub.rejected == 3
+    by_reason = {reason: sum(n for _, r, n in rejects if r == reason) for _, reason, _ in rejects}
+    assert by_reason == {"checksum": 2, "key": 1}
+    assert {key for key, _, _ in rejects} == {"gx3/u/imu"}

@@ -171,6 +171,58 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     return [buf[i : i + size] for i in range(0, len(buf), size)]
 
 
+def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
+    """Which serialized ImuSamples name ``unit`` as every protobuf parser reads them
+    (a repeated ``unit`` field counts as its last value): a batch in the bulk layout of
+    one record type at once, any other message by parsing it; bytes that are not an
+    ImuSample name no unit."""
+    out = [False] * len(payloads)
+    rest: Sequence[int] = range(len(payloads))
+    sizes = set(map(len, payloads))
+    if len(sizes) == 1:
+        code = peek_command(unit, payloads[0])
+        if code is not None:
+            at, want = _constants(code, unit)
+            raw = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), -1)
+            good = (raw[:, at] == want).all(axis=1)
+            if good.all():
+                return [True] * len(payloads)
+            out = good.tolist()
+            rest = np.flatnonzero(~good).tolist()
+    for i in rest:
+        try:
+            out[i] = ImuSample.FromString(payloads[i]).unit == unit
+        except DecodeError:
+            out[i] = False
+    return out
+
+
+def peek_command(unit: str, payload: bytes) -> int | None:
+    """The record type of an ImuSample of ``unit`` that has that type's bulk layout by
+    its first bytes and length (None: it does not)."""
+    name = unit.encode()
+    head = _head(name)
+    if not payload.startswith(head) or len(payload) < len(head) + 4:
+        return None
+    code = int.from_bytes(payload[len(head) : len(head) + 4], "little")
+    if code not in DATA_CODES or len(payload) != layout(code, unit).size:
+        return None
+    return code
+
+
+@functools.cache
+def _constants(code: int, unit: str) -> tuple[np.ndarray, np.ndarray]:
+    """Where the tags, lengths, unit and command of ``layout(code, unit)`` are, and
+    their bytes."""
+    lay = layout(code, unit)
+    return np.flatnonzero(lay.const_mask), lay.template.view(np.uint8)[lay.const_mask]
+
+
+@functools.cache
+def _head(name: bytes) -> bytes:
+    return _tag("unit", _LENGTH_DELIMITED) + _varint(len(name)) + name + _tag("command", 5)
+
+
 def peek(payload: bytes) -> tuple[str, int]:
     """(unit, command) of a serialized ImuSample, read from its first bytes when it has
     the bulk layout, else by parsing it."""

@@ -115,7 +115,7 @@ class Status(_message.Message):
     def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ...) -> None: ...
 
 class Event(_message.Message):
-    __slots__ = ("unit", "time_ns", "ticks", "kind", "count", "detail")
+    __slots__ = ("unit", "time_ns", "ticks", "kind", "count", "detail", "leaf", "end_time_ns", "end_ticks")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         KIND_UNSPECIFIED: _ClassVar[Event.Kind]
@@ -128,6 +128,10 @@ class Event(_message.Message):
         RESYNC: _ClassVar[Event.Kind]
         BRING_UP: _ClassVar[Event.Kind]
         COMMAND: _ClassVar[Event.Kind]
+        LOST: _ClassVar[Event.Kind]
+        REJECTED: _ClassVar[Event.Kind]
+        SHED: _ClassVar[Event.Kind]
+        DUPLICATE_UNIT: _ClassVar[Event.Kind]
     KIND_UNSPECIFIED: Event.Kind
     GAP: Event.Kind
     RESET: Event.Kind
@@ -138,19 +142,29 @@ class Event(_message.Message):
     RESYNC: Event.Kind
     BRING_UP: Event.Kind
     COMMAND: Event.Kind
+    LOST: Event.Kind
+    REJECTED: Event.Kind
+    SHED: Event.Kind
+    DUPLICATE_UNIT: Event.Kind
     UNIT_FIELD_NUMBER: _ClassVar[int]
     TIME_NS_FIELD_NUMBER: _ClassVar[int]
     TICKS_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
     DETAIL_FIELD_NUMBER: _ClassVar[int]
+    LEAF_FIELD_NUMBER: _ClassVar[int]
+    END_TIME_NS_FIELD_NUMBER: _ClassVar[int]
+    END_TICKS_FIELD_NUMBER: _ClassVar[int]
     unit: str
     time_ns: int
     ticks: int
     kind: Event.Kind
     count: int
     detail: str
-    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., ticks: _Optional[int] = ..., kind: _Optional[_Union[Event.Kind, str]] = ..., count: _Optional[int] = ..., detail: _Optional[str] = ...) -> None: ...
+    leaf: str
+    end_time_ns: int
+    end_ticks: int
+    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., ticks: _Optional[int] = ..., kind: _Optional[_Union[Event.Kind, str]] = ..., count: _Optional[int] = ..., detail: _Optional[str] = ..., leaf: _Optional[str] = ..., end_time_ns: _Optional[int] = ..., end_ticks: _Optional[int] = ...) -> None: ...
 
 class Info(_message.Message):
     __slots__ = ("unit", "port", "baud", "model_number", "serial", "model_name", "options", "lot", "firmware", "firmware_text", "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation", "north_compensation", "command", "mode", "bring_up_time_ns", "bridge_version", "allow_commands", "output_rate_hz", "link")

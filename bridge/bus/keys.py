@@ -9,6 +9,9 @@ Per unit, under a prefix (default ``gx3``):
 - ``gx3/<unit>/command``  queryable for operator actions (refused unless --allow-commands)
 - ``gx3/<unit>/raw``      each read from the unit, with its receive time attached
   (``gx3 bridge --publish-raw``)
+
+Every message on a data key (and every info reply) carries the CRC-32 of its payload
+in its attachment (layout in bridge/bus/integrity.py).
 - ``gx3/<unit>/alive``    liveliness token, present while the bridge runs
 
 Liveliness tokens live in their own space (``session.liveliness()``), so ``alive``
@@ -102,18 +105,6 @@ def fleet(leaf: str, prefix: str = PREFIX) -> str:
     if leaf not in ENCODINGS and leaf != "alive":
         raise BadName(f"unknown key leaf {leaf!r}; known: {', '.join([*ENCODINGS, 'alive'])}")
     return f"{check_prefix(prefix)}/*/{leaf}"
-
-
-def read_time_attachment(rx_ns: int) -> bytes:
-    """The attachment of a raw read's message: its host receive time, int64 LE ns."""
-    return int(rx_ns).to_bytes(8, "little", signed=True)
-
-
-def read_time(attachment: bytes | None) -> int | None:
-    """The receive time a raw read's attachment carries (None: it carries none)."""
-    if attachment is None or len(attachment) != 8:
-        return None
-    return int.from_bytes(attachment, "little", signed=True)
 
 
 def unit_of(key: str, prefix: str = PREFIX) -> str:

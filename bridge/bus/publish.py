@@ -3,7 +3,9 @@
 Data keys use BLOCK congestion control and RELIABLE reliability: telemetry is
 never dropped silently. They go through zenoh.ext's advanced publisher, whose
 cache lets a subscriber that lost its link for a moment recover the samples,
-and whose heartbeat lets it count exactly what it could not recover.
+and whose heartbeat lets it count exactly what it could not recover. Each message
+carries the CRC-32 of its payload in its attachment (bridge/bus/integrity.py), so a
+payload damaged on the way is caught.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from zenoh.ext import (
 
 from bridge.bus.codec import RecordBatch, encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
-from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys, read_time_attachment
+from bridge.bus.integrity import seal, seals
+from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
 
 #: Default imu cache: five seconds at the unit's top rate of 1 kHz.
 CACHE_SAMPLES = 5000
@@ -92,22 +95,24 @@ class UnitPublisher:
         payloads = encode_batch(self.unit, batch, ticks, time_ns,
                                 batch.rx_ns if rx_ns is None else rx_ns)
         put = self._imu.put
-        for payload in payloads:
-            put(payload)
+        for payload, attachment in zip(payloads, seals(payloads), strict=True):
+            put(payload, attachment=attachment)
         self.published += len(payloads)
         return len(payloads)
 
     def publish_status(self, status: Status) -> None:
-        self._status.put(self._own(status).SerializeToString())
+        payload = self._own(status).SerializeToString()
+        self._status.put(payload, attachment=seal(payload))
 
     def publish_event(self, event: Event) -> None:
-        self._event.put(self._own(event).SerializeToString())
+        payload = self._own(event).SerializeToString()
+        self._event.put(payload, attachment=seal(payload))
 
     def publish_raw(self, data: bytes, rx_ns: int) -> None:
-        """The bytes of one read, with its host receive time (int64 LE ns) as attachment."""
+        """The bytes of one read, its checksum and host receive time attached."""
         if self._raw is None:
             raise ValueError("this UnitPublisher was declared without raw=True")
-        self._raw.put(data, attachment=read_time_attachment(rx_ns))
+        self._raw.put(data, attachment=seal(data, rx_ns))
 
     def set_info(self, info: Info) -> None:
         """What the info queryable answers from now on."""
@@ -125,7 +130,8 @@ class UnitPublisher:
         if self._info is None:
             query.reply_err(f"{self.unit}: no Info yet, the unit is still being brought up")
         else:
-            query.reply(self.keys.info, self._info, encoding=ENCODINGS["info"])
+            query.reply(self.keys.info, self._info, encoding=ENCODINGS["info"],
+                        attachment=seal(self._info))
 
     def _answer_command(self, query: zenoh.Query) -> None:
         if self._on_command is None:

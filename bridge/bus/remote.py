@@ -26,6 +26,7 @@ import zenoh
 from google.protobuf.json_format import MessageToDict
 
 from bridge.bus.gx3_pb2 import Info
+from bridge.bus.integrity import intact
 from bridge.bus.keys import PREFIX, unit_of
 from bridge.bus.session import SessionError, ZenohOptions
 
@@ -117,6 +118,10 @@ def _answer(prefix: str, reply: zenoh.Reply, action: str) -> tuple[str, bool, di
     unit = unit_of(str(sample.key_expr), prefix or PREFIX)
     payload = sample.payload.to_bytes()
     if action == "info":
+        attachment = None if sample.attachment is None else sample.attachment.to_bytes()
+        if not intact(payload, attachment):
+            return (unit, False, {"error": "its Info reply does not match the CRC-32 attached "
+                                           "(damaged in transit, or an old bridge): ask again"})
         info = Info()
         info.ParseFromString(payload)
         return (unit, True, MessageToDict(info, preserving_proto_field_name=True))

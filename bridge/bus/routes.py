@@ -10,13 +10,16 @@ session (``declare_keyexpr``) gets that context, its route is cached, and the co
 falls to ~1.5 us a sample (``bench/bench_recorder.py``).
 
 ``PublisherKeys`` watches the publishers' tokens under a key expression and declares
-each publisher's key as it appears, before its first sample arrives.
+each publisher's key as it appears, before its first sample arrives. The tokens also
+tell which key a publisher (a Zenoh entity, as a sample-miss report names it) puts on,
+and when two live publishers put on one key: two bridges under one unit name.
 """
 
 from __future__ import annotations
 
 import contextlib
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -27,12 +30,20 @@ ADVANCED_PUBLISHER = "/@adv/pub/"
 
 class PublisherKeys:
     """Declare on ``session`` the key of every advanced publisher matching ``key``,
-    for as long as this object is open (``close`` undeclares them)."""
+    for as long as this object is open (``close`` undeclares them).
 
-    def __init__(self, session: zenoh.Session, key: str) -> None:
+    ``on_conflict(key, sessions)`` hears when a publisher appears on a key that a
+    publisher of another session still holds (the Zenoh ids of both, sorted).
+    """
+
+    def __init__(self, session: zenoh.Session, key: str,
+                 on_conflict: Callable[[str, list[str]], None] | None = None) -> None:
         self._session = session
         self._lock = threading.Lock()
         self._declared: dict[str, Any] = {}
+        self._keys: dict[tuple[str, int], str] = {}  # (zid, eid) -> key it puts on
+        self._live: dict[str, set[tuple[str, int]]] = {}
+        self._on_conflict = on_conflict
         self._closed = False
         self._tokens = session.liveliness().declare_subscriber(
             f"{key}{ADVANCED_PUBLISHER}**", self._on_token, history=True)
@@ -42,15 +53,28 @@ class PublisherKeys:
         with self._lock:
             return sorted(self._declared)
 
-    def _on_token(self, sample: zenoh.Sample) -> None:
-        if sample.kind != zenoh.SampleKind.PUT:
-            return  # a publisher that leaves may come back: its key stays declared
-        key = str(sample.key_expr).split(ADVANCED_PUBLISHER, 1)[0]
+    def key_of(self, zid: str, eid: int) -> str | None:
+        """The key the publisher ``eid`` of session ``zid`` puts on (None: not seen)."""
         with self._lock:
-            if self._closed or key in self._declared:
-                return
-            with contextlib.suppress(zenoh.ZError):  # the session is closing: nothing to route
-                self._declared[key] = self._session.declare_keyexpr(key)
+            return self._keys.get((zid, eid))
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        key, _, rest = str(sample.key_expr).partition(ADVANCED_PUBLISHER)
+        zid, _, eid = rest.partition("/")
+        source = (zid, int(eid.partition("/")[0] or -1))
+        with self._lock:
+            live = self._live.setdefault(key, set())
+            if sample.kind != zenoh.SampleKind.PUT:
+                live.discard(source)
+                return  # a publisher that leaves may come back: its key stays declared
+            live.add(source)
+            self._keys[source] = key
+            sessions = sorted({z for z, _ in live})
+            if not self._closed and key not in self._declared:
+                with contextlib.suppress(zenoh.ZError):  # the session is closing
+                    self._declared[key] = self._session.declare_keyexpr(key)
+        if len(sessions) > 1 and self._on_conflict is not None:
+            self._on_conflict(key, sessions)
 
     def close(self) -> None:
         """Stop watching and undeclare every key; safe to call twice."""

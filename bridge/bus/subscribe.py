@@ -10,6 +10,11 @@ Zenoh's routing of a sample cheap however many units there are.
 Samples wait in a bounded Zenoh FIFO channel and are taken out in bulk by the reading
 thread: Zenoh's threads never need the GIL for a sample, and a full channel holds
 Zenoh (and, with BLOCK congestion control, the publishers) back instead of dropping.
+
+Every message on a gx3 data key is checked as it is taken out (bridge/bus/integrity.py):
+one whose payload does not match the CRC-32 in its attachment, or that names another
+unit than its key's, never reaches the app; it is counted in ``rejected`` and passed
+to ``on_reject``.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from zenoh.ext import HistoryConfig, Miss, RecoveryConfig, declare_advanced_subs
 
 from bridge.bus.codec import decode_batch, parse, peek
 from bridge.bus.gx3_pb2 import ImuSample
+from bridge.bus.integrity import BAD_CHECKSUM, NOT_OF_KEY, SEALED, agree, intact
 from bridge.bus.keys import PREFIX, fleet
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, condense
@@ -63,6 +69,61 @@ class SampleBatch:
         return self.columns[name]
 
 
+@dataclass
+class Arrivals:
+    """Checked messages of one key, in the order they came: payloads and attachments
+    (a raw read's attachment holds its receive time), and the Zenoh samples."""
+
+    payloads: list[bytes]
+    attachments: list[bytes | None]
+    samples: list[zenoh.Sample]
+
+
+#: ``on_reject(key, reason, count)``: messages of ``key`` that failed a check.
+RejectHandler = Callable[[str, str, int], None]
+
+
+def _route(key: str) -> tuple[str, str] | None:
+    """(unit, leaf) of a gx3 key whose messages are checked, else None."""
+    head, _, leaf = key.rpartition("/")
+    unit = head.rpartition("/")[2]
+    return (unit, leaf) if unit and leaf in SEALED else None
+
+
+def check(got: list[zenoh.Sample], on_reject: RejectHandler | None = None
+          ) -> dict[str, Arrivals]:
+    """The samples that pass their checks, by key (each key's in the order they came);
+    the others are reported to ``on_reject`` per key and reason."""
+    groups: dict[str, Arrivals] = {}
+    for sample in got:
+        key = str(sample.key_expr)
+        group = groups.get(key)
+        if group is None:
+            group = groups[key] = Arrivals([], [], [])
+        group.payloads.append(sample.payload.to_bytes())
+        attachment = sample.attachment
+        group.attachments.append(None if attachment is None else attachment.to_bytes())
+        group.samples.append(sample)
+    for key, group in groups.items():
+        route = _route(key)
+        if route is None:
+            continue
+        whole = list(map(intact, group.payloads, group.attachments))
+        sound = [ok and fits for ok, fits in
+                 zip(whole, agree(*route, group.payloads), strict=True)]
+        if all(sound):
+            continue
+        if on_reject is not None:
+            for reason, n in ((BAD_CHECKSUM, whole.count(False)),
+                              (NOT_OF_KEY, whole.count(True) - sound.count(True))):
+                if n:
+                    on_reject(key, reason, n)
+        groups[key] = Arrivals([p for p, ok in zip(group.payloads, sound, strict=True) if ok],
+                               [a for a, ok in zip(group.attachments, sound, strict=True) if ok],
+                               [s for s, ok in zip(group.samples, sound, strict=True) if ok])
+    return {key: group for key, group in groups.items() if group.payloads}
+
+
 class Subscription(Generic[T]):
     """A context-managed iterator over what arrives on a key expression.
 
@@ -71,30 +132,37 @@ class Subscription(Generic[T]):
     the subscriber and closes the session if this subscription opened it.
     """
 
-    def __init__(self, session: zenoh.Session, key: str, convert: Callable[[list[zenoh.Sample]],
-                 list[T]], *, own_session: bool, history: int, max_batch: int,
-                 queue_size: int, idle_timeout: float | None,
-                 on_miss: Callable[[str, int], None] | None) -> None:
+    def __init__(self, session: zenoh.Session, key: str,
+                 convert: Callable[[dict[str, Arrivals]], list[T]], *, own_session: bool,
+                 history: int, max_batch: int, queue_size: int, idle_timeout: float | None,
+                 on_miss: Callable[[str, int], None] | None,
+                 on_reject: RejectHandler | None = None,
+                 on_conflict: Callable[[str, list[str]], None] | None = None) -> None:
         self.key = key
         self.misses = 0
+        self.rejected = 0
         self.received = 0
         self._session = session if own_session else None
         self._convert = convert
         self._max_batch = max_batch
         self._idle_timeout = idle_timeout
         self._on_miss = on_miss
+        self._on_reject = on_reject
         self._closed = threading.Event()
         self._lock = threading.Lock()
         self._pending: list[T] = []
         self._routes: PublisherKeys | None = None
         try:
-            self._routes = PublisherKeys(session, key)  # before the first sample can come
+            # before the first sample can come
+            self._routes = PublisherKeys(session, key, on_conflict)
             self._sub = declare_advanced_subscriber(
                 session, key, zenoh.handlers.FifoChannel(queue_size),
                 history=HistoryConfig(detect_late_publishers=True, max_samples=history)
                 if history else None,
                 recovery=RecoveryConfig(heartbeat=True, periodic_queries=None))
-            self._listener = self._sub.sample_miss_listener(self._missed)
+            # in Zenoh's own thread, in step with the samples (not queued to another)
+            self._listener = self._sub.sample_miss_listener(
+                zenoh.handlers.Callback(self._missed, indirect=False))
         except BaseException:
             if self._routes is not None:
                 self._routes.close()
@@ -104,23 +172,37 @@ class Subscription(Generic[T]):
         self._try_recv: Callable[[], zenoh.Sample | None] = self._sub.handler.try_recv
 
     def _missed(self, miss: Miss) -> None:
+        """Called by Zenoh before it delivers the first sample after the loss."""
         with self._lock:
             self.misses += miss.nb
         if self._on_miss is not None:
-            self._on_miss(str(miss.source), miss.nb)
+            source = miss.source
+            key = None if self._routes is None else self._routes.key_of(str(source.zid),
+                                                                        int(source.eid))
+            self._on_miss(key or str(source), miss.nb)
+
+    def _rejected(self, key: str, reason: str, n: int) -> None:
+        with self._lock:
+            self.rejected += n
+        if self._on_reject is not None:
+            self._on_reject(key, reason, n)
 
     def take(self, limit: int, timeout: float | None = 0.0) -> list[zenoh.Sample]:
         """Up to ``limit`` samples as they arrived, waiting up to ``timeout`` seconds
-        (None: until something arrives or close) for the first; [] after that."""
+        (None: until something arrives or close) for the first; [] after that. Only
+        those that pass their checks are returned (each key's in the order they came)."""
+        return [s for group in self._take(limit, timeout).values() for s in group.samples]
+
+    def _take(self, limit: int, timeout: float | None) -> dict[str, Arrivals]:
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self._closed.is_set():
             got = self._drain(limit)
             wait = _IDLE_S if deadline is None else min(_IDLE_S, deadline - time.monotonic())
             if got or wait <= 0:
                 self.received += len(got)
-                return got
+                return check(got, self._rejected)
             self._closed.wait(wait)
-        return []
+        return {}
 
     def _drain(self, limit: int) -> list[zenoh.Sample]:
         got: list[zenoh.Sample] = []
@@ -132,22 +214,15 @@ class Subscription(Generic[T]):
             pass
         return got
 
-    def take_by_key(self, limit: int) -> dict[str, list[zenoh.Sample]]:
-        """What has arrived (up to ``limit`` messages, no waiting), by key, each key's in
-        the order they came."""
-        groups: dict[str, list[zenoh.Sample]] = {}
-        for sample in self.take(limit):
-            key = str(sample.key_expr)
-            group = groups.get(key)
-            if group is None:
-                group = groups[key] = []
-            group.append(sample)
-        return groups
+    def take_by_key(self, limit: int) -> dict[str, Arrivals]:
+        """What has arrived (up to ``limit`` messages, no waiting) and passes its checks,
+        by key, each key's in the order they came."""
+        return self._take(limit, 0.0)
 
     def get(self, timeout: float | None = None) -> T | None:
         """The next item, or None after ``timeout`` seconds (or once closed)."""
         if not self._pending:
-            self._pending = self._convert(self.take(self._max_batch, timeout))
+            self._pending = self._convert(self._take(self._max_batch, timeout))
             self._pending.reverse()
         return self._pending.pop() if self._pending else None
 
@@ -194,21 +269,22 @@ def _nothing() -> None:
     return None
 
 
-def _samples(got: list[zenoh.Sample]) -> list[ImuSample]:
-    return [parse(s.payload.to_bytes()) for s in got]
+def _samples(got: dict[str, Arrivals]) -> list[ImuSample]:
+    return [parse(p) for group in got.values() for p in group.payloads]
 
 
-def _batches(got: list[zenoh.Sample]) -> list[SampleBatch]:
+def _batches(got: dict[str, Arrivals]) -> list[SampleBatch]:
     groups: dict[tuple[str, int], list[bytes]] = {}
-    for s in got:
-        payload = s.payload.to_bytes()
-        groups.setdefault(peek(payload), []).append(payload)
+    for group in got.values():
+        for payload in group.payloads:
+            groups.setdefault(peek(payload), []).append(payload)
     return [SampleBatch(unit, code, decode_batch(unit, code, payloads))
             for (unit, code), payloads in groups.items()]
 
 
-def _raw(got: list[zenoh.Sample]) -> list[RawMessage]:
-    return [RawMessage(str(s.key_expr), s.payload.to_bytes(), str(s.encoding)) for s in got]
+def _raw(got: dict[str, Arrivals]) -> list[RawMessage]:
+    return [RawMessage(key, payload, str(s.encoding)) for key, group in got.items()
+            for payload, s in zip(group.payloads, group.samples, strict=True)]
 
 
 class SubscribeOptions(TypedDict, total=False):
@@ -222,6 +298,8 @@ class SubscribeOptions(TypedDict, total=False):
     multicast_scouting: bool | None
     history: int
     on_miss: Callable[[str, int], None] | None
+    on_reject: RejectHandler | None
+    on_conflict: Callable[[str, list[str]], None] | None
     idle_timeout: float | None
     max_batch: int
     queue_size: int
@@ -241,6 +319,8 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
               connect: Sequence[str] = (), listen: Sequence[str] = (), mode: str | None = None,
               multicast_scouting: bool | None = None, history: int = 0,
               on_miss: Callable[[str, int], None] | None = None,
+              on_reject: RejectHandler | None = None,
+              on_conflict: Callable[[str, list[str]], None] | None = None,
               idle_timeout: float | None = None, max_batch: int = 1000,
               queue_size: int = 100_000) -> Subscription[Any]:
     """Subscribe to ``key`` (default every unit's samples, ``gx3/*/imu``).
@@ -251,9 +331,14 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
     let the subscription open (and close) its own from ``zenoh_config`` and the
     connect/listen/mode/multicast_scouting flags. ``history`` asks each publisher's cache for that
     many past samples; ``on_miss(source, n)`` hears of samples that could not be
-    recovered (``misses`` keeps the total).
+    recovered (``source``: the key they were published on, where known; ``misses``
+    keeps the total), called by Zenoh's thread before the first sample after them is
+    delivered. ``on_reject(key, reason, n)`` hears of messages that failed their
+    checks ("checksum" or "key"; ``rejected`` keeps the total); ``on_conflict(key,
+    sessions)`` of two sessions publishing on one key (two bridges under one name).
+    Items of one key come in the order they were published.
     """
-    converters: dict[str, Callable[[list[zenoh.Sample]], list[Any]]] = {
+    converters: dict[str, Callable[[dict[str, Arrivals]], list[Any]]] = {
         "samples": _samples, "batches": _batches, "raw": _raw}
     if output not in converters:
         raise ValueError(f"output {output!r}: use one of {', '.join(converters)}")
@@ -266,4 +351,4 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
         session = ZenohOptions(zenoh_config, connect, listen, mode, multicast_scouting).open()
     return Subscription(session, key, converters[output], own_session=own, history=history,
                         max_batch=max_batch, queue_size=queue_size, idle_timeout=idle_timeout,
-                        on_miss=on_miss)
+                        on_miss=on_miss, on_reject=on_reject, on_conflict=on_conflict)

@@ -77,8 +77,14 @@ def repair(
 def export(
     archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="FILE", help="Table to write: .parquet or .csv; it "
-                                               "appears when complete.")],
+        "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, or a "
+                                               ".mcap ROS 2 bag (--format ros2); it appears "
+                                               "when complete.")],
+    output_format: Annotated[str | None, typer.Option(
+        "--format", metavar="FORMAT",
+        help="parquet, csv or ros2 (sensor_msgs/Imu and MagneticField in an MCAP bag that "
+             "ros2 bag play reads). Default: from the output's extension (.mcap: ros2).")
+    ] = None,
     unit: Annotated[list[str] | None, typer.Option(
         "--unit", "-u", metavar="NAME",
         help="Only this unit (repeatable). Default: every unit.")] = None,
@@ -95,14 +101,15 @@ def export(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
              "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
-             "empty inside gaps.")] = None,
+             "empty inside gaps. Tables only.")] = None,
     events: Annotated[Path | None, typer.Option(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
              "its time to this .parquet or .csv file.")] = None,
     force: ForceOpt = False,
 ) -> None:
-    """Export samples to Parquet or CSV, one row per sample, every unit on one timeline.
+    """Export samples to Parquet or CSV, one row per sample, every unit on one timeline,
+    or to a ROS 2 bag.
 
     Columns: unit, command, timer, ticks, time_ns (each unit's clock re-estimated over
     the whole recording), live_time_ns (as the bridge published it), rx_ns, then flat
@@ -111,9 +118,20 @@ def export(
     time order. M maps earth (north-east-down) to sensor; the quaternion is scalar first.
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
+
+    ROS 2 (--format ros2): per unit /gx3/<unit>/imu (sensor_msgs/msg/Imu) and, for
+    records with a magnetometer, /gx3/<unit>/mag (sensor_msgs/msg/MagneticField), gx3
+    being the archive's key prefix, in an MCAP file with profile ros2, ros2msg
+    definitions and CDR messages (ROS 2 Jazzy types). REP-103/145 frames: body
+    forward-left-up in frame gx3_<unit>, world
+    east-north-up; orientation body to world, linear acceleration as specific force in
+    m/s² (+9.81 up when level), angular velocity rad/s, field tesla; covariance element
+    0 is -1 for a quantity the record lacks. header.stamp and the log time are the
+    time_ns a table export with the same options gives.
     """
     from bridge.recorder.export import (
         align_table,
+        archive_prefix,
         check_format,
         event_table,
         offline_times,
@@ -122,9 +140,15 @@ def export(
         write_table,
     )
     from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.ros2_export import write_ros2
 
     try:
-        check_format(output)
+        ros2 = _wants_ros2(output, output_format)
+        if ros2 and align is not None:
+            raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
+                             "own time (leave out --align or --format ros2)")
+        if not ros2:
+            check_format(output)
         if events is not None:
             check_format(events)
             if events.absolute() == output.absolute():
@@ -151,13 +175,18 @@ def export(
                                  f"{', '.join(data.units()) or 'none'}); check --unit, "
                                  "--type, --start and --end")
             n_units = len(set(table["unit"].tolist()))
-            if align is not None:
+            if ros2:
+                bag = write_ros2(table, table_file, archive_prefix(data))
+                msg = (f"wrote {bag.imu} Imu and {bag.mag} MagneticField messages of {rows} "
+                       f"samples of {n_units} units to {output}")
+            elif align is not None:
                 table = align_table(table, align)
                 msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} "
                        f"samples of {n_units} units to {output}")
             else:
                 msg = f"wrote {rows} samples of {n_units} units to {output}"
-            write_table(table, table_file)
+            if not ros2:
+                write_table(table, table_file)
             if events_file is not None:
                 ev = event_table(data, unit, lo_ns, hi_ns)
                 write_table(ev, events_file)
@@ -168,3 +197,17 @@ def export(
             raise fail(f"cannot write the export ({exc.strerror or exc}); check the space "
                        "and permissions where it goes", 1) from None
     err.print(msg)
+
+
+def _wants_ros2(output: Path, given: str | None) -> bool:
+    """Whether --format (or else the output's extension) asks for a ROS 2 bag."""
+    suffix = output.suffix.lower()
+    if given is None:
+        return suffix == ".mcap"
+    if given.lower() not in ("parquet", "csv", "ros2"):
+        raise ValueError(f"--format {given}: give parquet, csv or ros2")
+    wanted = ".mcap" if given.lower() == "ros2" else f".{given.lower()}"
+    if suffix != wanted:
+        raise ValueError(f"--format {given} writes a {wanted} file; name the output "
+                         f"{output.with_suffix(wanted).name}")
+    return wanted == ".mcap"

@@ -47,7 +47,8 @@ def run_bridge(
     port: PortOpt,
     baud: BaudOpt = "115200",
     unit: Annotated[str | None, typer.Option(
-        help="Unit name in the keys (gx3/NAME/imu). Default: the unit's serial number.")] = None,
+        help="Unit name in the keys (gx3/NAME/imu). Default: the unit's serial number. "
+             "Refused (exit 2) while another running bridge holds the name.")] = None,
     prefix: PrefixOpt = "gx3",
     record: Annotated[str | None, typer.Option(
         help="Record to stream, e.g. 0xCC. Default: the unit's continuous preset, else "
@@ -114,7 +115,8 @@ def run_bridge(
 
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
-    queryable, a liveliness token, and with --publish-raw each read (raw). Keeps
+    queryable, a liveliness token, and with --publish-raw each read (raw); every
+    message carries the CRC-32 of its payload in its attachment. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
 
@@ -155,12 +157,18 @@ def run_bridge(
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     from bridge.bus.session import SessionError, open_session
-    from bridge.service import BusSink
+    from bridge.service import BusSink, NameTaken, claim_name
 
     try:
         bus = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
     except SessionError as exc:
         raise fail(str(exc)) from None
+    if unit is not None:
+        try:
+            claim_name(bus, prefix, unit)
+        except NameTaken as exc:
+            bus.close()
+            raise fail(str(exc)) from None
     writer: list[RawCaptureWriter] = []
 
     def write_capture(data: bytes, rx_ns: int) -> None:
@@ -201,6 +209,8 @@ def run_bridge(
             sink.close()
             for w in writer:
                 w.close()
+    if isinstance(pipeline.error, NameTaken):
+        raise fail(str(pipeline.error))
     if pipeline.error is not None:
         raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
                    f"{pipeline.error}", 1)

@@ -77,7 +77,8 @@ def record(
                       "--split-mb).")] = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live view; errors only.")]
+    quiet: Annotated[bool, typer.Option("--quiet", "-q",
+                                        help="No live view; errors and warnings only.")]
     = False,
     force: ForceOpt = False,
     zenoh_config: ZenohConfigOpt = None,
@@ -98,6 +99,12 @@ def record(
     file). Ctrl-C or SIGTERM finish the archive properly. Each file is locked while it
     is written: a second recorder given the same file is refused at once, naming the
     first one's process.
+
+    Every message is checked before it is archived (the CRC-32 in its attachment, its
+    unit against its key). What does not reach the archive (samples lost in transit,
+    messages rejected, samples shed while the disk could not keep up) and a unit
+    published by two bridges at once are archived as events of the unit, with count
+    and span, and printed as warnings.
     """
     log_to(log_level, log_format)
     from bridge.bus.keys import BadName, check_prefix
@@ -166,7 +173,10 @@ def record(
             log_messages(sink, messages, prefix)
     started = time.monotonic()
     recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
-                        on_written=None if logger is None else to_rerun)
+                        on_written=None if logger is None else to_rerun,
+                        on_event=lambda unit, event: console.print(
+                            f"[yellow]warning:[/] {event.detail}", highlight=False,
+                            soft_wrap=True))
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:

@@ -1,10 +1,20 @@
 """`gx3 record`'s engine: every unit on Zenoh into one archive, as they come and go.
 
-Subscriptions to the fleet's samples, status and events (and raw reads, when asked)
-buffer what arrives in Zenoh's own channels; the thread calling ``run_once`` takes it
-out in bulk a few times a second and hands the ``ArchiveWriter`` each key's messages
-in one call (each key's in the order they came), so receiving costs little per
-message; the file is flushed at least once a second.
+Two threads. The receiving thread takes what arrives off Zenoh's channels as soon as
+it comes, checks it (bridge/bus/integrity.py: the payload's CRC-32, the unit against
+its key) and holds it in memory; the thread calling ``run_once`` hands the
+``ArchiveWriter`` each key's held messages in one call a few times a second, and the
+file is flushed at least once a second. So a writer that stalls (a slow disk) never
+holds Zenoh's receive path, and through it the publishers, which Zenoh 1.10 answers
+after ``wait_before_close`` by closing the link mid-write and splicing bytes into a
+payload. The memory held is capped (``buffer_bytes``); once it is full, imu and raw
+samples are shed until the writer takes what is held (so each key's shed samples are one
+run, a hole in the archive that one event spans).
+
+Nothing is lost unrecorded: samples Zenoh reports missed (LOST), messages that fail
+their checks (REJECTED) and samples shed (SHED) go into the archive as events of
+their unit, with their count and span, and to ``on_event``; so does a unit name
+published by two bridges at once (DUPLICATE_UNIT).
 Units are discovered by their bridges' liveliness tokens: a unit that appears gets
 its Info queried and archived; one that leaves and comes back simply continues.
 """
@@ -21,9 +31,11 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from bridge.bus.gx3_pb2 import Status
-from bridge.bus.keys import ENCODINGS, read_time, unit_of
-from bridge.bus.subscribe import RawMessage, Subscription, subscribe
+from bridge.bus.codec import parse
+from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.integrity import read_time
+from bridge.bus.keys import ENCODINGS, unit_of
+from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
 from bridge.recorder.archive import ArchiveError, ArchiveWriter
 from bridge.timing.rate import RateWindow
 
@@ -32,13 +44,55 @@ _QUERY_TIMEOUT_S = 3.0
 _INFO_TRIES = 10
 _INFO_RETRY_S = 0.5
 _PASS_S = 0.05  # a pass takes ~5,000 messages at 100,000/s: whole batches per key
+#: How often the receiving thread empties Zenoh's channels: they hold far more than
+#: arrives meanwhile, and batches of tens of messages per key are cheap to check.
+_RECEIVE_S = 0.025
+_TAKE = 10_000  # messages the receiving thread takes off one channel at a time
+#: Memory the recorder holds for a stalled writer: ~15 s of 100 units at 1 kHz.
+BUFFER_BYTES = 256 << 20
+_OVERHEAD = 64  # bytes a held message costs besides its payload (object, list slots)
+_SHEDDABLE = ("imu", "raw")  # status, events and info are few and always kept
+_REASONS = {"checksum": "payload does not match its CRC-32 (damaged in transit)",
+            "key": "names another unit than its key, or is not a message of the key's type"}
 
 
-def _read_times(samples: list[zenoh.Sample], default_ns: int) -> np.ndarray:
-    """The receive times the bridges attached to raw reads (``default_ns`` where none is)."""
-    stamps = [read_time(None if s.attachment is None else s.attachment.to_bytes())
-              for s in samples]
-    return np.array([default_ns if t is None else t for t in stamps], np.int64)
+@dataclass
+class _Span:
+    """Messages of one key not archived for one reason: how many, and their span."""
+
+    count: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+    first_ticks: int = 0
+    last_ticks: int = 0
+
+    def add(self, n: int, first_ns: int, last_ns: int, first_ticks: int = 0,
+            last_ticks: int = 0) -> None:
+        if not self.count:
+            self.first_ns, self.first_ticks = first_ns, first_ticks
+        self.count += n
+        self.last_ns, self.last_ticks = last_ns, last_ticks
+
+
+@dataclass
+class _Loss:
+    """Samples Zenoh reported missed on one key, between two that arrived."""
+
+    key: str
+    count: int
+    missed_ns: int
+    before: bytes | None  # the last message of the key that arrived before them
+
+
+def _instant(leaf: str, payload: bytes | None, default_ns: int) -> tuple[int, int]:
+    """(time_ns, ticks) of a message: an imu sample's own, else (default_ns, 0)."""
+    if leaf != "imu" or payload is None:
+        return default_ns, 0
+    try:
+        sample = parse(payload)
+    except ValueError:
+        return default_ns, 0
+    return sample.time_ns, sample.ticks
 
 
 @dataclass
@@ -62,46 +116,69 @@ class UnitView:
 class Recorder:
     """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into ``writer``.
 
-    ``queue_size``: messages each subscription holds while the writer is busy; beyond
-    that Zenoh waits (and, with BLOCK congestion control, so do the publishers).
+    ``queue_size``: messages each Zenoh channel holds until the receiving thread takes
+    them; ``buffer_bytes``: memory held for the writer (see the module's notes).
+    ``on_event(unit, event)`` hears of each event the recorder itself archives.
     """
 
     def __init__(self, session: zenoh.Session, writer: ArchiveWriter, prefix: str = "gx3",
                  units: str = "*", raw: bool = False, history: int = 0,
                  on_unit: Callable[[str, bool], None] | None = None,
                  on_written: Callable[[list[RawMessage]], None] | None = None,
-                 queue_size: int = 100_000) -> None:
+                 queue_size: int = 100_000, buffer_bytes: int = BUFFER_BYTES,
+                 on_event: Callable[[str, Event], None] | None = None) -> None:
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
         self.views: dict[str, UnitView] = {}
         self.error: ArchiveError | None = None
         self.written = 0
+        self.buffer_bytes = buffer_bytes
+        #: messages not archived, by the event kind that accounts for them
+        self.losses = {Event.LOST: 0, Event.REJECTED: 0, Event.SHED: 0}
         self._on_unit = on_unit
         self._on_written = on_written  # e.g. the Rerun logger of --rrd, fed in batches
-        self._queue_size = queue_size
-        self._answers: deque[RawMessage] = deque()  # Info replies, from the query threads
+        self._on_event = on_event
+        self._answers: deque[zenoh.Sample] = deque()  # Info replies, from the query threads
         self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the views
+        # what the receiving thread holds for the writer, guarded by _held_lock
+        self._held_lock = threading.RLock()  # a reject is reported while it is held
+        self._held: dict[str, tuple[list[bytes], list[int]]] = {}
+        self._held_bytes = 0
+        self._shedding = False
+        self._last: dict[str, bytes] = {}  # the last message of each key that arrived
+        self._open_losses: dict[str, list[_Loss]] = {}
+        self._losses: list[tuple[_Loss, bytes | None]] = []  # with the message after them
+        self._rejects: dict[tuple[str, str], _Span] = {}
+        self._shed: dict[str, _Span] = {}
+        self._notes: list[tuple[str, Event]] = []
+        self._conflicts: set[tuple[str, tuple[str, ...]]] = set()
         leaves = (*LEAVES, "raw") if raw else LEAVES
         self._subs: list[Subscription[RawMessage]] = []
-        self._reads: Subscription[RawMessage] | None = None  # raw reads, stamped by bridges
         try:
             for leaf in leaves:
                 sub = subscribe(f"{prefix}/{units}/{leaf}", output="raw", session=session,
                                 history=history if leaf == "imu" else 0,
-                                queue_size=queue_size)
+                                queue_size=queue_size, on_reject=self._rejected,
+                                on_miss=self._missed_on(len(self._subs)),
+                                on_conflict=self._conflict if leaf == "imu" else None)
                 self._subs.append(sub)
-                if leaf == "raw":
-                    self._reads = sub
             self._alive = session.liveliness().declare_subscriber(
                 f"{prefix}/{units}/alive", self._on_alive, history=True)
         except BaseException:
             for sub in self._subs:
                 sub.close()
             raise
+        self._receiver = threading.Thread(target=self._receive, name="gx3-receive")
+        self._receiver.start()
 
     @property
     def misses(self) -> int:
         return sum(sub.misses for sub in self._subs)
+
+    @property
+    def received(self) -> int:
+        """Messages taken off Zenoh so far (checked or not, held or shed)."""
+        return sum(sub.received for sub in self._subs)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         unit = unit_of(str(sample.key_expr), self.prefix)
@@ -130,12 +207,90 @@ class Recorder:
                 answers = [r.ok for r in replies if r.ok is not None]
             except zenoh.ZError:
                 return
-            for sample in answers:
-                self._answers.append(RawMessage(str(sample.key_expr), sample.payload.to_bytes(),
-                                                str(sample.encoding)))
+            self._answers.extend(answers)
             if answers:
                 return
             self._stop.wait(_INFO_RETRY_S)
+
+    # -- the receiving thread and Zenoh's callbacks ---------------------------------------
+
+    def _receive(self) -> None:
+        """Take what arrives off Zenoh's channels into memory until close."""
+        while not self._stop.is_set():
+            started = time.monotonic()
+            full = False
+            for sub in self._subs:
+                with self._held_lock:
+                    full |= self._hold(sub.take_by_key(_TAKE)) >= _TAKE
+            if not full:  # else more is waiting: go on at once
+                self._stop.wait(_RECEIVE_S - (time.monotonic() - started))
+
+    def _hold(self, groups: dict[str, Arrivals]) -> int:
+        """Keep checked messages for the writer (caller holds ``_held_lock``); shed imu
+        and raw ones while the held memory is over its cap."""
+        now = time.time_ns()
+        n = 0
+        for key, got in groups.items():
+            leaf = key.rpartition("/")[2]
+            payloads = got.payloads
+            n += len(payloads)
+            for loss in self._open_losses.pop(key, []):
+                self._losses.append((loss, payloads[0]))
+            self._last[key] = payloads[-1]
+            size = sum(map(len, payloads)) + _OVERHEAD * len(payloads)
+            if leaf in _SHEDDABLE and (self._shedding or
+                                       self._held_bytes + size > self.buffer_bytes):
+                # until the writer takes what is held: each key's shed samples are one run
+                self._shedding = True
+                first_ns, first_ticks = _instant(leaf, payloads[0], now)
+                last_ns, last_ticks = _instant(leaf, payloads[-1], now)
+                self._shed.setdefault(key, _Span()).add(len(payloads), first_ns, last_ns,
+                                                        first_ticks, last_ticks)
+                continue
+            self._held_bytes += size
+            held, received = self._held.setdefault(key, ([], []))
+            held += payloads
+            if leaf == "raw":  # a raw read's time is when its bridge received it
+                received += [now if t is None else t for t in map(read_time, got.attachments)]
+            else:
+                received += [now] * len(payloads)
+        return n
+
+    def _missed_on(self, index: int) -> Callable[[str, int], None]:
+        def missed(key: str, count: int) -> None:
+            """Zenoh's thread, before it delivers the first sample after the loss: what
+            came before it is taken first, so the loss has its place among them."""
+            with self._held_lock:
+                self._hold(self._subs[index].take_by_key(1 << 30))
+                loss = _Loss(key, count, time.time_ns(), self._last.get(key))
+                self._open_losses.setdefault(key, []).append(loss)
+        return missed
+
+    def _rejected(self, key: str, reason: str, count: int) -> None:
+        now = time.time_ns()
+        with self._held_lock:
+            self._rejects.setdefault((key, reason), _Span()).add(count, now, now)
+
+    def _conflict(self, key: str, sessions: list[str]) -> None:
+        if (key, tuple(sessions)) in self._conflicts:
+            return
+        self._conflicts.add((key, tuple(sessions)))
+        unit = self._unit(key)
+        now = time.time_ns()
+        note = Event(unit=unit, time_ns=now, kind=Event.DUPLICATE_UNIT, count=len(sessions),
+                     detail=f"{key} is published by {len(sessions)} sessions at once "
+                            f"({', '.join(sessions)}): two bridges run under the name "
+                            f"{unit!r}, and its samples mix two sources")
+        with self._held_lock:
+            self._notes.append((unit, note))
+
+    def _unit(self, key: str) -> str:
+        try:
+            return unit_of(key, self.prefix)
+        except ValueError:  # a loss whose publisher was never seen: no key to name
+            return "unknown"
+
+    # -- the writer's side --------------------------------------------------------------
 
     def run_once(self, wait_s: float = 0.2) -> None:
         """Write what arrives during ``wait_s``, taken in bulk every ``_PASS_S`` (or at
@@ -153,20 +308,68 @@ class Recorder:
             self.error = exc
 
     def _pass(self) -> None:
-        """Everything that has arrived into the archive, one write per key."""
+        """Everything held into the archive, one write per key, then the events that
+        account for what was not archived."""
         now = time.time_ns()
+        with self._held_lock:
+            held, self._held, self._held_bytes = self._held, {}, 0
+            self._shedding = False
+            notes, self._notes = self._notes, []
+            losses, self._losses = self._losses, []
+            rejects, self._rejects = self._rejects, {}
+            shed, self._shed = self._shed, {}
+        answers = check([self._answers.popleft() for _ in range(len(self._answers))],
+                        self._rejected)
         written: list[RawMessage] | None = None if self._on_written is None else []
-        for sub in self._subs:
-            for key, samples in sub.take_by_key(self._queue_size).items():
-                payloads = [s.payload.to_bytes() for s in samples]
-                # a raw read's log time is when its bridge received it
-                received = _read_times(samples, now) if sub is self._reads else now
-                self._write(key, payloads, received, written)
-        while self._answers:
-            msg = self._answers.popleft()
-            self._write(msg.key, [msg.payload], now, written)
+        for key, (payloads, received) in held.items():
+            self._write(key, payloads, np.array(received, np.int64), written)
+        for key, got in answers.items():
+            self._write(key, got.payloads, now, written)
+        notes += [self._lost(loss, after, now) for loss, after in losses]
+        notes += [self._unarchived(key, Event.REJECTED, span,
+                                   f"{span.count} message(s) rejected: {_REASONS[reason]}")
+                  for (key, reason), span in rejects.items()]
+        notes += [self._unarchived(key, Event.SHED, span,
+                                   f"{span.count} message(s) shed: the recorder's buffer "
+                                   f"({self.buffer_bytes >> 20} MiB) was full while the "
+                                   "archive could not be written fast enough")
+                  for key, span in shed.items()]
+        for unit, note in notes:
+            if note.kind in self.losses:
+                self.losses[note.kind] += note.count
+            self._write(f"{self.prefix}/{unit}/event", [note.SerializeToString()], now,
+                        written)
+            if self._on_event is not None:
+                self._on_event(unit, note)
         if written and self._on_written is not None:
             self._on_written(written)
+
+    def _lost(self, loss: _Loss, after: bytes | None, now: int) -> tuple[str, Event]:
+        """The event of samples missed between ``loss.before`` and ``after`` (None: none
+        came after them); on imu their ticks and times are spread evenly between."""
+        leaf = loss.key.rpartition("/")[2]
+        t0, k0 = _instant(leaf, loss.before, loss.missed_ns)
+        t1, k1 = _instant(leaf, after, loss.missed_ns)
+        span = _Span()
+        if k0 and k1 and k1 > k0:
+            step_t, step_k = (t1 - t0) / (loss.count + 1), (k1 - k0) / (loss.count + 1)
+            span.add(loss.count, round(t0 + step_t), round(t1 - step_t), round(k0 + step_k),
+                     round(k1 - step_k))
+        else:
+            span.add(loss.count, loss.missed_ns, loss.missed_ns)
+        where = f" after ticks {k0}" if k0 else ""
+        return self._unarchived(loss.key, Event.LOST, span,
+                                f"{loss.count} message(s) lost in transit{where} (not "
+                                "recoverable from the publisher's cache)")
+
+    def _unarchived(self, key: str, kind: int, span: _Span, detail: str
+                    ) -> tuple[str, Event]:
+        unit = self._unit(key)
+        leaf = key.rpartition("/")[2]
+        return unit, Event(unit=unit, time_ns=span.first_ns, ticks=span.first_ticks,
+                           kind=kind, count=span.count, leaf=leaf,  # type: ignore[arg-type]
+                           end_time_ns=span.last_ns, end_ticks=span.last_ticks,
+                           detail=f"{key}: {detail}")
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
                written: list[RawMessage] | None) -> None:
@@ -241,9 +444,17 @@ class Recorder:
         return rows
 
     def close(self) -> None:
-        """Stop receiving, write what has arrived, and leave the writer to its owner."""
+        """Stop receiving, write what has arrived (and the losses still open: nothing
+        came after them), and leave the writer to its owner."""
         self._alive.undeclare()
         self._stop.set()
+        self._receiver.join()
+        with self._held_lock:
+            for sub in self._subs:
+                self._hold(sub.take_by_key(1 << 30))
+            for losses in self._open_losses.values():
+                self._losses += [(loss, None) for loss in losses]
+            self._open_losses.clear()
         self._pass()
         for sub in self._subs:
             sub.close()

@@ -1,0 +1,81 @@
+"""What a message must show before it is archived or handed to an app: an intact
+payload (its CRC-32 travels in the put's attachment) that agrees with its key.
+
+Zenoh 1.10 can splice wire bytes into a payload when a BLOCK put outlives
+``wait_before_close``, and some such payloads still parse; a checksum computed by the
+publisher over the very bytes it put catches them end to end.
+
+Attachment of every message on a data key (``imu``, ``status``, ``event``, ``raw``) and
+of the ``info`` queryable's replies, little-endian (schemas/gx3.proto says the same for
+apps in other languages):
+
+- bytes 0-3: CRC-32 of the payload (IEEE 802.3 / zlib / PNG polynomial), uint32;
+- bytes 4-11, raw reads only: the host receive time of the read, int64 ns since the
+  Unix epoch.
+
+Readers ignore any bytes beyond those they know, so fields can be added at the end.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Sequence
+
+from google.protobuf.message import DecodeError
+
+from bridge.bus.codec import units_agree
+from bridge.bus.gx3_pb2 import Event, Info, Status
+
+#: Key leaves whose messages carry the checksum.
+SEALED = ("imu", "status", "event", "raw", "info")
+_CRC = struct.Struct("<I")
+_CRC_TIME = struct.Struct("<Iq")
+_TYPED: dict[str, type[Status] | type[Event] | type[Info]] = {
+    "status": Status, "event": Event, "info": Info}
+
+#: Why a message was rejected.
+BAD_CHECKSUM = "checksum"
+NOT_OF_KEY = "key"
+
+
+def seal(payload: bytes, rx_ns: int | None = None) -> bytes:
+    """The attachment of ``payload``: its CRC-32, then the receive time of a raw read."""
+    crc = zlib.crc32(payload)
+    return _CRC.pack(crc) if rx_ns is None else _CRC_TIME.pack(crc, rx_ns)
+
+
+def seals(payloads: Sequence[bytes]) -> list[bytes]:
+    """``seal`` of many payloads (no receive times)."""
+    pack, crc32 = _CRC.pack, zlib.crc32
+    return [pack(crc32(p)) for p in payloads]
+
+
+def intact(payload: bytes, attachment: bytes | None) -> bool:
+    """Whether ``attachment`` holds the CRC-32 of ``payload`` (no attachment: not intact)."""
+    return (attachment is not None and len(attachment) >= 4
+            and _CRC.unpack_from(attachment)[0] == zlib.crc32(payload))
+
+
+def read_time(attachment: bytes | None) -> int | None:
+    """The receive time a raw read's attachment carries (None: it carries none)."""
+    if attachment is None or len(attachment) < _CRC_TIME.size:
+        return None
+    return int(_CRC_TIME.unpack_from(attachment)[1])
+
+
+def agree(unit: str, leaf: str, payloads: Sequence[bytes]) -> list[bool]:
+    """Which payloads are messages of ``leaf``'s type that name ``unit``, the unit of
+    their key (a raw read names none; a leaf that is not gx3's is not checked)."""
+    if leaf == "imu":
+        return units_agree(unit, payloads)
+    cls = _TYPED.get(leaf)
+    if cls is None:
+        return [True] * len(payloads)
+    out = []
+    for payload in payloads:
+        try:
+            out.append(cls.FromString(payload).unit == unit)
+        except DecodeError:
+            out.append(False)
+    return out

@@ -1,0 +1,229 @@
+"""GX3 samples as ROS 2 ``sensor_msgs/msg/Imu`` and ``sensor_msgs/msg/MagneticField``.
+
+One definition of what a GX3 sample means to ROS, for the archive export and for live
+publishing alike:
+
+- Frames follow REP-103 and REP-145: the GX3's body frame is forward-right-down and its
+  earth frame north-east-down; ROS wants body forward-left-up (FLU) and world east-north-up
+  (ENU). Vectors in the body frame keep x and negate y and z; the orientation is the
+  rotation that turns a body (FLU) vector into the world (ENU) frame, as x, y, z, w.
+- Linear acceleration is specific force in m/s² (the GX3 reports g; a level unit at rest
+  reads -1 g on its down axis, so +9.81 m/s² on z up), angular velocity rad/s, the
+  magnetic field tesla (the GX3 reports gauss).
+- A quantity a record does not carry (a NaN row, or a column that is absent) is marked
+  the way sensor_msgs documents it: element 0 of its covariance is -1, its value the
+  message's default. Other covariances are 0 (unknown), as REP-145 asks when the driver
+  does not know them.
+
+Messages are CDR (little-endian, XCDR1, the encapsulation rosbag2 and rmw use), built for
+a whole batch at once with NumPy: every message of one frame id has the same layout, so
+a structured array writes all of them in one pass. The message definitions and type
+hashes come from the ``rosbags`` type store of ROS 2 Jazzy (the definitions of these
+messages are the same in Humble).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping
+
+import numpy as np
+import numpy.typing as npt
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from bridge.protocol.convert import (
+    STANDARD_GRAVITY,
+    euler_to_m,
+    m_to_quaternion,
+    quaternion_to_m,
+    sensor_to_earth_xyzw,
+)
+
+#: The ROS 2 distribution whose message definitions and type hashes are used.
+DISTRO = Stores.ROS2_JAZZY
+IMU = "sensor_msgs/msg/Imu"
+MAGNETIC_FIELD = "sensor_msgs/msg/MagneticField"
+TESLA_PER_GAUSS = 1e-4
+#: Body FRD -> FLU (its own inverse), and earth NED -> world ENU.
+FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
+NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: Quantities that give a record's attitude, in order of preference.
+ATTITUDE = ("m", "quaternion", "euler")
+#: Magnetometer quantities, in order of preference (stab_mag: the gyro-stabilised field).
+MAGNETOMETER = ("mag", "stab_mag")
+#: Little-endian CDR encapsulation header (representation id CDR_LE, no options).
+_ENCAPSULATION = b"\x00\x01\x00\x00"
+
+
+@functools.cache
+def _typestore() -> Typestore:
+    return get_typestore(DISTRO)
+
+
+def message_definition(msgtype: str) -> str:
+    """The ``ros2msg`` text rosbag2 embeds as an MCAP schema: the message, then each
+    type it uses after a line of ``=`` and ``MSG: <type>``."""
+    return _typestore().generate_msgdef(msgtype, ros_version=2)[0]
+
+
+def type_hash(msgtype: str) -> str:
+    """The message's RIHS01 type hash, e.g. ``RIHS01_7d9a…`` for Imu."""
+    return _typestore().hash_rihs01(msgtype)
+
+
+def frame_id(unit: str, prefix: str = "gx3") -> str:
+    """A unit's body frame: ``gx3_<unit>``, prefixed so it cannot collide with another
+    system's frames (a key prefix with slashes keeps them as underscores)."""
+    return f"{prefix.replace('/', '_')}_{unit}"
+
+
+def body_flu(frd: npt.ArrayLike) -> np.ndarray:
+    """(..., 3) vectors in the GX3 body frame (forward-right-down) -> forward-left-up."""
+    out: np.ndarray = np.asarray(frd, np.float64) * np.array([1.0, -1.0, -1.0])
+    return out
+
+
+def earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """(n, 3, 3) M (earth NED -> sensor FRD) of n records, each from m, the quaternion or
+    the Euler angles, whichever it holds first in that order; NaN where it holds none."""
+    as_m: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+        "m": lambda v: v.reshape(n, 3, 3), "quaternion": quaternion_to_m, "euler": euler_to_m}
+    out = np.full((n, 3, 3), np.nan)
+    for name in ATTITUDE:
+        if name in columns:
+            m = as_m[name](np.asarray(columns[name], np.float64).reshape(n, -1))
+            fill = np.isnan(out[:, 0, 0]) & np.isfinite(m).all(axis=(1, 2))
+            out[fill] = m[fill]
+    return out
+
+
+def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
+    """(..., 3, 3) M -> (..., 4) x, y, z, w: the rotation from body FLU to world ENU.
+
+    GX3 body-to-earth is Mᵀ; in ROS frames that is NED_TO_ENU · Mᵀ · FRD_TO_FLU, whose
+    transpose FRD_TO_FLU · M · ENU_TO_NED is an "M" the manual's M-to-Q turns into the
+    Hamilton quaternion of the ROS rotation.
+    """
+    ros_m = FRD_TO_FLU @ np.asarray(m, np.float64) @ NED_TO_ENU.T
+    return sensor_to_earth_xyzw(m_to_quaternion(ros_m))
+
+
+def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
+          width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, width) float64 values, each row from the first of ``names`` that it holds
+    (finite), and which rows hold one; zeros where none."""
+    values, present = np.zeros((n, width)), np.zeros(n, bool)
+    for name in names:
+        if name in columns:
+            mine = np.asarray(columns[name], np.float64).reshape(n, width)
+            fill = ~present & np.isfinite(mine).all(axis=1)
+            values[fill] = mine[fill]
+            present |= fill
+    return values, present
+
+
+def _stamp_layout(frame: str, doubles: int) -> np.dtype:
+    """The CDR layout of a message that starts with a std_msgs/Header of ``frame`` and
+    continues with ``doubles`` float64 (aligned to 8 from the end of the encapsulation)."""
+    name = frame.encode() + b"\x00"
+    body = 12 + len(name)
+    first = -(-body // 8) * 8
+    return np.dtype({
+        "names": ["encapsulation", "sec", "nanosec", "length", "frame_id", "doubles"],
+        "formats": ["V4", "<i4", "<u4", "<u4", f"V{len(name)}", ("<f8", (doubles,))],
+        "offsets": [0, 4, 8, 12, 16, 4 + first],
+        "itemsize": 4 + first + 8 * doubles,
+    })
+
+
+def _messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[bytes]:
+    """CDR bytes of one message per row: header stamped ``time_ns``, then the row."""
+    t = np.asarray(time_ns, np.int64).reshape(-1)
+    layout = _stamp_layout(frame, doubles.shape[1])
+    out = np.zeros(len(t), layout)
+    name = frame.encode() + b"\x00"
+    out["encapsulation"] = np.void(_ENCAPSULATION)
+    sec, nanosec = np.divmod(t, 1_000_000_000)
+    if len(t) and (sec.min() < -(2**31) or sec.max() >= 2**31):
+        raise ValueError("a time stamp is outside the range of builtin_interfaces/Time "
+                         "(int32 seconds since 1970)")
+    out["sec"], out["nanosec"] = sec, nanosec
+    out["length"] = len(name)
+    out["frame_id"] = np.void(name)
+    out["doubles"] = doubles
+    size = layout.itemsize
+    data = out.tobytes()
+    return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+def imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """(n, 37) float64 of Imu after its header, in ROS frames and units: orientation
+    x y z w and its covariance, angular velocity and its covariance, linear acceleration
+    and its covariance; element 0 of a covariance -1 where the record lacks the quantity.
+
+    ``columns``: the record's quantities as the GX3 gives them (``accel`` g, ``ang_rate``
+    rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN rows are absent.
+    """
+    out = np.zeros((n, 37))
+    m = earth_to_sensor(columns, n)
+    has = np.isfinite(m).all(axis=(1, 2))
+    out[has, 0:4] = orientation_xyzw(m[has])
+    out[~has, 3] = 1.0  # geometry_msgs/Quaternion's default: the identity
+    out[~has, 4] = -1.0
+    rate, has_rate = _rows(columns, ("ang_rate",), n, 3)
+    out[has_rate, 13:16] = body_flu(rate[has_rate])
+    out[~has_rate, 16] = -1.0
+    accel, has_accel = _rows(columns, ("accel",), n, 3)
+    out[has_accel, 25:28] = body_flu(accel[has_accel]) * STANDARD_GRAVITY
+    out[~has_accel, 28] = -1.0
+    return out
+
+
+def has_imu(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """Which of n records carry anything an Imu message holds (attitude, rate, accel)."""
+    found = np.zeros(n, bool)
+    for name in (*ATTITUDE, "ang_rate", "accel"):
+        if name in columns:
+            found |= np.isfinite(np.asarray(columns[name], np.float64).reshape(n, -1)).all(axis=1)
+    return found
+
+
+def has_mag(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """Which of n records carry a magnetic field."""
+    return _rows(columns, MAGNETOMETER, n, 3)[1]
+
+
+def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
+                  columns: Mapping[str, np.ndarray]) -> list[bytes]:
+    """CDR ``sensor_msgs/msg/Imu`` of each record, stamped ``time_ns`` (int ns since
+    1970), in ``frame``; see :func:`imu_doubles` for ``columns``."""
+    n = len(np.asarray(time_ns).reshape(-1))
+    return _messages(time_ns, frame, imu_doubles(columns, n))
+
+
+def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
+    """One record's CDR ``sensor_msgs/msg/Imu``; ``columns`` hold one value each
+    (``accel`` of shape (3,), ``m`` (3, 3), ...)."""
+    one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
+    return imu_cdr_batch([time_ns], frame, one)[0]
+
+
+def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
+                  columns: Mapping[str, np.ndarray]) -> list[bytes]:
+    """CDR ``sensor_msgs/msg/MagneticField`` of each record (``mag``, or else
+    ``stab_mag``, in gauss): the field in tesla in the body FLU frame, covariance 0
+    (unknown). Give only records that carry a field (:func:`has_mag`)."""
+    t = np.asarray(time_ns, np.int64).reshape(-1)
+    field, present = _rows(columns, MAGNETOMETER, len(t), 3)
+    if not present.all():
+        raise ValueError("a record without a magnetic field cannot be a MagneticField message")
+    doubles = np.zeros((len(t), 12))
+    doubles[:, 0:3] = body_flu(field) * TESLA_PER_GAUSS
+    return _messages(t, frame, doubles)
+
+
+def mag_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
+    """One record's CDR ``sensor_msgs/msg/MagneticField``."""
+    one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
+    return mag_cdr_batch([time_ns], frame, one)[0]
