@@ -17,9 +17,9 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from importlib.metadata import version
 from typing import Any
 
+from bridge import __version__
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
@@ -67,7 +67,7 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
         up_compensation=s.get("up_compensation", 0),
         north_compensation=s.get("north_compensation", 0), command=info.record,
         mode=int(Mode.ACTIVE if polled else Mode.CONTINUOUS), bring_up_time_ns=info.bring_up_ns,
-        bridge_version=version("gx3-bridge"),
+        bridge_version=__version__,
         allow_commands=allow_commands, output_rate_hz=info.output_hz, link=link, **info.ids)
 
 
