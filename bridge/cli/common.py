@@ -166,8 +166,8 @@ class _JsonLines(logging.Formatter):
 
 
 class _ForPeople(logging.Handler):
-    """Records on the terminal as people read them: an event's time first, a warning
-    or error labelled like the commands' own lines."""
+    """Records on the terminal as people read them: an event's time first and its kind
+    in bold, a warning or error labelled like the commands' own lines."""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
@@ -176,7 +176,11 @@ class _ForPeople(logging.Handler):
                      f"[dim]{time.strftime('%H:%M:%S', time.localtime(time_ns / 1e9))}[/] ")
             label = ("[bold red]error:[/] " if record.levelno >= logging.ERROR else
                      "[yellow]warning:[/] " if record.levelno >= logging.WARNING else "")
-            err.print(f"{stamp}{label}{escape(record.getMessage())}")
+            text = escape(record.getMessage())
+            event = getattr(record, "event", None)
+            if isinstance(event, str) and text.startswith(event):
+                text = f"[bold]{event}[/]{text[len(event):]}"
+            err.print(f"{stamp}{label}{text}")
         except Exception:
             self.handleError(record)
 
