@@ -98,7 +98,7 @@ def main() -> None:
     elapsed = time.perf_counter() - start
     size = path.stat().st_size
     print(f"write_many ({args.batch} a call): {total:,} samples in {elapsed:.2f} s = "
-          f"{total / elapsed:,.0f} samples/s; {writer.messages - total:,} FrameTransforms; "
+          f"{total / elapsed:,.0f} samples/s; {writer.messages - total:,} frames and markers; "
           f"{size / 1e6:.1f} MB = {size / total:.1f} bytes/sample; {load()}")
     out = workdir / "bench.parquet"
     elapsed = gx3_seconds("export", path, out)

@@ -3,7 +3,8 @@
 The pipeline (device -> timing) hands samples, events, status and info to a
 ``BusSink``, which turns them into the gx3.v1 messages and publishes them under
 the unit's keys; every read can also go out raw (``--publish-raw``) and into a raw
-capture file beside it.
+capture file beside it, and every sample as ROS 2 messages the way rmw_zenoh
+publishes them (``--ros2``).
 Operator commands that reach the unit's command queryable run on the
 pipeline's thread, only when the bridge was started with ``--allow-commands``.
 One unit name, one live bridge: a bridge asks for the name's liveliness token before
@@ -131,10 +132,11 @@ class BusSink:
 
     def __init__(self, session: Any, prefix: str, unit: str | None, port: str,
                  allow_commands: bool, cache_s: float, quiet: bool = False,
-                 raw: bool = False) -> None:
+                 raw: bool = False, ros2_domain: int | None = None) -> None:
         self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
-        self.raw = raw
+        self.raw, self.ros2_domain = raw, ros2_domain
+        self.ros2: Any = None  # the unit's ROS 2 topics, with ros2_domain
         # a unit that never comes up (a wrong baud rate) must not fill the memory
         self._early_reads: deque[tuple[bytes, int]] = deque(maxlen=EARLY_READS)
         self._read_listeners: list[Callable[[bytes, int], None]] = []
@@ -169,6 +171,10 @@ class BusSink:
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
             on_command=command_handler(self.pipeline), allow_commands=self.allow_commands,
             raw=self.raw)
+        if self.ros2_domain is not None:
+            from bridge.ros2.rmw import UnitTopics
+
+            self.ros2 = UnitTopics(self.session, self.ros2_domain, self.prefix, self.unit)
         self.publisher.set_info(message)
         for listener in self._listeners:
             listener(self.unit, capture_metadata(message))
@@ -202,6 +208,8 @@ class BusSink:
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:
             self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
+            if self.ros2 is not None:
+                self.ros2.publish(samples.batch, samples.time_ns)
 
     def event(self, event: UnitEvent) -> None:
         if not self.quiet or event.kind in ("disconnect", "waiting"):
@@ -218,6 +226,9 @@ class BusSink:
 
     def close(self) -> None:
         self._lines.flush(None)
+        if self.ros2 is not None:
+            self.ros2.close()
+            self.ros2 = None
         if self.publisher is not None:
             self.publisher.close()
             self.publisher = None

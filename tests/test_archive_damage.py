@@ -79,7 +79,9 @@ def test_a_flipped_byte_loses_one_chunk_and_says_which(archive: Path, tmp_path: 
     assert damaged.message_count == full.message_count - sum(lost.values())
     imu_lost = sum(n for t, n in lost.items() if t.endswith("/imu"))
     assert imu_count(damaged) == imu_count(full) - imu_lost
-    assert str(sum(lost.values())) in warned[0] and "CRC" in warned[0].upper()
+    # zstd's own check or the chunk's CRC, whichever the flipped byte trips first
+    assert str(sum(lost.values())) in warned[0]
+    assert "CRC" in warned[0].upper() or "CORRUPTION" in warned[0].upper()
 
 
 def chunk_at(path: Path, at: int) -> tuple[ChunkIndex, dict[str, int]]:

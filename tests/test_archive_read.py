@@ -178,7 +178,7 @@ def test_messages_of_all_topics_come_in_log_time_order(fleet: Path) -> None:
     assert times == sorted(times)
     u2 = list(archive.iter_messages(units=["u2"]))
     assert {r.topic for r in u2} == {"gx3/u2/imu", "gx3/u2/status", "gx3/u2/event",
-                                     "gx3/u2/info", "gx3/u2/frame"}
+                                     "gx3/u2/info", "gx3/u2/frame", "gx3/u2/axes"}
     assert u2 == [r for r in records if r.topic.startswith("gx3/u2/")]
     summary = archive.summary()
     for unit, (code, n, _) in FLEET.items():

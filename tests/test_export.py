@@ -14,11 +14,12 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.recorder.export import flat_names, sample_table
+from bridge.recorder.describe import flat_names
+from bridge.recorder.export import sample_table
 from bridge.recorder.read import MAGIC, read_archive
 from tests.test_archive_writer import FLEET, LATENCY, PERIOD, T0, Written, write_fleet
 
-HEAD = ["unit", "command", "timer", "ticks", "time_ns", "live_time_ns", "rx_ns"]
+HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "live_time_ns", "rx_ns"]
 ROWS = sum(n for _, n, _ in FLEET.values())
 
 
@@ -115,13 +116,14 @@ def test_events_file_lists_every_event_per_unit(fleet: tuple[Path, Written],
     result = gx3("export", path, "-o", tmp_path / "s.csv", "--events", events)
     assert result.returncode == 0, result.stderr
     table = pa_csv.read_csv(events)
-    assert table.column_names == ["unit", "time_ns", "ticks", "kind", "count", "detail"]
+    assert table.column_names == ["unit", "time_ns", "time_utc", "ticks", "kind", "amount",
+                                  "detail"]
     rows = table.to_pylist()
     assert [r["unit"] for r in rows] == ["u3", "u1", "u2"]  # in time order
     for r in rows:
         n = FLEET[r["unit"]][1]
         assert r["time_ns"] == written.times[r["unit"]][n // 2]
-        assert (r["kind"], r["count"], r["detail"]) == ("GAP", 3, "3 records missing")
+        assert (r["kind"], r["amount"], r["detail"]) == ("GAP", 3, "3 records missing")
 
 
 def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written]) -> None:

@@ -6,10 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
 from bridge.bus.codec import encode_batch
+from bridge.bus.gx3_pb2 import Info
 from bridge.protocol.convert import euler_to_m
 from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.export import align_table, sample_table
@@ -21,11 +23,15 @@ YAW_RATE = 0.5  # rad/s
 ACCEL_RATE = 0.25  # g/s
 
 
-def write_two_units(path: Path) -> None:
-    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing."""
+def write_two_units(path: Path, names: tuple[str, str] = ("u1", "u2"),
+                    infos: dict[str, Info] | None = None) -> None:
+    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing; the
+    Info in ``infos`` archived first."""
     with ArchiveWriter(path) as writer:
-        for unit, period, offset, gap in (("u1", 10_000_000, 3_000_000, None),
-                                          ("u2", 25_000_000, 11_000_000, (40, 52))):
+        for unit, info in (infos or {}).items():
+            writer.write(f"gx3/{unit}/info", info.SerializeToString(), T0)
+        for unit, period, offset, gap in ((names[0], 10_000_000, 3_000_000, None),
+                                          (names[1], 25_000_000, 11_000_000, (40, 52))):
             n = 2_000_000_000 // period
             keep = np.ones(n, bool)
             if gap:
@@ -50,11 +56,17 @@ def test_aligned_rows_interpolate_vectors_and_attitude_and_leave_gaps_empty(
     table = pq.read_table(out)
     grid = np.array(table.column("time_ns").to_pylist())
     assert np.all(np.diff(grid) == 20_000_000) and grid[0] % 20_000_000 == 0
-    assert "u1/accel_x" in table.column_names and "u2/m33" in table.column_names
+    assert "u1__accel_x" in table.column_names and "u2__m33" in table.column_names
     s = (grid - T0) / 1e9
     for unit, first, last in (("u1", 0.003, 1.993), ("u2", 0.011, 1.986)):
-        acc = np.array(table.column(f"{unit}/accel_x").to_pylist(), float)
-        m = np.stack([np.array(table.column(f"{unit}/m{r}{c}").to_pylist(), float)
+        names = [f"{unit}__accel_x"] + [f"{unit}__m{r}{c}" for r in "123" for c in "123"]
+        # no value is null, not NaN: nothing is a NaN, and the nulls are where NaN was
+        assert not any(pc.any(pc.is_nan(table.column(n))).as_py() for n in names)
+        nulls = [table.column(n).is_null().to_numpy(zero_copy_only=False) for n in names]
+        assert all((n == nulls[0]).all() for n in nulls)
+        acc = np.array(table.column(f"{unit}__accel_x").to_pylist(), float)
+        assert (np.isnan(acc) == nulls[0]).all()
+        m = np.stack([np.array(table.column(f"{unit}__m{r}{c}").to_pylist(), float)
                       for r in "123" for c in "123"], axis=1).reshape(-1, 3, 3)
         inside = (s >= first) & (s <= last)
         if unit == "u2":  # samples 40..51 missing: 1.011 s .. 1.311 s has no data

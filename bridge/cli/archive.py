@@ -100,22 +100,31 @@ def export(
     align: Annotated[float | None, typer.Option(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "
-             "columns named <unit>/<column>; linear for vectors, slerp for orientation, "
-             "empty inside gaps. Tables only.")] = None,
+             "columns named <unit>__<column> (the unit name lower-cased, characters other "
+             "than a-z 0-9 _ made _, unit_ before one that starts with no letter; a Parquet "
+             "file's gx3.units metadata names each unit's prefix); linear for vectors, "
+             "slerp for orientation, empty (null) outside a unit's samples and inside "
+             "gaps. Tables only.")] = None,
     events: Annotated[Path | None, typer.Option(
         metavar="FILE",
         help="Also write every event (gap, reset, rollover, reconnect, ...) per unit with "
-             "its time to this .parquet or .csv file.")] = None,
+             "its time to this .parquet or .csv file: unit, time_ns, time_utc, ticks, "
+             "kind, amount (records dropped for a GAP, bytes skipped for a RESYNC, "
+             "messages for LOST, REJECTED and SHED, else 1), detail.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline,
     or to a ROS 2 bag.
 
-    Columns: unit, command, timer, ticks, time_ns (each unit's clock re-estimated over
-    the whole recording), live_time_ns (as the bridge published it), rx_ns, then flat
-    quantity columns (accel_x .. accel_z, m11 .. m33, roll pitch yaw, q0 .. q3,
-    temperature_0 .. temperature_3, ...), NaN where a record lacks a quantity; rows in
-    time order. M maps earth (north-east-down) to sensor; the quaternion is scalar first.
+    Columns: unit, command, timer, ticks, time_ns (ns since the Unix epoch, each unit's
+    clock re-estimated over the whole recording), time_utc (the same as a UTC
+    timestamp), live_time_ns (as the bridge published it), rx_ns, then flat quantity
+    columns (accel_x .. accel_z in g, ang_rate_x .. in rad/s, mag_x .. in gauss, m11 ..
+    m33, roll pitch yaw in rad, q0 .. q3, temperature_0 .. temperature_3 in A/D codes,
+    ...), empty (null) where a record lacks a quantity; rows in time order. Body frame
+    FRD, earth NED: M maps earth to body; the quaternion is scalar first. A Parquet
+    file carries each column's unit and frame, the units' Info, the source archive and
+    these options as metadata (schema gx3.v1).
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
 
@@ -129,11 +138,13 @@ def export(
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
     time_ns a table export with the same options gives.
     """
+    from bridge.recorder.describe import About
     from bridge.recorder.export import (
         align_table,
         archive_prefix,
         check_format,
         event_table,
+        last_info,
         offline_times,
         parse_time,
         sample_table,
@@ -174,7 +185,11 @@ def export(
                 raise ValueError(f"{archive}: no samples match (units: "
                                  f"{', '.join(data.units()) or 'none'}); check --unit, "
                                  "--type, --start and --end")
-            n_units = len(set(table["unit"].tolist()))
+            names = sorted(set(table["unit"].tolist()))
+            n_units = len(names)
+            about = About(archive, {u: last_info(data, u) for u in names}, {
+                "units": unit, "types": codes, "start": start, "end": end, "start_ns": lo_ns,
+                "end_ns": hi_ns, "align_hz": align, "time_ns": "re-estimated"})
             if ros2:
                 bag = write_ros2(table, table_file, archive_prefix(data))
                 msg = (f"wrote {bag.imu} Imu and {bag.mag} MagneticField messages of {rows} "
@@ -186,10 +201,10 @@ def export(
             else:
                 msg = f"wrote {rows} samples of {n_units} units to {output}"
             if not ros2:
-                write_table(table, table_file)
+                write_table(table, table_file, about)
             if events_file is not None:
                 ev = event_table(data, unit, lo_ns, hi_ns)
-                write_table(ev, events_file)
+                write_table(ev, events_file, about)
                 msg += f"; {len(ev['time_ns'])} events to {events}"
         except (ArchiveReadError, ValueError) as exc:
             raise fail(str(exc)) from None

@@ -83,6 +83,14 @@ def run_bridge(
     publish_raw: Annotated[bool, typer.Option(
         "--publish-raw", help="Also publish every read on PREFIX/UNIT/raw with its receive "
                               "time, for gx3 record --raw.")] = False,
+    ros2: Annotated[bool, typer.Option(
+        "--ros2", help="Also publish every sample as ROS 2 does over rmw_zenoh_cpp: "
+                       "sensor_msgs/Imu on /PREFIX/UNIT/imu and MagneticField on "
+                       "/PREFIX/UNIT/mag (names made ROS-legal: imu-1 becomes imu_1), seen "
+                       "by ROS 2 nodes on the same Zenoh router.")] = False,
+    ros2_domain: Annotated[int | None, typer.Option(
+        "--ros2-domain", min=0, max=232, metavar="N",
+        help="ROS_DOMAIN_ID of the --ros2 topics. Default: 0.")] = None,
     allow_commands: Annotated[bool, typer.Option(
         "--allow-commands", help="Carry out operator commands that arrive over Zenoh "
                                  "(gx3 configure --unit …); refused otherwise.")] = False,
@@ -116,7 +124,10 @@ def run_bridge(
     Publishes gx3.v1 protobuf messages under PREFIX/UNIT/: imu (every sample),
     status (once a second), event (gaps, resets, rollovers, reconnects), the info
     queryable, a liveliness token, and with --publish-raw each read (raw); every
-    message carries the CRC-32 of its payload in its attachment. Keeps
+    message carries the CRC-32 of its payload in its attachment. With --ros2 the
+    samples also go out as ROS 2 messages (REP-103 frames: body FLU, world ENU) on
+    rmw_zenoh's keys, with its attachments (sequence, time, GID: what ROS 2 reads)
+    and graph tokens. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
 
@@ -135,6 +146,8 @@ def run_bridge(
                    + " ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
     if new_baud is not None and new_baud not in BAUD_RATES:
         raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))
+    if ros2_domain is not None and not ros2:
+        raise fail("--ros2-domain is the domain of the --ros2 topics: add --ros2")
     if transport not in ("auto", "uart", "usb"):
         raise fail(f"--transport {transport!r}: use auto, uart or usb")
     try:
@@ -182,7 +195,7 @@ def run_bridge(
 
     with bus:
         sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet,
-                       raw=publish_raw)
+                       raw=publish_raw, ros2_domain=(ros2_domain or 0) if ros2 else None)
         pipeline = Pipeline(options, sink, on_read=sink.read)
         sink.attach(pipeline)
         if capture is not None:

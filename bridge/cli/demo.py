@@ -102,7 +102,8 @@ def demo(
     console.print(f"done in {time.monotonic() - started:,.0f} s; results in {output}/. "
                   "Open them with:", highlight=False)
     for command, what in ((f"rerun {run.rrd}", "the recording: attitude and signals"),
-                          (f"rerun {run.archive}", "the archive, straight from MCAP"),
+                          (f"rerun {run.archive}",
+                           "the archive: each unit's axes in 3-D, and the events"),
                           (f"gx3 export {run.archive} -o {output}/demo.parquet",
                            "one row per sample"),
                           (f"gx3 export {run.archive} --align 100 -o {output}/aligned.csv",

@@ -92,8 +92,12 @@ def record(
 
     Units are found by their bridges' liveliness tokens and may join late, leave and
     come back. Samples keep the very protobuf bytes from Zenoh, with the schemas
-    embedded; each unit also gets a foxglove.FrameTransform channel, so Foxglove and
-    `rerun FILE.mcap` show its attitude. Messages are written in log-time order: each
+    embedded. Each unit also gets a foxglove.FrameTransform channel (REP-103 frames:
+    gx3_world east-north-up, gx3_world_ned, gx3_<unit>_frd) with a point cloud of its
+    body axes, and every event is also a foxglove.Log on <prefix>/log: Foxglove's 3D
+    and Log panels show them with no plugin, and `rerun FILE.mcap` opens a 3-D view of
+    each unit's axes beside a text log of the events (it plots no samples: `gx3 rrd`
+    renders those). Messages are written in log-time order: each
     waits half a second for any logged before it, and the file is flushed every
     second, so a crash loses at most the last 1.5 s (`gx3 repair` finishes such a
     file). Ctrl-C or SIGTERM finish the archive properly. Each file is locked while it

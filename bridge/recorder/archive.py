@@ -10,10 +10,17 @@ Layout (DESIGN.md, "Archives"):
   the values describe); publish time is the recorder's receive time. Status, Event and
   Info are logged at their own time (``time_ns``, ``bring_up_time_ns``), or at the
   receive time when that is unset.
-- ``<prefix>/<unit>/frame``: ``foxglove.FrameTransform`` world (NED) -> unit, the
-  sensor-to-earth rotation Mᵀ, from records that carry an attitude (m, quaternion or
-  Euler), at most ``frame_rate_hz`` per unit (the full-rate attitude stays in the imu
-  channel; a viewer gains nothing from more transforms than it draws).
+- ``<prefix>/<unit>/frame``: ``foxglove.FrameTransform`` gx3_world_ned -> the unit's
+  body frame gx3_<unit>_frd, the sensor-to-earth rotation Mᵀ, from records that carry
+  an attitude (m, quaternion or Euler), at most ``frame_rate_hz`` per unit (the
+  full-rate attitude stays in the imu channel; a viewer gains nothing from more
+  transforms than it draws). ``<prefix>/frame`` holds, once per file at its first
+  frame's time, the static gx3_world (ENU, REP-103) -> gx3_world_ned: frames.py.
+  ``<prefix>/<unit>/axes``: with each frame, a ``foxglove.PointCloud`` of dots along
+  the unit's body axes in its frame, which Foxglove and Rerun draw (Rerun makes no
+  3-D view for transforms alone).
+- ``<prefix>/log``: every archived Event again as a ``foxglove.Log`` (name = unit), at
+  the event's log time, for Foxglove's Log panel and Rerun's text log: eventlog.py.
 - Raw captures (``<prefix>/<unit>/raw``) keep their receive time as log time,
   octet-stream, no schema, as bridge/recorder/rawcapture.py writes them.
 - Chunked (1 MiB), zstd, indexed, with a summary, in log-time order (chunks never
@@ -54,13 +61,27 @@ from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
 from bridge.outputs import OutputRefused, create_locked, refuse_if_written
 from bridge.protocol.table import DATA_CODES
-from bridge.recorder.frames import FRAME_CLASS, frame_messages, has_attitude, sensor_to_earth
+from bridge.recorder.eventlog import LOG_CLASS, log_message
+from bridge.recorder.frames import (
+    FRAME_CLASS,
+    MARKER_CLASS,
+    frame_messages,
+    has_attitude,
+    marker_messages,
+    root_message,
+    sensor_to_earth,
+)
 from bridge.recorder.mcap_writer import McapWriter
 from bridge.recorder.rawcapture import RAW_ENCODING
 
 T = TypeVar("T")
 PROTOBUF = "protobuf"
 FRAME_LEAF = "frame"
+AXES_LEAF = "axes"
+LOG_LEAF = "log"
+#: Message type of the channels the archive adds beside Zenoh's.
+ADDED: dict[str, type[Message]] = {FRAME_LEAF: FRAME_CLASS, AXES_LEAF: MARKER_CLASS,
+                                   LOG_LEAF: LOG_CLASS}
 FLUSH_EVERY_S = 1.0
 #: How long (receive time) a message waits for ones logged before it: not longer than
 #: FLUSH_EVERY_S, so a killed recorder loses at most the last REORDER_S + FLUSH_EVERY_S.
@@ -83,6 +104,11 @@ class ArchiveError(OSError):
 
 def frame_topic(prefix: str, unit: str) -> str:
     return f"{prefix}/{unit}/{FRAME_LEAF}"
+
+
+def fleet_topic(prefix: str, leaf: str) -> str:
+    """A channel of the whole fleet (no unit): the root frame, the event log."""
+    return f"{prefix}/{leaf}"
 
 
 def numbered(path: Path, index: int) -> Path:
@@ -218,6 +244,7 @@ class _File:
     opened_ns: int | None = None
     schemas: dict[str, int] = field(default_factory=dict)
     channels: dict[str, int] = field(default_factory=dict)
+    rooted: bool = False  # the static root transform is written
 
 
 @dataclass
@@ -272,6 +299,7 @@ class ArchiveWriter:
         self._clock = clock
         self._flushed = clock()
         self._slots: dict[str, int] = {}
+        self._rates: dict[str, float] = {}  # output rate per unit, from its Info
         self._frame_due: dict[str, int] = {}
         self._routes: dict[str, tuple[str, str]] = {}
         self._splits = split_bytes is not None or split_seconds is not None
@@ -305,8 +333,9 @@ class ArchiveWriter:
         self.paths.append(path)
         self._guard(writer.start, PROFILE, LIBRARY)
         meta = {"prefix": self.prefix, "file_index": str(index),
-                "frame_convention": "world = north-east-down; FrameTransform rotation = "
-                                    "sensor-to-earth (M transposed), quaternion x y z w",
+                "frame_convention": "REP-103: gx3_world (ENU) > gx3_world_ned > "
+                                    "gx3_<unit>_frd; rotation = sensor-to-earth "
+                                    "(M transposed), x y z w",
                 **self.metadata}
         self._guard(writer.add_metadata, "gx3.archive", meta)
         self._guard(stream.flush)  # a file killed in its first second still opens
@@ -336,7 +365,7 @@ class ArchiveWriter:
             schema_id, encoding = 0, RAW_ENCODING
             meta = {"unit": unit, "zenoh_encoding": ENCODINGS["raw"]}
         else:
-            cls = FRAME_CLASS if leaf == FRAME_LEAF else MESSAGES[leaf][0]
+            cls = ADDED[leaf] if leaf in ADDED else MESSAGES[leaf][0]
             name = cls.DESCRIPTOR.full_name
             schema_id = f.schemas.get(name, 0)
             if not schema_id:
@@ -462,6 +491,8 @@ class ArchiveWriter:
         else:
             log_ns = np.array([self._logged_at(key, leaf, p) for p in payloads], np.int64)
             log_ns = np.where(log_ns == 0, rx, log_ns)
+            if leaf == "info" and payloads:
+                self._rates[unit] = Info.FromString(payloads[-1]).output_rate_hz
         done = 0
         while done < n:
             if self._splits:
@@ -473,6 +504,9 @@ class ArchiveWriter:
                 self._queue_frames(unit, units[done : done + taken],
                                    codes[done : done + taken], log_ns[done : done + taken],
                                    payloads[done : done + taken], rx[done : done + taken])
+            elif leaf == "event":
+                self._write_logs(unit, log_ns[done : done + taken],
+                                 payloads[done : done + taken], rx[done : done + taken])
             done += taken
             if not self._draining:
                 self._release_if_full()
@@ -488,6 +522,22 @@ class ArchiveWriter:
         except DecodeError:
             raise ValueError(f"{key}: payload is not a {cls.DESCRIPTOR.full_name} "
                              f"({len(payload)} bytes)") from None
+
+    def _write_logs(self, unit: str, log_ns: np.ndarray, payloads: Sequence[bytes],
+                    rx: np.ndarray) -> None:
+        """The events just archived, again as foxglove.Log on the fleet's log channel."""
+        rate = self._rates.get(unit, 0.0)
+        logs = [log_message(unit, Event.FromString(p), t, rate)
+                for p, t in zip(payloads, log_ns.tolist(), strict=True)]
+        self._add_all(fleet_topic(self.prefix, LOG_LEAF), LOG_LEAF, log_ns, logs, rx)
+
+    def _add_all(self, topic: str, leaf: str, log_ns: np.ndarray,
+                 payloads: Sequence[bytes], rx: np.ndarray, unit: str = "") -> None:
+        """``_add`` until every message is taken (a file split by size takes a chunk's
+        worth at a time)."""
+        done = 0
+        while done < len(payloads):
+            done += self._add(topic, unit, leaf, log_ns[done:], payloads[done:], rx[done:])
 
     def _split_due(self, rx: np.ndarray, start: int) -> int:
         """Index of the first message after ``start`` that starts a new file by age."""
@@ -532,6 +582,7 @@ class ArchiveWriter:
     def _write_frames(self) -> None:
         """Turn queued attitude samples into FrameTransforms, in bulk."""
         pending, self._pending = self._pending, {}
+        made = []
         for g in pending.values():
             try:
                 cols = decode_batch(g.sample_unit, g.code, g.payloads)
@@ -542,13 +593,21 @@ class ArchiveWriter:
             ok = np.isfinite(xyzw).all(axis=1)
             times = cols["time_ns"][ok]
             frames = frame_messages(g.unit, self._slots[g.unit], times, xyzw[ok],
-                                    self.frame_spacing)
-            topic = frame_topic(self.prefix, g.unit)
-            rx = np.asarray(g.receive_ns, np.int64)[ok]
-            done = 0
-            while done < len(frames):
-                done += self._add(topic, g.unit, FRAME_LEAF, times[done:], frames[done:],
-                                  rx[done:])
+                                    self.frame_spacing, self.prefix)
+            if frames:
+                made.append((g.unit, times, frames, np.asarray(g.receive_ns, np.int64)[ok]))
+        f = self._current()
+        if made and not f.rooted:  # the root before the file's first frame, at its time
+            at = min(int(m[1].min()) for m in made)
+            received = min(int(m[3].min()) for m in made)
+            self._add_all(fleet_topic(self.prefix, FRAME_LEAF), FRAME_LEAF,
+                          np.array([at], np.int64), [root_message(at, self.prefix)],
+                          np.array([received], np.int64))
+            f.rooted = True
+        for unit, times, frames, rx in made:
+            self._add_all(frame_topic(self.prefix, unit), FRAME_LEAF, times, frames, rx, unit)
+            self._add_all(f"{self.prefix}/{unit}/{AXES_LEAF}", AXES_LEAF, times,
+                          marker_messages(unit, times, self.prefix), rx, unit)
 
     @staticmethod
     def _decodable(g: _Frames) -> _Frames:

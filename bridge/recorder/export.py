@@ -4,10 +4,16 @@ Columns: ``unit``, ``command``, ``timer``, ``ticks``, ``time_ns`` (the best esti
 the sample instant: the live estimate unless a re-estimate is given), ``live_time_ns``
 (as the bridge published it), ``rx_ns`` (host receive time), then each quantity any
 exported record holds, flattened as DESIGN.md names them (``accel_x``, ``m11`` ..
-``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN where a record lacks it.
-Temperatures are A/D codes stored as float32 (exact) so they can be NaN too. Rows are
-in ``time_ns`` order across units. Orientation columns keep the manual's convention:
+``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN in the arrays where a record
+lacks it. Temperatures are A/D codes stored as float32 (exact) so they can be missing
+too. Rows are in ``time_ns`` order across units. Orientation columns keep the manual's convention:
 M maps earth (NED) to sensor, the quaternion is scalar first.
+
+A written file describes itself: beside ``time_ns`` a ``time_utc`` column of type
+timestamp[ns, UTC]; every column name a lower-case identifier (SQL, pandas attribute
+access); a missing value is null, not NaN, so SQL engines and polars count it as
+missing; and in Parquet each column's unit and frame as field metadata, and the units'
+Info, the source archive, the options and the schema version as file metadata.
 """
 
 from __future__ import annotations
@@ -22,13 +28,21 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from bridge.bus.codec import HEADER, elements
-from bridge.bus.gx3_pb2 import Event, ImuSample, Info
+from bridge.bus.codec import elements
+from bridge.bus.gx3_pb2 import Event, Info
 from bridge.protocol.convert import (
     euler_to_quaternion,
     m_to_quaternion,
     quaternion_to_euler,
     quaternion_to_m,
+)
+from bridge.recorder.describe import (
+    ALIGNED_SEPARATOR,
+    QUANTITY_ORDER,
+    About,
+    column_metadata,
+    flat_names,
+    unit_labels,
 )
 from bridge.recorder.read import Archive, Samples
 from bridge.timing.offline import OfflineClock
@@ -38,24 +52,7 @@ from bridge.timing.stream import TRANSPORTS, USB_FRAME_NS, Settings
 #: in arrival order, int64 ns; None keeps that unit's live times.
 ReEstimate = Callable[[str, np.ndarray, np.ndarray], np.ndarray | None]
 
-#: Quantity fields of ImuSample in schema order (the column order of an export).
-QUANTITY_ORDER = tuple(f.name for f in ImuSample.DESCRIPTOR.fields if f.name not in HEADER
-                       and f.name != "unit")
-_SUFFIX = {"euler": ("roll", "pitch", "yaw")}
 FORMATS = (".parquet", ".csv")
-
-
-def flat_names(quantity: str, elements: int) -> list[str]:
-    """Flat column names of a quantity: accel_x.., m11..m33, roll pitch yaw, q0..q3."""
-    if quantity in _SUFFIX:
-        return list(_SUFFIX[quantity])
-    if quantity == "quaternion":
-        return [f"q{i}" for i in range(elements)]
-    if elements == 9:
-        return [f"{quantity}{r}{c}" for r in range(1, 4) for c in range(1, 4)]
-    if elements == 3:
-        return [f"{quantity}_{axis}" for axis in "xyz"]
-    return [f"{quantity}_{i}" for i in range(elements)]
 
 
 @dataclass(frozen=True)
@@ -104,13 +101,18 @@ def _unit_times(unit: str, blocks: Sequence[Samples],
     return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
 
 
-def unit_settings(archive: Archive, unit: str) -> Settings | None:
-    """What decided a unit's timing, from the last Info its bridge published."""
+def last_info(archive: Archive, unit: str) -> Info | None:
+    """The last Info a unit's bridge published into the archive."""
     topic = f"{archive_prefix(archive)}/{unit}/info"
     infos = archive.decoded(topic, Info) if topic in archive.topics("info") else []
-    if not infos:
+    return infos[-1][1] if infos else None
+
+
+def unit_settings(archive: Archive, unit: str) -> Settings | None:
+    """What decided a unit's timing, from the last Info its bridge published."""
+    info = last_info(archive, unit)
+    if info is None:
         return None
-    info = infos[-1][1]
     if not (info.command and info.baud and info.decimation and info.filter_width):
         return None
     return Settings(record=info.command, decimation=info.decimation,
@@ -200,7 +202,8 @@ def _cat(ordered: list[tuple[Samples, np.ndarray]], name: str, dtype: type) -> n
 
 def event_table(archive: Archive, units: Iterable[str] | None = None,
                 start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
-    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time."""
+    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time; the
+    Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame)."""
     lo = -(1 << 63) if start_ns is None else start_ns
     hi = (1 << 63) - 1 if end_ns is None else end_ns
     rows = [(u, e) for u, e in archive.events(units) if lo <= e.time_ns < hi]
@@ -209,7 +212,7 @@ def event_table(archive: Archive, units: Iterable[str] | None = None,
         "time_ns": np.array([e.time_ns for _, e in rows], np.int64),
         "ticks": np.array([e.ticks for _, e in rows], np.int64),
         "kind": np.array([Event.Kind.Name(e.kind) for _, e in rows], str),
-        "count": np.array([e.count for _, e in rows], np.uint64),
+        "amount": np.array([e.count for _, e in rows], np.uint64),
         "detail": np.array([e.detail for _, e in rows], str),
     }
 
@@ -223,18 +226,48 @@ def check_format(path: Path) -> str:
     return suffix
 
 
-def write_table(columns: dict[str, np.ndarray], path: Path) -> None:
-    """Write columns as Parquet (zstd) or CSV, chosen by the extension."""
+def _arrow(col: np.ndarray) -> pa.Array:
+    if col.dtype.kind in "OU":  # names: stored once per file, not once per row
+        return pa.array(col.astype(str), pa.string()).dictionary_encode()
+    if col.dtype.kind == "f":  # a missing value is null: SQL and polars count it as missing
+        missing = np.isnan(col)
+        return pa.array(col, mask=missing) if missing.any() else pa.array(col)
+    return pa.array(col)
+
+
+def _encoding(kind: pa.DataType) -> str | None:
+    """How a Parquet column is stored best (None: a dictionary, for names and codes).
+
+    Clocks and counters step by about a period: as deltas they take a few bits a row,
+    where zstd of the plain values leaves six bytes. Noisy floats compress a fifth
+    better, and faster, with their bytes split into streams of like significance."""
+    if pa.types.is_timestamp(kind) or (pa.types.is_integer(kind) and kind.bit_width >= 32):
+        return "DELTA_BINARY_PACKED"
+    if pa.types.is_floating(kind):
+        return "BYTE_STREAM_SPLIT"
+    return None
+
+
+def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None = None) -> None:
+    """Write columns as Parquet (zstd) or CSV, chosen by the extension, with a ``time_utc``
+    timestamp beside ``time_ns``; in Parquet each column's unit and frame, and ``about``
+    as file metadata."""
     suffix = check_format(path)
-    arrays = {}
+    labels = unit_labels(about.infos) if about else {}
+    fields, arrays = [], []
     for name, col in columns.items():
-        if col.dtype.kind in "OU":  # names: stored once per file, not once per row
-            arrays[name] = pa.array(col.astype(str), pa.string()).dictionary_encode()
-        else:
-            arrays[name] = pa.array(col)
-    table = pa.table(arrays)
+        named = [(name, _arrow(col))]
+        if name == "time_ns":
+            named.append(("time_utc", named[0][1].view(pa.timestamp("ns", tz="UTC"))))
+        for n, array in named:
+            fields.append(pa.field(n, array.type, metadata=column_metadata(n, labels)))
+            arrays.append(array)
+    schema = pa.schema(fields, metadata=about.metadata() if about else None)
+    table = pa.Table.from_arrays(arrays, schema=schema)
     if suffix == ".parquet":
-        pq.write_table(table, path, compression="zstd")
+        encodings = {f.name: e for f in fields if (e := _encoding(f.type))}
+        pq.write_table(table, path, compression="zstd", column_encoding=encodings,
+                       use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
         pa_csv.write_csv(table, path)
 
@@ -297,7 +330,8 @@ def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str)
 
 def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
     """One row per instant of a grid at ``rate_hz`` (on multiples of the period since the
-    epoch), one column per unit and quantity column, named ``<unit>/<column>``."""
+    epoch), one column per unit and quantity column, named ``<unit label>__<column>``
+    (``unit_labels``: a name SQL and pandas take as it is)."""
     if not rate_hz > 0:
         raise ValueError(f"--align {rate_hz}: give a positive rate in Hz, e.g. 100")
     step = round(1e9 / rate_hz)
@@ -306,7 +340,8 @@ def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.nd
                      dtype=np.int64)
     out: dict[str, np.ndarray] = {"time_ns": grid}
     groups = [(q, flat_names(q, elements(q))) for q in QUANTITY_ORDER]
-    for unit in sorted(set(table["unit"].tolist())):
+    labels = unit_labels(table["unit"].tolist())
+    for unit, label in labels.items():
         rows = table["unit"] == unit
         for q, names in groups:
             if names[0] not in table:
@@ -317,5 +352,5 @@ def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.nd
                 continue
             aligned = resample(times[rows][have], values[have], grid, q)
             for k, name in enumerate(names):
-                out[f"{unit}/{name}"] = aligned[:, k].astype(np.float32)
+                out[f"{label}{ALIGNED_SEPARATOR}{name}"] = aligned[:, k].astype(np.float32)
     return out

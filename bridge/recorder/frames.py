@@ -1,11 +1,19 @@
 """Per-unit ``foxglove.FrameTransform`` messages, so viewers show every unit's attitude in 3-D.
 
-Foxglove and Rerun (``rerun archive.mcap``) both turn this well-known schema into a
-transform with no plugin. The parent frame is ``world``, north-east-down; the child
-frame is the unit name; the rotation is the sensor-to-earth rotation Mᵀ (a Hamilton
-quaternion x, y, z, w that turns a sensor-frame vector into NED). Units stand side by
-side along east, ``spacing`` metres apart, in the order they were first seen, so their
-axes do not overlap on screen.
+Foxglove and Rerun both turn this well-known schema into a transform with no plugin.
+Frame names follow REP-103, prefixed with the archive's key prefix (``gx3``; slashes
+become underscores) so they cannot collide with another system's:
+
+- ``gx3_world``: the root, east-north-up, as ROS and Foxglove take any world frame;
+- ``gx3_world_ned``: north-east-down, under the root (one static transform: x and y
+  swapped, z turned over);
+- ``gx3_<unit>_frd``: the unit's body (sensor) frame, forward-right-down, under
+  ``gx3_world_ned``; the rotation is the sensor-to-earth rotation Mᵀ (a Hamilton
+  quaternion x, y, z, w that turns a sensor-frame vector into NED). The ROS 2 export's
+  forward-left-up body frame of the unit is ``gx3_<unit>`` (bridge/ros2/messages.py).
+
+Units stand side by side along east, ``spacing`` metres apart, in the order they were
+first seen, so their axes do not overlap on screen.
 """
 
 from __future__ import annotations
@@ -15,14 +23,47 @@ from collections.abc import Mapping
 
 import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
 
+from bridge.bus.keys import PREFIX
 from bridge.protocol.convert import euler_to_quaternion, m_to_quaternion, sensor_to_earth_xyzw
+from bridge.ros2.messages import frame_id
 
-WORLD = "world"
+#: gx3_world -> gx3_world_ned: a half turn about (north + east) / √2 of ENU, which maps
+#: NED north to ENU y, east to x, down to -z.
+NED_IN_ROOT = (np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0)
 #: Quantities that give a unit's attitude, in order of preference.
 ATTITUDE = ("m", "quaternion", "euler")
 FRAME_CLASS = FrameTransform
+MARKER_CLASS = PointCloud
+
+
+def root_frame(prefix: str = PREFIX) -> str:
+    """The fleet's world frame, east-north-up."""
+    return frame_id("world", prefix)
+
+
+def ned_frame(prefix: str = PREFIX) -> str:
+    return f"{root_frame(prefix)}_ned"
+
+
+def body_frame(unit: str, prefix: str = PREFIX) -> str:
+    """The frame id of a unit's body: forward-right-down, as the GX3's sensor axes."""
+    return f"{frame_id(unit, prefix)}_frd"
+
+
+def root_message(time_ns: int, prefix: str = PREFIX) -> bytes:
+    """The static transform gx3_world (ENU) -> gx3_world_ned, stamped ``time_ns``."""
+    x, y, z, w = NED_IN_ROOT
+    return FrameTransform(timestamp=Timestamp(seconds=time_ns // 1_000_000_000,
+                                              nanos=time_ns % 1_000_000_000),
+                          parent_frame_id=root_frame(prefix), child_frame_id=ned_frame(prefix),
+                          rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
 
 
 def has_attitude(quantities: tuple[str, ...]) -> bool:
@@ -45,22 +86,69 @@ def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray:
 
 
 def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,
-                   spacing: float) -> list[bytes]:
-    """Serialized FrameTransforms of ``unit`` (world -> unit) at ``time_ns``.
+                   spacing: float, prefix: str = PREFIX) -> list[bytes]:
+    """Serialized FrameTransforms gx3_world_ned -> gx3_<unit>_frd at ``time_ns``.
 
     Built for all frames at once, byte for byte what protobuf's serializer gives
     (fields in number order, zeros left out): the fields every frame shares once,
     timestamp and rotation as columns of bytes, a mask for the bytes present.
     """
-    shared = FrameTransform(parent_frame_id=WORLD, child_frame_id=unit,
+    shared = FrameTransform(parent_frame_id=ned_frame(prefix),
+                            child_frame_id=body_frame(unit, prefix),
                             translation=Vector3(x=0.0, y=slot * spacing, z=0.0))
+    rotation = [part for k in range(4) for part in _double_field(k + 1, xyzw[:, k])]
+    n = len(time_ns)
+    return _serialized([*_stamp(time_ns), _constant(n, shared.SerializeToString()),
+                        _constant(n, b"\x2a"), _length(rotation), *rotation])
+
+
+def marker_messages(unit: str, time_ns: np.ndarray, prefix: str = PREFIX) -> list[bytes]:
+    """Serialized PointClouds of the unit's axes in its body frame, at ``time_ns``: what
+    a viewer draws for it (Rerun makes a 3-D view for points, none for transforms
+    alone; Foxglove draws a point cloud where its frame was at its timestamp, so it
+    comes with every frame)."""
+    shared = PointCloud(frame_id=body_frame(unit, prefix), pose=Pose(orientation=Quaternion(w=1.0)),
+                        point_stride=_POINT.itemsize, fields=_POINT_FIELDS,
+                        data=_AXES.tobytes())
+    return _serialized([*_stamp(time_ns),
+                        _constant(len(time_ns), shared.SerializeToString())])
+
+
+#: One point: x, y, z in metres, then its colour.
+_LAYOUT = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+           ("blue", "u1"), ("alpha", "u1")]
+_POINT = np.dtype(_LAYOUT)
+_POINT_FIELDS = [PackedElementField(name=name, offset=_POINT.fields[name][1],  # type: ignore[index]
+                                    type=(PackedElementField.FLOAT32 if kind == "<f4"
+                                          else PackedElementField.UINT8))
+                 for name, kind in _LAYOUT]
+
+
+def _axes() -> np.ndarray:
+    """Dots along the body axes from the origin: x (forward) red and 0.24 m, y (right)
+    green and z (down) blue 0.12 m, so a unit's heading and which side is down show."""
+    out = np.zeros(1, _POINT)
+    out[["red", "green", "blue", "alpha"]] = (255, 255, 255, 255)
+    for axis, length in enumerate((0.24, 0.12, 0.12)):
+        dots = np.zeros(round(length / 0.03), _POINT)
+        dots["xyz"[axis]] = np.linspace(0.03, length, len(dots))
+        dots[("red", "green", "blue")[axis]] = dots["alpha"] = 255
+        out = np.concatenate([out, dots])
+    return out
+
+
+_AXES = _axes()
+
+
+def _stamp(time_ns: np.ndarray) -> list[_Column]:
+    """Field 1 of a Foxglove message, its google.protobuf.Timestamp, per time."""
     seconds, nanos = np.divmod(np.asarray(time_ns, np.int64), 1_000_000_000)
     stamp = [*_varint_field(1, seconds), *_varint_field(2, nanos)]
-    rotation = [part for k in range(4) for part in _double_field(k + 1, xyzw[:, k])]
-    n = len(seconds)
-    columns = [_constant(n, b"\x0a"), _length(stamp), *stamp,
-               _constant(n, shared.SerializeToString()),
-               _constant(n, b"\x2a"), _length(rotation), *rotation]
+    return [_constant(len(seconds), b"\x0a"), _length(stamp), *stamp]
+
+
+def _serialized(columns: list[_Column]) -> list[bytes]:
+    """One message per row of ``columns``: the bytes present, row by row."""
     rows = np.concatenate([c for c, _ in columns], axis=1)
     present = np.concatenate([m for _, m in columns], axis=1)
     data = rows[present].tobytes()

@@ -69,7 +69,7 @@ class ChannelInfo:
     id: int
     topic: str
     unit: str
-    kind: str  # the topic's last chunk: imu, status, event, info, frame, raw
+    kind: str  # the topic's last chunk: imu, status, event, info, frame, log, raw
     message_encoding: str
     schema_id: int
     schema_name: str
@@ -436,7 +436,9 @@ def summary_counts(path: Path, kind: str) -> dict[str, int] | None:
 
 def _channel_info(ch: Channel, schemas: dict[int, Schema]) -> ChannelInfo:
     parts = ch.topic.split("/")
-    unit = ch.metadata.get("unit") or (parts[-2] if len(parts) >= 3 else "")
+    # a fleet channel (the root frame, the event log) says so with an empty unit
+    unit = ch.metadata["unit"] if "unit" in ch.metadata else (
+        parts[-2] if len(parts) >= 3 else "")
     schema = schemas.get(ch.schema_id)
     return ChannelInfo(ch.id, ch.topic, unit, parts[-1], ch.message_encoding, ch.schema_id,
                        schema.name if schema else "", dict(ch.metadata))

@@ -19,7 +19,7 @@ import numpy as np
 
 from bridge.bus.codec import elements
 from bridge.recorder.archive import LIBRARY
-from bridge.recorder.export import QUANTITY_ORDER, flat_names
+from bridge.recorder.describe import QUANTITY_ORDER, flat_names
 from bridge.recorder.mcap_writer import McapWriter
 from bridge.ros2 import messages
 
@@ -84,8 +84,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
                             continue
                         if (unit, name) not in channels:
                             channels[unit, name] = writer.register_channel(
-                                f"/{prefix}/{unit}/{name}", MESSAGE_ENCODING, schemas[msgtype],
-                                CHANNEL_METADATA)
+                                messages.ros_topic(prefix, unit, name), MESSAGE_ENCODING,
+                                schemas[msgtype], CHANNEL_METADATA)
                             sent[unit, name] = 0
                         stamps = table["time_ns"][rows][mine]
                         payloads = encode(stamps, frame,

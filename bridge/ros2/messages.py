@@ -25,6 +25,7 @@ messages are the same in Humble).
 from __future__ import annotations
 
 import functools
+import re
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -70,6 +71,22 @@ def message_definition(msgtype: str) -> str:
 def type_hash(msgtype: str) -> str:
     """The message's RIHS01 type hash, e.g. ``RIHS01_7d9a…`` for Imu."""
     return _typestore().hash_rihs01(msgtype)
+
+
+_NOT_ROS = re.compile(r"[^A-Za-z0-9_]+")
+
+
+def ros_token(name: str) -> str:
+    """A unit name or key prefix as one ROS name token (letters, digits, single '_',
+    not starting with a digit): ``imu-1`` -> ``imu_1``, ``6234.1`` -> ``u6234_1``."""
+    token = _NOT_ROS.sub("_", name).strip("_")
+    token = re.sub("_+", "_", token) or "unit"
+    return f"u{token}" if token[0].isdigit() else token
+
+
+def ros_topic(prefix: str, unit: str, leaf: str) -> str:
+    """A unit's ROS topic, its Zenoh key chunks made ROS name tokens: ``/gx3/imu1/imu``."""
+    return "/" + "/".join(ros_token(c) for c in (*prefix.split("/"), unit, leaf))
 
 
 def frame_id(unit: str, prefix: str = "gx3") -> str:

@@ -23,6 +23,7 @@ import numpy.typing as npt
 import rerun as rr
 
 from bridge.bus.codec import record_quantities
+from bridge.bus.events import LEVEL, event_text
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.protocol import convert
 from bridge.protocol.table import TICKS_PER_SECOND
@@ -31,17 +32,6 @@ from bridge.viz.layout import DEVICE_TIME, PLOT, TIME
 
 NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
 
-_EVENT_LEVEL = {
-    Event.GAP: rr.TextLogLevel.WARN,
-    Event.RESET: rr.TextLogLevel.WARN,
-    Event.ROLLOVER: rr.TextLogLevel.INFO,
-    Event.GLITCH: rr.TextLogLevel.WARN,
-    Event.RECONNECT: rr.TextLogLevel.INFO,
-    Event.DISCONNECT: rr.TextLogLevel.ERROR,
-    Event.RESYNC: rr.TextLogLevel.WARN,
-    Event.BRING_UP: rr.TextLogLevel.INFO,
-    Event.COMMAND: rr.TextLogLevel.INFO,
-}
 
 
 def _indexes(time_ns: npt.ArrayLike, device_ns: npt.ArrayLike | None) -> list[rr.TimeColumn]:
@@ -227,7 +217,7 @@ class RerunLogger:
         time_ns = np.array([e.time_ns for e in items], np.int64)
         ticks = np.array([e.ticks for e in items], np.int64)
         texts = np.array([event_text(unit, e) for e in items], dtype=str)
-        levels = np.array([_EVENT_LEVEL.get(e.kind, rr.TextLogLevel.INFO) for e in items],
+        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items],
                           dtype=str)
         self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
                          rr.TextLog.columns, text=texts, level=levels)
@@ -346,11 +336,3 @@ class RerunLogger:
                 self.recording.send_columns(
                     path, indexes=_indexes(time_ns[rows], None if dev is None else dev[rows]),
                     columns=columns(**{k: v[rows] for k, v in values.items()}))
-
-
-def event_text(unit: str, event: Event) -> str:
-    """One line: unit, kind, how many when more than one, and the detail."""
-    text = f"{unit} {Event.Kind.Name(event.kind)}"
-    if event.count > 1:
-        text += f" ({event.count})"
-    return f"{text}: {event.detail}" if event.detail else text

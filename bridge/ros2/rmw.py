@@ -1,0 +1,269 @@
+"""ROS 2 on Zenoh as ``rmw_zenoh_cpp`` speaks it, so ROS 2 nodes see the bridge's topics.
+
+Followed: ``docs/design.md`` of ros2/rmw_zenoh at commit
+99a6a2bd10b949052f4f12c5854825dc005e95a5 (key expressions, liveliness tokens, the
+attachment), with ``liveliness_utils.cpp`` (token layout, ``%`` mangling,
+``qos_to_keyexpr``), ``qos.cpp`` (the defaults a QoS is written against) and
+``rmw_publisher_data.cpp`` (sequence numbers from 1, DROP congestion control for a
+KEEP_LAST publisher, no encoding) of the same tree.
+
+- data: ``<domain>/<topic without leading '/'>/<dds type>/<RIHS01 hash>``, a CDR
+  payload, and a 33-byte attachment: int64 LE sequence number, int64 LE source
+  timestamp (ns since the epoch, at publication), one byte 16, the 16-byte GID;
+- graph: a liveliness token for the node
+  ``@ros2_lv/<domain>/<zid>/<nid>/<nid>/NN/<enclave>/<namespace>/<node>`` and one per
+  publisher ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/MP/<enclave>/<namespace>/<node>/
+  <topic>/<dds type>/<hash>/<qos>``, names mangled ('/' -> '%');
+- a publisher's GID is the XXH3-128 of its token (low 64 bits, then high, little-endian),
+  which is what every rmw_zenoh node computes for it from the token.
+"""
+
+from __future__ import annotations
+
+import functools
+import struct
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from bridge.bus.codec import RecordBatch, record_quantities
+from bridge.ros2.messages import (
+    ATTITUDE,
+    IMU,
+    MAGNETIC_FIELD,
+    MAGNETOMETER,
+    frame_id,
+    has_mag,
+    imu_cdr_batch,
+    mag_cdr_batch,
+    ros_token,
+    ros_topic,
+    type_hash,
+)
+from bridge.ros2.xxh3 import xxh3_128_bytes
+
+ADMIN_SPACE = "@ros2_lv"
+MAX_DOMAIN = 232  # the highest ROS_DOMAIN_ID ROS 2 documents
+GID_SIZE = 16
+_ATTACHMENT = struct.Struct(f"<qqB{GID_SIZE}s")
+
+# rmw_qos_profile_t enum values (rmw/types.h)
+RELIABLE, BEST_EFFORT = 1, 2
+TRANSIENT_LOCAL, VOLATILE = 1, 2
+KEEP_LAST, KEEP_ALL = 1, 2
+AUTOMATIC = 1
+
+
+@dataclass(frozen=True)
+class Qos:
+    """The QoS a token announces; the deadline, lifespan and lease stay infinite."""
+
+    reliability: int = RELIABLE
+    durability: int = VOLATILE
+    history: int = KEEP_LAST
+    depth: int = 10
+    liveliness: int = AUTOMATIC
+
+
+#: rmw_zenoh's defaults (qos.cpp): a token spells only what differs from them.
+DEFAULT_QOS = Qos(depth=42)
+#: What the bridge's publishers announce: ROS 2's default profile (reliable, volatile,
+#: keep last 10), which ``ros2 topic echo`` and most subscriptions match.
+SENSOR_QOS = Qos()
+
+
+def qos_keyexpr(qos: Qos) -> str:
+    """rmw_zenoh's compact QoS chunk, e.g. ``::,10:,:,:,,`` for keep last 10."""
+    def differs(value: int, default: int) -> str:
+        return "" if value == default else str(value)
+
+    d = DEFAULT_QOS
+    return (f"{differs(qos.reliability, d.reliability)}:{differs(qos.durability, d.durability)}:"
+            f"{differs(qos.history, d.history)},{differs(qos.depth, d.depth)}:,:,:"
+            f"{differs(qos.liveliness, d.liveliness)},,")
+
+
+def mangle(name: str) -> str:
+    """A ROS name as one key chunk: each '/' becomes '%' (so '/' alone is '%')."""
+    return name.replace("/", "%")
+
+
+def dds_type(msgtype: str) -> str:
+    """The type name in keys and tokens: ``sensor_msgs/msg/Imu`` ->
+    ``sensor_msgs::msg::dds_::Imu_`` (as CDR names it in DDS)."""
+    package, kind, name = msgtype.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def topic_key(domain: int, topic: str, type_name: str, type_hash: str) -> str:
+    """The key a topic's samples travel on, e.g. ``0/chatter/std_msgs::msg::dds_::String_/
+    RIHS01_df66…``."""
+    return f"{domain}/{topic.strip('/')}/{type_name}/{type_hash}"
+
+
+@dataclass(frozen=True)
+class NodeName:
+    """Where a node sits in the ROS graph."""
+
+    domain: int
+    zid: str
+    node_id: int
+    name: str
+    namespace: str = "/"
+    enclave: str = "/"
+
+    def _head(self, entity_id: int, kind: str) -> str:
+        return (f"{ADMIN_SPACE}/{self.domain}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
+                f"{mangle(self.enclave)}/{mangle(self.namespace)}/{self.name}")
+
+    def node_token(self) -> str:
+        return self._head(self.node_id, "NN")
+
+    def publisher_token(self, entity_id: int, topic: str, type_name: str, type_hash: str,
+                        qos: Qos) -> str:
+        return (f"{self._head(entity_id, 'MP')}/{mangle(topic)}/{type_name}/{type_hash}/"
+                f"{qos_keyexpr(qos)}")
+
+
+def gid(token: str) -> bytes:
+    """An entity's 16-byte GID, from its liveliness token as rmw_zenoh makes it."""
+    return xxh3_128_bytes(token.encode())
+
+
+def attachment(sequence: int, source_ns: int, source_gid: bytes) -> bytes:
+    """The 33 bytes that go with every put: what ROS 2's message info reports."""
+    return _ATTACHMENT.pack(sequence, source_ns, GID_SIZE, source_gid)
+
+
+def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
+    """``(sequence, source_ns, gid)`` of an attachment; ValueError if it is not one."""
+    if len(data) != _ATTACHMENT.size:
+        raise ValueError(f"an rmw_zenoh attachment has {_ATTACHMENT.size} bytes, not {len(data)}")
+    sequence, source_ns, size, source_gid = _ATTACHMENT.unpack(data)
+    if size != GID_SIZE:
+        raise ValueError(f"an rmw_zenoh attachment's GID has {GID_SIZE} bytes, not {size}")
+    return sequence, source_ns, source_gid
+
+
+class Ros2Publisher:
+    """One topic: a Zenoh publisher on its key and its liveliness token."""
+
+    def __init__(self, session: zenoh.Session, node: NodeName, entity_id: int, topic: str,
+                 type_name: str, type_hash: str, qos: Qos) -> None:
+        self.topic = topic
+        self.key = topic_key(node.domain, topic, type_name, type_hash)
+        self.token_key = node.publisher_token(entity_id, topic, type_name, type_hash, qos)
+        self.gid = gid(self.token_key)
+        self.sequence = 0  # the last one sent; rmw_zenoh's first is 1
+        block = qos.reliability == RELIABLE and qos.history == KEEP_ALL
+        self._pub = session.declare_publisher(
+            self.key, congestion_control=zenoh.CongestionControl.BLOCK if block
+            else zenoh.CongestionControl.DROP,
+            reliability=zenoh.Reliability.RELIABLE if qos.reliability == RELIABLE
+            else zenoh.Reliability.BEST_EFFORT)
+        try:
+            self._token = session.liveliness().declare_token(self.token_key)
+        except BaseException:
+            self._pub.undeclare()
+            raise
+
+    @property
+    def matched(self) -> bool:
+        """Whether a subscriber (a ROS 2 node, ``ros2 topic echo``) listens now."""
+        status: Any = self._pub.matching_status  # the stub says bool; it is a MatchingStatus
+        return bool(status.matching)
+
+    def put_all(self, payloads: Iterable[bytes]) -> None:
+        """Publish CDR messages, each with the next sequence number; the source
+        timestamp is the publication time, as rmw_zenoh's."""
+        put, source_gid = self._pub.put, self.gid
+        sequence, now = self.sequence, time.time_ns()
+        for payload in payloads:
+            sequence += 1
+            put(payload, attachment=attachment(sequence, now, source_gid))
+        self.sequence = sequence
+
+    def close(self) -> None:
+        """The token goes first, as rmw_zenoh undeclares it."""
+        self._token.undeclare()
+        self._pub.undeclare()
+
+
+class Ros2Node:
+    """A ROS 2 node on a Zenoh session: its token, and publishers declared on it."""
+
+    def __init__(self, session: zenoh.Session, domain: int, name: str,
+                 namespace: str = "/") -> None:
+        if not 0 <= domain <= MAX_DOMAIN:
+            raise ValueError(f"ROS domain {domain}: use 0 to {MAX_DOMAIN}")
+        self.session = session
+        self.name = NodeName(domain, str(session.info.zid()), 0, name, namespace)
+        self._token: Any = session.liveliness().declare_token(self.name.node_token())
+        self._publishers: list[Ros2Publisher] = []
+        self._lock = threading.Lock()
+
+    def publisher(self, topic: str, msgtype: str, qos: Qos = SENSOR_QOS) -> Ros2Publisher:
+        """A publisher of ``msgtype`` (e.g. ``sensor_msgs/msg/Imu``) on ``topic``."""
+        with self._lock:
+            pub = Ros2Publisher(self.session, self.name, len(self._publishers) + 1, topic,
+                                dds_type(msgtype), type_hash(msgtype), qos)
+            self._publishers.append(pub)
+        return pub
+
+    def close(self) -> None:
+        """Undeclare the publishers, then the node; safe to call twice."""
+        with self._lock:
+            publishers, self._publishers = self._publishers, []
+            token, self._token = self._token, None
+        for pub in publishers:
+            pub.close()
+        if token is not None:
+            token.undeclare()
+
+
+class UnitTopics:
+    """One unit on ROS 2: a node ``<prefix>_bridge_<unit>`` publishing ``sensor_msgs/Imu``
+    on ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
+    ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
+    ROS 2 export uses."""
+
+    def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str) -> None:
+        self.frame = frame_id(unit, prefix)
+        self.node = Ros2Node(session, domain,
+                             f"{ros_token(prefix)}_bridge_{ros_token(unit)}")
+        try:
+            self.imu = self.node.publisher(ros_topic(prefix, unit, "imu"), IMU)
+            self.mag = self.node.publisher(ros_topic(prefix, unit, "mag"), MAGNETIC_FIELD)
+        except BaseException:
+            self.node.close()
+            raise
+
+    def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
+        """The records of ``batch``, stamped with their ``time_ns``."""
+        names, imu, mag = _contents(batch.code)
+        columns = {name: batch[name] for name in names}
+        if imu:  # every record: a NaN quantity is told by its covariance (-1)
+            self.imu.put_all(imu_cdr_batch(time_ns, self.frame, columns))
+        if mag:
+            rows = has_mag(columns, len(time_ns))
+            if rows.all():
+                self.mag.put_all(mag_cdr_batch(time_ns, self.frame, columns))
+            elif rows.any():
+                self.mag.put_all(mag_cdr_batch(time_ns[rows], self.frame,
+                                               {k: v[rows] for k, v in columns.items()}))
+
+    def close(self) -> None:
+        self.node.close()
+
+
+@functools.cache
+def _contents(code: int) -> tuple[tuple[str, ...], bool, bool]:
+    """A record's quantities, and whether it makes an Imu and a MagneticField message."""
+    names = record_quantities(code)
+    return (names, not {*ATTITUDE, "ang_rate", "accel"}.isdisjoint(names),
+            not set(MAGNETOMETER).isdisjoint(names))
