@@ -21,6 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 from bridge import __version__
+from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
@@ -252,9 +253,15 @@ def _stamp(time_ns: int) -> str:
     return time.strftime("%H:%M:%S", time.localtime(time_ns / 1e9))
 
 
+def _level(kind: str) -> int:
+    """An event's log level: its severity in every viewer (bridge/bus/events.py)."""
+    known = _KINDS.get(kind)
+    return logging.getLevelNamesMapping()["INFO" if known is None else LEVEL[known]]
+
+
 def _print_event(event: UnitEvent) -> None:
     count = f" ({event.count})" if event.count > 1 else ""
-    _log.info(f"{event.kind}{count} {event.detail}".rstrip(), extra={
+    _log.log(_level(event.kind), f"{event.kind}{count} {event.detail}".rstrip(), extra={
         "event": event.kind, "count": event.count, "time_ns": event.time_ns})
 
 
@@ -286,7 +293,7 @@ class EventLines:
             _print_event(gaps[0])
             return
         missing = sum(e.count for e in gaps)
-        _log.info(f"gap ({missing:,} samples missing in {len(gaps):,} gaps since "
+        _log.log(_level("gap"), f"gap ({missing:,} samples missing in {len(gaps):,} gaps since "
                   f"{_stamp(gaps[0].time_ns)})", extra={
                       "event": "gap", "count": missing, "gaps": len(gaps),
                       "time_ns": gaps[-1].time_ns})

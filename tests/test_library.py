@@ -24,6 +24,7 @@ from packaging.utils import NormalizedName, canonicalize_name
 from packaging.version import Version
 
 import bridge
+from bridge.sim.faults import FaultConfig
 from bridge.sim.serve import Simulator
 from tests.test_bridge_process import Stderr, bridge_process, zenoh_config
 from tests.test_pipeline import BASE
@@ -122,12 +123,12 @@ def test_library_modules_log_instead_of_printing() -> None:
 
 def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
     cfg = zenoh_config(tmp_path / "bridge.json5", listen=[f"tcp/127.0.0.1:{free_port()}"])
-    with Simulator([BASE], "pty") as sim, \
+    with Simulator([BASE], "pty", faults=FaultConfig(drop_rate=0.002)) as sim, \
             bridge_process(sim.endpoints[0], cfg, "--unit", "lib1",
                            "--log-format", "json") as proc:
         stderr = Stderr(proc)
-        wait_for(lambda: '"bring_up"' in stderr.read() or proc.poll() is not None,
-                 what="the bring-up line")
+        wait_for(lambda: '"gap"' in stderr.read() or proc.poll() is not None,
+                 what="a gap from a dropped byte")
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=30)
         text = stderr.read()
@@ -141,6 +142,8 @@ def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
     assert bring_up["logger"] == "bridge.service" and bring_up["level"] == "info"
     assert bring_up["message"].startswith("bring_up ") and "PIPE0001" in bring_up["message"]
     assert isinstance(bring_up["time_ns"], int)
+    gap = next(line for line in lines if line.get("event") == "gap")
+    assert gap["level"] == "warning" and gap["count"] >= 1, gap
     # the command's own closing line comes as JSON too, not as text for a person
     assert any(line["logger"] == "gx3" and line["message"].startswith("lib1: ")
                for line in lines), lines

@@ -137,8 +137,8 @@ class LogLevel(StrEnum):
 
 LogLevelOpt = Annotated[LogLevel, typer.Option(
     "--log-level", case_sensitive=False, metavar="LEVEL",
-    help="The least severe log lines shown: debug, info, warning or error (events such "
-         "as gaps and reconnects are info).")]
+    help="The least severe log lines shown: debug, info, warning or error (a unit's "
+         "bring-up is info, a gap or reset a warning, a disconnect an error).")]
 LogFormatOpt = Annotated[LogFormat, typer.Option(
     "--log-format", case_sensitive=False, metavar="FORMAT",
     help="text: lines for a person; json: every line on stderr one JSON object (time, "
@@ -167,19 +167,20 @@ class _JsonLines(logging.Formatter):
 
 class _ForPeople(logging.Handler):
     """Records on the terminal as people read them: an event's time first and its kind
-    in bold, a warning or error labelled like the commands' own lines."""
+    in bold, any other warning or error labelled like the commands' own lines."""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             time_ns = getattr(record, "time_ns", None)
             stamp = ("" if not isinstance(time_ns, int) else
                      f"[dim]{time.strftime('%H:%M:%S', time.localtime(time_ns / 1e9))}[/] ")
-            label = ("[bold red]error:[/] " if record.levelno >= logging.ERROR else
-                     "[yellow]warning:[/] " if record.levelno >= logging.WARNING else "")
             text = escape(record.getMessage())
             event = getattr(record, "event", None)
-            if isinstance(event, str) and text.startswith(event):
-                text = f"[bold]{event}[/]{text[len(event):]}"
+            if isinstance(event, str) and text.startswith(event):  # its kind says enough
+                label, text = "", f"[bold]{event}[/]{text[len(event):]}"
+            else:
+                label = ("[bold red]error:[/] " if record.levelno >= logging.ERROR else
+                         "[yellow]warning:[/] " if record.levelno >= logging.WARNING else "")
             err.print(f"{stamp}{label}{text}")
         except Exception:
             self.handleError(record)
