@@ -14,14 +14,14 @@ it declares its own, and does not start under a name a running bridge holds.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from importlib.metadata import version
 from typing import Any
 
-from rich.console import Console
-
+from bridge import __version__
+from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.session import DeviceError, Session, UnitInfo
@@ -33,7 +33,7 @@ DECLARE_SETTLE_S = 1.0
 NAME_QUERY_S = 3.0  # how long a bridge waits for a running bridge to answer for its name
 GAP_LINE_S = 5.0  # gaps on the terminal: at most one line this often
 EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
-_err = Console(stderr=True, highlight=False, soft_wrap=True)
+_log = logging.getLogger(__name__)
 _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
            "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
@@ -69,7 +69,7 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
         up_compensation=s.get("up_compensation", 0),
         north_compensation=s.get("north_compensation", 0), command=info.record,
         mode=int(Mode.ACTIVE if polled else Mode.CONTINUOUS), bring_up_time_ns=info.bring_up_ns,
-        bridge_version=version("gx3-bridge"),
+        bridge_version=__version__,
         allow_commands=allow_commands, output_rate_hz=info.output_hz, link=link, **info.ids)
 
 
@@ -253,10 +253,16 @@ def _stamp(time_ns: int) -> str:
     return time.strftime("%H:%M:%S", time.localtime(time_ns / 1e9))
 
 
+def _level(kind: str) -> int:
+    """An event's log level: its severity in every viewer (bridge/bus/events.py)."""
+    known = _KINDS.get(kind)
+    return logging.getLevelNamesMapping()["INFO" if known is None else LEVEL[known]]
+
+
 def _print_event(event: UnitEvent) -> None:
     count = f" ({event.count})" if event.count > 1 else ""
-    _err.print(f"[dim]{_stamp(event.time_ns)}[/] [bold]{event.kind}[/]{count} "
-               f"{event.detail}".rstrip())
+    _log.log(_level(event.kind), f"{event.kind}{count} {event.detail}".rstrip(), extra={
+        "event": event.kind, "count": event.count, "time_ns": event.time_ns})
 
 
 class EventLines:
@@ -287,5 +293,7 @@ class EventLines:
             _print_event(gaps[0])
             return
         missing = sum(e.count for e in gaps)
-        _err.print(f"[dim]{_stamp(gaps[-1].time_ns)}[/] [bold]gap[/] ({missing:,} samples "
-                   f"missing in {len(gaps):,} gaps since {_stamp(gaps[0].time_ns)})")
+        _log.log(_level("gap"), f"gap ({missing:,} samples missing in {len(gaps):,} gaps since "
+                  f"{_stamp(gaps[0].time_ns)})", extra={
+                      "event": "gap", "count": missing, "gaps": len(gaps),
+                      "time_ns": gaps[-1].time_ns})

@@ -10,7 +10,19 @@ from typing import Annotated, Any
 
 import typer
 
-from bridge.cli.common import ForceOpt, app, err, fail, parse_code, refused
+from bridge.cli.common import (
+    ForceOpt,
+    LogFormat,
+    LogFormatOpt,
+    LogLevel,
+    LogLevelOpt,
+    app,
+    err,
+    fail,
+    log_to,
+    parse_code,
+    refused,
+)
 from bridge.cli.operate import BaudOpt, PortOpt, parse_baud
 from bridge.protocol.table import BAUD_RATES, DATA_CODES
 
@@ -98,6 +110,8 @@ def run_bridge(
              "stopped.")] = None,
     quiet: Annotated[bool, typer.Option(
         "--quiet", "-q", help="Print errors only (and why the unit is not up).")] = False,
+    log_level: LogLevelOpt = LogLevel.info,
+    log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
     """Bridge one unit onto Zenoh: bring it up, stream, time every sample, publish.
 
@@ -121,6 +135,7 @@ def run_bridge(
     (each stays an event of its own on the bus). Bring-up warns when the serial
     line is too slow for the record at its rate, and says what to change.
     """
+    log_to(log_level, log_format)
     from bridge.bus.keys import BadName, check_prefix, check_unit
     from bridge.pipeline import Options, Pipeline
     from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter

@@ -3,19 +3,27 @@ the safe writing of outputs."""
 
 from __future__ import annotations
 
+import io
+import logging
 import signal
+import sys
+import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from importlib.metadata import PackageNotFoundError, version
+from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
+import orjson
 import typer
 import typer.rich_utils
 from rich.console import Console
 from rich.markup import escape
+from rich.text import Text
 from typer.core import TyperOption
 
+from bridge import __version__
 from bridge.protocol.table import REPLIES
 
 _type_of_option = TyperOption.display_type_rich
@@ -115,16 +123,115 @@ def reply_code(option: str, text: str) -> int:
     return code
 
 
-def _package_version() -> str:
-    try:
-        return version("gx3-bridge")
-    except PackageNotFoundError:
-        return "unknown"
+class LogFormat(StrEnum):
+    text = "text"
+    json = "json"
+
+
+class LogLevel(StrEnum):
+    debug = "debug"
+    info = "info"
+    warning = "warning"
+    error = "error"
+
+
+LogLevelOpt = Annotated[LogLevel, typer.Option(
+    "--log-level", case_sensitive=False, metavar="LEVEL",
+    help="The least severe log lines shown: debug, info, warning or error (a unit's "
+         "bring-up is info, a gap or reset a warning, a disconnect an error).")]
+LogFormatOpt = Annotated[LogFormat, typer.Option(
+    "--log-format", case_sensitive=False, metavar="FORMAT",
+    help="text: lines for a person; json: every line on stderr one JSON object (time, "
+         "level, logger, message and the record's fields such as event, count, time_ns), "
+         "for journald and log shippers.")]
+
+# what every LogRecord carries; anything else came in ``extra`` and is a field of its own
+_RECORD_ATTRS = {*vars(logging.LogRecord("", 0, "", 0, "", None, None)), "message", "asctime"}
+_LEVELS = {"error:": logging.ERROR, "warning:": logging.WARNING}
+
+
+class _JsonLines(logging.Formatter):
+    """One JSON object per record, as journald and log shippers take them."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        line: dict[str, Any] = {
+            "time": datetime.fromtimestamp(record.created, UTC).isoformat(
+                timespec="microseconds").replace("+00:00", "Z"),
+            "level": record.levelname.lower(), "logger": record.name,
+            "message": record.getMessage()}
+        line.update((k, v) for k, v in vars(record).items() if k not in _RECORD_ATTRS)
+        if record.exc_info:
+            line["exception"] = self.formatException(record.exc_info)
+        return orjson.dumps(line, default=str).decode()
+
+
+class _ForPeople(logging.Handler):
+    """Records on the terminal as people read them: an event's time first and its kind
+    in bold, any other warning or error labelled like the commands' own lines."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            time_ns = getattr(record, "time_ns", None)
+            stamp = ("" if not isinstance(time_ns, int) else
+                     f"[dim]{time.strftime('%H:%M:%S', time.localtime(time_ns / 1e9))}[/] ")
+            text = escape(record.getMessage())
+            event = getattr(record, "event", None)
+            if isinstance(event, str) and text.startswith(event):  # its kind says enough
+                label, text = "", f"[bold]{event}[/]{text[len(event):]}"
+            else:
+                label = ("[bold red]error:[/] " if record.levelno >= logging.ERROR else
+                         "[yellow]warning:[/] " if record.levelno >= logging.WARNING else "")
+            err.print(f"{stamp}{label}{text}")
+        except Exception:
+            self.handleError(record)
+
+
+class _ConsoleLines(io.StringIO):
+    """The commands' own stderr lines (``err``) as log records, for ``--log-format json``:
+    a shipper then meets nothing but JSON."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._pending = ""
+        self._log = logging.getLogger("gx3")
+
+    def write(self, text: str) -> int:
+        *lines, self._pending = (self._pending + text).split("\n")
+        for line in lines:
+            plain = Text.from_ansi(line).plain.strip()
+            if plain:
+                label = next((k for k in _LEVELS if plain.startswith(k)), None)
+                if label is None:
+                    self._log.info(plain)
+                else:
+                    self._log.log(_LEVELS[label], plain.removeprefix(label).lstrip())
+        return len(text)
+
+
+_installed: list[logging.Handler] = []  # what log_to added, replaced by its next call
+
+
+def log_to(level: LogLevel = LogLevel.info, fmt: LogFormat = LogFormat.text) -> None:
+    """Send the library's log records (and, in JSON, the command's own lines) to stderr."""
+    root = logging.getLogger()
+    while _installed:
+        root.removeHandler(_installed.pop())
+    handler: logging.Handler
+    if fmt is LogFormat.json:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(_JsonLines())
+        err.file = _ConsoleLines()
+    else:
+        handler = _ForPeople()
+        err.file = None  # type: ignore[assignment]  # rich's default: sys.stderr as it is now
+    _installed.append(handler)
+    root.addHandler(handler)
+    root.setLevel(level.value.upper())
 
 
 def _show_version(value: bool) -> None:
     if value:
-        typer.echo(f"gx3 {_package_version()}")
+        typer.echo(f"gx3 {__version__}")
         raise typer.Exit()
 
 
@@ -135,3 +242,4 @@ def main(
         help="Print the version and exit.")] = False,
 ) -> None:
     """Tools for MicroStrain 3DM-GX3 inertial sensors."""
+    log_to()

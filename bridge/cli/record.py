@@ -9,13 +9,24 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.live import Live
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
-from bridge.cli.common import ForceOpt, app, err, fail, refused, written
+from bridge.cli.common import (
+    ForceOpt,
+    LogFormat,
+    LogFormatOpt,
+    LogLevel,
+    LogLevelOpt,
+    app,
+    err,
+    fail,
+    log_to,
+    refused,
+    written,
+)
 
 
 def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path) -> Table:
@@ -74,6 +85,8 @@ def record(
     connect: ConnectOpt = None,
     listen: ListenOpt = None,
     mode: ModeOpt = None,
+    log_level: LogLevelOpt = LogLevel.info,
+    log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
     """Record every unit's samples, status, events and info into one MCAP archive.
 
@@ -97,6 +110,7 @@ def record(
     published by two bridges at once are archived as events of the unit, with count
     and span, and printed as warnings.
     """
+    log_to(log_level, log_format)
     from bridge.bus.keys import BadName, check_prefix
     from bridge.bus.session import SessionError, open_session
     from bridge.recorder.archive import ArchiveError, ArchiveWriter
@@ -135,7 +149,8 @@ def record(
     except SessionError as exc:
         discard()
         raise fail(str(exc)) from None
-    console = Console(stderr=True)
+    console = err
+    table = not quiet and log_format is LogFormat.text  # the live table is for people
 
     def announce(unit: str, joined: bool) -> None:
         if quiet:
@@ -173,7 +188,7 @@ def record(
                 if duration is not None and time.monotonic() - started >= duration:
                     break
                 recorder.run_once(0.25)
-                if not quiet:
+                if table:
                     live.update(_table(recorder.snapshot(), time.monotonic() - started,
                                        recorder.written, path), refresh=True)
     finally:
@@ -187,9 +202,10 @@ def record(
         session.close()
     if recorder.error is not None:
         raise fail(str(recorder.error), 1)
-    if not quiet:
+    if table:
         console.print(_table(recorder.snapshot(), time.monotonic() - started,
                              recorder.written, path))
+    if not quiet:
         files = ", ".join(str(p) for p in writer.paths)
         console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")
     err.file.flush()

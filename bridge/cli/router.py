@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from bridge.cli.common import app, err, fail
+from bridge.cli.common import LogFormat, LogFormatOpt, LogLevel, LogLevelOpt, app, err, fail, log_to
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
@@ -29,6 +29,8 @@ def router(
         help="Another router to join, e.g. at a second site (repeatable).")] = None,
     duration: Annotated[float | None, typer.Option(
         min=0.0, help="Stop after this many seconds (default: until Ctrl-C).")] = None,
+    log_level: LogLevelOpt = LogLevel.info,
+    log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
     """Run a Zenoh router, so bridges and recorders on several machines find each other.
 
@@ -36,6 +38,7 @@ def router(
     client configuration in configs/fleet/); no separately installed zenohd is needed.
     Multicast scouting is off: clients name the router.
     """
+    log_to(log_level, log_format)
     from bridge.bus.session import SessionError, open_session
 
     endpoints = listen or ([] if zenoh_config else [DEFAULT_LISTEN])

@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from bridge.cli.common import app, err, fail
+from bridge.cli.common import LogFormat, LogFormatOpt, LogLevel, LogLevelOpt, app, err, fail, log_to
 
 ID_LENGTH = 16
 MAX_CLOCK_PPM = 10_000.0
@@ -150,6 +150,8 @@ def sim(
              "replaced, only a stale link to a pty.")] = None,
     duration: Annotated[float | None, typer.Option(
         help="Stop after this many seconds (default: run until interrupted).")] = None,
+    log_level: LogLevelOpt = LogLevel.info,
+    log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
     """Emulate 3DM-GX3 units byte for byte, on ptys or TCP, until interrupted.
 
@@ -158,6 +160,7 @@ def sim(
     every command of the manual, streams in continuous mode at the line's pace,
     and keeps its non-volatile memory in --state if given.
     """
+    log_to(log_level, log_format)
     import signal
     import time
 

@@ -13,7 +13,19 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
-from bridge.cli.common import ForceOpt, app, err, fail, refused, written
+from bridge.cli.common import (
+    ForceOpt,
+    LogFormat,
+    LogFormatOpt,
+    LogLevel,
+    LogLevelOpt,
+    app,
+    err,
+    fail,
+    log_to,
+    refused,
+    written,
+)
 
 
 @app.command("rrd")
@@ -120,12 +132,15 @@ def view(
     connect: ConnectOpt = None,
     listen: ListenOpt = None,
     mode: ModeOpt = None,
+    log_level: LogLevelOpt = LogLevel.info,
+    log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
     """Show the live fleet in Rerun: attitude in 3-D and every signal, as it arrives.
 
     Spawn a local viewer where there is a display, --serve for a remote or web
     viewer, --save FILE.rrd; any combination.
     """
+    log_to(log_level, log_format)
     from bridge.bus.session import SessionError, open_session
     from bridge.viz.logger import RerunLogger
     from bridge.viz.sources import LiveFeed

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import functools
 import glob
-import importlib.metadata
 import re
 import struct
 import time
@@ -55,6 +54,7 @@ import numpy as np
 from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError, Message
 
+from bridge import __version__
 from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
@@ -86,7 +86,7 @@ FLUSH_EVERY_S = 1.0
 #: How long (receive time) a message waits for ones logged before it: not longer than
 #: FLUSH_EVERY_S, so a killed recorder loses at most the last REORDER_S + FLUSH_EVERY_S.
 REORDER_S = 0.5
-LIBRARY = f"gx3-bridge {importlib.metadata.version('gx3-bridge')}"
+LIBRARY = f"gx3-bridge {__version__}"
 PROFILE = ""  # no registered MCAP profile fits ours (https://mcap.dev/spec/registry)
 
 #: Message type of each key leaf, and the field that holds its time.

@@ -13,8 +13,8 @@ chunks, so a million samples read in about a second.
 from __future__ import annotations
 
 import io
+import logging
 import struct
-import sys
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -33,6 +33,8 @@ from mcap.summary import Summary
 from bridge.bus.codec import decode_batch, layout, parse, peek
 from bridge.bus.gx3_pb2 import Event
 
+_log = logging.getLogger(__name__)
+
 M = TypeVar("M", bound=Message)
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -47,10 +49,6 @@ _OPCODE_MESSAGE = int(Opcode.MESSAGE)
 
 class ArchiveReadError(ValueError):
     """A file that cannot be read as an archive; the message says what it is instead."""
-
-
-def _to_stderr(message: str) -> None:
-    print(f"warning: {message}", file=sys.stderr)
 
 
 @dataclass(frozen=True)
@@ -191,7 +189,7 @@ class Archive:
     blocks: list[_Block] = field(default_factory=list)
     damage: list[Damage] = field(default_factory=list)
     skipped: Counter[str] = field(default_factory=Counter)
-    warn: Callable[[str], None] = _to_stderr
+    warn: Callable[[str], None] = _log.warning
 
     def skip(self, topic: str, count: int, why: str) -> None:
         """Leave out ``count`` bad messages of ``topic`` and say so (once per topic and
@@ -650,7 +648,7 @@ def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str,
 
 
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
-                 warn: Callable[[str], None] = _to_stderr) -> Archive:
+                 warn: Callable[[str], None] = _log.warning) -> Archive:
     """Read what is readable of an MCAP file; ``progress`` gets the bytes read so far.
 
     Never raises on a damaged tail: the archive reports it (``complete``,

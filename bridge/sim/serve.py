@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import logging
 import os
 import selectors
 import socket
-import sys
 import termios
 import threading
 import time
@@ -29,16 +29,14 @@ from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
 from bridge.sim.usb import UsbDelivery, UsbLink
 
+_log = logging.getLogger(__name__)
+
 _TICK_S = 0.0005
 _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
     9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600) if hasattr(termios, f"B{b}")}
 
 
 Notify = Callable[[str], None]
-
-
-def _to_stderr(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
 
 
 class LinkError(Exception):
@@ -164,7 +162,7 @@ def _ours(link: Path) -> bool:
 class TcpLink(Link):
     """A TCP port serving one host at a time: a second client is closed at once."""
 
-    def __init__(self, host: str, port: int, notify: Notify = _to_stderr) -> None:
+    def __init__(self, host: str, port: int, notify: Notify = _log.warning) -> None:
         self.notify = notify
         self.server = socket.create_server((host, port), reuse_port=False)
         self.server.setblocking(False)
@@ -257,7 +255,7 @@ class Simulator:
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
                  port: int = 0, faults: FaultConfig | list[FaultConfig] | None = None,
-                 links: list[Path] | None = None, notify: Notify = _to_stderr,
+                 links: list[Path] | None = None, notify: Notify = _log.warning,
                  usb: UsbDelivery | None = None) -> None:
         if transport not in ("pty", "tcp"):
             raise ValueError(f"transport must be 'pty' or 'tcp', not {transport!r}")

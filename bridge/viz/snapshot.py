@@ -10,6 +10,7 @@ has loaded, and with the time cursor wherever playback happens to be.
 
 from __future__ import annotations
 
+import argparse
 import os
 import shutil
 import signal
@@ -83,15 +84,15 @@ def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> View
             time.sleep(0.3)
 
 
-def demo_picture(argv: list[str], usage: str, take: Callable[[Path, Path], object]) -> int:
+def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object]) -> int:
     """The screenshot scripts' main: ``take(recording, png)`` of the demo recording."""
-    if len(argv) != 1:
-        print(f"usage: {usage} OUT.png", file=sys.stderr)
-        return 2
+    parser = argparse.ArgumentParser(prog=prog, description="Picture the demo recording.")
+    parser.add_argument("png", type=Path, metavar="OUT.png", help="the picture to write")
+    png: Path = parser.parse_args(argv).png
     with tempfile.TemporaryDirectory() as tmp:
         rrd = Path(tmp) / "demo.rrd"
         write_demo(rrd)
-        take(rrd, Path(argv[0]))
+        take(rrd, png)
     return 0
 
 
