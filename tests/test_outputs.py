@@ -266,7 +266,8 @@ def test_failures_leave_no_output_and_say_so_in_one_line(
     inputs = files_in(tmp_path)
     missing = tmp_path / "missing" / "dir"
     cases: list[tuple[list[str | Path], int, str]] = [
-        (["replay", garbage, "-o", tmp_path / "r.mcap"], 1, "no record found"),
+        (["replay", garbage, "-o", tmp_path / "r.mcap"], 2, "no record found"),
+        (["replay", archive, "-o", tmp_path / "r2.mcap"], 2, "no raw reads in it"),
         (["rrd", no_samples, "-o", tmp_path / "r.rrd"], 2, "no samples"),
         (["export", archive, "-o", tmp_path / "r.csv", "--unit", "nobody"], 2,
          "no samples match"),

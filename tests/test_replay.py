@@ -208,7 +208,7 @@ def test_a_bad_capture_among_several_is_a_clear_error(tmp_path: Path) -> None:
     done = subprocess.run([GX3, "replay", *map(str, [paths[0], garbage, paths[1]]), "-j", "2",
                            "-o", str(tmp_path / "o.mcap")],
                           capture_output=True, text=True, timeout=120, check=False)
-    assert done.returncode == 1, done.stderr
+    assert done.returncode == 2, done.stderr
     assert "no record found" in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.mcap", "u0.mcap",
                                                           "u1.mcap"], "a failed replay left a file"

@@ -235,7 +235,7 @@ def replay_command(
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
-    from bridge.recorder.replay import Replayed, ReplayError, replay
+    from bridge.recorder.replay import Replayed, ReplayError, UnusableCapture, replay
 
     for path in captures:
         if not path.is_file():
@@ -266,7 +266,7 @@ def replay_command(
             with progress:
                 results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
                                  on_samples=advance)
-        except ArchiveReadError as exc:
+        except (ArchiveReadError, UnusableCapture) as exc:
             raise fail(str(exc)) from None
         except (ReplayError, ArchiveError) as exc:
             raise fail(str(exc).replace(str(temp), str(output)), 1) from None

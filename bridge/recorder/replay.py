@@ -58,7 +58,12 @@ Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
 
 
 class ReplayError(ValueError):
-    """A capture that cannot be replayed; the message says why."""
+    """A replay that failed while working; the message says why."""
+
+
+class UnusableCapture(ReplayError):
+    """An input that holds nothing to replay (no raw reads, no GX3 records): the user's
+    input is wrong, not the replay."""
 
 
 @dataclass
@@ -95,7 +100,7 @@ def captures(path: Path, prefix: str = "gx3",
         out.append(Capture(unit, messages.publish_time.astype(np.int64), messages.payloads,
                            meta.get(unit, {}), topic))
     if not out:
-        raise ReplayError(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
+        raise UnusableCapture(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
                           "one with gx3 bridge --capture FILE.mcap")
     return out
 
@@ -155,7 +160,7 @@ class UnitReplay:
     def _sniff(self) -> tuple[int, int]:
         batches = self._sniff_batches(False) or self._sniff_batches(True)
         if not batches:
-            raise ReplayError(f"{self.capture.unit}: no record found in the first "
+            raise UnusableCapture(f"{self.capture.unit}: no record found in the first "
                               f"{_SNIFF_READS} reads: not a capture of a 3DM-GX3")
         counts: Counter[int] = Counter()
         for b in batches:
