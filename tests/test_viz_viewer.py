@@ -29,7 +29,7 @@ def test_demo_recording_shows_in_the_viewer(tmp_path: Path) -> None:
     assert recording.current_timeline == "time"
     assert recording.current_time == DEMO_EPOCH_NS + 3 * 10**9
     views = {(v.view_class, v.origin) for v in state.views}
-    assert {("3D", "/world"), ("TextLog", "/events"), ("TimeSeries", "/plots/accel"),
-            ("TimeSeries", "/plots/euler"), ("TimeSeries", "/plots/clock_drift")} <= views
+    assert {("3D", "/world"), ("TextLog", "/events"), ("TimeSeries", "/plots/accel/x"),
+            ("TimeSeries", "/plots/euler/roll"), ("TimeSeries", "/plots/clock_drift")} <= views
     assert [(v.name, r.summary) for v in state.views for r in v.reports] == []
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
