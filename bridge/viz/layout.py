@@ -171,8 +171,7 @@ STATUS_PLOTS = ("samples_per_s", "dropped", "clock_offset", "clock_drift")
 # The text starts with the event's time of day and its unit: Rerun sizes its own time
 # column to its header, which cuts the time off, and the entity path repeats the unit.
 _EVENT_COLUMNS = rrb.archetypes.TextLogColumns(
-    timeline_columns=[rrb.encodings.TimelineColumn(TIME, visible=False),
-                      rrb.encodings.TimelineColumn(DEVICE_TIME, visible=False)],
+    timeline_columns=[rrb.encodings.TimelineColumn(TIME, visible=False)],
     text_log_columns=[rrb.encodings.TextLogColumn("LogLevel"),
                       rrb.encodings.TextLogColumn("Body"),
                       rrb.encodings.TextLogColumn("EntityPath", visible=False)])

@@ -225,22 +225,23 @@ class RerunLogger:
 
     def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
         """Events of one unit as text log entries at the time they happened, the text led by
-        that time of day (UTC); those that carry device ticks (> 0) are on the device_time
-        timeline as well. Records lost are told with the time they span at the unit's
-        output rate, from its status or, before one came, from its samples."""
+        that time of day (UTC). Records lost are told with the time they span at the unit's
+        output rate, from its status or, before one came, from its samples.
+
+        Events are on the ``time`` timeline only: Rerun 0.41's text log view shows some rows
+        with another row's level when the rows of one entity lie on different sets of
+        timelines (events with device ticks on both, those without on ``time`` only)."""
         items = [events] if isinstance(events, Event) else list(events)
         if not items:
             return
         self._unit(unit)
         time_ns = np.array([e.time_ns for e in items], np.int64)
-        ticks = np.array([e.ticks for e in items], np.int64)
         rate_hz = self._rate_hz.get(unit, 0.0)
         texts = np.array([f"{_time_of_day(e.time_ns)}  {event_text(unit, e, rate_hz)}"
                           for e in items], dtype=str)
-        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items],
-                          dtype=str)
-        self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
-                         rr.TextLog.columns, text=texts, level=levels)
+        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items], dtype=str)
+        self.recording.send_columns(layout.event_path(unit), indexes=_indexes(time_ns, None),
+                                    columns=rr.TextLog.columns(text=texts, level=levels))
         self._send_blueprint()
 
     def flush(self) -> None:

@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
+from bridge.bus.gx3_pb2 import Event
 from bridge.loopback import free_port
+from bridge.recorder.read import read_archive
 from bridge.viz.layout import TIME
 
 
@@ -41,9 +43,9 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
            before_end_s: float | None = None, size: tuple[int, int] = (1600, 1000),
            timeout_s: float = 60.0) -> ViewerState:
     """Open ``rrd`` in a headless viewer, pause the time cursor at ``at_ns`` on the ``time``
-    timeline, or ``before_end_s`` seconds before its end (default: where the viewer puts
-    it), save what it shows to ``png`` and return the viewer's own account of it:
-    recordings, timelines, views and what each view failed to show."""
+    timeline, else ``before_end_s`` seconds before its end, else where the viewer puts it,
+    save what it shows to ``png`` and return the viewer's own account of it: recordings,
+    timelines, views and what each view failed to show."""
     port = free_port()
     viewer = subprocess.Popen(
         [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
@@ -92,10 +94,10 @@ def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> View
 #: unit's gap and reconnect (gx3 demo unplugs its last unit part-way).
 DEMO_UNITS = 4
 DEMO_DURATION_S = 20.0
-#: Where the picture's time cursor sits: just after the unplugged unit came back (gx3 demo
-#: pulls it at 30 % of the run, for about 3 s), so the events show the disconnect, the
-#: reconnect and the records lost meanwhile, with their count and span.
-SHOT_BEFORE_END_S = 9.0
+#: Where the picture's time cursor sits: this long after the unplugged unit came back (gx3
+#: demo pulls its last unit part-way), so the events show the disconnect, the reconnect
+#: and the records lost meanwhile, with their count and span.
+AFTER_RECONNECT_S = 1.5
 
 
 def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DURATION_S) -> Path:
@@ -130,9 +132,20 @@ def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object
     return 0
 
 
+def after_reconnect_ns(rrd: Path) -> int | None:
+    """A moment AFTER_RECONNECT_S after the first reconnect in the archive gx3 demo wrote
+    beside ``rrd`` (demo.mcap); None when there is none."""
+    archive = rrd.with_suffix(".mcap")
+    if not archive.is_file():
+        return None
+    found = [e.time_ns for _, e in read_archive(archive).events() if e.kind == Event.RECONNECT]
+    return min(found) + round(AFTER_RECONNECT_S * 1e9) if found else None
+
+
 def main(argv: list[str]) -> int:
     return demo_picture(argv, "python -m bridge.viz.snapshot",
-                        lambda rrd, png: render(rrd, png, before_end_s=SHOT_BEFORE_END_S))
+                        lambda rrd, png: render(rrd, png, at_ns=after_reconnect_ns(rrd),
+                                                before_end_s=1.0))
 
 
 if __name__ == "__main__":
