@@ -7,7 +7,7 @@ download (the page is opened in /usr/bin/chromium, WebGL on SwiftShader):
     apt-get install -y chromium && .venv/bin/pip install -e '.[docs]'
     .venv/bin/python docs/web_viewer_shot.py docs/images/web-viewer.png
 
-The recording is the one docs/images/viewer.png shows (bridge.viz.demo.write_demo).
+The recording is a gx3 demo run, as docs/images/viewer.png shows (bridge.viz.snapshot).
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ def test_demo_runs_the_fleet_and_reports_the_fault(tmp_path: Path) -> None:
     assert order_problems(out / "demo.mcap") == []  # on main: 63 % of it out of order
     for unit in ("imu1", "imu2"):
         assert sum(len(b) for b in archive.samples([unit])) > 200
-        assert rerun_rows(out / "demo.rrd", f"/plots/accel/{unit}") > 200
+        assert rerun_rows(out / "demo.rrd", f"/plots/accel/x/{unit}") > 200
     lines = {line.split()[0]: line.split() for line in stderr.splitlines()
              if line.startswith("imu")}
     reconnects = int(lines["imu2"][5])

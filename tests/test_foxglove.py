@@ -292,5 +292,5 @@ def test_rerun_reads_a_frame_tree_a_3d_marker_and_a_text_log(tmp_path: Path) -> 
         "gx3_world_ned"}
     assert {c[0] for c in columns[("/gx3/u1/axes", "CoordinateFrame:frame")]} == {"gx3_u1_frd"}
     assert len(columns[("/gx3/u1/axes", "Points3D:positions")]) == 10
-    assert columns[("/gx3/log", "TextLog:text")] == [["u1 GAP (2)"]]  # no Info: no span
+    assert columns[("/gx3/log", "TextLog:text")] == [["u1 GAP (2 records)"]]  # no Info: no span
     assert columns[("/gx3/log", "TextLog:level")] == [["WARN"]]

@@ -109,13 +109,13 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
         assert (np.diff(ticks) == 625).all(), f"{unit}: a hole in the archived samples"
         topics = set(archive.topics())
         assert {f"gx3/{unit}/info", f"gx3/{unit}/status", f"gx3/{unit}/frame"} <= topics
-        assert rerun_rows(rrd, f"/plots/accel/{unit}") == len(ticks), "--rrd lost samples"
+        assert rerun_rows(rrd, f"/plots/accel/x/{unit}") == len(ticks), "--rrd lost samples"
     rendered = tmp_path / "rendered.rrd"
     done = subprocess.run([GX3, "rrd", str(out), "-o", str(rendered)],
                           capture_output=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr.decode()
     for unit in ("a", "b"):
-        entity = f"/plots/accel/{unit}"
+        entity = f"/plots/accel/x/{unit}"
         assert rerun_rows(rendered, entity) == rerun_rows(rrd, entity)
 
 
@@ -192,11 +192,11 @@ def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
                                str(view_cfg)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     with Simulator(UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
-        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/accel/a") >= 100)
+        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/accel/x/a") >= 100)
     viewer.send_signal(signal.SIGINT)
     _, stderr = viewer.communicate(timeout=30)
     assert viewer.returncode == 0, stderr.decode()
-    assert rerun_rows(rrd, "/plots/accel/a") >= 100
+    assert rerun_rows(rrd, "/plots/accel/x/a") >= 100
     assert "samples shown" in stderr.decode()
 
 
@@ -253,6 +253,6 @@ def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
     done = subprocess.run([GX3, "rrd", str(path), "-o", str(out)], capture_output=True,
                           text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    rows = rerun_rows(out, "/plots/accel/a")
+    rows = rerun_rows(out, "/plots/accel/x/a")
     assert 0 < rows < 2000, rows
     assert f"{rows:,} samples" in done.stderr and "Traceback" not in done.stderr

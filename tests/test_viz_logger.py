@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import colorsys
 import math
 import threading
 import warnings
@@ -39,6 +40,12 @@ def table(store: Any, entity: str, index: str | None = "time") -> pa.Table:
 def ns(column: pa.ChunkedArray) -> np.ndarray:
     """A timestamp or duration column as int64 nanoseconds."""
     return np.array(column.cast(pa.int64()).to_pylist(), np.int64)
+
+
+def plot_values(store: Any, plot: str, unit: str) -> np.ndarray:
+    """(rows, lines) of a unit's plot: one entity per line."""
+    return np.column_stack([np.array(table(store, path).column(f"{path}:Scalars:scalars")
+                                     .to_pylist())[:, 0] for path in layout.plot_paths(plot, unit)])
 
 
 def blueprint_views(path: Path) -> list[set[tuple[str, str]]]:
@@ -87,7 +94,8 @@ def test_entities_timelines_and_row_counts(fleet: tuple[Path, dict[str, Any]]) -
         plots = {"imu0": ["accel", "ang_rate", "mag", "euler"],
                  "imu1": ["accel", "ang_rate", "euler"],
                  "imu2": ["quaternion", "euler"]}[unit]
-        entities = [f"/plots/{p}/{unit}" for p in plots] + [f"/world/{unit}/body"]
+        entities = [e for p in plots for e in layout.plot_paths(p, unit)] + [
+            f"/world/{unit}/body"]
         if "accel" in plots:
             entities.append(f"/world/{unit}/body/accel")
         for entity in entities:
@@ -97,18 +105,16 @@ def test_entities_timelines_and_row_counts(fleet: tuple[Path, dict[str, Any]]) -
             assert np.array_equal(ns(t.column("device_time")), cols["ticks"] * 16_000), entity
     # the record types decide what exists: no mag for 0xC8, no accel for 0xDF
     names = {c.entity_path for c in RrdReader(path).stream() if c.timeline_names}
-    assert "/plots/mag/imu1" not in names and "/plots/accel/imu2" not in names
+    assert "/plots/mag/x/imu1" not in names and "/plots/accel/x/imu2" not in names
     assert "/world/imu1/body/mag" not in names and "/world/imu0/body/mag" in names
 
 
 def test_values_are_those_logged(fleet: tuple[Path, dict[str, Any]]) -> None:
     path, data = fleet
     store = read(path)
-    accel = np.array(table(store, "/plots/accel/imu0").column(
-        "/plots/accel/imu0:Scalars:scalars").to_pylist())
+    accel = plot_values(store, "accel", "imu0")
     assert np.array_equal(accel, data["imu0"]["accel"].astype(np.float64))
-    euler = np.array(table(store, "/plots/euler/imu1").column(
-        "/plots/euler/imu1:Scalars:scalars").to_pylist())
+    euler = plot_values(store, "euler", "imu1")
     assert np.allclose(euler, np.degrees(convert.m_to_euler(data["imu1"]["m"])))
     arrows = np.array(table(store, "/world/imu0/body/mag").column(
         "/world/imu0/body/mag:Arrows3D:vectors").to_pylist())[:, 0, :]
@@ -116,15 +122,53 @@ def test_values_are_those_logged(fleet: tuple[Path, dict[str, Any]]) -> None:
 
 
 def test_series_named_once_static(fleet: tuple[Path, dict[str, Any]]) -> None:
+    """Every line has its own entity, its name (unit and axis) and its unit's colour."""
     path, _ = fleet
-    chunks = [c for c in RrdReader(path).stream() if c.entity_path == "/plots/euler/imu1"
-              and "SeriesLines:names" in c.to_record_batch().schema.names]
-    assert len(chunks) == 1 and chunks[0].num_rows == 1
-    batch = chunks[0].to_record_batch()
-    assert batch.column("SeriesLines:names").to_pylist() == [
-        ["imu1 roll", "imu1 pitch", "imu1 yaw"]]
-    colors = batch.column("SeriesLines:colors").to_pylist()[0]
-    assert len(set(colors)) == 3
+    for label, entity in zip(("roll", "pitch", "yaw"), layout.plot_paths("euler", "imu1"),
+                             strict=True):
+        chunks = [c for c in RrdReader(path).stream() if c.entity_path == entity
+                  and "SeriesLines:names" in c.to_record_batch().schema.names]
+        assert len(chunks) == 1 and chunks[0].num_rows == 1, entity
+        batch = chunks[0].to_record_batch()
+        assert entity == f"/plots/euler/{label}/imu1"
+        assert batch.column("SeriesLines:names").to_pylist() == [[f"imu1 {label}"]]
+        assert batch.column("SeriesLines:colors").to_pylist() == [[_rgba(layout.unit_color(1))]]
+
+
+def _rgba(rgb: tuple[int, int, int]) -> int:
+    """An RGB as Rerun stores it: 0xRRGGBBAA, opaque."""
+    return (rgb[0] << 24) | (rgb[1] << 16) | (rgb[2] << 8) | 0xFF
+
+
+def test_sixteen_units_one_colour_each_everywhere(tmp_path: Path) -> None:
+    """A unit's colour is its box's and its every line's, and no two of 16 units share a
+    hue: the nearest two are 20 degrees or more apart, or differ in lightness."""
+    path = tmp_path / "sixteen.rrd"
+    units = [f"imu{i}" for i in range(1, 17)]
+    with RerunLogger(path, units) as log:
+        for i, unit in enumerate(units):
+            log.log_samples(unit, 0xC8, demo_columns(unit, 0xC8, i, 0.1))
+    boxes: dict[str, int] = {}
+    lines: dict[str, set[int]] = {}
+    for chunk in RrdReader(path).stream():
+        names = chunk.to_record_batch().schema.names
+        parts = chunk.entity_path.split("/")  # /world/<unit>/body/box, /plots/<p>/<l>/<unit>
+        if "Boxes3D:colors" in names:
+            (color,) = chunk.to_record_batch().column("Boxes3D:colors").to_pylist()[0]
+            boxes[parts[2]] = color >> 8
+        elif "SeriesLines:colors" in names:
+            (color,) = chunk.to_record_batch().column("SeriesLines:colors").to_pylist()[0]
+            lines.setdefault(parts[-1], set()).add(color >> 8)
+    assert set(boxes) == set(units)
+    for unit in units:
+        assert lines[unit] == {boxes[unit]}, unit  # 3 accel + 3 rate + 3 euler lines
+    hls = [colorsys.rgb_to_hls(*(((c >> s) & 255) / 255 for s in (16, 8, 0)))
+           for c in boxes.values()]
+    for a in range(16):
+        for b in range(a + 1, 16):
+            hue = abs(hls[a][0] - hls[b][0]) * 360
+            assert min(hue, 360 - hue) >= 20 or abs(hls[a][1] - hls[b][1]) >= 0.1, (a, b)
+    assert len({round(h[0] * 16) % 16 for h in hls}) == 16  # 16 distinct hues
 
 
 def test_units_side_by_side(fleet: tuple[Path, dict[str, Any]]) -> None:
@@ -142,7 +186,7 @@ def test_units_side_by_side(fleet: tuple[Path, dict[str, Any]]) -> None:
 def test_status_figures(fleet: tuple[Path, dict[str, Any]]) -> None:
     path, _ = fleet
     store = read(path)
-    offset = table(store, "/plots/clock_offset/imu0")
+    offset = table(store, "/plots/clock_offset/imu0")  # one line: no line part in the path
     assert np.allclose(np.array(offset.column(
         "/plots/clock_offset/imu0:Scalars:scalars").to_pylist())[:, 0], [0, 0.001, 0.002])
     # device time is the clock model's inverse: (time - offset) * (1 + drift)
@@ -156,26 +200,51 @@ def test_gap_is_an_event_at_its_time(fleet: tuple[Path, dict[str, Any]]) -> None
     path, _ = fleet
     store = read(path)
     log = table(store, "/events/imu1")
+    # led by the time of day (the viewer's time column is too narrow to show it), the
+    # records lost counted and their span at the unit's rate (from its 100 Hz samples)
     assert log.column("/events/imu1:TextLog:text").to_pylist() == [
-        ["imu1 GAP (12): ticks jumped by 7,500"], ["imu1 DISCONNECT: port closed"]]
+        ["00:00:01.000  imu1 GAP (12 records, 0.12 s): ticks jumped by 7,500"],
+        ["00:00:02.000  imu1 DISCONNECT: port closed"]]
     assert log.column("/events/imu1:TextLog:level").to_pylist() == [["WARN"], ["ERROR"]]
     assert ns(log.column("time")).tolist() == [DEMO_EPOCH_NS + 10**9, DEMO_EPOCH_NS + 2 * 10**9]
-    # the disconnect has no device ticks, so it is on the time timeline only
-    on_device = table(store, "/events/imu1", index="device_time")
-    assert ns(on_device.column("device_time")).tolist() == [10**9]
+    # every event on the time timeline only (the gap has device ticks, the disconnect has
+    # none): Rerun shows some rows with another row's level when they are on both
+    assert {tuple(c.timeline_names) for c in RrdReader(path).stream()
+            if c.entity_path == "/events/imu1"} == {("time",)}
 
 
 def test_blueprint_has_the_scene_and_a_view_per_quantity(
         fleet: tuple[Path, dict[str, Any]]) -> None:
+    """A view per axis of each quantity (accel x of every unit), a view per status figure."""
     path, _ = fleet
     views = blueprint_views(path)
     assert views, "no blueprint in the recording"
     latest = max(views, key=len)
+    lines = {"accel": "xyz", "ang_rate": "xyz", "mag": "xyz", "euler": ("roll", "pitch", "yaw"),
+             "quaternion": ("q0", "q1", "q2", "q3")}
     expected = {("3D", "/world"), ("TextLog", "/events")} | {
-        ("TimeSeries", f"/plots/{p}") for p in ("accel", "ang_rate", "mag", "euler", "quaternion",
-                                                 "samples_per_s", "dropped", "clock_offset",
-                                                 "clock_drift")}
+        ("TimeSeries", f"/plots/{p}/{label}") for p, labels in lines.items()
+        for label in labels} | {("TimeSeries", f"/plots/{p}") for p in (
+            "samples_per_s", "dropped", "clock_offset", "clock_drift")}
     assert latest == expected
+
+
+def test_events_before_any_rate_still_count_records(tmp_path: Path) -> None:
+    path = tmp_path / "early.rrd"
+    with RerunLogger(path) as log:
+        log.log_event("u", Event(unit="u", time_ns=DEMO_EPOCH_NS + 3_600_123_456_789,
+                                 kind=Event.GAP, count=180))
+    text = table(read(path), "/events/u").column("/events/u:TextLog:text").to_pylist()
+    assert text == [["01:00:00.123  u GAP (180 records)"]]
+
+
+def test_rate_from_status_gives_the_span(tmp_path: Path) -> None:
+    path = tmp_path / "status.rrd"
+    with RerunLogger(path) as log:
+        log.log_status("u", Status(unit="u", time_ns=DEMO_EPOCH_NS, output_rate_hz=50.0))
+        log.log_event("u", Event(unit="u", time_ns=DEMO_EPOCH_NS, kind=Event.GAP, count=90))
+    text = table(read(path), "/events/u").column("/events/u:TextLog:text").to_pylist()
+    assert text == [["00:00:00.000  u GAP (90 records, 1.8 s)"]]
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # read while still written
@@ -192,7 +261,7 @@ def test_unit_appearing_later_extends_the_blueprint(tmp_path: Path) -> None:
         log.log_samples("c", 0xD1, temps)
     latest = max(blueprint_views(path), key=len)
     assert {("TimeSeries", "/plots/mag_temperature"),
-            ("TimeSeries", "/plots/gyro_temperature")} <= latest
+            ("TimeSeries", layout.line_origin("gyro_temperature", "gyro Z"))} <= latest
     store = read(path)
     celsius = np.array(table(store, "/plots/mag_temperature/c").column(
         "/plots/mag_temperature/c:Scalars:scalars").to_pylist())
@@ -252,7 +321,7 @@ def test_nan_attitudes_are_left_out_of_the_scene(tmp_path: Path) -> None:
         log.log_samples("u", 0xC8, cols)
     store = read(path)
     assert table(store, "/world/u/body").num_rows == len(cols["ticks"]) - 1
-    assert table(store, "/plots/accel/u").num_rows == len(cols["ticks"])
+    assert table(store, "/plots/accel/x/u").num_rows == len(cols["ticks"])
 
 
 def test_bad_input_is_one_clear_line(tmp_path: Path) -> None:
@@ -275,7 +344,7 @@ def test_batches_are_gathered_then_sent_in_chunks_of_max_rows(tmp_path: Path) ->
 
     def accel_chunks() -> list[int]:
         return [c.num_rows for c in RrdReader(path).stream()
-                if c.entity_path == "/plots/accel/u" and c.timeline_names]
+                if c.entity_path == "/plots/accel/x/u" and c.timeline_names]
 
     with RerunLogger(path, latency_s=3600.0, max_rows=100) as log:
         log.log_samples("u", 0xC2, half)
@@ -297,7 +366,7 @@ def test_live_window_limits_every_plot(tmp_path: Path) -> None:
     ranges = [c.to_record_batch().column("VisibleTimeRanges:ranges").to_pylist()[0]
               for entry in reader.blueprints() for c in reader.stream(store=entry)
               if c.entity_path.endswith("/VisibleTimeRanges")]
-    assert len(ranges) == 2  # accel and ang_rate
+    assert len(ranges) == 6  # accel and ang_rate, a view per axis
     for view in ranges:
         assert {r["timeline"]: r["range"]["start"] for r in view} == {
             "time": -10 * 10**9, "device_time": -10 * 10**9}
@@ -319,8 +388,7 @@ def test_units_logging_from_several_threads(tmp_path: Path) -> None:
             t.join()
     store = read(path)
     for unit, cols in data.items():
-        t = table(store, f"/plots/accel/{unit}")
-        got = np.array(t.column(f"/plots/accel/{unit}:Scalars:scalars").to_pylist())
+        got = plot_values(store, "accel", unit)
         assert np.array_equal(got, cols["accel"].astype(np.float64))
     east = sorted(table(store, f"/world/{u}", index=None).column(
         f"/world/{u}:Transform3D:translation").to_pylist()[0][0][1] for u in data)
@@ -339,7 +407,7 @@ def test_a_stream_the_caller_owns_stays_open(tmp_path: Path) -> None:
     rec.flush()
     rec.disconnect()
     names = {c.entity_path for c in RrdReader(path).stream()}
-    assert {"/plots/accel/a", "/after"} <= names
+    assert {"/plots/accel/x/a", "/after"} <= names
     assert RrdReader(path).recordings()[0].recording_id == "caller"
 
 
@@ -350,7 +418,7 @@ def test_footer_is_the_callers_choice(tmp_path: Path, footer: bool) -> None:
         log.log_samples("a", 0xC2, demo_columns("a", 0xC2, 1, 0.2))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert table(read(path), "/plots/accel/a").num_rows == 20
+        assert table(read(path), "/plots/accel/x/a").num_rows == 20
     assert any("no footer" in str(w.message) for w in caught) is not footer
 
 
@@ -368,6 +436,50 @@ def test_every_record_type_shows_its_quantities(tmp_path: Path, code: int) -> No
     if attitude:
         plotted.add("euler")
     arrows = {layout.ARROWS[q][0] for q in held if q in layout.ARROWS}
-    assert logged == ({f"/plots/{p}/u" for p in plotted}
+    assert logged == ({e for p in plotted for e in layout.plot_paths(p, "u")}
                       | ({"/world/u/body"} if attitude else set())
                       | {f"/world/u/body/{a}" for a in arrows})
+
+
+def _last_blueprint(path: Path) -> dict[str, dict[str, Any]]:
+    """Blueprint entity -> {column: last value} of the fullest blueprint in the file (the
+    one sent once every unit had appeared)."""
+    reader = RrdReader(path)
+    found = []
+    for entry in reader.blueprints():
+        out: dict[str, dict[str, Any]] = {}
+        for chunk in reader.stream(store=entry):
+            batch = chunk.to_record_batch()
+            for name in batch.schema.names:
+                out.setdefault(chunk.entity_path, {})[name] = batch.column(name).to_pylist()[-1]
+        found.append(out)
+    return max(found, key=lambda b: sum(len(v.get("ViewContents:query", ())) for v in b.values()))
+
+
+@pytest.mark.parametrize("count", [3, 16])
+def test_scene_frames_every_unit_and_views_hold_eight(tmp_path: Path, count: int) -> None:
+    """Units stand on a grid 4 wide; the camera looks at its middle with every unit
+    within 25 degrees of its line of sight; no plot view holds more than 8 units, and
+    every unit's accel x is in a view."""
+    path = tmp_path / "grid.rrd"
+    units = [f"imu{i}" for i in range(1, count + 1)]
+    with RerunLogger(path, units) as log:
+        for i, unit in enumerate(units):
+            log.log_samples(unit, 0xC2, demo_columns(unit, 0xC2, i, 0.1))
+    store = read(path)
+    where = np.array([table(store, f"/world/{u}", index=None).column(
+        f"/world/{u}:Transform3D:translation").to_pylist()[0][0] for u in units])
+    assert len({tuple(p) for p in where}) == count
+    assert np.ptp(where[:, 1]) == min(count, 4) - 1 and np.all(where[:, 2] == 0)
+    blueprint = _last_blueprint(path)
+    (eye,) = [v for v in blueprint.values() if "EyeControls3D:position" in v]
+    position = np.array(eye["EyeControls3D:position"][0])
+    sight = np.array(eye["EyeControls3D:look_target"][0]) - position
+    to_units = where - position
+    cos = to_units @ sight / np.linalg.norm(to_units, axis=1) / np.linalg.norm(sight)
+    assert np.degrees(np.arccos(cos)).max() < 25
+    queries = [v["ViewContents:query"] for v in blueprint.values() if "ViewContents:query" in v]
+    listed = [q for q in queries if not any("**" in e for e in q)]
+    assert all(len(q) <= 8 for q in listed)
+    if count > 8:
+        assert {f"/plots/accel/x/{u}" for u in units} <= {e for q in listed for e in q}

@@ -34,8 +34,9 @@ def event_text(unit: str, event: Event, rate_hz: float = 0.0) -> str:
     last), and the detail."""
     text = f"{unit} {Event.Kind.Name(event.kind)}"
     count = event.count
-    if event.kind in _RECORDS and count and rate_hz > 0:
-        text += f" ({count:,} record{'s' * (count != 1)}, {count / rate_hz:.3g} s)"
+    if event.kind in _RECORDS and count:
+        span = f", {count / rate_hz:.3g} s" if rate_hz > 0 else ""
+        text += f" ({count:,} record{'s' * (count != 1)}{span})"
     elif event.kind in _MESSAGES and count:
         leaf = f" {event.leaf}" if event.leaf else ""
         span = (f", {(event.end_time_ns - event.time_ns) / 1e9:.3g} s"

@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from types import TracebackType
 from typing import Any
 
@@ -42,6 +43,12 @@ def _indexes(time_ns: npt.ArrayLike, device_ns: npt.ArrayLike | None) -> list[rr
         cols.append(rr.TimeColumn(
             DEVICE_TIME, duration=np.asarray(device_ns, np.int64).astype("timedelta64[ns]")))
     return cols
+
+
+def _time_of_day(time_ns: int) -> str:
+    """HH:MM:SS.mmm, UTC, as the viewer's time panel shows it."""
+    when = datetime.fromtimestamp(time_ns // 1_000_000 / 1000, UTC)
+    return when.strftime("%H:%M:%S.%f")[:-3]
 
 
 def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
@@ -101,15 +108,16 @@ class RerunLogger:
 
     ``target`` is a RecordingStream the caller set up (spawned viewer, gRPC connection,
     file) or a path, for which the logger opens an .rrd file of its own and closes it in
-    ``close``. ``units`` fixes the order of units in the scene; others join as they
-    appear. The blueprint is (re)sent, as active and default, whenever a plot or a unit
-    appears, so it is in every recording and grows with the fleet; ``window_s`` limits the
-    plots to the last so many seconds, for live viewing. Samples reach the recording at
-    most ``latency_s`` after they were logged, provided the caller logs or flushes at
-    least that often (a live caller with no data flowing calls ``flush``). A recorder
-    writing hours of data to a file is better served by latency_s of a few seconds
-    (bigger chunks: a smaller file) and ``write_footer=False`` (Rerun otherwise keeps an
-    index entry per chunk in memory until the file is closed).
+    ``close``. ``units`` are placed in the scene first, in natural order (imu2 before
+    imu10); others join as they appear. The blueprint is (re)sent, as active and
+    default, whenever a plot or a unit appears, so it is in every recording and grows
+    with the fleet; ``window_s`` limits the plots to the last so many seconds, for live
+    viewing. Samples reach the recording at most ``latency_s`` after they were logged,
+    provided the caller logs or flushes at least that often (a live caller with no data
+    flowing calls ``flush``). A recorder writing hours of data to a file is better served
+    by latency_s of a few seconds (bigger chunks: a smaller file) and
+    ``write_footer=False`` (Rerun otherwise keeps an index entry per chunk in memory until
+    the file is closed).
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
@@ -133,12 +141,13 @@ class RerunLogger:
         self._styled: set[tuple[str, str]] = set()
         self._plots: set[str] = set()
         self._first_offset: dict[str, int] = {}
-        self._sent: tuple[frozenset[str], int] | None = None
+        self._sent: tuple[frozenset[str], tuple[str, ...]] | None = None
+        self._rate_hz: dict[str, float] = {}
         self.recording.log(layout.WORLD, rr.ViewCoordinates.FRD, static=True)
         self.recording.log(f"{layout.WORLD}/ned", rr.Arrows3D(
             origins=[layout.NED_ORIGIN_M] * 3, vectors=np.eye(3) * layout.AXIS_LENGTH_M,
             colors=[layout.NED_COLOR], radii=0.005, labels=["N", "E", "D"]), static=True)
-        for unit in units:
+        for unit in sorted(units, key=layout.natural_key):
             self._unit(unit)
         self._send_blueprint()
 
@@ -163,6 +172,10 @@ class RerunLogger:
                              f"{', '.join(missing)}: pass every quantity of the record "
                              "and ticks, time_ns")
         n = len(columns["ticks"])
+        if n > 1 and unit not in self._rate_hz:
+            step = float(np.median(np.diff(np.asarray(columns["ticks"], np.int64))))
+            if step > 0:
+                self._rate_hz[unit] = TICKS_PER_SECOND / step
         bad = [c for c in ("time_ns", *quantities) if len(columns[c]) != n]
         if bad:
             raise ValueError(f"0x{code:02X} samples of {unit!r}: column(s) {', '.join(bad)} "
@@ -191,6 +204,8 @@ class RerunLogger:
         offset = np.array([s.clock_offset_ns for s in items], np.int64)
         drift = np.array([s.clock_drift_ppm for s in items], np.float64)
         modelled = offset != 0
+        if items[-1].output_rate_hz > 0:
+            self._rate_hz[unit] = items[-1].output_rate_hz
         if modelled.any():
             self._first_offset.setdefault(unit, int(offset[modelled][0]))
         first = self._first_offset.get(unit, 0)
@@ -203,24 +218,30 @@ class RerunLogger:
         device_ns = np.round((time_ns - offset) * (1.0 + drift * 1e-6)).astype(np.int64)
         for plot, values in series.items():
             self._style(plot, unit, index)
-            self._send_split(layout.plot_path(plot, unit), time_ns, device_ns, modelled,
-                             rr.Scalars.columns, scalars=values)
+            (path,) = layout.plot_paths(plot, unit)
+            self._send_split(path, time_ns, device_ns, modelled, rr.Scalars.columns,
+                             scalars=values)
         self._send_blueprint()
 
     def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
-        """Events of one unit as text log entries at the time they happened; those that
-        carry device ticks (> 0) are on the device_time timeline as well."""
+        """Events of one unit as text log entries at the time they happened, the text led by
+        that time of day (UTC). Records lost are told with the time they span at the unit's
+        output rate, from its status or, before one came, from its samples.
+
+        Events are on the ``time`` timeline only: Rerun 0.41's text log view shows some rows
+        with another row's level when the rows of one entity lie on different sets of
+        timelines (events with device ticks on both, those without on ``time`` only)."""
         items = [events] if isinstance(events, Event) else list(events)
         if not items:
             return
         self._unit(unit)
         time_ns = np.array([e.time_ns for e in items], np.int64)
-        ticks = np.array([e.ticks for e in items], np.int64)
-        texts = np.array([event_text(unit, e) for e in items], dtype=str)
-        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items],
-                          dtype=str)
-        self._send_split(layout.event_path(unit), time_ns, ticks * NS_PER_TICK, ticks > 0,
-                         rr.TextLog.columns, text=texts, level=levels)
+        rate_hz = self._rate_hz.get(unit, 0.0)
+        texts = np.array([f"{_time_of_day(e.time_ns)}  {event_text(unit, e, rate_hz)}"
+                          for e in items], dtype=str)
+        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items], dtype=str)
+        self.recording.send_columns(layout.event_path(unit), indexes=_indexes(time_ns, None),
+                                    columns=rr.TextLog.columns(text=texts, level=levels))
         self._send_blueprint()
 
     def flush(self) -> None:
@@ -287,8 +308,8 @@ class RerunLogger:
         indexes = _indexes(time_ns, device_ns)
         for plot, values in sample_series(record, n).items():
             self._style(plot, unit, index)
-            rec.send_columns(layout.plot_path(plot, unit), indexes=indexes,
-                             columns=rr.Scalars.columns(scalars=values))
+            for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
+                rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=line))
         body = layout.body_path(unit)
         xyzw = sensor_to_earth(record)
         if xyzw is not None:
@@ -309,17 +330,17 @@ class RerunLogger:
                 return
             self._styled.add((plot, unit))
             self._plots.add(plot)
-        labels = PLOT[plot].labels
-        self.recording.log(layout.plot_path(plot, unit), rr.SeriesLines(
-            names=[f"{unit} {label}" for label in labels],
-            colors=layout.series_colors(index, len(labels))), static=True)
+        color = layout.unit_color(index)
+        for path, label in zip(layout.plot_paths(plot, unit), PLOT[plot].labels, strict=True):
+            self.recording.log(path, rr.SeriesLines(names=[f"{unit} {label}"], colors=[color]),
+                               static=True)
 
     def _send_blueprint(self) -> None:
         """Send the blueprint when the plots or the number of units changed since it was
         last sent; one sender at a time, so the last one sent is the newest."""
         with self._blueprint_lock:
             with self._lock:
-                sent = (frozenset(self._plots), len(self._units))
+                sent = (frozenset(self._plots), tuple(self._units))
             if sent == self._sent:
                 return
             self._sent = sent

@@ -5,7 +5,8 @@ rasteriser). The viewer is driven through its control API rather than
 ``--screenshot-to``: that one shoots after a fixed delay, before a recording of a few MB
 has loaded, and with the time cursor wherever playback happens to be.
 
-    python -m bridge.viz.snapshot docs/images/viewer.png    # the demo fleet, as in the README
+    python -m bridge.viz.snapshot docs/images/viewer.png    # a gx3 demo run, as in the README
+    python -m bridge.viz.snapshot shot.png --recording gx3-demo/demo.rrd   # one you have
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ from pathlib import Path
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
+from bridge.bus.gx3_pb2 import Event
 from bridge.loopback import free_port
-from bridge.viz.demo import DEMO_EPOCH_NS, write_demo
+from bridge.recorder.read import read_archive
 from bridge.viz.layout import TIME
 
 
@@ -38,11 +40,12 @@ def rerun_executable() -> str:
 
 
 def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: int | None = None,
-           size: tuple[int, int] = (1600, 1000), timeout_s: float = 60.0) -> ViewerState:
+           before_end_s: float | None = None, size: tuple[int, int] = (1600, 1000),
+           timeout_s: float = 60.0) -> ViewerState:
     """Open ``rrd`` in a headless viewer, pause the time cursor at ``at_ns`` on the ``time``
-    timeline (default: where the viewer puts it), save what it shows to ``png`` and return
-    the viewer's own account of it: recordings, timelines, views and what each view
-    failed to show."""
+    timeline, else ``before_end_s`` seconds before its end, else where the viewer puts it,
+    save what it shows to ``png`` and return the viewer's own account of it: recordings,
+    timelines, views and what each view failed to show."""
     port = free_port()
     viewer = subprocess.Popen(
         [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
@@ -59,6 +62,9 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
             if time.monotonic() > deadline:
                 raise TimeoutError(f"the viewer did not load {rrd} within {timeout_s:g} s")
             time.sleep(0.2)
+        if at_ns is None and before_end_s is not None:
+            (end,) = [t.end for r in state.recordings for t in r.timelines if t.name == TIME]
+            at_ns = None if end is None else end - round(before_end_s * 1e9)
         if at_ns is not None:
             client.set_time(TIME, timestamp=np.datetime64(at_ns, "ns"), play_state="paused")
         time.sleep(1.0)  # let the views catch up with the cursor before the shot
@@ -84,21 +90,62 @@ def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> View
             time.sleep(0.3)
 
 
+#: The README's fleet: enough units to show the colours and the grid, and the unplugged
+#: unit's gap and reconnect (gx3 demo unplugs its last unit part-way).
+DEMO_UNITS = 4
+DEMO_DURATION_S = 20.0
+#: Where the picture's time cursor sits: this long after the unplugged unit came back (gx3
+#: demo pulls its last unit part-way), so the events show the disconnect, the reconnect
+#: and the records lost meanwhile, with their count and span.
+AFTER_RECONNECT_S = 1.5
+
+
+def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DURATION_S) -> Path:
+    """Run ``gx3 demo`` (real bridges, Zenoh, recorder) into the new folder ``out``; its
+    Rerun recording."""
+    gx3 = Path(sys.executable).with_name("gx3")
+    command = [str(gx3)] if gx3.exists() else [sys.executable, "-c",
+                                               "from bridge.cli import app; app()"]
+    run = subprocess.run([*command, "demo", "--units", str(units), "--duration",
+                          f"{duration_s:g}", "-o", str(out)], capture_output=True, text=True)
+    if run.returncode != 0:
+        raise RuntimeError(f"gx3 demo failed ({run.returncode}): {run.stderr.strip()}")
+    return out / "demo.rrd"
+
+
 def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object]) -> int:
-    """The screenshot scripts' main: ``take(recording, png)`` of the demo recording."""
-    parser = argparse.ArgumentParser(prog=prog, description="Picture the demo recording.")
+    """The screenshot scripts' main: ``take(recording, png)`` of a gx3 demo recording, a
+    new run's unless one is given."""
+    parser = argparse.ArgumentParser(prog=prog, description="Picture a gx3 demo recording.")
     parser.add_argument("png", type=Path, metavar="OUT.png", help="the picture to write")
-    png: Path = parser.parse_args(argv).png
+    parser.add_argument("--recording", type=Path, metavar="DEMO.rrd",
+                        help="a recording gx3 demo made (default: run gx3 demo --units "
+                        f"{DEMO_UNITS} --duration {DEMO_DURATION_S:g} for it, about 40 s)")
+    args = parser.parse_args(argv)
+    if args.recording is not None:
+        if not args.recording.is_file():
+            parser.error(f"{args.recording}: no such file; give the demo.rrd gx3 demo wrote")
+        take(args.recording, args.png)
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
-        rrd = Path(tmp) / "demo.rrd"
-        write_demo(rrd)
-        take(rrd, png)
+        take(record_demo(Path(tmp) / "demo"), args.png)
     return 0
+
+
+def after_reconnect_ns(rrd: Path) -> int | None:
+    """A moment AFTER_RECONNECT_S after the first reconnect in the archive gx3 demo wrote
+    beside ``rrd`` (demo.mcap); None when there is none."""
+    archive = rrd.with_suffix(".mcap")
+    if not archive.is_file():
+        return None
+    found = [e.time_ns for _, e in read_archive(archive).events() if e.kind == Event.RECONNECT]
+    return min(found) + round(AFTER_RECONNECT_S * 1e9) if found else None
 
 
 def main(argv: list[str]) -> int:
     return demo_picture(argv, "python -m bridge.viz.snapshot",
-                        lambda rrd, png: render(rrd, png, at_ns=DEMO_EPOCH_NS + 20 * 10**9))
+                        lambda rrd, png: render(rrd, png, at_ns=after_reconnect_ns(rrd),
+                                                before_end_s=1.0))
 
 
 if __name__ == "__main__":
