@@ -38,7 +38,7 @@ DOCUMENTED_OPTIONS = (
     "--noise-mag", "--gyro-bias", "--decimation", "--flags", "--continuous-preset",
     "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
     "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
-    "--no-filter-model", "--disconnect-power-cycles",
+    "--no-filter-model", "--disconnect-power-cycles", "--hard-iron", "--soft-iron", "--tumble",
 )
 
 
@@ -314,6 +314,12 @@ BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
     (("--continuous-preset", "0x01"), "--continuous-preset"),
     (("--baud", "9600"), "--baud"),
     (("--noise-gyro", "-1"), "--noise-gyro"),
+    (("--hard-iron", "0.1,0.2"), "--hard-iron"),
+    (("--hard-iron", "0.1,x,0"), "--hard-iron"),
+    (("--hard-iron", "nan,0,0"), "--hard-iron"),
+    (("--soft-iron", "1,0,0,0,1,0,0,0"), "--soft-iron"),
+    (("--soft-iron", "1,0,0,0,0,0,0,0,1"), "--soft-iron"),
+    (("--static", "--tumble"), "--static/--tumble"),
 ]
 
 

@@ -28,6 +28,7 @@ RAW_GYRO_CODES_PER_RAD_S = 3000.0
 
 _MAX_PITCH_AMPLITUDE_RAD = math.radians(55.0)  # keeps Euler angles clear of gimbal lock
 _GRAVITY_NED_G = np.array([0.0, 0.0, 1.0])
+_TUMBLE_RATE_RAD_S = np.array([0.7, 0.0, 0.45])  # roll and yaw drift, incommensurate
 # Gauss-Legendre nodes in [-1, 1] and weights; cached, as leggauss costs more than a batch.
 _gauss_legendre = functools.cache(np.polynomial.legendre.leggauss)
 
@@ -39,7 +40,10 @@ class MotionConfig:
     static freezes the seed's attitude (zero rate, gravity-only accel). The biases are
     the sensor's own true offsets, added to what it reports, so that a stationary bias
     capture (0xCD) has something to find. Noise is white Gaussian, zero by default.
-    earth_field_gauss is north-east-down.
+    earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
+    it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
+    calibration has to undo. tumble turns the unit through every orientation (roll and
+    yaw keep turning, pitch swings to +/-55 degrees), the motion such a calibration needs.
     """
 
     seed: int = 0
@@ -53,6 +57,9 @@ class MotionConfig:
     noise_gyro_rad_s: float = 0.0
     noise_mag_gauss: float = 0.0
     temperature_c: float = 25.0
+    hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    tumble: bool = False
 
 
 def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
@@ -120,6 +127,9 @@ class Motion:
         codes = np.concatenate([[code0], code0 + rng.integers(-60, 61, 3)])
         self._temperature = np.clip(codes, 0, 4095).astype(np.uint16)
 
+        if cfg.tumble:
+            self._att_amp[1] *= _MAX_PITCH_AMPLITUDE_RAD / self._att_amp[1].sum()
+            self._att_drift = self._att_drift + _TUMBLE_RATE_RAD_S
         if cfg.static:
             self._att_offset = self.euler_and_rates(0.0)[0]
             self._att_amp = np.zeros_like(self._att_amp)
@@ -179,9 +189,15 @@ class Motion:
         """The mag reading alone at times t, (n, 3): what ``sample`` gives, at less cost."""
         t = _times(t)
         m = convert.euler_to_m(self.euler_and_rates(t)[0])
-        field: FloatArray = m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64)
+        field = self._ironed(m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64))
         noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
         return field + noise
+
+    def _ironed(self, field: FloatArray) -> FloatArray:
+        """The true body-frame field as the magnetometer reads it among the unit's iron."""
+        soft = np.asarray(self.config.soft_iron, dtype=np.float64).reshape(3, 3)
+        out: FloatArray = field @ soft.T + np.asarray(self.config.hard_iron_gauss)
+        return out
 
     def sample(self, t: npt.ArrayLike, period: float,
                noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
@@ -212,6 +228,7 @@ class Motion:
         m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])  # for C
         stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
 
+        stab_mag = self._ironed(stab_mag)
         noise = self._noise(t, noise_gain)
         accel = force + accel_bias + noise[:, 0:3]
         ang_rate = rate + gyro_bias + noise[:, 3:6]
