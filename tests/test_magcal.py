@@ -7,7 +7,7 @@ import pytest
 
 from bridge.protocol import convert
 from bridge.recorder.magcal import CalibrationError, fit
-from bridge.sim.motion import Motion, MotionConfig
+from bridge.sim.motion import Motion, MotionConfig, tumbling
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
 HARD = (0.12, -0.3, 0.05)
@@ -22,7 +22,7 @@ def ironed(config: MotionConfig) -> Motion:
 
 
 def test_a_tumbling_unit_gives_the_true_iron() -> None:
-    motion = ironed(MotionConfig(seed=4, tumble=True))
+    motion = ironed(tumbling(MotionConfig(seed=4)))
     cal = fit(motion.magnetometer(T))
     assert np.linalg.norm(cal.hard_iron - HARD) < 0.01 * FIELD
     np.testing.assert_array_equal(cal.soft_iron, cal.soft_iron.T)
@@ -63,7 +63,7 @@ def test_a_swaying_unit_gets_a_fit_with_a_warning_naming_the_unseen_axes() -> No
 
 
 def test_too_few_readings_are_refused() -> None:
-    raw = ironed(MotionConfig(seed=4, tumble=True)).magnetometer(T[:20])
+    raw = ironed(tumbling(MotionConfig(seed=4))).magnetometer(T[:20])
     raw[3] = np.nan
     with pytest.raises(CalibrationError, match="19 magnetometer readings"):
         fit(raw)

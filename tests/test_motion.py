@@ -20,6 +20,7 @@ from bridge.sim.motion import (
     RAW_ZERO_CODE,
     Motion,
     MotionConfig,
+    tumbling,
 )
 
 PERIOD = 0.01
@@ -312,8 +313,17 @@ def test_a_tumbling_unit_points_the_field_every_way() -> None:
         mag = Motion(config).magnetometer(t)
         return len({tuple(row) for row in (mag > 0).tolist()})
 
-    assert octants(MotionConfig(seed=4, tumble=True)) == 8
+    assert octants(tumbling(MotionConfig(seed=4))) == 8
     assert octants(MotionConfig(seed=4)) < 8
-    euler = Motion(MotionConfig(seed=4, tumble=True)).euler_and_rates(t)[0]
+    euler = Motion(tumbling(MotionConfig(seed=4))).euler_and_rates(t)[0]
     assert np.abs(euler[:, 1]).max() <= math.radians(55.0) + 1e-9
     assert np.ptp(euler[:, 0]) > 2 * np.pi and np.ptp(euler[:, 2]) > 2 * np.pi
+
+
+def test_a_spin_turns_roll_and_yaw_steadily() -> None:
+    t = np.arange(0.0, 10.0, 0.5)
+    euler = Motion(MotionConfig(seed=4, attitude_amplitude_rad=0.0,
+                                spin_rad_s=(0.3, -0.5))).euler_and_rates(t)[0]
+    np.testing.assert_allclose(euler[:, 0] - euler[0, 0], 0.3 * t, atol=1e-12)
+    np.testing.assert_array_equal(euler[:, 1], 0.0)
+    np.testing.assert_allclose(euler[:, 2] - euler[0, 2], -0.5 * t, atol=1e-12)

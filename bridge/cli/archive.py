@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 # every other gx3 command starts as fast as before.
 
 
-def _read(path: Path) -> Archive:
+def read_with_progress(path: Path) -> Archive:
     """Read an archive with progress on a terminal; warn once when it was cut short."""
     from bridge.recorder.read import describe_problem, read_archive
 
@@ -175,7 +175,7 @@ def export(
         events_file = (None if events is None
                        else outputs.enter_context(written(events, [archive], force)))
         try:
-            data = _read(archive)
+            data = read_with_progress(archive)
             first = data.first_sample_ns() or 0
             lo_ns = lo.resolve(first) if lo else None
             hi_ns = hi.resolve(first) if hi else None

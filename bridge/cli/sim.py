@@ -203,7 +203,7 @@ def sim(
     import time
 
     from bridge.sim.faults import FaultConfig
-    from bridge.sim.motion import MotionConfig
+    from bridge.sim.motion import MotionConfig, tumbling
     from bridge.sim.serve import LinkError, Simulator, unit_configs
     from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
@@ -243,8 +243,9 @@ def sim(
         raise fail(str(exc)) from None
     motion = MotionConfig(seed=seed, static=static, noise_accel_g=noise_accel,
                           noise_gyro_rad_s=noise_gyro, noise_mag_gauss=noise_mag,
-                          gyro_bias_rad_s=(gyro_bias,) * 3, tumble=tumble,
+                          gyro_bias_rad_s=(gyro_bias,) * 3,
                           hard_iron_gauss=(hard[0], hard[1], hard[2]), soft_iron=soft)
+    motion = tumbling(motion) if tumble else motion
     base = UnitConfig(serial=serial, model_name=model_name, model_number=model_number,
                       firmware=firmware, timer_start=timer_start, motion=motion, stored=stored,
                       state_file=state, filter_model=not no_filter_model)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -40,22 +41,28 @@ class CalibrationError(ValueError):
 
 
 @dataclass(frozen=True)
-class IronCalibration:
-    """corrected = soft_iron @ (raw - hard_iron), gauss; soft_iron is symmetric."""
+class Iron:
+    """corrected = soft_iron @ (raw - hard_iron), gauss."""
 
     hard_iron: FloatArray
     soft_iron: FloatArray
+
+    def correct(self, raw: npt.ArrayLike) -> FloatArray:
+        """Corrected readings, (n, 3), from raw ones; NaN rows stay NaN."""
+        out: FloatArray = (np.asarray(raw, np.float64) - self.hard_iron) @ self.soft_iron.T
+        return out
+
+
+@dataclass(frozen=True)
+class IronCalibration(Iron):
+    """A fit: the iron (soft_iron symmetric), and how well it fits and what it saw."""
+
     field_gauss: float  # mean magnitude of the corrected readings
     residual_before: float  # RMS of |raw| - mean, over the mean
     residual_after: float  # the same of the corrected readings
     coverage: float  # fraction of the 20 icosahedron-face direction bins the readings hit
     readings: int
     warnings: tuple[str, ...]
-
-    def correct(self, raw: npt.ArrayLike) -> FloatArray:
-        """Corrected readings, (n, 3), from raw ones; NaN rows stay NaN."""
-        out: FloatArray = (np.asarray(raw, np.float64) - self.hard_iron) @ self.soft_iron.T
-        return out
 
 
 def _face_centres() -> FloatArray:
@@ -199,3 +206,70 @@ def _missing(corrected: FloatArray) -> str:
     return (f"the field never lay along its {', '.join(names)} axis"
             f"{'es' if len(names) > 1 else ''}; turn the unit so that each of them points "
             "along the field (north and steeply down at mid latitudes) in turn")
+
+
+MODEL = "corrected = soft_iron @ (raw - hard_iron)"
+
+
+def document(cal: IronCalibration, unit: str, quantity: str, span_ns: tuple[int, int],
+             source: str) -> dict[str, object]:
+    """The calibration file's content: the iron, and what it was fitted from and how well."""
+    start, end = span_ns
+    return {
+        "unit": unit,
+        "hard_iron": [round(float(v), 7) for v in cal.hard_iron],
+        "soft_iron": [[round(float(v), 7) for v in row] for row in cal.soft_iron],
+        "model": MODEL,
+        "physical_unit": "gauss",
+        "field_gauss": round(cal.field_gauss, 6),
+        "residual_before": round(cal.residual_before, 6),
+        "residual_after": round(cal.residual_after, 6),
+        "coverage": round(cal.coverage, 3),
+        "readings": cal.readings,
+        "quantity": quantity,
+        "span": {"start_ns": start, "end_ns": end, "start_utc": _utc(start),
+                 "end_utc": _utc(end), "seconds": round((end - start) / 1e9, 3)},
+        "source": source,
+        "warnings": list(cal.warnings),
+    }
+
+
+def _utc(ns: int) -> str:
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(ns / 1e9, UTC).isoformat(timespec="milliseconds").replace(
+        "+00:00", "Z")
+
+
+@dataclass(frozen=True)
+class UnitIron(Iron):
+    """A calibration file as read back: whose it is, and all it says."""
+
+    unit: str
+    content: dict[str, object]
+
+
+def read_document(path: Path) -> UnitIron:
+    """A calibration file that ``gx3 calibrate-mag`` wrote; ValueError says what is wrong."""
+    import json
+
+    try:
+        content = json.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    except (ValueError, UnicodeDecodeError):
+        raise ValueError(f"{path}: not JSON; give a file that gx3 calibrate-mag wrote") from None
+    try:
+        unit = content["unit"]
+        hard = np.array(content["hard_iron"], np.float64)
+        soft = np.array(content["soft_iron"], np.float64)
+    except (KeyError, TypeError, ValueError):
+        hard = soft = np.zeros(0)
+        unit = None
+    if (not isinstance(unit, str) or hard.shape != (3,) or soft.shape != (3, 3)
+            or not np.isfinite(hard).all() or not np.isfinite(soft).all()
+            or abs(np.linalg.det(soft)) < 1e-9):
+        raise ValueError(f"{path}: not a calibration (it needs unit, hard_iron [x, y, z] and "
+                         "an invertible soft_iron [[...], [...], [...]]); give a file that "
+                         "gx3 calibrate-mag wrote")
+    return UnitIron(hard, soft, unit, content)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -28,7 +28,6 @@ RAW_GYRO_CODES_PER_RAD_S = 3000.0
 
 _MAX_PITCH_AMPLITUDE_RAD = math.radians(55.0)  # keeps Euler angles clear of gimbal lock
 _GRAVITY_NED_G = np.array([0.0, 0.0, 1.0])
-_TUMBLE_RATE_RAD_S = np.array([0.7, 0.0, 0.45])  # roll and yaw drift, incommensurate
 # Gauss-Legendre nodes in [-1, 1] and weights; cached, as leggauss costs more than a batch.
 _gauss_legendre = functools.cache(np.polynomial.legendre.leggauss)
 
@@ -42,8 +41,8 @@ class MotionConfig:
     capture (0xCD) has something to find. Noise is white Gaussian, zero by default.
     earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
     it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
-    calibration has to undo. tumble turns the unit through every orientation (roll and
-    yaw keep turning, pitch swings to +/-55 degrees), the motion such a calibration needs.
+    calibration has to undo. spin_rad_s adds steady roll and yaw turns to the sway, so a
+    unit can turn on a turntable or (``tumbling``) through every orientation.
     """
 
     seed: int = 0
@@ -59,7 +58,14 @@ class MotionConfig:
     temperature_c: float = 25.0
     hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-    tumble: bool = False
+    spin_rad_s: tuple[float, float] = (0.0, 0.0)
+
+
+def tumbling(config: MotionConfig) -> MotionConfig:
+    """``config`` turned through every orientation: roll and yaw keep turning (at
+    incommensurate rates) while pitch swings to its +/-55 degrees, the motion a
+    magnetometer iron calibration needs."""
+    return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
 
 def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
@@ -127,9 +133,7 @@ class Motion:
         codes = np.concatenate([[code0], code0 + rng.integers(-60, 61, 3)])
         self._temperature = np.clip(codes, 0, 4095).astype(np.uint16)
 
-        if cfg.tumble:
-            self._att_amp[1] *= _MAX_PITCH_AMPLITUDE_RAD / self._att_amp[1].sum()
-            self._att_drift = self._att_drift + _TUMBLE_RATE_RAD_S
+        self._att_drift += np.array([cfg.spin_rad_s[0], 0.0, cfg.spin_rad_s[1]])
         if cfg.static:
             self._att_offset = self.euler_and_rates(0.0)[0]
             self._att_amp = np.zeros_like(self._att_amp)

@@ -1,0 +1,110 @@
+"""`gx3 calibrate-mag` end to end: a 90 s tumbling capture of an emulated unit among known
+iron, with noise, replayed into an archive; the calibration file is checked against truth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.recorder.rawcapture import RawCaptureWriter
+from bridge.recorder.replay import replay
+from bridge.sim.capture import streaming_config, synthesize
+from bridge.sim.motion import Motion, MotionConfig, tumbling
+from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UsbDelivery
+from tests.test_export import gx3
+
+SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
+HARD = (0.12, -0.3, 0.05)
+EARTH = (0.2, 0.0, 0.45)
+FIELD = float(np.linalg.norm(EARTH))
+
+
+def captured(folder: Path, unit: str, motion: MotionConfig, seconds: float) -> Path:
+    cap = synthesize(streaming_config(UnitConfig(motion=motion), code=0xCC, decimation=10),
+                     UsbDelivery(seed=1), seconds=seconds)
+    meta = {"unit": unit, "record": "0xcc", "decimation": "10", "filter_width": "15",
+            "baud": "115200", "transport": "usb"}
+    path = folder / f"{unit}.raw.mcap"
+    writer = RawCaptureWriter(path, "gx3", unit, meta)
+    for rx, data in zip(cap.rx_ns.tolist(), cap.data, strict=True):
+        writer.write(data, rx)
+    writer.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """imu0 tumbles for 90 s among iron, with magnetometer noise; flat only turns about z."""
+    folder = tmp_path_factory.mktemp("magcal")
+    iron = MotionConfig(seed=4, hard_iron_gauss=HARD, soft_iron=SOFT, earth_field_gauss=EARTH,
+                        noise_mag_gauss=0.003)
+    tumbler = captured(folder, "imu0", tumbling(iron), 90.0)
+    flat = captured(folder, "flat", replace(iron, attitude_amplitude_rad=0.0,
+                                            spin_rad_s=(0.0, 0.5)), 20.0)
+    replay([tumbler, flat], folder / "iron.mcap")
+    return folder / "iron.mcap"
+
+
+def test_the_calibration_of_a_tumbling_unit_is_the_true_iron(recording: Path,
+                                                              tmp_path: Path) -> None:
+    out = tmp_path / "cal.json"
+    done = gx3("calibrate-mag", recording, "--unit", "imu0", "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "wrote" in done.stderr and "warning" not in done.stderr
+    cal = json.loads(out.read_text())
+    hard, soft = np.array(cal["hard_iron"]), np.array(cal["soft_iron"])
+    assert np.linalg.norm(hard - HARD) < 0.01 * FIELD
+    np.testing.assert_allclose(soft, soft.T, atol=1e-6)
+    # The true field, every way round, through the emulator's iron and this calibration.
+    truth = Motion(MotionConfig(seed=1)).magnetometer(np.arange(0, 90, 0.05))
+    truth = truth / np.linalg.norm(truth, axis=1, keepdims=True) * FIELD
+    corrected = (truth @ np.reshape(SOFT, (3, 3)).T + HARD - hard) @ soft.T
+    size = np.linalg.norm(corrected, axis=1)
+    assert np.abs(size / size.mean() - 1).max() < 0.005
+    assert cal["unit"] == "imu0" and cal["quantity"] == "mag"
+    assert cal["model"] == "corrected = soft_iron @ (raw - hard_iron)"
+    assert cal["coverage"] == 1.0 and cal["readings"] > 8900
+    assert cal["residual_after"] < 0.01 < 0.1 < cal["residual_before"]
+    assert 89.0 < cal["span"]["seconds"] < 90.1 and cal["span"]["start_utc"].endswith("Z")
+    assert cal["field_gauss"] == pytest.approx(FIELD, rel=0.05)
+
+
+def test_a_span_and_a_refused_output(recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "cal.json"
+    done = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--start", "10",
+               "--end", "40")
+    assert done.returncode == 0, done.stderr
+    assert 29.9 < json.loads(out.read_text())["span"]["seconds"] < 30.0
+    again = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out)
+    assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
+    assert gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--force").returncode == 0
+
+
+def test_a_flat_turn_is_refused_naming_the_missing_motion(recording: Path,
+                                                          tmp_path: Path) -> None:
+    out = tmp_path / "cal.json"
+    done = gx3("calibrate-mag", recording, "--unit", "flat", "-o", out)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1, done.stderr
+    assert "span a plane" in done.stderr and "its z axis" in done.stderr
+    assert "turn it also about its x and y axes" in done.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("--unit", "nobody"), "has no unit 'nobody'"),
+    ((), "holds 2 units"),
+    (("--unit", "imu0", "--start", "soon"), "'soon' is neither"),
+    (("--unit", "imu0", "--start", "200"), "no samples of unit imu0 from --start to --end"),
+])
+def test_bad_input_is_one_line(recording: Path, tmp_path: Path, args: tuple[str, ...],
+                               message: str) -> None:
+    done = gx3("calibrate-mag", recording, "-o", tmp_path / "cal.json", *args)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
+    assert not (tmp_path / "cal.json").exists()
