@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from bridge.recorder.rawcapture import RawCaptureWriter
@@ -39,10 +40,11 @@ def captured(folder: Path, unit: str, motion: MotionConfig, seconds: float) -> P
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """imu0 tumbles for 90 s among iron, with magnetometer noise; flat only turns about z."""
+    """imu0 tumbles for 90 s among iron, with magnetometer noise; flat only turns about z.
+    No linear acceleration: the accelerometer shows which way is down, for the heading."""
     folder = tmp_path_factory.mktemp("magcal")
     iron = MotionConfig(seed=4, hard_iron_gauss=HARD, soft_iron=SOFT, earth_field_gauss=EARTH,
-                        noise_mag_gauss=0.003)
+                        noise_mag_gauss=0.003, linear_accel_amplitude_g=0.0)
     tumbler = captured(folder, "imu0", tumbling(iron), 90.0)
     flat = captured(folder, "flat", replace(iron, attitude_amplitude_rad=0.0,
                                             spin_rad_s=(0.0, 0.5)), 20.0)
@@ -108,3 +110,65 @@ def test_bad_input_is_one_line(recording: Path, tmp_path: Path, args: tuple[str,
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
     assert not (tmp_path / "cal.json").exists()
+
+
+@pytest.fixture(scope="module")
+def calibration(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("cal") / "imu0.json"
+    assert gx3("calibrate-mag", recording, "-u", "imu0", "-o", out).returncode == 0
+    return out
+
+
+def test_export_applies_the_calibration_and_adds_a_compass_heading(
+        recording: Path, calibration: Path, tmp_path: Path) -> None:
+    plain, ironed = tmp_path / "plain.parquet", tmp_path / "ironed.parquet"
+    assert gx3("export", recording, "-o", plain).returncode == 0
+    done = gx3("export", recording, "-o", ironed, "--mag-cal", calibration)
+    assert done.returncode == 0, done.stderr
+    before, after = pq.read_table(plain).to_pydict(), pq.read_table(ironed)
+    table = after.to_pydict()
+    names = after.column_names
+    assert names[names.index("mag_z") + 1] == "mag_heading"
+    imu0 = np.array(table["unit"]) == "imu0"
+    mag = np.column_stack([np.array(table[f"mag_{a}"]) for a in "xyz"])
+    raw = np.column_stack([np.array(before[f"mag_{a}"]) for a in "xyz"])
+    size = np.linalg.norm(mag[imu0], axis=1)
+    assert np.sqrt(np.mean((size / size.mean() - 1) ** 2)) < 0.005
+    assert size.mean() == pytest.approx(FIELD, rel=0.05)
+    np.testing.assert_array_equal(mag[~imu0], raw[~imu0])  # flat has no calibration
+    # The compass heading is the true yaw of the unit's M (body x: M's first row).
+    heading = np.array(table["mag_heading"], dtype=float)
+    yaw = np.arctan2(np.array(table["m12"]), np.array(table["m11"]))
+    error = np.angle(np.exp(1j * (heading[imu0] - yaw[imu0])))
+    assert np.abs(error).max() < np.radians(2.0)
+    assert np.isnan(heading[~imu0]).all()
+    meta = after.schema.metadata
+    assert json.loads(meta[b"gx3.mag_cal"])["imu0"] == json.loads(calibration.read_text())
+    field = after.schema.field("mag_heading").metadata
+    assert field[b"physical_unit"] == b"rad"
+
+
+def test_an_aligned_export_has_the_heading_of_the_calibrated_unit(
+        recording: Path, calibration: Path, tmp_path: Path) -> None:
+    out = tmp_path / "aligned.parquet"
+    done = gx3("export", recording, "-o", out, "--mag-cal", calibration, "--align", "50")
+    assert done.returncode == 0, done.stderr
+    names = pq.read_schema(out).names
+    assert "imu0__mag_heading" in names and "flat__mag_heading" not in names
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("{", "not JSON"),
+    ('{"unit": "imu0", "hard_iron": [0, 0], "soft_iron": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}',
+     "not a calibration"),
+    ('{"unit": "imu9", "hard_iron": [0, 0, 0], "soft_iron": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}',
+     "the calibration of unit imu9 has no samples"),
+])
+def test_a_bad_calibration_file_is_one_line(recording: Path, tmp_path: Path, text: str,
+                                            message: str) -> None:
+    cal = tmp_path / "cal.json"
+    cal.write_text(text)
+    done = gx3("export", recording, "-o", tmp_path / "out.parquet", "--mag-cal", cal)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
+    assert not (tmp_path / "out.parquet").exists()

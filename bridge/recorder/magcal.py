@@ -13,6 +13,7 @@ gives readings on a plane, and the calibration says which motion is missing.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -273,3 +274,63 @@ def read_document(path: Path) -> UnitIron:
                          "an invertible soft_iron [[...], [...], [...]]); give a file that "
                          "gx3 calibrate-mag wrote")
     return UnitIron(hard, soft, unit, content)
+
+
+#: The quantities iron distorts: the magnetometer and the unit's gyro-stabilised estimate
+#: of it, which it makes from the same sensor.
+IRONED = ("mag", "stab_mag")
+HEADING = "mag_heading"
+
+
+def apply(table: dict[str, np.ndarray], irons: Sequence[UnitIron]) -> None:
+    """Correct, in place, each calibrated unit's mag and stab_mag columns in an export."""
+    units = sorted(set(table["unit"].tolist()))
+    seen: set[str] = set()
+    for iron in irons:
+        if iron.unit not in units:
+            raise ValueError(f"--mag-cal: the calibration of unit {iron.unit} has no samples "
+                             f"in this export (units: {', '.join(units) or 'none'})")
+        if iron.unit in seen:
+            raise ValueError(f"--mag-cal: two calibrations of unit {iron.unit}; give one")
+        seen.add(iron.unit)
+        rows = table["unit"] == iron.unit
+        for quantity in IRONED:
+            names = [f"{quantity}_{a}" for a in _AXES]
+            if names[0] in table:
+                raw = np.column_stack([table[n][rows] for n in names])
+                for name, column in zip(names, iron.correct(raw).T, strict=True):
+                    table[name][rows] = column
+
+
+def tilt_heading(accel: npt.ArrayLike, mag: npt.ArrayLike) -> FloatArray:
+    """Heading [rad, -pi..pi, from magnetic north toward east] of the body x axis, from
+    the specific force (down is against it when the unit is not accelerating) and the
+    field, both body FRD: the yaw a level compass would show, whatever the tilt."""
+    down = -np.asarray(accel, np.float64)
+    east = np.cross(down, np.asarray(mag, np.float64))
+    north = np.cross(east, down)
+    heading: FloatArray = np.arctan2(east[:, 0] * np.linalg.norm(north, axis=1),
+                                     north[:, 0] * np.linalg.norm(east, axis=1))
+    return heading
+
+
+def with_heading(table: dict[str, np.ndarray], prefixes: Iterable[str] = ("",),
+                 units: Iterable[str] = ()) -> dict[str, np.ndarray]:
+    """The table with a ``mag_heading`` column beside each yaw (or after mag), per column
+    prefix (an aligned table's ``<unit>__``), where the table has accel and mag; with
+    ``units``, rows of other units (whose mag is not corrected) have none."""
+    out = dict(table)
+    others = ~np.isin(table["unit"], list(units)) if units else None
+    for p in prefixes:
+        needed = [f"{p}{q}_{a}" for q in ("accel", "mag") for a in _AXES]
+        if not all(n in table for n in needed):
+            continue
+        values = np.column_stack([table[n] for n in needed])
+        heading = tilt_heading(values[:, :3], values[:, 3:]).astype(np.float32)
+        if others is not None:
+            heading[others] = np.nan
+        after = f"{p}yaw" if f"{p}yaw" in table else f"{p}mag_z"
+        items = list(out.items())
+        at = [k for k, _ in items].index(after) + 1
+        out = dict([*items[:at], (f"{p}{HEADING}", heading), *items[at:]])
+    return out
