@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from rerun.chunk import RrdReader
 
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.replay import replay
@@ -18,6 +19,7 @@ from bridge.sim.motion import Motion, MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from tests.test_export import gx3
+from tests.test_viz_logger import blueprint_views
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
 HARD = (0.12, -0.3, 0.05)
@@ -172,3 +174,34 @@ def test_a_bad_calibration_file_is_one_line(recording: Path, tmp_path: Path, tex
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
     assert not (tmp_path / "out.parquet").exists()
+
+
+def test_the_fit_drawn_in_rerun_as_the_manuals_figure_3(recording: Path, tmp_path: Path) -> None:
+    out, drawing = tmp_path / "cal.json", tmp_path / "fit.rrd"
+    done = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--rrd", drawing)
+    assert done.returncode == 0, done.stderr
+    cal = json.loads(out.read_text())
+    store = RrdReader(drawing).stream().collect()
+
+    def column(entity: str, name: str) -> np.ndarray:
+        found = store.reader(index=None, contents=entity).to_arrow_table()
+        return np.array(found.column(f"{entity}:{name}").to_pylist()[0])
+
+    raw = column("/raw/readings", "Points3D:positions")
+    corrected = column("/corrected/readings", "Points3D:positions")
+    assert len(raw) == len(corrected) > 4000
+    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), cal["field_gauss"], rtol=0.02)
+    np.testing.assert_allclose(column("/raw/ellipsoid", "Ellipsoids3D:centers")[0],
+                               cal["hard_iron"], rtol=1e-5)
+    half = column("/raw/ellipsoid", "Ellipsoids3D:half_sizes")[0]
+    assert sorted(half) == pytest.approx(sorted(cal["field_gauss"] / np.linalg.eigvalsh(
+        np.array(cal["soft_iron"]))), rel=1e-5)
+    # The raw readings lie on the ellipsoid as drawn (its rotation a Hamilton xyzw quaternion).
+    x, y, z, w = column("/raw/ellipsoid", "Ellipsoids3D:quaternions")[0]
+    turn = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    local = (raw - cal["hard_iron"]) @ turn / half
+    np.testing.assert_allclose(np.linalg.norm(local, axis=1), 1.0, rtol=0.02)
+    views = blueprint_views(drawing)[0]
+    assert {("3D", "/raw"), ("3D", "/corrected"), ("TextDocument", "/calibration")} <= views

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -27,6 +28,10 @@ def calibrate_mag(
              "from the first sample.")] = None,
     end: Annotated[str | None, typer.Option(
         metavar="TIME", help="End instant (exclusive), as --start.")] = None,
+    rrd: Annotated[Path | None, typer.Option(
+        "--rrd", metavar="FILE.rrd",
+        help="Also draw the fit in a Rerun recording, as the manual's Figure 3: raw "
+             "readings on the fitted ellipsoid beside the corrected ones on a sphere.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Fit the magnetometer's hard- and soft-iron calibration, which the manual leaves
@@ -57,7 +62,10 @@ def calibrate_mag(
         hi = parse_time(end) if end else None
     except ValueError as exc:
         raise fail(str(exc)) from None
-    with written(output, [archive], force) as temp:
+    with ExitStack() as outputs:
+        temp = outputs.enter_context(written(output, [archive], force))
+        drawing = None if rrd is None else outputs.enter_context(
+            written(rrd, [archive, output], force))
         try:
             data = read_with_progress(archive)
             units = data.units()
@@ -84,6 +92,10 @@ def calibrate_mag(
             content = document(cal, name, quantity, (int(times[0]), int(times[-1])),
                                archive.name)
             temp.write_text(json.dumps(content, indent=1) + "\n")
+            if drawing is not None:
+                from bridge.viz.magcal import write_fit
+
+                write_fit(drawing, raw, cal, name, _summary(content))
         except CalibrationError as exc:
             raise fail(f"unit {name}: cannot calibrate: {exc}") from None
         except (ArchiveReadError, ValueError) as exc:
@@ -97,6 +109,19 @@ def calibrate_mag(
               f"({', '.join(f'{v:+.4f}' for v in cal.hard_iron)}) gauss, field "
               f"{cal.field_gauss:.4f} gauss, spread {cal.residual_before:.2%} before and "
               f"{cal.residual_after:.2%} after, {cal.coverage:.0%} of directions covered")
+
+
+def _summary(content: dict[str, Any]) -> str:
+    """The calibration in Markdown, for the recording's text panel."""
+    lines = [f"**{content['unit']}**: {content['model']} (gauss), fitted from "
+             f"{content['readings']} readings over {content['span']['seconds']} s from "
+             f"{content['span']['start_utc']}",
+             "", f"- hard_iron: {content['hard_iron']}", f"- soft_iron: {content['soft_iron']}",
+             f"- field {content['field_gauss']} gauss; spread of |field| "
+             f"{content['residual_before']:.2%} raw, {content['residual_after']:.2%} corrected; "
+             f"{content['coverage']:.0%} of directions covered"]
+    lines += [f"- warning: {w}" for w in content["warnings"]]
+    return "\n".join(lines)
 
 
 def _only_unit(archive: Path, units: list[str]) -> str:
