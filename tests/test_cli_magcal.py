@@ -4,6 +4,8 @@ iron, with noise, replayed into an archive; the calibration file is checked agai
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,13 +15,18 @@ import pytest
 from rerun.chunk import RrdReader
 
 from bridge.recorder.rawcapture import RawCaptureWriter
+from bridge.recorder.read import read_archive
 from bridge.recorder.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import Motion, MotionConfig, tumbling
+from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
+from tests.test_bridge_process import GX3, bridge_process, zenoh_config
 from tests.test_export import gx3
+from tests.test_record_live import UNITS, rerun_rows_so_far
 from tests.test_viz_logger import blueprint_views
+from tests.waiting import free_port, wait_for
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
 HARD = (0.12, -0.3, 0.05)
@@ -205,3 +212,57 @@ def test_the_fit_drawn_in_rerun_as_the_manuals_figure_3(recording: Path, tmp_pat
     np.testing.assert_allclose(np.linalg.norm(local, axis=1), 1.0, rtol=0.02)
     views = blueprint_views(drawing)[0]
     assert {("3D", "/raw"), ("3D", "/corrected"), ("TextDocument", "/calibration")} <= views
+
+
+def test_rrd_shows_the_calibrated_units_mag_corrected(recording: Path, calibration: Path,
+                                                      tmp_path: Path) -> None:
+    out = tmp_path / "ironed.rrd"
+    done = gx3("rrd", recording, "-o", out, "--mag-cal", calibration)
+    assert done.returncode == 0, done.stderr
+    store = RrdReader(out).stream().collect()
+
+    def plotted(unit: str) -> np.ndarray:
+        entity = f"/plots/mag/{unit}"
+        found = store.reader(index="time", contents=entity).to_arrow_table()
+        return np.array(found.column(f"{entity}:Scalars:scalars").to_pylist())
+
+    size = np.linalg.norm(plotted("imu0"), axis=1)
+    assert len(size) > 8900
+    assert np.sqrt(np.mean((size / size.mean() - 1) ** 2)) < 0.005
+    raw = np.concatenate([b.columns["mag"] for b in read_archive(recording).samples(["flat"])])
+    np.testing.assert_array_equal(plotted("flat"), raw)  # no calibration: as recorded
+
+
+def test_rrd_refuses_a_calibration_of_a_unit_it_lacks(recording: Path, tmp_path: Path) -> None:
+    cal = tmp_path / "cal.json"
+    cal.write_text('{"unit": "imu9", "hard_iron": [0, 0, 0], '
+                   '"soft_iron": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}')
+    done = gx3("rrd", recording, "-o", tmp_path / "out.rrd", "--mag-cal", cal)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "unit imu9 has no samples" in done.stderr
+    assert not (tmp_path / "out.rrd").exists()
+
+
+def test_view_shows_a_live_units_mag_corrected(tmp_path: Path) -> None:
+    """A live bridge's unit a through gx3 view --mag-cal: a calibration far from the truth
+    (hard iron (1, 2, 3), soft 2 I) shows as 2 (raw - hard), whose raw is the field."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    view_cfg = zenoh_config(tmp_path / "view.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    cal, rrd = tmp_path / "a.json", tmp_path / "live.rrd"
+    cal.write_text('{"unit": "a", "hard_iron": [1, 2, 3], '
+                   '"soft_iron": [[2, 0, 0], [0, 2, 0], [0, 0, 2]]}')
+    viewer = subprocess.Popen([GX3, "view", "--save", str(rrd), "--zenoh-config",
+                               str(view_cfg), "--mag-cal", str(cal)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    with Simulator(UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
+        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/a") >= 100)
+    viewer.send_signal(signal.SIGINT)
+    _, stderr = viewer.communicate(timeout=30)
+    assert viewer.returncode == 0, stderr.decode()
+    shown = RrdReader(rrd).stream().collect().reader(index="time", contents="/plots/mag/a")
+    mag = np.array(shown.to_arrow_table().column("/plots/mag/a:Scalars:scalars").to_pylist())
+    assert len(mag) >= 100
+    raw = mag / 2 + [1, 2, 3]
+    np.testing.assert_allclose(np.linalg.norm(raw, axis=1), FIELD, rtol=0.02)

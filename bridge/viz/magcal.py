@@ -8,17 +8,22 @@ readings on their fitted ellipsoid beside the corrected readings on a sphere.
     /corrected/readings  Points3D, soft_iron @ (raw - hard_iron)
     /corrected/sphere    Ellipsoids3D, the sphere of the mean field magnitude
     /calibration         TextDocument, the numbers
+
+and a RerunLogger that applies calibrations to what it shows.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bridge.recorder.magcal import IronCalibration
+from bridge.recorder.magcal import IRONED, IronCalibration, UnitIron
+from bridge.viz.logger import RerunLogger
 
 #: Points drawn at most: enough to see the shape, few enough to stay quick.
 MAX_POINTS = 5000
@@ -86,3 +91,18 @@ def write_fit(path: Path, raw: np.ndarray, cal: IronCalibration, unit: str,
             static=True)
     rec.flush()
     rec.disconnect()
+
+
+class IronedLogger(RerunLogger):
+    """A RerunLogger that shows calibrated units' mag and stab_mag corrected for iron."""
+
+    def __init__(self, irons: Sequence[UnitIron], *args: Any, **kwargs: Any) -> None:
+        self._irons = {iron.unit: iron for iron in irons}
+        super().__init__(*args, **kwargs)
+
+    def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
+        iron = self._irons.get(unit)
+        if iron is not None:
+            columns = {name: iron.correct(value).astype(value.dtype) if name in IRONED
+                       else value for name, value in columns.items()}
+        super().log_samples(unit, code, columns)
