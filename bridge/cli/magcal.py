@@ -15,7 +15,8 @@ from bridge.cli.common import ForceOpt, app, err, fail, written
 @app.command("calibrate-mag")
 def calibrate_mag(
     archive: Annotated[Path, typer.Argument(
-        help="Archive (.mcap) in which the unit was turned through every orientation.")],
+        metavar="ARCHIVE.mcap",
+        help="Archive in which the unit was turned through every orientation.")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="FILE",
         help="Calibration file to write (.json); it appears when complete.")],
@@ -40,9 +41,9 @@ def calibrate_mag(
     Turn the installed unit slowly through every orientation (about each of its axes,
     upside down too) while recording, then give the archive and the unit. The readings
     of every record type with a magnetometer (mag; stab_mag if none has mag) lie on an
-    ellipsoid; its fit gives, in gauss, hard_iron [x, y, z] and a symmetric soft_iron
-    [[...], [...], [...]] with corrected = soft_iron @ (raw - hard_iron), the corrected
-    readings keeping the mean field magnitude. The JSON file also holds the unit, the
+    ellipsoid; its fit gives, in gauss, the vector hard_iron and the symmetric 3x3 matrix
+    soft_iron with corrected = soft_iron @ (raw - hard_iron), the corrected readings
+    keeping the mean field magnitude. The JSON file also holds the unit, the
     span used, the residual before and after (RMS of |field| minus its mean, over the
     mean), the coverage (fraction of 20 equal directions the field was seen from) and
     any warning. Readings that span a plane (a turn about one axis), a line or a point
