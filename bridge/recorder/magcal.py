@@ -12,9 +12,11 @@ gives readings on a plane, and the calibration says which motion is missing.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 
+MODEL = "corrected = soft_iron @ (raw - hard_iron)"
 MIN_READINGS = 50
 #: Below this ratio of the readings' thinnest to widest spread, they lie on a plane; below
 #: this ratio of their widest spread to their mean magnitude, they hardly moved at all.
@@ -209,9 +212,6 @@ def _missing(corrected: FloatArray) -> str:
             "along the field (north and steeply down at mid latitudes) in turn")
 
 
-MODEL = "corrected = soft_iron @ (raw - hard_iron)"
-
-
 def document(cal: IronCalibration, unit: str, quantity: str, span_ns: tuple[int, int],
              source: str) -> dict[str, object]:
     """The calibration file's content: the iron, and what it was fitted from and how well."""
@@ -236,8 +236,6 @@ def document(cal: IronCalibration, unit: str, quantity: str, span_ns: tuple[int,
 
 
 def _utc(ns: int) -> str:
-    from datetime import UTC, datetime
-
     return datetime.fromtimestamp(ns / 1e9, UTC).isoformat(timespec="milliseconds").replace(
         "+00:00", "Z")
 
@@ -252,8 +250,6 @@ class UnitIron(Iron):
 
 def read_document(path: Path) -> UnitIron:
     """A calibration file that ``gx3 calibrate-mag`` wrote; ValueError says what is wrong."""
-    import json
-
     try:
         content = json.loads(path.read_text())
     except OSError as exc:
