@@ -34,6 +34,11 @@ STILL_RATIO = 0.05
 #: under which it is given with a warning.
 REFUSE_COVERAGE = 0.25
 WARN_COVERAGE = 0.6
+#: The length of the readings' mean direction over which the fit is refused, and over
+#: which it is given with a warning: 0 for readings all round the sphere, 0.5 for a
+#: hemisphere, near 1 for a cap.
+REFUSE_LOPSIDED = 0.6
+WARN_LOPSIDED = 0.3
 #: A direction bin counts as covered with at least this many readings in it.
 _MIN_PER_BIN = 3
 _AXES = "xyz"
@@ -176,13 +181,19 @@ def fit(raw: npt.ArrayLike) -> IronCalibration:
     soft = field * unit_sphere
     soft = (soft + soft.T) / 2.0
     corrected = (points - hard) @ soft.T
-    covered = coverage(corrected / np.linalg.norm(corrected, axis=1, keepdims=True))
-    if covered < REFUSE_COVERAGE:
+    directions = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
+    covered = coverage(directions)
+    # A fit to one side of the sphere can stretch that side over most of it: the
+    # readings' mean direction still shows them crowded there (0 all round, 1 one way).
+    lopsided = float(np.linalg.norm(directions.mean(axis=0)))
+    if covered < REFUSE_COVERAGE or lopsided > REFUSE_LOPSIDED:
         raise CalibrationError(
-            f"the readings cover {covered:.0%} of the directions a fit needs: "
+            f"the readings saw the field from one side only ({covered:.0%} of directions "
+            f"covered, mean direction {lopsided:.2f} of the way to one side): "
             f"{_missing(corrected)}")
-    warnings = () if covered >= WARN_COVERAGE else (
-        f"the readings cover only {covered:.0%} of the sphere, so the fit is uncertain: "
+    warnings = () if covered >= WARN_COVERAGE and lopsided <= WARN_LOPSIDED else (
+        f"the readings cover the sphere unevenly ({covered:.0%} of directions, mean "
+        f"direction {lopsided:.2f} of the way to one side), so the fit is uncertain: "
         f"{_missing(corrected)}",)
     return IronCalibration(hard_iron=hard, soft_iron=soft,
                            field_gauss=float(np.mean(np.linalg.norm(corrected, axis=1))),
@@ -198,18 +209,26 @@ def _not_an_ellipsoid() -> str:
 
 
 def _missing(corrected: FloatArray) -> str:
-    """Which body axes never had the field along or against them, and what to do."""
+    """Which body axes never had the field along them (else, the side the readings crowd
+    away from), and what to do."""
     directions = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
     names = []
     for i, axis in enumerate(_AXES):
         for sign, mark in ((1.0, "+"), (-1.0, "-")):
             if not np.any(sign * directions[:, i] > math.cos(math.radians(45.0))):
                 names.append(f"{mark}{axis}")
+    along = "(north and steeply down at mid latitudes)"
     if not names:
-        return "turn the unit through more orientations"
-    return (f"the field never lay along its {', '.join(names)} axis"
-            f"{'es' if len(names) > 1 else ''}; turn the unit so that each of them points "
-            "along the field (north and steeply down at mid latitudes) in turn")
+        mean = directions.mean(axis=0)
+        i = int(np.argmax(np.abs(mean)))
+        crowded, empty = ("+", "-") if mean[i] > 0 else ("-", "+")
+        return (f"the field lay mostly along its {crowded}{_AXES[i]} axis; turn the unit so "
+                f"that its {empty}{_AXES[i]} axis points along the field {along} as long")
+    if len(names) == 1:
+        return (f"the field never lay along its {names[0]} axis; turn the unit so that this "
+                f"axis points along the field {along}")
+    return (f"the field never lay along its {', '.join(names)} axes; turn the unit so that "
+            f"each of them points along the field {along} in turn")
 
 
 def document(cal: IronCalibration, unit: str, quantity: str, span_ns: tuple[int, int],
