@@ -46,10 +46,11 @@ def calibrate_mag(
     keeping the mean field magnitude. The JSON file also holds the unit, the
     span used, the residual before and after (RMS of |field| minus its mean, over the
     mean), the coverage (fraction of 20 equal directions the field was seen from) and
-    any warning. Readings that span a plane (a turn about one axis), a line or a point
-    are refused (exit 2), saying which motion is missing; a fit from part of the sphere
-    is written with a warning naming the axes the field never lay along. Apply it with
-    gx3 export --mag-cal.
+    any warning. Readings that span a plane (a turn about one axis), a line or a point,
+    or that saw the field from one side only (a unit never upside down), are refused
+    (exit 2), saying which motion is missing; a fit from readings that cover the sphere
+    unevenly is written with a warning saying which axis to point along the field. Apply
+    it with gx3 export --mag-cal, gx3 rrd --mag-cal or gx3 view --mag-cal.
     """
     import numpy as np
 
