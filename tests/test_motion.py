@@ -20,6 +20,7 @@ from bridge.sim.motion import (
     RAW_ZERO_CODE,
     Motion,
     MotionConfig,
+    tumbling,
 )
 
 PERIOD = 0.01
@@ -287,3 +288,42 @@ def test_rejects_bad_arguments(motion: Motion) -> None:
     with pytest.raises(ValueError, match="one-dimensional"):
         motion.sample(T.reshape(-1, 2), PERIOD)
     assert motion.sample(2.5, PERIOD)["m"].shape == (1, 3, 3)
+
+
+SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
+HARD = (0.12, -0.3, 0.05)
+
+
+def test_the_magnetometer_reads_the_field_through_soft_and_hard_iron() -> None:
+    clean = Motion(MotionConfig(seed=3)).sample(T, PERIOD)
+    ironed = Motion(MotionConfig(seed=3, hard_iron_gauss=HARD, soft_iron=SOFT))
+    s = ironed.sample(T, PERIOD)
+    expected = clean["mag"] @ np.reshape(SOFT, (3, 3)).T + HARD
+    np.testing.assert_allclose(s["mag"], expected, atol=1e-12)
+    np.testing.assert_array_equal(s["stab_mag"], s["mag"])
+    np.testing.assert_array_equal(ironed.magnetometer(T), s["mag"])
+    np.testing.assert_array_equal(s["m"], clean["m"])
+
+
+def test_a_tumbling_unit_points_the_field_every_way() -> None:
+    """Body-frame field directions of a tumbling unit reach every octant, a swaying one not."""
+    t = np.arange(0.0, 90.0, 0.05)
+
+    def octants(config: MotionConfig) -> int:
+        mag = Motion(config).magnetometer(t)
+        return len({tuple(row) for row in (mag > 0).tolist()})
+
+    assert octants(tumbling(MotionConfig(seed=4))) == 8
+    assert octants(MotionConfig(seed=4)) < 8
+    euler = Motion(tumbling(MotionConfig(seed=4))).euler_and_rates(t)[0]
+    assert np.abs(euler[:, 1]).max() <= math.radians(55.0) + 1e-9
+    assert np.ptp(euler[:, 0]) > 2 * np.pi and np.ptp(euler[:, 2]) > 2 * np.pi
+
+
+def test_a_spin_turns_roll_and_yaw_steadily() -> None:
+    t = np.arange(0.0, 10.0, 0.5)
+    euler = Motion(MotionConfig(seed=4, attitude_amplitude_rad=0.0,
+                                spin_rad_s=(0.3, -0.5))).euler_and_rates(t)[0]
+    np.testing.assert_allclose(euler[:, 0] - euler[0, 0], 0.3 * t, atol=1e-12)
+    np.testing.assert_array_equal(euler[:, 1], 0.0)
+    np.testing.assert_allclose(euler[:, 2] - euler[0, 2], -0.5 * t, atol=1e-12)

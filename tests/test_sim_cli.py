@@ -38,7 +38,7 @@ DOCUMENTED_OPTIONS = (
     "--noise-mag", "--gyro-bias", "--decimation", "--flags", "--continuous-preset",
     "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
     "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
-    "--no-filter-model", "--disconnect-power-cycles",
+    "--no-filter-model", "--disconnect-power-cycles", "--hard-iron", "--soft-iron", "--tumble",
 )
 
 
@@ -179,6 +179,19 @@ def test_tcp_units_are_distinct_devices(run_sim: Callable[..., Sim]) -> None:
         assert np.abs(a - b).max() > 1e-3, "two units report the same attitude"
 
 
+def test_the_magnetometer_reads_through_the_iron_given(run_sim: Callable[..., Sim]) -> None:
+    """--hard-iron and --soft-iron reach the unit: 0xC7 reads soft @ field + hard."""
+    sim = run_sim("--tcp", "127.0.0.1:0", "--static", "--hard-iron", "1,-2,3",
+                  "--soft-iron", "2,0,0,0,2,0,0,0,2")
+    (url,) = sim.endpoints(1)
+    with serial.serial_for_url(url, timeout=0.05) as port:
+        settle(port)
+        reply = ask(port, b"\xc7", 19)
+        assert intact(reply, 0xC7, 19), reply.hex()
+    field = (np.array(struct.unpack_from(">3f", reply, 1)) - [1, -2, 3]) / 2
+    assert np.linalg.norm(field) == pytest.approx(np.hypot(0.2, 0.45), rel=1e-4)
+
+
 def test_pty_endpoint_opens_with_pyserial(run_sim: Callable[..., Sim]) -> None:
     sim = run_sim("--pty", "--firmware", "4242")
     (path,) = sim.endpoints(1)
@@ -314,6 +327,12 @@ BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
     (("--continuous-preset", "0x01"), "--continuous-preset"),
     (("--baud", "9600"), "--baud"),
     (("--noise-gyro", "-1"), "--noise-gyro"),
+    (("--hard-iron", "0.1,0.2"), "--hard-iron"),
+    (("--hard-iron", "0.1,x,0"), "--hard-iron"),
+    (("--hard-iron", "nan,0,0"), "--hard-iron"),
+    (("--soft-iron", "1,0,0,0,1,0,0,0"), "--soft-iron"),
+    (("--soft-iron", "1,0,0,0,0,0,0,0,1"), "--soft-iron"),
+    (("--static", "--tumble"), "--static/--tumble"),
 ]
 
 

@@ -15,6 +15,7 @@ from bridge.cli import (
     commands,
     decode,
     demo,
+    magcal,
     operate,
     record,
     router,
@@ -28,7 +29,7 @@ PANELS = {
     "Run a fleet": ("demo", "bridge", "record", "view", "router", "sim"),
     "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
                        "reset"),
-    "Archives": ("export", "replay", "rrd", "repair"),
+    "Archives": ("export", "replay", "rrd", "repair", "calibrate-mag"),
     "Bytes and protocol": ("decode", "commands"),
 }
 
@@ -50,5 +51,5 @@ def _arrange() -> None:
 _arrange()
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "operate", "record",
-           "router", "sim", "viz"]
+__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "magcal", "operate",
+           "record", "router", "sim", "viz"]

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 # every other gx3 command starts as fast as before.
 
 
-def _read(path: Path) -> Archive:
+def read_with_progress(path: Path) -> Archive:
     """Read an archive with progress on a terminal; warn once when it was cut short."""
     from bridge.recorder.read import describe_problem, read_archive
 
@@ -111,6 +111,13 @@ def export(
              "its time to this .parquet or .csv file: unit, time_ns, time_utc, ticks, "
              "kind, amount (records dropped for a GAP, bytes skipped for a RESYNC, "
              "messages for LOST, REJECTED and SHED, else 1), detail.")] = None,
+    mag_cal: Annotated[list[Path] | None, typer.Option(
+        "--mag-cal", metavar="FILE",
+        help="Iron calibration (JSON) of one unit from gx3 calibrate-mag (repeatable, one "
+             "per unit): that unit's mag and stab_mag become the corrected readings, "
+             "soft_iron @ (raw - hard_iron); a table gains mag_heading, the tilt-compensated "
+             "heading from accel and the corrected mag, beside the unit's own yaw; a "
+             "Parquet file records each calibration in its gx3.mag_cal metadata.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline,
@@ -138,7 +145,7 @@ def export(
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
     time_ns a table export with the same options gives.
     """
-    from bridge.recorder.describe import About
+    from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
     from bridge.recorder.export import (
         align_table,
         archive_prefix,
@@ -150,10 +157,12 @@ def export(
         sample_table,
         write_table,
     )
+    from bridge.recorder.magcal import apply, read_document, with_heading
     from bridge.recorder.read import ArchiveReadError
     from bridge.recorder.ros2_export import write_ros2
 
     try:
+        irons = [read_document(path) for path in mag_cal or ()]
         ros2 = _wants_ros2(output, output_format)
         if ros2 and align is not None:
             raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
@@ -175,7 +184,7 @@ def export(
         events_file = (None if events is None
                        else outputs.enter_context(written(events, [archive], force)))
         try:
-            data = _read(archive)
+            data = read_with_progress(archive)
             first = data.first_sample_ns() or 0
             lo_ns = lo.resolve(first) if lo else None
             hi_ns = hi.resolve(first) if hi else None
@@ -187,18 +196,25 @@ def export(
                                  "--type, --start and --end")
             names = sorted(set(table["unit"].tolist()))
             n_units = len(names)
+            apply(table, irons)
             about = About(archive, {u: last_info(data, u) for u in names}, {
                 "units": unit, "types": codes, "start": start, "end": end, "start_ns": lo_ns,
-                "end_ns": hi_ns, "align_hz": align, "time_ns": "re-estimated"})
+                "end_ns": hi_ns, "align_hz": align, "time_ns": "re-estimated"},
+                {iron.unit: iron.content for iron in irons})
             if ros2:
                 bag = write_ros2(table, table_file, archive_prefix(data))
                 msg = (f"wrote {bag.imu} Imu and {bag.mag} MagneticField messages of {rows} "
                        f"samples of {n_units} units to {output}")
             elif align is not None:
                 table = align_table(table, align)
+                if irons:
+                    labels = unit_labels(names)
+                    table = with_heading(table, [labels[i.unit] + ALIGNED_SEPARATOR
+                                                 for i in irons])
                 msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} "
                        f"samples of {n_units} units to {output}")
             else:
+                table = with_heading(table, units=[i.unit for i in irons]) if irons else table
                 msg = f"wrote {rows} samples of {n_units} units to {output}"
             if not ros2:
                 write_table(table, table_file, about)

@@ -61,6 +61,32 @@ def _shown(value: float) -> str:
     return str(int(value)) if math.isfinite(value) and value == int(value) else str(value)
 
 
+def parse_numbers(option: str, text: str | None, count: int,
+                  default: tuple[float, ...]) -> tuple[float, ...]:
+    """``count`` finite numbers separated by commas (none given: ``default``)."""
+    if text is None:
+        return default
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) and abs(v) <= 100 for v in values):
+        raise OptionError(option, f"{text!r} is not {count} numbers within ±100 separated by "
+                          f"commas, e.g. {','.join(_shown(v) for v in default)}")
+    return values
+
+
+def parse_soft_iron(text: str | None) -> tuple[float, ...]:
+    """Nine numbers of an invertible 3x3 matrix, row-major."""
+    import numpy as np
+
+    values = parse_numbers("--soft-iron", text, 9, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0))
+    if abs(np.linalg.det(np.reshape(values, (3, 3)))) < 1e-6:
+        raise OptionError("--soft-iron", "the matrix is singular (it would flatten the field "
+                          "onto a plane); give an invertible one, e.g. 1.1,0,0,0,0.9,0,0,0,1")
+    return values
+
+
 def _bad_id(option: str, text: str) -> str | None:
     if not text.isascii() or len(text) > ID_LENGTH or not text.isprintable():
         return (f"{option}: {text!r} is not printable ASCII of at most {ID_LENGTH} characters "
@@ -99,6 +125,10 @@ def sim(
     seed: Annotated[int, typer.Option(help="Seed (0 or more) of the motion, noise and faults "
                                       "of unit 1 (unit i uses seed+i-1).")] = 0,
     static: Annotated[bool, typer.Option("--static", help="Hold every unit still.")] = False,
+    tumble: Annotated[bool, typer.Option(
+        "--tumble", help="Turn every unit through all orientations (roll and yaw keep "
+                         "turning, pitch swings ±55°): the motion a magnetometer iron "
+                         "calibration needs.")] = False,
     noise_accel: Annotated[float, typer.Option(help="Accel noise, g (1σ, before the "
                                                "filter).")] = 0.0,
     noise_gyro: Annotated[float, typer.Option(help="Gyro noise, rad/s (1σ, before the "
@@ -107,6 +137,14 @@ def sim(
                                              "filter).")] = 0.0,
     gyro_bias: Annotated[float, typer.Option(
         help="True gyro bias on every axis, rad/s (what 0xCD finds on a still unit).")] = 0.0,
+    hard_iron: Annotated[str | None, typer.Option(
+        metavar="X,Y,Z",
+        help="Hard-iron offset of the magnetometer, gauss. The mag reads soft @ true + hard "
+             "(the true field in the body frame; mag and stab_mag alike).")] = None,
+    soft_iron: Annotated[str | None, typer.Option(
+        metavar="A,B,…,I",
+        help="Soft-iron matrix of the magnetometer, nine numbers row-major (default: "
+             "identity); see --hard-iron.")] = None,
     no_filter_model: Annotated[bool, typer.Option(
         "--no-filter-model",
         help="Leave out the unit's moving-average filters (modelled by default: values "
@@ -165,7 +203,7 @@ def sim(
     import time
 
     from bridge.sim.faults import FaultConfig
-    from bridge.sim.motion import MotionConfig
+    from bridge.sim.motion import MotionConfig, tumbling
     from bridge.sim.serve import LinkError, Simulator, unit_configs
     from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
@@ -190,6 +228,10 @@ def sim(
         ]
         for option, message in _bad_numbers(checks):
             raise OptionError(option, message)
+        if static and tumble:
+            raise OptionError("--static/--tumble", "choose one: hold still or tumble")
+        hard = parse_numbers("--hard-iron", hard_iron, 3, (0.0, 0.0, 0.0))
+        soft = parse_soft_iron(soft_iron)
         preset = parse_number("--continuous-preset", continuous_preset)
         stored = Stored(mode_preset=mode_preset, continuous_preset=preset, baud=baud,
                         sampling=Sampling(decimation=decimation,
@@ -201,7 +243,9 @@ def sim(
         raise fail(str(exc)) from None
     motion = MotionConfig(seed=seed, static=static, noise_accel_g=noise_accel,
                           noise_gyro_rad_s=noise_gyro, noise_mag_gauss=noise_mag,
-                          gyro_bias_rad_s=(gyro_bias,) * 3)
+                          gyro_bias_rad_s=(gyro_bias,) * 3,
+                          hard_iron_gauss=(hard[0], hard[1], hard[2]), soft_iron=soft)
+    motion = tumbling(motion) if tumble else motion
     base = UnitConfig(serial=serial, model_name=model_name, model_number=model_number,
                       firmware=firmware, timer_start=timer_start, motion=motion, stored=stored,
                       state_file=state, filter_model=not no_filter_model)

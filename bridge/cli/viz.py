@@ -7,7 +7,7 @@ import signal
 import threading
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -27,6 +27,25 @@ from bridge.cli.common import (
     written,
 )
 
+if TYPE_CHECKING:
+    from bridge.recorder.magcal import UnitIron
+
+MagCalOpt = Annotated[list[Path] | None, typer.Option(
+    "--mag-cal", metavar="FILE",
+    help="Iron calibration (JSON) of one unit from gx3 calibrate-mag (repeatable, one per "
+         "unit): that unit's mag and stab_mag are shown corrected, soft_iron @ (raw - "
+         "hard_iron).")]
+
+
+def _irons(files: list[Path] | None) -> list[UnitIron]:
+    """The calibrations given, or a one-line error."""
+    from bridge.recorder.magcal import read_document
+
+    try:
+        return [read_document(path) for path in files or ()]
+    except ValueError as exc:
+        raise fail(f"--mag-cal: {exc}") from None
+
 
 @app.command("rrd")
 def rrd(
@@ -35,6 +54,7 @@ def rrd(
     output: Annotated[Path, typer.Option("--output", "-o", metavar="OUT.rrd",
                                          help="Rerun recording to write; it appears when "
                                               "complete.")],
+    mag_cal: MagCalOpt = None,
     force: ForceOpt = False,
 ) -> None:
     """Render an archive into a Rerun recording with the live view's layout.
@@ -45,8 +65,10 @@ def rrd(
     message that is not what its topic says is left out with a warning.
     """
     from bridge.recorder.read import ArchiveReadError, describe_problem, read_archive
-    from bridge.viz.logger import RerunLogger
+    from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import log_archive
+
+    irons = _irons(mag_cal)
 
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
@@ -62,10 +84,13 @@ def rrd(
         if total == 0:
             raise fail(f"{archive}: no samples in it; give an archive gx3 recorded units "
                        "into")
+        if missing := [i.unit for i in irons if i.unit not in found.units()]:
+            raise fail(f"--mag-cal: the calibration of unit {missing[0]} has no samples in "
+                       f"{archive} (units: {', '.join(found.units())})")
         progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
                             console=err, transient=True, disable=not err.is_terminal)
         try:
-            logger = RerunLogger(temp, found.units(), recording_id=archive.stem)
+            logger = IronedLogger(irons, temp, found.units(), recording_id=archive.stem)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
             raise fail(f"{output}: cannot write ({exc})", 1) from None
         with progress:
@@ -132,6 +157,7 @@ def view(
     connect: ConnectOpt = None,
     listen: ListenOpt = None,
     mode: ModeOpt = None,
+    mag_cal: MagCalOpt = None,
     log_level: LogLevelOpt = LogLevel.info,
     log_format: LogFormatOpt = LogFormat.text,
 ) -> None:
@@ -142,8 +168,10 @@ def view(
     """
     log_to(log_level, log_format)
     from bridge.bus.session import SessionError, open_session
-    from bridge.viz.logger import RerunLogger
+    from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import LiveFeed
+
+    irons = _irons(mag_cal)
 
     if spawn is None:
         spawn = _display() and not serve and save is None
@@ -166,7 +194,7 @@ def view(
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    logger = RerunLogger(recording, window_s=window)
+    logger = IronedLogger(irons, recording, window_s=window)
     feed = LiveFeed(session, logger, prefix, units)
     try:
         stop.wait(duration)

@@ -66,6 +66,12 @@ _HEAD: dict[str, tuple[str, str]] = {
                            "RESYNC, messages for LOST, REJECTED and SHED, else 1"),
     "detail": ("", "the event in words"),
 }
+# Columns an export derives from the quantities: (physical unit, frame, description).
+_DERIVED: dict[str, tuple[str, str, str]] = {
+    "mag_heading": ("rad", "body x axis against earth NED, from magnetic north toward east",
+                    "tilt-compensated heading from accel and the iron-corrected mag "
+                    "(gx3.mag_cal): the unit's own yaw as a compass would find it"),
+}
 _QUANTITY: dict[str, tuple[str, str]] = {
     "raw_accel": (BODY, "raw accelerometer A/D codes (0..131071)"),
     "raw_ang_rate": (BODY, "raw gyro A/D codes"),
@@ -133,13 +139,16 @@ def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
     about: dict[str, str] = {}
     for unit, label in labels.items():
         prefix = label + ALIGNED_SEPARATOR
-        if name.startswith(prefix) and name[len(prefix):] in _FLAT:
+        if name.startswith(prefix) and (name[len(prefix):] in _FLAT
+                                        or name[len(prefix):] in _DERIVED):
             about["gx3_unit"] = unit
             name = name[len(prefix):]
             break
     if name in _HEAD:
         physical, description = _HEAD[name]
         frame = ""
+    elif name in _DERIVED:
+        physical, frame, description = _DERIVED[name]
     elif name in _FLAT:
         quantity, index = _FLAT[name]
         physical = physical_unit(quantity)
@@ -159,6 +168,7 @@ class About:
     source: Path
     infos: Mapping[str, Info | None]
     options: Mapping[str, object] = field(default_factory=dict)
+    mag_cal: Mapping[str, object] = field(default_factory=dict)  # unit -> calibration file
 
     def metadata(self) -> dict[str, str]:
         """Parquet file metadata (key-value pairs, values JSON where structured)."""
@@ -167,6 +177,7 @@ class About:
                      "info": None if info is None else MessageToDict(
                          info, preserving_proto_field_name=True)}
                  for u, info in sorted(self.infos.items())}
+        calibrated = {"gx3.mag_cal": json.dumps(dict(self.mag_cal))} if self.mag_cal else {}
         return {
             "gx3.schema": SCHEMA_VERSION,
             "gx3.product": f"gx3-bridge {importlib.metadata.version('gx3-bridge')}",
@@ -176,7 +187,7 @@ class About:
                                       "sha256": file_sha256(self.source)}),
             "gx3.export": json.dumps(dict(self.options)),
             "gx3.units": json.dumps(units),
-        }
+        } | calibrated
 
 
 def file_sha256(path: Path) -> str:

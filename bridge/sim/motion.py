@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -39,7 +39,10 @@ class MotionConfig:
     static freezes the seed's attitude (zero rate, gravity-only accel). The biases are
     the sensor's own true offsets, added to what it reports, so that a stationary bias
     capture (0xCD) has something to find. Noise is white Gaussian, zero by default.
-    earth_field_gauss is north-east-down.
+    earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
+    it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
+    calibration has to undo. spin_rad_s adds steady roll and yaw turns to the sway, so a
+    unit can turn on a turntable or (``tumbling``) through every orientation.
     """
 
     seed: int = 0
@@ -53,6 +56,16 @@ class MotionConfig:
     noise_gyro_rad_s: float = 0.0
     noise_mag_gauss: float = 0.0
     temperature_c: float = 25.0
+    hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    spin_rad_s: tuple[float, float] = (0.0, 0.0)
+
+
+def tumbling(config: MotionConfig) -> MotionConfig:
+    """``config`` turned through every orientation: roll and yaw keep turning (at
+    incommensurate rates) while pitch swings to its +/-55 degrees, the motion a
+    magnetometer iron calibration needs."""
+    return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
 
 def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
@@ -120,6 +133,7 @@ class Motion:
         codes = np.concatenate([[code0], code0 + rng.integers(-60, 61, 3)])
         self._temperature = np.clip(codes, 0, 4095).astype(np.uint16)
 
+        self._att_drift += np.array([cfg.spin_rad_s[0], 0.0, cfg.spin_rad_s[1]])
         if cfg.static:
             self._att_offset = self.euler_and_rates(0.0)[0]
             self._att_amp = np.zeros_like(self._att_amp)
@@ -179,9 +193,15 @@ class Motion:
         """The mag reading alone at times t, (n, 3): what ``sample`` gives, at less cost."""
         t = _times(t)
         m = convert.euler_to_m(self.euler_and_rates(t)[0])
-        field: FloatArray = m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64)
+        field = self._ironed(m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64))
         noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
         return field + noise
+
+    def _ironed(self, field: FloatArray) -> FloatArray:
+        """The true body-frame field as the magnetometer reads it among the unit's iron."""
+        soft = np.asarray(self.config.soft_iron, dtype=np.float64).reshape(3, 3)
+        out: FloatArray = field @ soft.T + np.asarray(self.config.hard_iron_gauss)
+        return out
 
     def sample(self, t: npt.ArrayLike, period: float,
                noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
@@ -212,6 +232,7 @@ class Motion:
         m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])  # for C
         stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
 
+        stab_mag = self._ironed(stab_mag)
         noise = self._noise(t, noise_gain)
         accel = force + accel_bias + noise[:, 0:3]
         ang_rate = rate + gyro_bias + noise[:, 3:6]

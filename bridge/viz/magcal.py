@@ -1,0 +1,108 @@
+"""A magnetometer iron calibration in Rerun, as the manual's Figure 3 shows one: the raw
+readings on their fitted ellipsoid beside the corrected readings on a sphere.
+
+    /raw/axes, /corrected/axes  Arrows3D, the sensor's x y z from zero field (so the
+                         hard-iron offset shows as the ellipsoid's distance from them)
+    /raw/readings        Points3D, raw readings [gauss], sensor frame FRD
+    /raw/ellipsoid       Ellipsoids3D, the fitted ellipsoid (centre = hard iron)
+    /corrected/readings  Points3D, soft_iron @ (raw - hard_iron)
+    /corrected/sphere    Ellipsoids3D, the sphere of the mean field magnitude
+    /calibration         TextDocument, the numbers
+
+and a RerunLogger that applies calibrations to what it shows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from bridge.recorder.magcal import IRONED, IronCalibration, UnitIron
+from bridge.viz.logger import RerunLogger
+
+#: Points drawn at most: enough to see the shape, few enough to stay quick.
+MAX_POINTS = 5000
+RAW_COLOR = (230, 120, 40)
+FIT_COLOR = (60, 120, 230)
+CORRECTED_COLOR = (40, 170, 90)
+POINT_RADIUS = 0.004
+
+
+def _quaternion_xyzw(rotation: np.ndarray) -> np.ndarray:
+    """The xyzw quaternion of a proper rotation matrix (columns: the rotated axes)."""
+    from bridge.protocol.convert import m_to_quaternion
+
+    # m_to_quaternion takes M (earth to body) and gives the scalar-first rotation of M;
+    # the ellipsoid's axes are the columns, so its rotation is M's transpose.
+    q = np.asarray(m_to_quaternion(rotation.T[None]))[0]
+    return np.array([q[1], q[2], q[3], q[0]])
+
+
+def _blueprint() -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="/raw", name="raw readings and the fitted ellipsoid"),
+                rrb.Spatial3DView(origin="/corrected", name="corrected readings on a sphere"),
+            ),
+            rrb.TextDocumentView(origin="/calibration", name="calibration"),
+            row_shares=[4, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+def write_fit(path: Path, raw: np.ndarray, cal: IronCalibration, unit: str,
+              text: str) -> None:
+    """Write the fit of ``raw`` (n, 3) to a Rerun recording at ``path``."""
+    rec = rr.RecordingStream("gx3_calibrate_mag", recording_id=f"calibrate-mag-{unit}")
+    rec.save(path, default_blueprint=_blueprint())
+    held = raw[np.isfinite(raw).all(axis=1)]
+    shown = held[:: max(1, len(held) // MAX_POINTS)]
+    corrected = cal.correct(shown)
+    # raw - hard = soft^-1 c with |c| = field: axes along soft's eigenvectors, half
+    # sizes field / eigenvalue.
+    values, vectors = np.linalg.eigh(cal.soft_iron)
+    if np.linalg.det(vectors) < 0:
+        vectors[:, 0] = -vectors[:, 0]
+    axes = rr.Arrows3D(vectors=np.eye(3) * 0.3 * cal.field_gauss, labels=["x", "y", "z"],
+                       colors=[(220, 60, 60), (60, 200, 60), (80, 120, 255)])
+    for origin in ("/raw", "/corrected"):
+        rec.log(origin, rr.ViewCoordinates.FRD, static=True)
+        rec.log(f"{origin}/axes", axes, static=True)
+    rec.log("/raw/readings", rr.Points3D(shown, colors=RAW_COLOR, radii=POINT_RADIUS),
+            static=True)
+    rec.log("/raw/ellipsoid", rr.Ellipsoids3D(
+        centers=[cal.hard_iron], half_sizes=[cal.field_gauss / values],
+        quaternions=[_quaternion_xyzw(vectors)], colors=FIT_COLOR,
+        labels=["fitted ellipsoid"], fill_mode="MajorWireframe"), static=True)
+    rec.log("/corrected/readings", rr.Points3D(corrected, colors=CORRECTED_COLOR,
+                                               radii=POINT_RADIUS), static=True)
+    rec.log("/corrected/sphere", rr.Ellipsoids3D(
+        centers=[[0.0, 0.0, 0.0]], radii=[cal.field_gauss], colors=FIT_COLOR,
+        labels=[f"|field| = {cal.field_gauss:.3f} G"], fill_mode="MajorWireframe"),
+        static=True)
+    rec.log("/calibration", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN),
+            static=True)
+    rec.flush()
+    rec.disconnect()
+
+
+class IronedLogger(RerunLogger):
+    """A RerunLogger that shows calibrated units' mag and stab_mag corrected for iron."""
+
+    def __init__(self, irons: Sequence[UnitIron], *args: Any, **kwargs: Any) -> None:
+        self._irons = {iron.unit: iron for iron in irons}
+        super().__init__(*args, **kwargs)
+
+    def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
+        iron = self._irons.get(unit)
+        if iron is not None:
+            columns = {name: iron.correct(value).astype(value.dtype) if name in IRONED
+                       else value for name, value in columns.items()}
+        super().log_samples(unit, code, columns)
