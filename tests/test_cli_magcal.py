@@ -25,7 +25,7 @@ from bridge.sim.usb import UsbDelivery
 from tests.test_bridge_process import GX3, bridge_process, zenoh_config
 from tests.test_export import gx3
 from tests.test_record_live import UNITS, rerun_rows_so_far
-from tests.test_viz_logger import blueprint_views
+from tests.test_viz_logger import blueprint_views, plot_values
 from tests.waiting import free_port, wait_for
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
@@ -214,23 +214,21 @@ def test_the_fit_drawn_in_rerun_as_the_manuals_figure_3(recording: Path, tmp_pat
     assert {("3D", "/raw"), ("3D", "/corrected"), ("TextDocument", "/calibration")} <= views
 
 
+def plotted_mag(rrd: Path, unit: str) -> np.ndarray:
+    """The mag a Rerun file plots for ``unit`` as (N, 3) rows."""
+    return plot_values(RrdReader(rrd).stream().collect(), "mag", unit)
+
+
 def test_rrd_shows_the_calibrated_units_mag_corrected(recording: Path, calibration: Path,
                                                       tmp_path: Path) -> None:
     out = tmp_path / "ironed.rrd"
     done = gx3("rrd", recording, "-o", out, "--mag-cal", calibration)
     assert done.returncode == 0, done.stderr
-    store = RrdReader(out).stream().collect()
-
-    def plotted(unit: str) -> np.ndarray:
-        entity = f"/plots/mag/{unit}"
-        found = store.reader(index="time", contents=entity).to_arrow_table()
-        return np.array(found.column(f"{entity}:Scalars:scalars").to_pylist())
-
-    size = np.linalg.norm(plotted("imu0"), axis=1)
+    size = np.linalg.norm(plotted_mag(out, "imu0"), axis=1)
     assert len(size) > 8900
     assert np.sqrt(np.mean((size / size.mean() - 1) ** 2)) < 0.005
     raw = np.concatenate([b.columns["mag"] for b in read_archive(recording).samples(["flat"])])
-    np.testing.assert_array_equal(plotted("flat"), raw)  # no calibration: as recorded
+    np.testing.assert_array_equal(plotted_mag(out, "flat"), raw)  # no calibration: as recorded
 
 
 def test_rrd_refuses_a_calibration_of_a_unit_it_lacks(recording: Path, tmp_path: Path) -> None:
@@ -257,12 +255,11 @@ def test_view_shows_a_live_units_mag_corrected(tmp_path: Path) -> None:
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     with Simulator(UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
-        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/a") >= 100)
+        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/z/a") >= 100)
     viewer.send_signal(signal.SIGINT)
     _, stderr = viewer.communicate(timeout=30)
     assert viewer.returncode == 0, stderr.decode()
-    shown = RrdReader(rrd).stream().collect().reader(index="time", contents="/plots/mag/a")
-    mag = np.array(shown.to_arrow_table().column("/plots/mag/a:Scalars:scalars").to_pylist())
+    mag = plotted_mag(rrd, "a")
     assert len(mag) >= 100
     raw = mag / 2 + [1, 2, 3]
     np.testing.assert_allclose(np.linalg.norm(raw, axis=1), FIELD, rtol=0.02)
