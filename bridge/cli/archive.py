@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
-from bridge.cli.common import ForceOpt, app, err, fail, parse_code, written
+from bridge.cli.common import EndOpt, ForceOpt, StartOpt, app, err, fail, parse_code, written
 
 if TYPE_CHECKING:
     from bridge.recorder.read import Archive
@@ -91,12 +91,8 @@ def export(
     record_type: Annotated[list[str] | None, typer.Option(
         "--type", "-t", metavar="CODE",
         help="Only records of this command, e.g. 0xCC (repeatable).")] = None,
-    start: Annotated[str | None, typer.Option(
-        metavar="TIME",
-        help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
-             "from the first sample.")] = None,
-    end: Annotated[str | None, typer.Option(
-        metavar="TIME", help="End instant (exclusive), as --start.")] = None,
+    start: StartOpt = None,
+    end: EndOpt = None,
     align: Annotated[float | None, typer.Option(
         metavar="RATE",
         help="Resample every unit onto one time grid at RATE Hz: one row per instant, "

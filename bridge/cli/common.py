@@ -63,6 +63,12 @@ def fail(message: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
+StartOpt = Annotated[str | None, typer.Option(
+    metavar="TIME",
+    help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
+         "from the first sample.")]
+EndOpt = Annotated[str | None, typer.Option(
+    metavar="TIME", help="End instant (exclusive), as --start.")]
 ForceOpt = Annotated[bool, typer.Option(
     "--force", help="Replace an output file that exists (never an input, nor a file "
                     "another process is writing).")]

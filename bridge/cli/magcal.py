@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from bridge.cli.common import ForceOpt, app, err, fail, written
+from bridge.cli.common import EndOpt, ForceOpt, StartOpt, app, err, fail, written
 
 
 @app.command("calibrate-mag")
@@ -23,12 +23,8 @@ def calibrate_mag(
     unit: Annotated[str | None, typer.Option(
         "--unit", "-u", metavar="NAME",
         help="The unit to calibrate. Default: the archive's only unit.")] = None,
-    start: Annotated[str | None, typer.Option(
-        metavar="TIME",
-        help="First instant: ISO time (2026-11-22T02:50:00Z; no zone = UTC) or seconds "
-             "from the first sample.")] = None,
-    end: Annotated[str | None, typer.Option(
-        metavar="TIME", help="End instant (exclusive), as --start.")] = None,
+    start: StartOpt = None,
+    end: EndOpt = None,
     rrd: Annotated[Path | None, typer.Option(
         "--rrd", metavar="FILE.rrd",
         help="Also draw the fit in a Rerun recording, as the manual's Figure 3: raw "
