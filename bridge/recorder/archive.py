@@ -39,6 +39,7 @@ Layout (DESIGN.md, "Archives"):
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import glob
 import re
@@ -690,6 +691,15 @@ class ArchiveWriter:
             except OSError as exc:
                 if self._broken is None:
                     raise self._fail(f.path, exc) from None
+
+    def abandon(self) -> None:
+        """Stop without finishing the file: for an output that is thrown away (a batch
+        command that failed or was interrupted), where finishing is only a wait."""
+        if self._file is not None:
+            f, self._file = self._file, None
+            f.writer.close()
+            with contextlib.suppress(OSError):
+                f.stream.close()
 
     def close(self) -> None:
         """Finish the file (summary and index); safe to call twice, and after an error."""

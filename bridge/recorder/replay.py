@@ -52,6 +52,7 @@ _SNIFF_READS = 400
 _GROUP = 4096  # records timed and encoded together
 _FEED_BYTES = 1 << 20  # reads framed together
 _QUEUED = 64  # message groups a worker may have waiting for the writer
+_JOIN_S = 5.0  # a killed worker is gone at once; this only bounds a stuck kernel call
 
 #: Where replayed messages go: key, payloads, receive time (one, or one per payload).
 Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
@@ -278,7 +279,7 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
         return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
                                   min(jobs, len(tasks)))
     results = []
-    with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
+    with _archive(out, prefix) as writer:
         emit = _counted(writer.write_many, on_samples)
         for path in paths:
             for capture in captures(path, prefix):
@@ -319,6 +320,20 @@ def _tasks(paths: list[Path], jobs: int) -> list[_Task]:
     return [_Task(i, path, None, path.stat().st_size) for i, path in enumerate(paths)]
 
 
+@contextlib.contextmanager
+def _archive(out: Path, prefix: str) -> Iterator[ArchiveWriter]:
+    """The replay's archive, sorted whole: finished when the replay is, abandoned
+    unfinished when it fails or is interrupted (the caller throws the file away), so
+    Ctrl-C is not held up by finishing a file nobody keeps."""
+    writer = ArchiveWriter(out, prefix=prefix, reorder_s=None)
+    try:
+        yield writer
+    except BaseException:
+        writer.abandon()
+        raise
+    writer.close()
+
+
 def _unit_tasks(paths: list[Path]) -> list[_Task]:
     """A task per unit (raw topic) of each file, counted from its summary (or, for a file
     cut short, from its chunks); a file with none is a task of its own (its worker says
@@ -354,11 +369,11 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
     workers = [context.Process(target=_worker, args=(share, prefix, queue, os.getpid()),
                                daemon=True)
                for share in shares]
-    for w in workers:
-        w.start()
     done: list[tuple[int, str, Replayed]] = []
     try:
-        with ArchiveWriter(out, prefix=prefix, reorder_s=None) as writer:
+        for w in workers:
+            w.start()
+        with _archive(out, prefix) as writer:
             emit = _counted(writer.write_many, on_samples)
             running = len(workers)
             while running:
@@ -381,10 +396,14 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                 else:
                     running -= 1
     finally:
-        for w in workers:
-            if w.is_alive():
-                w.terminate()
-            w.join()
+        # however this ends (Ctrl-C may land anywhere, a start included), no worker is
+        # left behind and none is waited on for ever: those still running are killed
+        started = [w for w in workers if w.pid is not None]
+        for w in started:
+            if w.exitcode is None:
+                w.kill()
+        for w in started:
+            w.join(_JOIN_S)
         queue.close()
     return [result for _, _, result in sorted(done, key=lambda d: (d[0], d[1]))]
 
