@@ -50,10 +50,11 @@ def rerun_rows(path: Path, entity: str) -> int:
 
 def rerun_rows_so_far(path: Path, entity: str) -> int:
     """``rerun_rows`` of a file another process is writing, 0 while Rerun's reader cannot
-    read it yet (a frame cut at the end); the finished file is checked in full."""
+    read it yet (a frame cut at the end: RuntimeError; no recording in it yet, only its
+    blueprint: ValueError); the finished file is checked in full."""
     try:
         return rerun_rows(path, entity) if path.exists() else 0
-    except RuntimeError:
+    except (RuntimeError, ValueError):
         return 0
 
 
