@@ -253,11 +253,16 @@ def test_view_shows_a_live_units_mag_corrected(tmp_path: Path) -> None:
     viewer = subprocess.Popen([GX3, "view", "--save", str(rrd), "--zenoh-config",
                                str(view_cfg), "--mag-cal", str(cal)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    with Simulator(UNITS[:1], "pty") as sim, \
-            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
-        wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/z/a") >= 100)
-    viewer.send_signal(signal.SIGINT)
-    _, stderr = viewer.communicate(timeout=30)
+    try:
+        with Simulator(UNITS[:1], "pty") as sim, \
+                bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
+            wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/z/a") >= 100)
+        viewer.send_signal(signal.SIGINT)
+        _, stderr = viewer.communicate(timeout=30)
+    finally:  # a failed wait leaves no viewer behind
+        if viewer.poll() is None:
+            viewer.kill()
+            viewer.communicate()
     assert viewer.returncode == 0, stderr.decode()
     mag = plotted_mag(rrd, "a")
     assert len(mag) >= 100
