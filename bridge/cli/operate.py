@@ -24,7 +24,7 @@ from rich.table import Table
 from bridge.cli.common import app, err, fail, parse_code
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.port import Port, PortError, is_usb_cdc
-from bridge.device.session import DeviceError, Session, find_baud
+from bridge.device.session import DeviceError, Session, UnsupportedUnit, find_baud
 from bridge.protocol.table import BAUD_RATES
 
 PortOpt = Annotated[str, typer.Option(
@@ -160,6 +160,8 @@ def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
         session.quiesce()
         info = session.identify()
         result = run_action(name, session, info, params, confirmed=True)
+    except UnsupportedUnit as exc:
+        raise fail(str(exc)) from None
     except (PortError, DeviceError) as exc:
         raise fail(str(exc), 1) from None
     finally:
