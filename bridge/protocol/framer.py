@@ -12,9 +12,13 @@ accept exactly the same records.
 
 Each chunk comes with its receive time; a record carries the time of the chunk that
 held its last byte, whenever the framer lets it out, so a capture replayed with its
-recorded times gives the live run's records and times whatever the chunking. A replay
-hands over many reads at once (``feed_reads``): one scan instead of one per read, the
-same records and times.
+recorded times gives the live run's records and times whatever the chunking. A record
+whose bytes came in more than one read also carries the latest earlier read that ended
+inside it and how many of its bytes had arrived by then: over a serial line that bounds
+when the record began more tightly than its completing read can. Reads with the same
+receive time count as one (a read cut in two says nothing new), and an empty read as
+none. A replay hands over many reads at once (``feed_reads``): one scan instead of one
+per read, the same records and times.
 """
 
 from __future__ import annotations
@@ -65,22 +69,38 @@ class FramerStats:
 
 
 class _Reads:
-    """Receive time of every read with bytes still held, by the stream position it ends at."""
+    """Receive time of every read with bytes still held, by the stream position it ends at.
+
+    A read received at the same time as the one before it extends that one."""
 
     def __init__(self) -> None:
         self.ends: list[int] = []
         self.ns: list[int] = []
 
     def add(self, ends: list[int], rx_ns: list[int]) -> None:
+        if self.ns and rx_ns[0] == self.ns[-1]:
+            self.ends[-1] = ends[0]
+            ends, rx_ns = ends[1:], rx_ns[1:]
         self.ends += ends
         self.ns += rx_ns
 
-    def times(self, last_bytes: np.ndarray) -> np.ndarray:
-        """The receive time of the read holding each of these stream positions."""
+    def times(self, starts: np.ndarray,
+              length: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """For records of ``length`` bytes at these stream positions: the receive time of
+        the read that completed each, and of the latest read before it (if it ended inside
+        the record, else the completing read's) with the record's bytes it had brought
+        (else ``length``); None, None when no read ended inside any of them."""
         if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
-            return np.full(len(last_bytes), self.ns[0], np.int64)
-        index = np.searchsorted(np.array(self.ends, np.int64), last_bytes, side="right")
-        return np.array(self.ns, np.int64)[index]
+            return np.full(len(starts), self.ns[0], np.int64), None, None
+        ends = np.array(self.ends, np.int64)
+        ns = np.array(self.ns, np.int64)
+        index = np.searchsorted(ends, starts + (length - 1), side="right")
+        rx = ns[index]
+        before = ends[index - 1] - starts
+        inside = (index > 0) & (before > 0)
+        if not inside.any():
+            return rx, None, None
+        return rx, np.where(inside, ns[index - 1], rx), np.where(inside, before, length)
 
     def forget_before(self, position: int) -> None:
         done = bisect_right(self.ends, position)
@@ -105,9 +125,9 @@ class _Runs:
         for code, little_endian, chunks, offsets in self.runs:
             block = np.frombuffer(b"".join(chunks), np.uint8)
             starts = offsets[0] if len(offsets) == 1 else np.concatenate(offsets)
-            rx_ns = reads.times(starts + (REPLIES[code].length - 1))
+            rx_ns, part_ns, part_bytes = reads.times(starts, REPLIES[code].length)
             out.append(Batch.from_block(code, block.reshape(len(starts), -1), starts, rx_ns,
-                                        little_endian))
+                                        little_endian, part_ns, part_bytes))
         return out
 
 
@@ -164,9 +184,12 @@ class Framer:
         if ends.shape != rx_ns.shape or ends.ndim != 1:
             raise ValueError(f"ends and rx_ns differ in shape: {ends.shape} vs {rx_ns.shape}")
         last = int(ends[-1]) if len(ends) else 0
-        if last != len(data) or (np.diff(ends, prepend=0) < 0).any():
+        sizes = np.diff(ends, prepend=0)
+        if last != len(data) or (sizes < 0).any():
             raise ValueError(f"read ends must rise to the {len(data)} bytes given")
-        return self._take(data, ends.tolist(), rx_ns.tolist())
+        ends, rx_ns = ends[sizes > 0], rx_ns[sizes > 0]  # an empty read is no read
+        one = np.append(rx_ns[1:] != rx_ns[:-1], True)  # the last of equal-time reads
+        return self._take(data, ends[one].tolist(), rx_ns[one].tolist())
 
     def _take(self, data: bytes | bytearray | memoryview, ends: list[int],
               rx_ns: list[int]) -> list[Batch]:
