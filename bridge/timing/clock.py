@@ -171,7 +171,28 @@ class OnlineClock:
         y = np.asarray(rx_ns, np.int64)
         if x.shape != y.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
-        xs, ys = x.tolist(), y.tolist()
+        return self._increasing(np.array(self._instants(x.tolist(), y.tolist(), x), np.int64))
+
+    def update_few(self, ticks: list[int], rx_ns: list[int]) -> list[int]:
+        """``update`` of a few records in plain integers (a live bridge gets one or two a
+        read): the same instants without NumPy's fixed cost per call."""
+        if len(ticks) != len(rx_ns):
+            raise ValueError(f"ticks and rx_ns differ in length: {len(ticks)} vs {len(rx_ns)}")
+        out = self._instants(ticks, rx_ns, None)
+        if not out:
+            return out
+        # ``_increasing`` in plain integers: each instant at least 1 ns after the one before
+        last = self._last_ns
+        least = out[0] if last is None else last + 1
+        for i, value in enumerate(out):
+            least = max(least, value - i)
+            out[i] = least + i
+        self._last_ns = out[-1]
+        return out
+
+    def _instants(self, xs: list[int], ys: list[int], x: np.ndarray | None) -> list[int]:
+        """The line's instants at ``xs``, refitting at the ticks-determined points; long
+        runs on one line in NumPy (``x``: ``xs`` as an array, if the caller has it)."""
         floor, delay = self.floor_ns, self.filter_delay_ns
         out: list[int] = []
         i = 0
@@ -180,8 +201,11 @@ class OnlineClock:
             j = i if self._next_fit is None else bisect_left(xs, self._next_fit, i)
             line = self._line
             if j > i and line is not None:
-                out += (line.at(x[i:j]) - delay).tolist() if j - i > _SCALAR_RUN \
-                    else [line.at_one(t) - delay for t in xs[i:j]]
+                if j - i > _SCALAR_RUN:
+                    run = x[i:j] if x is not None else np.array(xs[i:j], np.int64)
+                    out += (line.at(run) - delay).tolist()
+                else:
+                    out += [line.at_one(t) - delay for t in xs[i:j]]
             self._new_x += xs[i : j + 1]
             self._new_y += [r - floor for r in ys[i : j + 1]]
             if j >= len(xs):
@@ -190,7 +214,7 @@ class OnlineClock:
             assert self._line is not None
             out.append(self._line.at_one(xs[j]) - delay)
             i = j + 1
-        return self._increasing(np.array(out, np.int64))
+        return out
 
     def _increasing(self, out: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
         """Instants that only move forward: a refit may lower the line by more than a

@@ -103,3 +103,11 @@ class StreamTiming:
             batch = batch.select(keep)
         return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
                      timed.dropped, invalid)
+
+    def process_few(self, timers: list[int], rx_ns: list[int]
+                    ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
+        """``process`` of a live read's record or two in plain integers, when every one is
+        intact and one period after the last: ticks, instants and events. None: nothing
+        changed, ``process`` them."""
+        assert self.timeline is not None, "configure() first"
+        return self.timeline.update_few(timers, rx_ns)

@@ -56,6 +56,17 @@ class Timeline:
             done += len(u.ticks)
         return out
 
+    def update_few(self, timers: list[int], rx_ns: list[int]
+                   ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
+        """``update`` of a few records in plain integers, when the unwrapper takes them
+        as they are (each one period after the last): ticks, instants and rollovers.
+        None: nothing changed, ask ``update``."""
+        run = self.unwrapper.update_few(timers, rx_ns)
+        if run is None:
+            return None
+        ticks, events = run
+        return ticks, self.clock.update_few(ticks, rx_ns), events
+
     def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64]) -> TimelineBatch:
         """Host times of one unwrapped stretch's valid records, the clock restarted at
         each reset in it."""
