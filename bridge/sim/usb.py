@@ -34,7 +34,8 @@ from bridge.sim.unit import STEP_SLACK
 
 #: Payload of one full-speed bulk packet from an FTDI-like adapter: 64 less 2 status bytes.
 ADAPTER_PACKET_BYTES = 62
-LATENCY_TIMERS_MS = (1, 16)
+#: What Linux's FTDI driver sets; 1 ms is the fix for timing (configs/udev).
+DEFAULT_LATENCY_TIMER_MS = 16
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -80,7 +81,7 @@ class AdapterDelivery(UsbDelivery):
     """A USB-serial adapter between the unit's serial line and the host's frames."""
 
     transport: ClassVar[str] = "usb-serial"
-    latency_timer_s: float = 0.016
+    latency_timer_s: float = DEFAULT_LATENCY_TIMER_MS / 1000
     packet_bytes: int = ADAPTER_PACKET_BYTES
 
     def __post_init__(self) -> None:
