@@ -20,7 +20,7 @@ from bridge.timing.unwrap import TimingEvent
 
 USB_FRAME_NS = 1_000_000
 USB_BYTE_NS = 1_000  # full-speed USB moves about 1 MB/s of payload
-TRANSPORTS = ("uart", "usb")
+TRANSPORTS = ("uart", "usb", "usb-serial")
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,17 @@ class Settings:
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
+
+    @property
+    def frame_ns(self) -> int:
+        """The host's USB frame the bytes reach it in (native USB or a USB-serial
+        adapter), 0 on a plain UART."""
+        return USB_FRAME_NS if self.transport in ("usb", "usb-serial") else 0
+
+    @property
+    def serial(self) -> bool:
+        """The bytes crossed a serial line before any USB frames (a USB-serial adapter)."""
+        return self.transport == "usb-serial"
 
     @property
     def byte_ns(self) -> float:
@@ -97,8 +108,7 @@ class StreamTiming:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
         period = settings.period_ticks
         if self.timeline is None:
-            frame = USB_FRAME_NS if settings.transport == "usb" else 0
-            self.timeline = Timeline(period, frame_ns=frame)
+            self.timeline = Timeline(period, frame_ns=settings.frame_ns, serial=settings.serial)
         elif restarted or period != self.timeline.unwrapper.period_ticks:
             self.timeline.expect_discontinuity(period)
         self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
