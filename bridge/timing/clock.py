@@ -136,6 +136,10 @@ class OnlineClock:
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
         self._last_ns: int | None = None  # the latest instant given out
+        #: When a list, each fit over the frame staircase adds (its ticks, the extent of
+        #: the lines it allowed at them; inf when no straight line fitted): the doubt of
+        #: the instants it gives out until the next fit.
+        self.fits: list[tuple[int, float]] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -304,6 +308,8 @@ class OnlineClock:
         if staircase:
             bx, by = self._bucket_minima(upper)
             centre = self._centre(bx, by)
+            if self.fits is not None:
+                self.fits.append((now, math.inf if centre is None else centre[3]))
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)

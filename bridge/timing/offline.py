@@ -15,11 +15,14 @@ envelope then runs along the staircase's corners), half a frame where it has not
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.timing.clock import (
+    OnlineClock,
     best_centre,
     bucket_minima,
     grid_histogram,
@@ -39,6 +42,8 @@ _WINDOWS_S = (60.0, 120.0, 300.0, 600.0, 1200.0)
 # a byte time at any common baud rate), so that some reads were prompt to a byte.
 _LINE_S = (20.0, 300.0)
 _SWEEP = 0.125
+_PINNED = 0.25  # of a frame: an extent this narrow means a crossing pinned the line
+_SURER = 0.75  # or this much narrower than live's
 
 
 class OfflineClock:
@@ -68,6 +73,8 @@ class OfflineClock:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
         if len(x) == 0:
             return np.zeros(0, np.int64)
+        rx = y + self.floor_ns
+        live_parts: tuple[np.ndarray, ...] = ()
         if part_ns is None or part_lead_ns is None:
             q, g = y, np.zeros(0, np.int64)
         else:
@@ -75,6 +82,7 @@ class OfflineClock:
             g = self.floor_ns - np.asarray(part_lead_ns, np.int64)
             if q.shape != y.shape or g.shape != y.shape:
                 raise ValueError("part_ns and part_lead_ns must match rx_ns in length")
+            live_parts = (q + self.floor_ns, self.floor_ns - g)
         # Frames alone carry the time unless reads ending inside records pin them to bytes.
         staircase = bool(self.frame_ns) and not (self.serial and pinned_by_bytes(g))
         if self.frame_ns:
@@ -95,14 +103,33 @@ class OfflineClock:
         bx, by = bucket_minima(x, y, rate) if staircase else (empty, empty)
         half = round(self._line_window(rate) * TICKS_PER_SECOND / 2) if not staircase \
             else round(_WINDOWS_S[0] * TICKS_PER_SECOND / 2)
-        values = np.array([self._solve(x, y, bx, by, int(a), rate, staircase, half)
-                           for a in anchors.tolist()])
+        solved = [self._solve(x, y, bx, by, int(a), rate, staircase, half)
+                  for a in anchors.tolist()]
+        values = np.array([v for v, _ in solved])
         out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
-        return np.asarray(out, np.int64) - self.filter_delay_ns
+        out = np.asarray(out, np.int64) - self.filter_delay_ns
+        if not staircase:
+            return out
+        # Where the staircase leaves the offline pass no surer than live (no frame crossing
+        # in any window: neither knows more than the other) the live instant stands,
+        # unless no straight line fitted live: offline is never worse than live.
+        doubts = np.array([d for _, d in solved])
+        after = np.minimum(np.searchsorted(anchors, x, side="right"), len(anchors) - 1)
+        doubt = np.maximum(doubts[after], doubts[np.maximum(after - 1, 0)])
+        clock = OnlineClock(self.filter_delay_ns, self.floor_ns, self.frame_ns,
+                            serial=self.serial)
+        clock.fits = []
+        live = clock.update(x, rx, *live_parts)
+        fit_at = np.array([t for t, _ in clock.fits], np.int64)
+        fit_doubt = np.array([math.inf] + [d for _, d in clock.fits])
+        live_doubt = fit_doubt[np.searchsorted(fit_at, x, side="right")]
+        sure = (doubt < _PINNED * self.frame_ns) | (doubt < _SURER * live_doubt)
+        return np.where(sure, out, live)
 
     def _solve(self, x: np.ndarray, y: np.ndarray, bx: np.ndarray, by: np.ndarray, at: int,
-               rate: float, staircase: bool, half: int) -> float:
-        """The line's value at ticks ``at`` from the window around it that pins it best;
+               rate: float, staircase: bool, half: int) -> tuple[float, float]:
+        """The line's value at ticks ``at`` from the window around it that pins it best,
+        and the extent of the lines the staircase allows there (inf: the envelope's);
         ``half``: half the envelope's window, where no staircase does."""
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
         if len(bx):
@@ -110,13 +137,13 @@ class OfflineClock:
                      for h in halves]
             centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
             if centre is not None:
-                return float(centre[1])
+                return float(centre[1]), centre[3]
         # the shortest window, moved inside the recording near its ends: a window cut
         # short there would let the envelope pivot on the last few points
         middle = max(int(x[0]) + half, min(at, int(x[-1]) - half))
         lo, hi = np.searchsorted(x, [middle - half, middle + half])
         lo, hi = max(0, lo - 1), max(hi + 1, lo + 2)
-        return self._envelope(x[lo:hi], y[lo:hi], at, middle, rate, staircase)
+        return self._envelope(x[lo:hi], y[lo:hi], at, middle, rate, staircase), math.inf
 
     def _line_window(self, rate: float) -> float:
         """Seconds of envelope: the shortest on a UART; behind frames, long enough for the
