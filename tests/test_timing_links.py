@@ -48,14 +48,14 @@ def _settings(capture: Capture) -> Settings:
                     capture.delivery.transport)
 
 
-def _replayed(capture: Capture) -> tuple[list[Batch], StreamTiming, np.ndarray, np.ndarray]:
+def _replayed(capture: Capture) -> tuple[list[Batch], np.ndarray, np.ndarray]:
     """The capture as ``gx3 replay`` reads it: batches, their ticks and live instants."""
     stream = StreamTiming()
     stream.configure(_settings(capture), True)
     batches = [b for found in frame_reads(Framer([CODE]), capture.rx_ns, capture.data)
                for b in found]
     timed = [stream.process(b) for b in batches]
-    return ([t.batch for t in timed], stream, np.concatenate([t.ticks for t in timed]),
+    return ([t.batch for t in timed], np.concatenate([t.ticks for t in timed]),
             np.concatenate([t.time_ns for t in timed]))
 
 
@@ -81,7 +81,7 @@ def test_live_reads_give_replays_instants_with_partial_reads() -> None:
     through ``process_few``, the others through ``process``), and the same reads cut in
     two at the same receive time, time every record as the bulk replay does."""
     capture = _capture("usb-serial", 30.0, 2.0, 0.0004, 40.0)
-    batches, _, ticks, replayed = _replayed(capture)
+    batches, ticks, replayed = _replayed(capture)
     assert sum(b.part_ns is not None for b in batches)  # reads did end inside records
     for halves in (False, True):
         stream = StreamTiming()
@@ -113,7 +113,7 @@ def test_partial_reads_pin_each_record_to_a_byte(transport: str, ppm: float) -> 
     it held; behind an adapter's frames that pins even a unit whose phase crawls
     against the frame clock (the frames alone leave it half a frame in doubt)."""
     capture = _capture(transport, ppm, 0.0, 0.00093, 120.0)
-    batches, stream, ticks, live = _replayed(capture)
+    batches, ticks, live = _replayed(capture)
     whole = Batch.concatenate(batches)
     s = _settings(capture)
     bare = StreamTiming()
@@ -145,7 +145,7 @@ def test_offline_is_never_worse_than_live(transport: str, ppm: float, wander: fl
     largest error exceed the live estimate's (by more than the frame grid's 1 us
     resolution, where neither has more to go on than the other)."""
     capture = _capture(transport, ppm, wander, phase, 150.0, 0.016 if ppm < 2 else 0.001)
-    batches, _, ticks, live = _replayed(capture)
+    batches, ticks, live = _replayed(capture)
     offline = _errors(capture, _offline(capture, batches, ticks))
     online = _errors(capture, live)
     assert np.percentile(offline, 99) <= np.percentile(online, 99) + 1_000

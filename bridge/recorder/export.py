@@ -117,7 +117,8 @@ def unit_settings(archive: Archive, unit: str) -> Settings | None:
         return None
     return Settings(record=info.command, decimation=info.decimation,
                     filter_width=info.filter_width, baud=info.baud,
-                    transport=info.link if info.link in TRANSPORTS else "uart")
+                    transport=info.link if info.link in TRANSPORTS else "uart",
+                    latency_timer_ms=info.latency_timer_ms or None)
 
 
 def archive_prefix(archive: Archive) -> str:

@@ -33,11 +33,18 @@ class Settings:
     baud: int
     transport: str = "uart"
     polled: bool = False
+    latency_timer_ms: int | None = None  # a USB-serial adapter's, where known
 
     @property
     def period_ticks(self) -> float | None:
         """Output period in ticks (decimation x 62.5); polled records have none."""
         return None if self.polled else TICKS_PER_SECOND * self.decimation / 1000
+
+    @property
+    def frame_ns(self) -> int:
+        """The host's USB frame where one carries the bytes (own port or adapter); 0 on a
+        plain UART."""
+        return 0 if self.transport == "uart" else USB_FRAME_NS
 
     @property
     def filter_delay_ns(self) -> int:
@@ -46,18 +53,12 @@ class Settings:
 
     @property
     def floor_ns(self) -> int:
-        """The least time a record takes to reach the host: its line time on a UART; on
-        USB (the baud setting has no effect there) its transfer at full speed's payload
-        rate."""
+        """The least time a record takes to reach the host: its line time on a serial
+        line (a UART, or one behind a USB-serial adapter); on the unit's own USB port
+        (the baud setting has no effect there) its transfer at full speed's payload rate."""
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
-
-    @property
-    def frame_ns(self) -> int:
-        """The host's USB frame the bytes reach it in (native USB or a USB-serial
-        adapter), 0 on a plain UART."""
-        return USB_FRAME_NS if self.transport in ("usb", "usb-serial") else 0
 
     @property
     def serial(self) -> bool:
