@@ -317,7 +317,8 @@ class Pipeline:
         apart; anything else (a gap, a glitch, a reset, a backlog) through the batch
         path, with the same ticks, times and events either way."""
         if isinstance(records, Records):
-            few = self.timing.process_few(records.timers(), records.rx_ns)
+            few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,
+                                          records.part_bytes)
             if few is not None:
                 ticks, time_ns, events = few
                 for ev in events:

@@ -329,6 +329,10 @@ class Batch:
     (its last byte), so a replayed capture times every record as the live run did.
     ``little_endian`` is the float byte order the records were decoded with; ``block``
     the records' wire bytes, (n, length) uint8, when they came from a byte stream.
+    ``part_ns`` and ``part_bytes``: for a record whose bytes came in more than one read,
+    the receive time of the latest read before the completing one and how many of the
+    record's bytes had arrived by then (None: no record here had such a read; see
+    ``partial``).
     """
 
     code: int
@@ -337,13 +341,23 @@ class Batch:
     rx_ns: np.ndarray
     little_endian: bool
     block: np.ndarray | None = None
+    part_ns: np.ndarray | None = None
+    part_bytes: np.ndarray | None = None
 
     @classmethod
     def from_block(cls, code: int, block: np.ndarray, offsets: np.ndarray, rx_ns: np.ndarray,
-                   little_endian: bool) -> Batch:
+                   little_endian: bool, part_ns: np.ndarray | None = None,
+                   part_bytes: np.ndarray | None = None) -> Batch:
         """Records as they came off the wire, decoded only as far as they are read."""
         return cls(code, Columns(code, block, little_endian), offsets, rx_ns, little_endian,
-                   block)
+                   block, part_ns, part_bytes)
+
+    def partial(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per record, a receive time and how many of its bytes had arrived by then: the
+        latest read that ended inside it, else the read that completed it (all bytes)."""
+        if self.part_ns is None or self.part_bytes is None:
+            return self.rx_ns, np.full(len(self.rx_ns), REPLIES[self.code].length, np.int64)
+        return self.part_ns, self.part_bytes
 
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
@@ -354,20 +368,29 @@ class Batch:
             return first
         offsets = np.concatenate([b.offsets for b in batches])
         rx_ns = np.concatenate([b.rx_ns for b in batches])
+        part_ns = part_bytes = None
+        if any(b.part_ns is not None for b in batches):
+            parts = [b.partial() for b in batches]
+            part_ns = np.concatenate([p[0] for p in parts])
+            part_bytes = np.concatenate([p[1] for p in parts])
         blocks = [b.block for b in batches if b.block is not None]
         if len(blocks) == len(batches):
             return cls.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
-                                  first.little_endian)
+                                  first.little_endian, part_ns, part_bytes)
         columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
-        return cls(first.code, columns, offsets, rx_ns, first.little_endian)
+        return cls(first.code, columns, offsets, rx_ns, first.little_endian, None, part_ns,
+                   part_bytes)
 
     def select(self, keep: np.ndarray) -> Batch:
         """The records where ``keep`` is True."""
+        part_ns = None if self.part_ns is None else self.part_ns[keep]
+        part_bytes = None if self.part_bytes is None else self.part_bytes[keep]
         if self.block is not None:
             return Batch.from_block(self.code, self.block[keep], self.offsets[keep],
-                                    self.rx_ns[keep], self.little_endian)
+                                    self.rx_ns[keep], self.little_endian, part_ns, part_bytes)
         return Batch(self.code, {k: v[keep] for k, v in self.columns.items()},
-                     self.offsets[keep], self.rx_ns[keep], self.little_endian)
+                     self.offsets[keep], self.rx_ns[keep], self.little_endian, None, part_ns,
+                     part_bytes)
 
     def __len__(self) -> int:
         return len(self.offsets)
@@ -395,6 +418,8 @@ class Records:
     wire: list[bytes]
     offsets: list[int]
     rx_ns: list[int]
+    part_ns: list[int] | None = None  # as ``Batch``'s
+    part_bytes: list[int] | None = None
 
     def __len__(self) -> int:
         return len(self.wire)
@@ -406,8 +431,10 @@ class Records:
 
     def batch(self) -> Batch:
         block = np.frombuffer(b"".join(self.wire), np.uint8).reshape(len(self.wire), -1)
+        parts = (None, None) if self.part_ns is None or self.part_bytes is None else \
+            (np.array(self.part_ns, np.int64), np.array(self.part_bytes, np.int64))
         return Batch.from_block(self.code, block, np.array(self.offsets, np.int64),
-                                np.array(self.rx_ns, np.int64), self.little_endian)
+                                np.array(self.rx_ns, np.int64), self.little_endian, *parts)
 
 
 @functools.cache

@@ -12,10 +12,15 @@ accept exactly the same records.
 
 Each chunk comes with its receive time; a record carries the time of the chunk that
 held its last byte, whenever the framer lets it out, so a capture replayed with its
-recorded times gives the live run's records and times whatever the chunking. A replay
-hands over many reads at once (``feed_reads``): one scan instead of one per read, the
-same records and times. A live bridge takes its read's record or two as ``Records``
-(``feed_records``): the same scan, the wire bytes of each record without arrays.
+recorded times gives the live run's records and times whatever the chunking. A record
+whose bytes came in more than one read also carries the latest earlier read that ended
+inside it and how many of its bytes had arrived by then: over a serial line that bounds
+when the record began more tightly than its completing read can. Reads with the same
+receive time count as one (a read cut in two says nothing new), and an empty read as
+none. A replay hands over many reads at once (``feed_reads``): one scan instead of one
+per read, the same records and times. A live bridge takes its read's record or two as
+``Records`` (``feed_records``): the same scan, the wire bytes of each record without
+arrays.
 """
 
 from __future__ import annotations
@@ -69,28 +74,57 @@ class FramerStats:
 
 
 class _Reads:
-    """Receive time of every read with bytes still held, by the stream position it ends at."""
+    """Receive time of every read with bytes still held, by the stream position it ends at.
+
+    A read received at the same time as the one before it extends that one."""
 
     def __init__(self) -> None:
         self.ends: list[int] = []
         self.ns: list[int] = []
 
     def add(self, ends: list[int], rx_ns: list[int]) -> None:
+        if self.ns and rx_ns[0] == self.ns[-1]:
+            self.ends[-1] = ends[0]
+            ends, rx_ns = ends[1:], rx_ns[1:]
         self.ends += ends
         self.ns += rx_ns
 
-    def times(self, last_bytes: np.ndarray) -> np.ndarray:
-        """The receive time of the read holding each of these stream positions."""
+    def times(self, starts: np.ndarray,
+              length: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """For records of ``length`` bytes at these stream positions: the receive time of
+        the read that completed each, and of the latest read before it (if it ended inside
+        the record, else the completing read's) with the record's bytes it had brought
+        (else ``length``); None, None when no read ended inside any of them."""
         if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
-            return np.full(len(last_bytes), self.ns[0], np.int64)
-        index = np.searchsorted(np.array(self.ends, np.int64), last_bytes, side="right")
-        return np.array(self.ns, np.int64)[index]
+            return np.full(len(starts), self.ns[0], np.int64), None, None
+        ends = np.array(self.ends, np.int64)
+        ns = np.array(self.ns, np.int64)
+        index = np.searchsorted(ends, starts + (length - 1), side="right")
+        rx = ns[index]
+        before = ends[index - 1] - starts
+        inside = (index > 0) & (before > 0)
+        if not inside.any():
+            return rx, None, None
+        return rx, np.where(inside, ns[index - 1], rx), np.where(inside, before, length)
 
-    def times_of(self, last_bytes: list[int]) -> list[int]:
+    def times_of(self, starts: list[int],
+                 length: int) -> tuple[list[int], list[int] | None, list[int] | None]:
         """``times`` in plain integers, for a record or two."""
         if len(self.ns) == 1:
-            return [self.ns[0]] * len(last_bytes)
-        return [self.ns[bisect_right(self.ends, b)] for b in last_bytes]
+            return [self.ns[0]] * len(starts), None, None
+        ends, ns = self.ends, self.ns
+        rx: list[int] = []
+        part_ns: list[int] = []
+        part_bytes: list[int] = []
+        for start in starts:
+            index = bisect_right(ends, start + length - 1)
+            rx.append(ns[index])
+            before = ends[index - 1] - start if index else 0
+            part_ns.append(ns[index - 1] if before > 0 else ns[index])
+            part_bytes.append(before if before > 0 else length)
+        if part_bytes.count(length) == len(part_bytes):
+            return rx, None, None
+        return rx, part_ns, part_bytes
 
     def forget_before(self, position: int) -> None:
         done = bisect_right(self.ends, position)
@@ -118,9 +152,9 @@ class _Runs:
             block = np.frombuffer(b"".join(data for data, _ in chunks), np.uint8)
             starts = np.concatenate([start + size * np.arange(len(data) // size, dtype=np.int64)
                                      for data, start in chunks])
-            rx_ns = reads.times(starts + (size - 1))
+            rx_ns, part_ns, part_bytes = reads.times(starts, size)
             out.append(Batch.from_block(code, block.reshape(len(starts), -1), starts, rx_ns,
-                                        little_endian))
+                                        little_endian, part_ns, part_bytes))
         return out
 
     def records(self, reads: _Reads) -> list[Records]:
@@ -137,7 +171,7 @@ class _Runs:
                     wire += [data[i : i + size] for i in range(0, len(data), size)]
                     starts += range(start, start + len(data), size)
             out.append(Records(code, little_endian, wire, starts,
-                               reads.times_of([start + size - 1 for start in starts])))
+                               *reads.times_of(starts, size)))
         return out
 
 
@@ -200,9 +234,12 @@ class Framer:
         if ends.shape != rx_ns.shape or ends.ndim != 1:
             raise ValueError(f"ends and rx_ns differ in shape: {ends.shape} vs {rx_ns.shape}")
         last = int(ends[-1]) if len(ends) else 0
-        if last != len(data) or (np.diff(ends, prepend=0) < 0).any():
+        sizes = np.diff(ends, prepend=0)
+        if last != len(data) or (sizes < 0).any():
             raise ValueError(f"read ends must rise to the {len(data)} bytes given")
-        return self._take(data, ends.tolist(), rx_ns.tolist(), _Runs.batches)
+        ends, rx_ns = ends[sizes > 0], rx_ns[sizes > 0]  # an empty read is no read
+        one = np.append(rx_ns[1:] != rx_ns[:-1], True)  # the last of equal-time reads
+        return self._take(data, ends[one].tolist(), rx_ns[one].tolist(), _Runs.batches)
 
     def _take(self, data: bytes | bytearray | memoryview, ends: list[int], rx_ns: list[int],
               out: Callable[[_Runs, _Reads], list[_Out]]) -> list[_Out]:

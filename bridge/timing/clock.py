@@ -105,15 +105,25 @@ class OnlineClock:
     ``filter_delay_ns``: the unit's moving-average delay, (M - 1) / 2 ms for filter
     width M. ``floor_ns``: the least time from sample to receive the transport
     allows (a UART's line time of the record, len * 10 / baud s; USB: len * 1 us).
-    ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line.
+    ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line. ``serial``: the
+    bytes crossed a serial line before those frames (a USB-serial adapter): reads that
+    end mid-record pin each record to about a byte time at every frame, so the lower
+    envelope of the snapped points is the line, as on a plain serial line.
+
+    Each record's point is the least upper bound on its sample instant that its reads
+    give: the completing read's receive time (snapped to its frame) less ``floor_ns``,
+    or, where ``update`` is given one, an earlier read that ended inside the record
+    (snapped to its frame) less the line time of the bytes it held.
     """
 
     def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
-                 window_s: float | None = None, refit_s: float = 1.0) -> None:
+                 window_s: float | None = None, refit_s: float = 1.0,
+                 serial: bool = False) -> None:
         if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0:
             raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
+        self.serial = serial
         if window_s is None:
-            window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
+            window_s = _FRAME_WINDOW_S if frame_ns and not serial else _LINE_WINDOW_S
         if window_s <= 0 or refit_s <= 0:
             raise ValueError("window_s and refit_s must be positive")
         self.filter_delay_ns = int(filter_delay_ns)
@@ -131,8 +141,14 @@ class OnlineClock:
         """Start over after the tick base changed (device reset); keep rate and grid."""
         self._x = np.zeros(0, np.int64)
         self._y = np.zeros(0, np.int64)
+        # with frames, each record's partial read: receive time less the floor, and the
+        # line time of the bytes it did not hold (zero where there is none)
+        self._q = np.zeros(0, np.int64)
+        self._g = np.zeros(0, np.int64)
         self._new_x: list[int] = []
         self._new_y: list[int] = []
+        self._new_q: list[int] = []
+        self._new_g: list[int] = []
         self._line: _Line | None = None
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
@@ -164,21 +180,35 @@ class OnlineClock:
         line = self._line
         return None if line is None else line.ticks_at(rx_ns - self.floor_ns)
 
-    def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
+    def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
+               part_ns: npt.ArrayLike | None = None,
+               part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
         """Sample instants (host ns) of records with increasing ``ticks`` received at
-        ``rx_ns``: the instant their values describe, filter delay taken out."""
+        ``rx_ns``: the instant their values describe, filter delay taken out.
+        ``part_ns``, ``part_lead_ns``: per record, an earlier read that ended inside it
+        and the line time of the bytes it held (the completing read and the floor where
+        there is none)."""
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64)
         if x.shape != y.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
-        return self._increasing(np.array(self._instants(x.tolist(), y.tolist(), x), np.int64))
+        parts = None
+        if part_ns is not None and part_lead_ns is not None:
+            p, lead = np.asarray(part_ns, np.int64), np.asarray(part_lead_ns, np.int64)
+            if p.shape != y.shape or lead.shape != y.shape:
+                raise ValueError("part_ns and part_lead_ns must match rx_ns in length")
+            parts = (p.tolist(), lead.tolist())
+        return self._increasing(np.array(self._instants(x.tolist(), y.tolist(), x, parts),
+                                         np.int64))
 
-    def update_few(self, ticks: list[int], rx_ns: list[int]) -> list[int]:
+    def update_few(self, ticks: list[int], rx_ns: list[int],
+                   parts: tuple[list[int], list[int]] | None = None) -> list[int]:
         """``update`` of a few records in plain integers (a live bridge gets one or two a
-        read): the same instants without NumPy's fixed cost per call."""
+        read): the same instants without NumPy's fixed cost per call. ``parts``: the
+        partial reads' receive times and line times, as ``update``'s."""
         if len(ticks) != len(rx_ns):
             raise ValueError(f"ticks and rx_ns differ in length: {len(ticks)} vs {len(rx_ns)}")
-        out = self._instants(ticks, rx_ns, None)
+        out = self._instants(ticks, rx_ns, None, parts)
         if not out:
             return out
         # ``_increasing`` in plain integers: each instant at least 1 ns after the one before
@@ -190,10 +220,14 @@ class OnlineClock:
         self._last_ns = out[-1]
         return out
 
-    def _instants(self, xs: list[int], ys: list[int], x: np.ndarray | None) -> list[int]:
+    def _instants(self, xs: list[int], ys: list[int], x: np.ndarray | None,
+                  parts: tuple[list[int], list[int]] | None) -> list[int]:
         """The line's instants at ``xs``, refitting at the ticks-determined points; long
         runs on one line in NumPy (``x``: ``xs`` as an array, if the caller has it)."""
         floor, delay = self.floor_ns, self.filter_delay_ns
+        if parts is not None and not self.frame_ns:  # no frames: the least bound at once
+            ys = [min(r, p - lead + floor) for r, p, lead in zip(ys, *parts, strict=True)]
+            parts = None
         out: list[int] = []
         i = 0
         while i < len(xs):
@@ -208,6 +242,13 @@ class OnlineClock:
                     out += [line.at_one(t) - delay for t in xs[i:j]]
             self._new_x += xs[i : j + 1]
             self._new_y += [r - floor for r in ys[i : j + 1]]
+            if self.frame_ns:
+                if parts is None:
+                    self._new_q += self._new_y[len(self._new_q):]
+                    self._new_g += [0] * (len(self._new_y) - len(self._new_g))
+                else:
+                    self._new_q += [p - floor for p in parts[0][i : j + 1]]
+                    self._new_g += [floor - lead for lead in parts[1][i : j + 1]]
             if j >= len(xs):
                 break
             self._fit(xs[j])
@@ -239,6 +280,10 @@ class OnlineClock:
         self._new_x, self._new_y = [], []
         keep = int(np.searchsorted(self._x, now - self._window))
         self._x, self._y = self._x[keep:], self._y[keep:]
+        if self.frame_ns:
+            self._q = np.concatenate([self._q, np.array(self._new_q, np.int64)])[keep:]
+            self._g = np.concatenate([self._g, np.array(self._new_g, np.int64)])[keep:]
+            self._new_q, self._new_g = [], []
         span = int(self._x[-1] - self._x[0])
         step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
         self._next_fit = now + max(1, step)
@@ -246,7 +291,8 @@ class OnlineClock:
         x_ref = int(self._x[0]) + span // 2
         y_ref = int(upper[0])
         bias = 0.0
-        if self.frame_ns:
+        staircase = self.frame_ns and not self.serial
+        if staircase:
             bx, by = self._bucket_minima(upper)
             centre = self._centre(bx, by)
             if centre is not None:
@@ -260,11 +306,11 @@ class OnlineClock:
                 x_ref, y_ref, self._rate = line
         dx = (self._x - x_ref).astype(np.float64)
         dy = (upper - y_ref).astype(np.float64)
-        if not self.frame_ns and span >= 2 * TICKS_PER_SECOND:
+        if not staircase and span >= 2 * TICKS_PER_SECOND:
             self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
-        if self.frame_ns:
+        if staircase:
             bias = uncovered_half(residual[dx >= 0], self.frame_ns)
         y, rate = self._y, self._rate
         self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
@@ -316,13 +362,19 @@ class OnlineClock:
         phase = grid_phase(self._grid, self.frame_ns)
         old = len(self._y) - len(new_y)
         if phase == self._phase and len(self._snapped) - dropped == old >= 0:
-            fresh = snap_to(self._y[old:], phase, self.frame_ns)
+            fresh = self._least(old, phase)
             self._snapped = np.concatenate([self._snapped[dropped:], fresh])
         else:
-            self._snapped = snap_to(self._y, phase, self.frame_ns)
+            self._snapped = self._least(0, phase)
             self._lows_to = None
         self._phase = phase
         return self._snapped
+
+    def _least(self, start: int, phase: int) -> np.ndarray:
+        """The window's points from ``start`` on, snapped: each record's least bound."""
+        frame = self.frame_ns
+        return np.asarray(np.minimum(snap_to(self._y[start:], phase, frame),
+                                     snap_to(self._q[start:], phase, frame) + self._g[start:]))
 
     def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``bucket_minima`` of the window, each bucket's found at the first fit after it
@@ -358,12 +410,6 @@ def uncovered_half(residual: np.ndarray, frame: int) -> float:
 def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
     """Receive times folded onto one frame, in 1 us bins."""
     return np.bincount((y % frame) // _GRID_BIN_NS, minlength=max(1, frame // _GRID_BIN_NS))
-
-
-def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
-    """``y`` moved down to the frame boundary before it, the grid's phase being the
-    edge where receive times crowd in (just after each boundary, latency is least)."""
-    return snap_to(y, grid_phase(histogram, frame), frame)
 
 
 def grid_phase(histogram: np.ndarray, frame: int) -> int:

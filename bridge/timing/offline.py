@@ -23,7 +23,8 @@ from bridge.timing.clock import (
     best_centre,
     bucket_minima,
     grid_histogram,
-    snap,
+    grid_phase,
+    snap_to,
     support_slope,
     uncovered_half,
 )
@@ -41,24 +42,40 @@ class OfflineClock:
     """
 
     def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
-                 anchor_s: float = 5.0) -> None:
+                 anchor_s: float = 5.0, serial: bool = False) -> None:
         if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0 or anchor_s <= 0:
             raise ValueError("filter_delay_ns, floor_ns, frame_ns must be >= 0, anchor_s > 0")
         self.filter_delay_ns = int(filter_delay_ns)
         self.floor_ns = int(floor_ns)
         self.frame_ns = int(frame_ns)
+        self.serial = serial
         self._anchor = max(1, round(anchor_s * TICKS_PER_SECOND))
 
-    def smooth(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
-        """Sample instants (host ns) of valid records of one epoch, increasing ticks."""
+    def smooth(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
+               part_ns: npt.ArrayLike | None = None,
+               part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
+        """Sample instants (host ns) of valid records of one epoch, increasing ticks;
+        ``part_ns``, ``part_lead_ns`` as ``OnlineClock.update``'s."""
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64) - self.floor_ns
         if x.shape != y.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
         if len(x) == 0:
             return np.zeros(0, np.int64)
+        if part_ns is None or part_lead_ns is None:
+            q, g = y, np.zeros(0, np.int64)
+        else:
+            q = np.asarray(part_ns, np.int64) - self.floor_ns
+            g = self.floor_ns - np.asarray(part_lead_ns, np.int64)
+            if q.shape != y.shape or g.shape != y.shape:
+                raise ValueError("part_ns and part_lead_ns must match rx_ns in length")
         if self.frame_ns:
-            y = snap(y, grid_histogram(y, self.frame_ns), self.frame_ns)
+            phase = grid_phase(grid_histogram(y, self.frame_ns), self.frame_ns)
+            y = snap_to(y, phase, self.frame_ns)
+            if len(g):
+                y = np.minimum(y, snap_to(q, phase, self.frame_ns) + g)
+        elif len(g):
+            y = np.minimum(y, q + g)
         x0, y0 = int(x[0]), int(y[0])
         dx, dy = (x - x0).astype(np.float64), (y - y0).astype(np.float64)
         # The lower envelope's slope under the middle of the recording: the mean rate to
@@ -67,7 +84,8 @@ class OfflineClock:
         rate = support_slope(dx - dx[-1] / 2, dy, float(NS_PER_TICK))
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
         empty = np.zeros(0, np.int64)
-        bx, by = bucket_minima(x, y, rate) if self.frame_ns else (empty, empty)
+        staircase = self.frame_ns and not self.serial
+        bx, by = bucket_minima(x, y, rate) if staircase else (empty, empty)
         values = np.array([self._solve(x, y, bx, by, int(a), rate) for a in anchors.tolist()])
         out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
         return np.asarray(out, np.int64) - self.filter_delay_ns
@@ -76,7 +94,7 @@ class OfflineClock:
                rate: float) -> float:
         """The line's value at ticks ``at`` from the window around it that pins it best."""
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
-        if self.frame_ns:
+        if len(bx):
             spans = [(int(np.searchsorted(bx, at - h)), int(np.searchsorted(bx, at + h)))
                      for h in halves]
             centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
@@ -92,4 +110,6 @@ class OfflineClock:
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
         residual = dy - slope * dx
         level = float(np.min(residual))
+        if self.serial or not self.frame_ns:
+            return int(y[0]) + level
         return int(y[0]) + level - uncovered_half(residual - level, self.frame_ns)

@@ -53,6 +53,18 @@ class Settings:
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
 
+    @property
+    def byte_ns(self) -> float:
+        """One byte's time on the link: 10 bits at the baud rate on a serial line (a UART
+        or the line into a USB-serial adapter), full speed's payload rate on USB."""
+        return USB_BYTE_NS if self.transport == "usb" else 10e9 / self.baud
+
+    def part_lead_ns(self, part_bytes: np.ndarray) -> np.ndarray:
+        """The line time of a record's first ``part_bytes`` bytes: the floor less the time
+        of the bytes still to come (so exactly the floor for a whole record)."""
+        missing = REPLIES[self.record].length - np.asarray(part_bytes, np.int64)
+        return self.floor_ns - np.round(missing * self.byte_ns).astype(np.int64)
+
 
 @dataclass
 class Timed:
@@ -94,9 +106,14 @@ class StreamTiming:
         self.settings = settings
 
     def process(self, batch: Batch) -> Timed:
-        """Ticks and host times of a batch's records; corrupt timers are dropped."""
-        assert self.timeline is not None, "configure() first"
-        timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        """Ticks and host times of a batch's records; corrupt timers are dropped. A
+        record's partial read, where the framer saw one, bounds its instant too."""
+        assert self.timeline is not None and self.settings is not None, "configure() first"
+        if batch.part_ns is None or batch.part_bytes is None:
+            timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        else:
+            timed = self.timeline.update(batch["timer"], batch.rx_ns, batch.part_ns,
+                                         self.settings.part_lead_ns(batch.part_bytes))
         keep = timed.valid
         invalid = 0 if timed.intact else int((~keep).sum())
         if invalid:
@@ -104,10 +121,17 @@ class StreamTiming:
         return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
                      timed.dropped, invalid)
 
-    def process_few(self, timers: list[int], rx_ns: list[int]
+    def process_few(self, timers: list[int], rx_ns: list[int],
+                    part_ns: list[int] | None = None, part_bytes: list[int] | None = None
                     ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
         """``process`` of a live read's record or two in plain integers, when every one is
         intact and one period after the last: ticks, instants and events. None: nothing
-        changed, ``process`` them."""
-        assert self.timeline is not None, "configure() first"
-        return self.timeline.update_few(timers, rx_ns)
+        changed, ``process`` them. ``part_ns``, ``part_bytes``: the batch's partial
+        reads, if it has them."""
+        assert self.timeline is not None and self.settings is not None, "configure() first"
+        if part_ns is None or part_bytes is None:
+            return self.timeline.update_few(timers, rx_ns)
+        s = self.settings
+        length, floor = REPLIES[s.record].length, s.floor_ns
+        leads = [floor - round((length - k) * s.byte_ns) for k in part_bytes]
+        return self.timeline.update_few(timers, rx_ns, (part_ns, leads))
