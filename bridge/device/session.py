@@ -181,9 +181,9 @@ class Session:
             if self.paced and self.streaming is not None and self.framer.pending:
                 rest = REPLIES[self.streaming].length - self.framer.pending
                 if rest > 0:
-                    pause = max(pause, _line_time(rest, self.port.baud))
+                    pause = max(pause, min(wait_s, _line_time(rest, self.port.baud)))
             if pause > 0:
-                time.sleep(min(wait_s, pause))
+                time.sleep(pause)
         data, rx_ns = self._take(0.0 if out else wait_s)
         if data:
             out += [r for r in self.framer.feed_records(data, rx_ns) if r.code == self.streaming]
