@@ -288,7 +288,8 @@ class Pipeline:
         next_poll = time.monotonic()
         poll_hz = self.options.poll_hz
         while not stop.is_set():
-            self._run_actions(session)
+            if self._actions.queue:  # a peek without the queue's lock, once a read
+                self._run_actions(session)
             wait = 0.05
             if poll_hz is not None:
                 if time.monotonic() >= next_poll:

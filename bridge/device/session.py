@@ -174,9 +174,11 @@ class Session:
         arrive before its line time, so the session sleeps that long first, which halves
         the wake-ups and adds no latency.
         """
-        out: list[Batch | Records] = list(self._backlog)
-        self._backlog = []
-        if not out:
+        out: list[Batch | Records] = []
+        if self._backlog:
+            out += self._backlog
+            self._backlog = []
+        else:
             pause = self._last_read + hold_s - time.monotonic()
             if self.paced and self.streaming is not None and self.framer.pending:
                 rest = REPLIES[self.streaming].length - self.framer.pending
