@@ -10,6 +10,7 @@ bring-up when the unit is back, so a restarted or power-cycled unit resumes alon
 from __future__ import annotations
 
 import contextlib
+import functools
 import queue
 import threading
 import time
@@ -28,12 +29,15 @@ from bridge.device.session import (
     UnitInfo,
     find_baud,
 )
-from bridge.protocol.codec import Batch
+from bridge.protocol.codec import Batch, Records
 from bridge.timing.rate import RateWindow
 from bridge.timing.stream import Settings, StreamTiming
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
+#: The part of a latency budget kept for what follows a read: the wake-up, framing,
+#: timing and the put. The rest of the budget is how long reads may gather.
+PUBLISH_RESERVE_S = 0.001
 
 
 @dataclass(frozen=True)
@@ -53,15 +57,42 @@ class Options:
     transport: str = "auto"  # uart, usb, usb-serial or auto (by device name)
     silence_s: float = 1.0
     sysfs: Path = SYSFS  # where a USB-serial adapter's latency timer is read
+    #: The longest a byte may wait between arriving and its samples going out; above
+    #: ``PUBLISH_RESERVE_S`` reads gather (fewer wake-ups and puts in bursts).
+    max_latency_s: float = PUBLISH_RESERVE_S
+
+    @property
+    def hold_s(self) -> float:
+        """How long reads may gather within the latency budget."""
+        return max(0.0, self.max_latency_s - PUBLISH_RESERVE_S)
 
 
-@dataclass
 class Samples:
-    """One run of records of one type, with their device and host times."""
+    """One run of records of one type, with their device and host times.
 
-    batch: Batch
-    ticks: np.ndarray
-    time_ns: np.ndarray
+    A live read's record or two come as ``Records`` with plain lists of ticks and
+    times (published as they are); ``batch``, ``ticks`` and ``time_ns`` are arrays,
+    made from them only when asked for.
+    """
+
+    def __init__(self, records: Batch | Records, ticks: np.ndarray | list[int],
+                 time_ns: np.ndarray | list[int]) -> None:
+        self.records = records
+        self.tick_values = ticks
+        self.time_values = time_ns
+
+    @functools.cached_property
+    def batch(self) -> Batch:
+        records = self.records
+        return records if isinstance(records, Batch) else records.batch()
+
+    @functools.cached_property
+    def ticks(self) -> np.ndarray:
+        return np.asarray(self.tick_values, np.int64)
+
+    @functools.cached_property
+    def time_ns(self) -> np.ndarray:
+        return np.asarray(self.time_values, np.int64)
 
 
 @dataclass
@@ -265,7 +296,8 @@ class Pipeline:
         next_poll = time.monotonic()
         poll_hz = self.options.poll_hz
         while not stop.is_set():
-            self._run_actions(session)
+            if self._actions.queue:  # a peek without the queue's lock, once a read
+                self._run_actions(session)
             wait = 0.05
             if poll_hz is not None:
                 if time.monotonic() >= next_poll:
@@ -275,12 +307,12 @@ class Pipeline:
             # Silence is judged from before the read: a host that stalls this thread
             # after a read that held no whole record has not heard a silent unit.
             asked = time.monotonic()
-            batches = session.read(wait)
+            batches = session.read_records(wait, self.options.hold_s)
             now = time.monotonic()
             if batches:
                 last_data = now
                 for batch in batches:
-                    self._process(batch)
+                    self.process(batch)
             elif asked - last_data > self.options.silence_s:
                 raise DeviceError(f"{self.options.url}: the unit fell silent for "
                                   f"{now - last_data:.1f} s")
@@ -288,8 +320,23 @@ class Pipeline:
                 next_status += 1.0
                 self._status(session)
 
-    def _process(self, batch: Batch) -> None:
-        timed = self.timing.process(batch)
+    def process(self, records: Batch | Records) -> None:
+        """Time one read's records of the stream and hand them to the sink. A live read's
+        record or two go through in plain integers while they are intact and one period
+        apart; anything else (a gap, a glitch, a reset, a backlog) through the batch
+        path, with the same ticks, times and events either way."""
+        if isinstance(records, Records):
+            few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,
+                                          records.part_bytes)
+            if few is not None:
+                ticks, time_ns, events = few
+                for ev in events:
+                    self._event(ev.kind, ticks=ev.ticks, count=ev.count)
+                self.counters.samples += len(records)
+                self.sink.samples(Samples(records, ticks, time_ns))
+                return
+            records = records.batch()
+        timed = self.timing.process(records)
         for ev in timed.events:
             self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
         self.counters.glitches += sum(ev.kind == "glitch" for ev in timed.events)

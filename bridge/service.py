@@ -27,6 +27,7 @@ from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import Link
 from bridge.device.session import DeviceError, Session, UnitInfo
 from bridge.pipeline import Pipeline, Samples, UnitEvent
+from bridge.protocol.codec import Records
 from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
 
@@ -211,7 +212,11 @@ class BusSink:
 
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:
-            self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
+            if isinstance(samples.records, Records):
+                self.publisher.publish_records(samples.records, samples.tick_values,
+                                               samples.time_values)
+            else:
+                self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 

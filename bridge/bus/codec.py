@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any, Protocol, cast
@@ -246,9 +246,9 @@ class _RecordPacker:
 _packer = functools.cache(_RecordPacker)
 
 
-def encode_records(unit: str, code: int, little_endian: bool, records: Sequence[bytes],
-                   ticks: Sequence[int], time_ns: Sequence[int],
-                   rx_ns: Sequence[int]) -> list[bytes]:
+def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[bytes],
+                   ticks: Iterable[int], time_ns: Iterable[int],
+                   rx_ns: Iterable[int]) -> list[bytes]:
     """``encode_batch`` of wire records held as bytes, one each: a live bridge gets one
     or two a read, for which array set-up costs more than the work."""
     pack = _packer(code, unit, little_endian).pack

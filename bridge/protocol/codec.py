@@ -240,16 +240,25 @@ class Columns(Mapping[str, np.ndarray]):
 
 @functools.cache
 def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
-    """(unpacker, byte offset, field) for each field of a reply that has a domain."""
-    checks = []
+    """(unpacker, byte offset, field) for each field of a reply that has a domain; adjacent
+    fields of one kind and domain share one unpacker (named by the first), so a data
+    record's vectors cost one call per bound rather than one per field."""
+    checks: list[tuple[str, int, Field]] = []
     offset = 1
+    end = 0
     for f in REPLIES[code].fields:
         if f.domain is not None or f.domain_values is not None:
             order = "<" if f.kind == "f32" and little_endian else ">"
-            fmt = order + str(f.count) + {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
-            checks.append((struct.Struct(fmt), offset, f))
+            fmt = {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
+            last = checks[-1][2] if checks else None
+            if (last is not None and end == offset and f.domain_values is None
+                    and (last.kind, last.domain, last.domain_values) == (f.kind, f.domain, None)):
+                checks[-1] = (checks[-1][0] + str(f.count) + fmt, checks[-1][1], last)
+            else:
+                checks.append((order + str(f.count) + fmt, offset, f))
+            end = offset + f.size
         offset += f.size
-    return tuple(checks)
+    return tuple((struct.Struct(fmt), at, f) for fmt, at, f in checks)
 
 
 def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
@@ -281,15 +290,15 @@ def _row_checks(
     data record costs one conversion and a few comparisons rather than per field."""
     runs: list[tuple[int, int, list[float]]] = []  # offset, size, bound per element
     ints: list[tuple[int, int, np.dtype[Any], Field]] = []
-    for _, offset, f in _domain_checks(code, little_endian):
+    for unpacker, offset, f in _domain_checks(code, little_endian):
         if f.kind != "f32":
-            ints.append((offset, f.size, np.dtype(_wire_dtype(f, little_endian)), f))
+            ints.append((offset, unpacker.size, np.dtype(_wire_dtype(f, little_endian)), f))
             continue
         assert f.domain is not None and f.domain[0] == -f.domain[1], "float domains are ±bound"
         if not runs or runs[-1][0] + runs[-1][1] != offset:
             runs.append((offset, 0, []))
         start, size, bounds = runs[-1]
-        runs[-1] = (start, size + f.size, bounds + [f.domain[1]] * f.count)
+        runs[-1] = (start, size + unpacker.size, bounds + [f.domain[1]] * (unpacker.size // 4))
     return [(o, n, np.array(b)) for o, n, b in runs], ints
 
 
@@ -396,3 +405,38 @@ class Batch:
             for name, col in self.columns.items():
                 out[name] = _py(col[i])
             yield out
+
+
+@dataclass
+class Records:
+    """``Batch`` for a live read's record or two: each record's wire bytes and stream
+    position, the receive time of the read that completed it, in plain Python. Array
+    set-up costs more than such a read's work; ``batch`` gives the very ``Batch``."""
+
+    code: int
+    little_endian: bool
+    wire: list[bytes]
+    offsets: list[int]
+    rx_ns: list[int]
+    part_ns: list[int] | None = None  # as ``Batch``'s
+    part_bytes: list[int] | None = None
+
+    def __len__(self) -> int:
+        return len(self.wire)
+
+    def timers(self) -> list[int]:
+        """The unit's timer of each record (big-endian, whatever the float byte order)."""
+        at = _timer_at(self.code)
+        return [int.from_bytes(w[at : at + 4], "big") for w in self.wire]
+
+    def batch(self) -> Batch:
+        block = np.frombuffer(b"".join(self.wire), np.uint8).reshape(len(self.wire), -1)
+        parts = (None, None) if self.part_ns is None or self.part_bytes is None else \
+            (np.array(self.part_ns, np.int64), np.array(self.part_bytes, np.int64))
+        return Batch.from_block(self.code, block, np.array(self.offsets, np.int64),
+                                np.array(self.rx_ns, np.int64), self.little_endian, *parts)
+
+
+@functools.cache
+def _timer_at(code: int) -> int:
+    return REPLIES[code].offset("timer")
