@@ -11,6 +11,14 @@ bends every window so that no straight line fits its staircase, an anchor gets
 the lower envelope's line through the shortest window, less half of the frame
 its points leave uncovered: nothing where the phase has swept the frame (the
 envelope then runs along the staircase's corners), half a frame where it has not.
+
+Over a serial line (a UART, or an adapter whose reads end inside records: see
+``OnlineClock``) the points are the line's to a byte, and each anchor gets the lower
+envelope of a window centred on it (moved inside the recording at its ends): 20 s on
+a UART, behind an adapter's frames long enough for the unit's phase to sweep an
+eighth of a frame. Over the frame staircase the live clock is run on the same
+records, and where the offline lines are no narrower than the live ones were (no
+crossing pinned either) the live instant stands: never worse than live.
 """
 
 from __future__ import annotations
