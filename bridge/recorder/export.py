@@ -46,7 +46,7 @@ from bridge.recorder.describe import (
 )
 from bridge.recorder.read import Archive, Samples
 from bridge.timing.offline import OfflineClock
-from bridge.timing.stream import TRANSPORTS, USB_FRAME_NS, Settings
+from bridge.timing.stream import TRANSPORTS, Settings
 
 #: Offline re-estimate of sample times: (unit, ticks, rx_ns) -> time_ns, all of one unit
 #: in arrival order, int64 ns; None keeps that unit's live times.
@@ -117,7 +117,8 @@ def unit_settings(archive: Archive, unit: str) -> Settings | None:
         return None
     return Settings(record=info.command, decimation=info.decimation,
                     filter_width=info.filter_width, baud=info.baud,
-                    transport=info.link if info.link in TRANSPORTS else "uart")
+                    transport=info.link if info.link in TRANSPORTS else "uart",
+                    latency_timer_ms=info.latency_timer_ms or None)
 
 
 def archive_prefix(archive: Archive) -> str:
@@ -131,13 +132,14 @@ def archive_prefix(archive: Archive) -> str:
 def offline_times(archive: Archive) -> ReEstimate:
     """Each unit's sample instants re-estimated over the whole recording (the live
     estimate only had the past), with the settings of the unit's archived Info; units
-    without one keep their live times."""
+    without one keep their live times, and so do units behind a USB-serial adapter: the
+    archive keeps each record's completing read only, not the reads that ended inside
+    it, which timed it live to a byte."""
     def estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray | None:
         settings = unit_settings(archive, unit)
-        if settings is None or len(ticks) < 2:
+        if settings is None or settings.serial or len(ticks) < 2:
             return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns,
-                             USB_FRAME_NS if settings.transport == "usb" else 0)
+        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
         order = np.argsort(ticks, kind="stable")
         out = np.empty(len(ticks), np.int64)
         out[order] = clock.smooth(ticks[order], rx_ns[order])
