@@ -16,11 +16,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from bridge.device.port import Port, PortError, is_usb_cdc
+from bridge.device.link import SYSFS, Link, find_link
+from bridge.device.port import Port, PortError
 from bridge.device.session import (
     DeviceError,
     Session,
@@ -52,8 +54,9 @@ class Options:
     new_baud: int | None = None
     persist: bool = False
     poll_hz: float | None = None
-    transport: str = "auto"  # uart, usb or auto (usb for ttyACM devices)
+    transport: str = "auto"  # uart, usb, usb-serial or auto (by device name)
     silence_s: float = 1.0
+    sysfs: Path = SYSFS  # where a USB-serial adapter's latency timer is read
     #: The longest a byte may wait between arriving and its samples going out; above
     #: ``PUBLISH_RESERVE_S`` reads gather (fewer wake-ups and puts in bursts).
     max_latency_s: float = PUBLISH_RESERVE_S
@@ -145,6 +148,8 @@ class Pipeline:
         self.timing = StreamTiming()
         self.error: Exception | None = None
         self.came_up = False  # the unit was brought up at least once
+        self.link: Link = find_link(options.url, options.transport, options.sysfs)
+        self._warned: str | None = None  # the link warning given (given once)
         self.waiting_for: str | None = None  # why the unit is not up, while it is not
         self.last_failure = ""  # the last failed attempt's message
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
@@ -224,13 +229,14 @@ class Pipeline:
 
     def _open(self) -> Session:
         o = self.options
+        self.link = find_link(o.url, o.transport, o.sysfs)  # a replug may bring a new timer
         if o.baud is None:
             port, _ = find_baud(o.url, 115_200)
         else:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
-        session.paced = self.transport == "uart"
+        session.paced = self.transport != "usb"  # bytes come at a serial line's pace
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
@@ -257,12 +263,15 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
-        warning = info.line_warning() if o.poll_hz is None and self.transport == "uart" \
-            else None
+        warnings = [info.line_warning() if o.poll_hz is None and self.transport != "usb"
+                    else None]
+        if self.link.warning() != self._warned:
+            self._warned = self.link.warning()
+            warnings.append(self._warned)
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
-                    f"0x{info.record:02X} at {info.output_hz:g} Hz"
-                    + (f"; {warning}" if warning else ""))
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz over {self.link.describe()}"
+                    + "".join(f"; {w}" for w in warnings if w))
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
         self.came_up = True
 
@@ -270,16 +279,15 @@ class Pipeline:
         self.timing.configure(Settings(
             record=info.record, decimation=max(1, info.sampling.get("decimation", 1)),
             filter_width=max(1, info.sampling.get("filter_width", 1)), baud=info.baud,
-            transport=self.transport, polled=self.options.poll_hz is not None),
+            transport=self.transport, polled=self.options.poll_hz is not None,
+            latency_timer_ms=self.link.latency_timer_ms),
             restarted=discontinuity)
 
     @property
     def transport(self) -> str:
-        """The link to the unit: "uart", or "usb" (its own USB port, /dev/ttyACM*)."""
-        transport = self.options.transport
-        if transport == "auto":
-            transport = "usb" if is_usb_cdc(self.options.url) else "uart"
-        return transport
+        """The link to the unit: "uart", "usb" (its own USB port, /dev/ttyACM*) or
+        "usb-serial" (an adapter, /dev/ttyUSB*)."""
+        return self.link.transport
 
     def _stream(self, session: Session, stop: threading.Event) -> None:
         assert self.info is not None

@@ -63,6 +63,7 @@ _FRAME_WINDOW_S = 300.0
 _CHORD_TICKS = 20 * TICKS_PER_SECOND  # corners this far apart give the slope
 _GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
 _GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
+_PARTIAL_SHARE = 0.1  # of a window's records with a read ending inside: pinned to bytes
 _SCALAR_RUN = 16  # records; shorter runs are cheaper in plain integers than in NumPy
 
 
@@ -123,7 +124,7 @@ class OnlineClock:
             raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
         self.serial = serial
         if window_s is None:
-            window_s = _FRAME_WINDOW_S if frame_ns and not serial else _LINE_WINDOW_S
+            window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
         if window_s <= 0 or refit_s <= 0:
             raise ValueError("window_s and refit_s must be positive")
         self.filter_delay_ns = int(filter_delay_ns)
@@ -135,6 +136,10 @@ class OnlineClock:
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
         self._last_ns: int | None = None  # the latest instant given out
+        #: When a list, each fit over the frame staircase adds (its ticks, the extent of
+        #: the lines it allowed at them; inf when no straight line fitted): the doubt of
+        #: the instants it gives out until the next fit.
+        self.fits: list[tuple[int, float]] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -154,6 +159,7 @@ class OnlineClock:
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._snapped = np.zeros(0, np.int64)  # the window's receive times, snapped
         self._phase: int | None = None
+        self._parts = False  # whether the snapped points take the partial reads in
         # bucket minima of the whole quarter seconds gone by, and the first bucket not
         # yet taken: each is found once, at the first fit after it is complete
         self._lows_x = np.zeros(0, np.int64)
@@ -287,14 +293,23 @@ class OnlineClock:
         span = int(self._x[-1] - self._x[0])
         step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
         self._next_fit = now + max(1, step)
-        upper = self._snap(new_y, keep) if self.frame_ns else self._y
-        x_ref = int(self._x[0]) + span // 2
+        # Frames alone carry the time unless reads ending inside records pin them to bytes.
+        staircase = self.frame_ns and not (self.serial and pinned_by_bytes(self._g))
+        upper = self._snap(new_y, keep, not staircase) if self.frame_ns else self._y
+        if not staircase and self.frame_ns:  # the envelope over a serial line's window
+            start = int(np.searchsorted(self._x, now - _LINE_WINDOW_S * TICKS_PER_SECOND))
+            x, upper = self._x[start:], upper[start:]
+            span = int(x[-1] - x[0])
+        else:
+            x = self._x
+        x_ref = int(x[0]) + span // 2
         y_ref = int(upper[0])
         bias = 0.0
-        staircase = self.frame_ns and not self.serial
         if staircase:
             bx, by = self._bucket_minima(upper)
             centre = self._centre(bx, by)
+            if self.fits is not None:
+                self.fits.append((now, math.inf if centre is None else centre[3]))
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)
@@ -304,7 +319,7 @@ class OnlineClock:
             line = self._frame_fit(bx.tolist(), by.tolist())
             if line is not None:
                 x_ref, y_ref, self._rate = line
-        dx = (self._x - x_ref).astype(np.float64)
+        dx = (x - x_ref).astype(np.float64)
         dy = (upper - y_ref).astype(np.float64)
         if not staircase and span >= 2 * TICKS_PER_SECOND:
             self._rate = support_slope(dx, dy, self._rate)
@@ -312,7 +327,7 @@ class OnlineClock:
         residual = dy - self._rate * dx - level
         if staircase:
             bias = uncovered_half(residual[dx >= 0], self.frame_ns)
-        y, rate = self._y, self._rate
+        y, rate = self._y[len(self._y) - len(x):], self._rate
         self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
@@ -352,29 +367,34 @@ class OnlineClock:
             return None
         return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
 
-    def _snap(self, new_y: np.ndarray, dropped: int) -> np.ndarray:
-        """Receive times moved down to the USB frame that carried them. The window's
-        older points keep their snapped times while the grid's phase stays put (the
-        window lost its first ``dropped`` points since the last fit); when it moves,
+    def _snap(self, new_y: np.ndarray, dropped: int, parts: bool) -> np.ndarray:
+        """Receive times moved down to the USB frame that carried them, and with ``parts``
+        the partial reads' bounds where they are less. The window's older points keep
+        their snapped times while the grid's phase and ``parts`` stay put (the window
+        lost its first ``dropped`` points since the last fit); when either changes,
         every bucket minimum is found anew."""
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
         phase = grid_phase(self._grid, self.frame_ns)
         old = len(self._y) - len(new_y)
-        if phase == self._phase and len(self._snapped) - dropped == old >= 0:
-            fresh = self._least(old, phase)
+        if (phase, parts) == (self._phase, self._parts) \
+                and len(self._snapped) - dropped == old >= 0:
+            fresh = self._least(old, phase, parts)
             self._snapped = np.concatenate([self._snapped[dropped:], fresh])
         else:
-            self._snapped = self._least(0, phase)
+            self._snapped = self._least(0, phase, parts)
             self._lows_to = None
-        self._phase = phase
+        self._phase, self._parts = phase, parts
         return self._snapped
 
-    def _least(self, start: int, phase: int) -> np.ndarray:
+    def _least(self, start: int, phase: int, parts: bool) -> np.ndarray:
         """The window's points from ``start`` on, snapped: each record's least bound."""
         frame = self.frame_ns
-        return np.asarray(np.minimum(snap_to(self._y[start:], phase, frame),
-                                     snap_to(self._q[start:], phase, frame) + self._g[start:]))
+        full = snap_to(self._y[start:], phase, frame)
+        if not parts:
+            return full
+        return np.asarray(np.minimum(full, snap_to(self._q[start:], phase, frame)
+                                     + self._g[start:]))
 
     def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``bucket_minima`` of the window, each bucket's found at the first fit after it
@@ -393,6 +413,15 @@ class OnlineClock:
             self._lows_y = np.concatenate([self._lows_y[old:], upper[lows]])
         self._lows_to = newest
         return self._lows_x, self._lows_y
+
+
+def pinned_by_bytes(gain: np.ndarray) -> bool:
+    """Whether enough records had a read end inside them (``gain``: the line time of the
+    bytes that read did not hold, 0 where none did) for the lower envelope of the points
+    to be the line. Behind a USB-serial adapter whose packets happen to end with records
+    (a 16 ms latency timer, records that divide its packet) the frames alone carry the
+    time, as on native USB."""
+    return bool(len(gain)) and float(np.count_nonzero(gain)) >= _PARTIAL_SHARE * len(gain)
 
 
 def uncovered_half(residual: np.ndarray, frame: int) -> float:

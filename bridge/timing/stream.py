@@ -20,7 +20,7 @@ from bridge.timing.unwrap import TimingEvent
 
 USB_FRAME_NS = 1_000_000
 USB_BYTE_NS = 1_000  # full-speed USB moves about 1 MB/s of payload
-TRANSPORTS = ("uart", "usb")
+TRANSPORTS = ("uart", "usb", "usb-serial")
 
 
 @dataclass(frozen=True)
@@ -33,11 +33,18 @@ class Settings:
     baud: int
     transport: str = "uart"
     polled: bool = False
+    latency_timer_ms: int | None = None  # a USB-serial adapter's, where known
 
     @property
     def period_ticks(self) -> float | None:
         """Output period in ticks (decimation x 62.5); polled records have none."""
         return None if self.polled else TICKS_PER_SECOND * self.decimation / 1000
+
+    @property
+    def frame_ns(self) -> int:
+        """The host's USB frame where one carries the bytes (own port or adapter); 0 on a
+        plain UART."""
+        return 0 if self.transport == "uart" else USB_FRAME_NS
 
     @property
     def filter_delay_ns(self) -> int:
@@ -46,12 +53,17 @@ class Settings:
 
     @property
     def floor_ns(self) -> int:
-        """The least time a record takes to reach the host: its line time on a UART; on
-        USB (the baud setting has no effect there) its transfer at full speed's payload
-        rate."""
+        """The least time a record takes to reach the host: its line time on a serial
+        line (a UART, or one behind a USB-serial adapter); on the unit's own USB port
+        (the baud setting has no effect there) its transfer at full speed's payload rate."""
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
+
+    @property
+    def serial(self) -> bool:
+        """The bytes crossed a serial line before any USB frames (a USB-serial adapter)."""
+        return self.transport == "usb-serial"
 
     @property
     def byte_ns(self) -> float:
@@ -97,8 +109,7 @@ class StreamTiming:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
         period = settings.period_ticks
         if self.timeline is None:
-            frame = USB_FRAME_NS if settings.transport == "usb" else 0
-            self.timeline = Timeline(period, frame_ns=frame)
+            self.timeline = Timeline(period, frame_ns=settings.frame_ns, serial=settings.serial)
         elif restarted or period != self.timeline.unwrapper.period_ticks:
             self.timeline.expect_discontinuity(period)
         self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
