@@ -40,7 +40,7 @@ import numpy as np
 import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 
-from bridge.bus.codec import layout, parse
+from bridge.bus.codec import layout
 from bridge.loopback import free_port
 from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
@@ -172,6 +172,10 @@ class Subscriber:
 
     def __init__(self, session: zenoh.Session, floor: bool) -> None:
         self.floor = floor
+        fields = layout(CODE, "bench").dtype.fields
+        assert fields is not None
+        # read in place, not parsed: this process also runs the emulated unit
+        self.rx_at, self.ticks_at = fields["rx_ns"][1], fields["ticks"][1]
         self.lock = threading.Lock()
         self.latency: list[int] = []
         self.ids: list[int] = []
@@ -184,8 +188,8 @@ class Subscriber:
             rx, ident = int.from_bytes(payload[:8], "little"), int.from_bytes(payload[8:16],
                                                                               "little")
         else:
-            msg = parse(payload)
-            rx, ident = msg.rx_ns, msg.ticks
+            rx = int.from_bytes(payload[self.rx_at : self.rx_at + 8], "little")
+            ident = int.from_bytes(payload[self.ticks_at : self.ticks_at + 8], "little")
         with self.lock:
             self.latency.append(now - rx)
             self.ids.append(ident)
