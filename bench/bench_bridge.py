@@ -268,9 +268,11 @@ def asked(proc: subprocess.Popen[str]) -> int:
     assert proc.stdout is not None
     proc.send_signal(signal.SIGUSR1)
     ready, _, _ = select.select([proc.stdout], [], [], 5.0)
-    if not ready:
-        raise SystemExit("a read loop did not answer SIGUSR1")
-    return int(proc.stdout.readline())
+    line = proc.stdout.readline() if ready else ""
+    if not line:
+        raise SystemExit(f"a read loop did not answer SIGUSR1 (exit status {proc.poll()}; "
+                         "another program holding the pty?)")
+    return int(line)
 
 
 def compile_c(folder: Path) -> Path | None:
