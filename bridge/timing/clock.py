@@ -24,6 +24,15 @@ line is used. When no straight line fits any of them, the slope comes from the
 two latest corners of the frame staircase and half the frame the points have
 not covered is taken off.
 
+A read that ends inside a record bounds it too: over a serial line, the record
+began no later than that read's time (snapped to its frame, where frames carry the
+bytes) less the line time of the bytes it held, which pins the record to about a
+byte time. Behind a USB-serial adapter whose reads often end mid-record the points
+are then the line's to a byte, and the lower envelope of a minute of them (as on a
+UART) replaces the polygon; where its packets end with records (a 16 ms latency
+timer with records that divide its 62-byte packet) only the frames carry the time,
+and the polygon stays.
+
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,
 not on how they are split into ``update`` calls.
