@@ -6,7 +6,7 @@ same byte stream, cut into reads in many ways (a record a read, several, every r
 ending mid-record, random cuts down to single bytes) and carrying garbage, a record
 with a bad checksum, a corrupt timer that matches its checksum, lost records and a
 timer rollover, must give byte-identical payloads, the same ticks and time_ns and the
-same events both ways.
+same events both ways, whatever the link (UART, native USB, a USB-serial adapter).
 """
 
 from __future__ import annotations
@@ -156,7 +156,7 @@ def live_path(data: bytes, read_ends: list[int], rx: np.ndarray, transport: str)
     return out
 
 
-@pytest.mark.parametrize("transport", ["uart", "usb"])
+@pytest.mark.parametrize("transport", ["uart", "usb", "usb-serial"])
 @pytest.mark.parametrize("kind", ["record", "several", "mid-record", "random"])
 def test_reads_however_cut_give_the_batch_paths_payloads_times_and_events(
         kind: str, transport: str) -> None:
