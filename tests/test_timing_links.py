@@ -16,14 +16,14 @@ USB_PACE = 10_000_000  # streaming_config's default: the line at USB speed
 
 
 def _delivery(link: str, seed: int, latency_s: float) -> HostDelivery:
+    host = UartDelivery(os_latency_mean_s=latency_s, stall_every_s=10.0, seed=seed)
     phase = (seed * 0.000377) % 0.001
-    common = {"os_latency_mean_s": latency_s, "stall_every_s": 10.0, "seed": seed}
-    if link == "usb":
-        return UsbDelivery(frame_phase_s=phase, **common)
     if link == "uart":
-        return UartDelivery(**common)
+        return host
+    if link == "usb":
+        return UsbDelivery(frame_phase_s=phase, **vars(host))
     timer = 0.001 if link == "usb-serial-1" else 0.016
-    return AdapterDelivery(latency_timer_s=timer, frame_phase_s=phase, **common)
+    return AdapterDelivery(latency_timer_s=timer, frame_phase_s=phase, **vars(host))
 
 
 CASES = [(link, seed) for seed in (1, 2, 3)
