@@ -225,17 +225,30 @@ def replay_command(
         "--jobs", "-j", min=0, help="Processes replaying at once, a capture file each (a unit "
                                     "each when there are fewer files); 0: one per core.")] = 0,
     force: ForceOpt = False,
+    transport: Annotated[str | None, typer.Option(
+        metavar="uart|usb|usb-serial",
+        help="Time every unit as linked this way (a UART; the unit's own USB port; a "
+             "USB-serial adapter), whatever a capture's metadata says or its receive "
+             "times show.")] = None,
 ) -> None:
     """Run raw captures through the bridge's framer and timing into an archive, no Zenoh.
 
     Gives the samples and live time_ns the bridge published when the capture was
     made. A capture from another program is understood from its bytes: record type,
-    rate and float byte order. Units are replayed side by side on the machine's
-    cores; each unit's samples are the same as replayed alone.
+    rate and float byte order; and its link from its receive times (reads crowding
+    just after the host's 1 ms USB frames, reads ending mid-record, their spacing
+    against the serial line's byte time: UART, the unit's own USB port, or a
+    USB-serial adapter with a 1 or 16 ms latency timer). What was inferred is said on
+    the unit's line. Units are replayed side by side on the machine's cores; each
+    unit's samples are the same as replayed alone.
     """
     from bridge.recorder.archive import ArchiveError
     from bridge.recorder.read import ArchiveReadError
     from bridge.recorder.replay import Replayed, ReplayError, UnusableCapture, replay
+    from bridge.timing.stream import TRANSPORTS
+
+    if transport is not None and transport not in TRANSPORTS:
+        raise fail(f"--transport {transport!r}: use " + ", ".join(TRANSPORTS))
 
     for path in captures:
         if not path.is_file():
@@ -265,7 +278,7 @@ def replay_command(
         try:
             with progress:
                 results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
-                                 on_samples=advance)
+                                 on_samples=advance, transport=transport)
         except (ArchiveReadError, UnusableCapture) as exc:
             raise fail(str(exc)) from None
         except (ReplayError, ArchiveError) as exc:

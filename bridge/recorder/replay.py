@@ -9,8 +9,10 @@ stream: settings from each 0xDB reply, a restarted stream at each 0xC4 reply
 
 A capture without metadata (another program's) is understood from its bytes:
 the record type is the most common data record, the rate comes from the timer
-steps, the float byte order from whichever decodes, and the filter width is the
-factory's 15 unless a 0xDB reply says otherwise.
+steps, the float byte order from whichever decodes, the filter width is the
+factory's 15 unless a 0xDB reply says otherwise, and the link (UART, USB, or a
+USB-serial adapter and its latency timer) comes from the receive times
+(``bridge.timing.links``). A transport given to ``replay`` overrides both.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
 from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import capture_metadata
 from bridge.recorder.read import Archive, ArchiveReadError, read_archive, summary_counts
+from bridge.timing.links import infer_transport
 from bridge.timing.stream import Settings, StreamTiming
 
 SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
@@ -49,6 +52,7 @@ _EVENT_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOV
                 "glitch": Event.GLITCH}
 FACTORY_FILTER_WIDTH = 15
 _SNIFF_READS = 400
+_INFER_READS = 500_000  # minutes of reads: plenty to tell the link by
 _GROUP = 4096  # records timed and encoded together
 _FEED_BYTES = 1 << 20  # reads framed together
 _QUEUED = 64  # message groups a worker may have waiting for the writer
@@ -123,29 +127,40 @@ def _timer(text: str | None) -> int | None:
 class UnitReplay:
     """Frames and times one unit's reads exactly as its live bridge did."""
 
-    def __init__(self, capture: Capture) -> None:
+    def __init__(self, capture: Capture, transport: str | None = None) -> None:
         self.capture = capture
         self.result = Replayed(capture.unit)
-        self.settings = self._initial_settings()
-        self.framer = Framer(_EXPECT, little_endian=self._little_endian())
+        little_endian = self._little_endian()
+        self.settings = self._initial_settings(little_endian, transport)
+        self.framer = Framer(_EXPECT, little_endian=little_endian)
         self.timing = StreamTiming()
         self._pending: list[Batch] = []
         self._pending_records = 0
 
     # --- what the capture says, or what its bytes show ----------------------------------
-    def _initial_settings(self) -> Settings:
+    def _initial_settings(self, little_endian: bool, transport: str | None) -> Settings:
+        """From the capture's metadata, or else its bytes and receive times; a
+        ``transport`` given overrides the link either gives."""
         meta = self.capture.metadata
         if {"record", "decimation", "filter_width", "baud"} <= meta.keys():
             return Settings(record=int(meta["record"], 0), decimation=int(meta["decimation"]),
                             filter_width=int(meta["filter_width"]), baud=int(meta["baud"]),
-                            transport=meta.get("transport", "uart"),
+                            transport=transport or meta.get("transport", "uart"),
                             polled=meta.get("polled") == "true",
-                            latency_timer_ms=_timer(meta.get("latency_timer_ms")))
+                            latency_timer_ms=None if transport else
+                            _timer(meta.get("latency_timer_ms")))
         record, decimation = self._sniff()
         self.result.inferred += [f"record 0x{record:02X}", f"decimation {decimation}",
                                  f"filter width {FACTORY_FILTER_WIDTH} (factory)"]
-        return Settings(record=record, decimation=decimation,
-                        filter_width=FACTORY_FILTER_WIDTH, baud=DEFAULT_BAUD)
+        settings = Settings(record=record, decimation=decimation,
+                            filter_width=FACTORY_FILTER_WIDTH, baud=DEFAULT_BAUD)
+        if transport:
+            return replace(settings, transport=transport)
+        link = infer_transport(self.capture.rx_ns[:_INFER_READS],
+                               self.capture.data[:_INFER_READS], record, little_endian)
+        self.result.inferred.append(link.describe())
+        return replace(settings, transport=link.transport, baud=link.baud or DEFAULT_BAUD,
+                       latency_timer_ms=link.latency_timer_ms)
 
     def _sniff_batches(self, little_endian: bool) -> list[Batch]:
         framer = Framer(DATA_CODES, little_endian=little_endian)
@@ -268,7 +283,8 @@ def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterat
 def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
            on_unit: Callable[[Replayed], None] | None = None,
            jobs: int | None = 1,
-           on_samples: Callable[[int], None] | None = None) -> list[Replayed]:
+           on_samples: Callable[[int], None] | None = None,
+           transport: str | None = None) -> list[Replayed]:
     """Replay every unit of every capture in ``paths`` into one archive at ``out``.
 
     ``jobs`` > 1 (None: one per core) replays in that many worker processes at once,
@@ -276,20 +292,21 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
     files than jobs (a fleet's archive recorded with --raw). Units are independent, so
     each gets the same samples; only their messages interleave in the file differently.
     Results come in the order of ``paths``; ``on_unit`` hears each unit as it finishes,
-    ``on_samples`` how many samples each write added to the archive.
+    ``on_samples`` how many samples each write added to the archive. ``transport``
+    times every unit as on that link, whatever its capture says or shows.
     """
     paths = list(paths)
     jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
     tasks = _tasks(paths, jobs) if jobs > 1 else []
     if len(tasks) > 1:
         return _replay_in_workers(tasks, out, prefix, on_unit, on_samples,
-                                  min(jobs, len(tasks)))
+                                  min(jobs, len(tasks)), transport)
     results = []
     with _archive(out, prefix) as writer:
         emit = _counted(writer.write_many, on_samples)
         for path in paths:
             for capture in captures(path, prefix):
-                results.append(UnitReplay(capture).run(emit, prefix))
+                results.append(UnitReplay(capture, transport).run(emit, prefix))
                 if on_unit is not None:
                     on_unit(results[-1])
     return results
@@ -359,7 +376,7 @@ def _unit_tasks(paths: list[Path]) -> list[_Task]:
 def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
                        on_samples: Callable[[int], None] | None,
-                       jobs: int) -> list[Replayed]:
+                       jobs: int, transport: str | None) -> list[Replayed]:
     """``replay`` with the tasks shared out by weight among ``jobs`` processes, started
     before the archive writer's thread is (a process with threads forks badly). A
     bounded queue brings their messages here, so memory stays flat."""
@@ -372,8 +389,8 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
-    workers = [context.Process(target=_worker, args=(share, prefix, queue, os.getpid()),
-                               daemon=True)
+    workers = [context.Process(target=_worker,
+                               args=(share, prefix, queue, os.getpid(), transport), daemon=True)
                for share in shares]
     done: list[tuple[int, str, Replayed]] = []
     try:
@@ -415,7 +432,8 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
 
 
 def _worker(tasks: list[_Task], prefix: str,
-            queue: multiprocessing.Queue[tuple[str, Any]], parent: int) -> None:
+            queue: multiprocessing.Queue[tuple[str, Any]], parent: int,
+            transport: str | None) -> None:
     """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
     its raw topic, the order it has replayed alone. Ctrl-C is the caller's to handle (it
     ends the workers and removes its output), and its SIGTERM ends a worker at once."""
@@ -434,7 +452,7 @@ def _worker(tasks: list[_Task], prefix: str,
     try:
         for (index, path), topics in files.items():
             for capture in captures(path, prefix, topics):
-                result = UnitReplay(capture).run(emit, prefix)
+                result = UnitReplay(capture, transport).run(emit, prefix)
                 queue.put(("unit", (index, capture.topic, result)))
     except Exception as exc:  # every error reaches the caller, to say as it would alone
         queue.put(("error", _sendable(exc)))

@@ -35,6 +35,7 @@ from bridge.sim.unit import STEP_SLACK
 
 #: What Linux's FTDI driver sets; 1 ms is the fix for timing (configs/udev).
 DEFAULT_LATENCY_TIMER_MS = 16
+_DRAW_BLOCK = 4096
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -118,6 +119,8 @@ class Port:
     def __init__(self, config: HostDelivery, start: float) -> None:
         self.config: HostDelivery = config
         self._latency = np.random.default_rng([config.seed, 1])
+        self._drawn: list[float] = []  # latencies drawn ahead, in the order drawn
+        self._next_drawn = 0
         self._stalls = np.random.default_rng([config.seed, 2])
         self._pending: deque[_Chunk] = deque()
         self._wake: float | None = None
@@ -140,9 +143,7 @@ class Port:
         while self._pending:
             if self._wake is None:
                 head = self._pending[0]
-                latency = float(self._latency.exponential(self.config.os_latency_mean_s)) \
-                    if self.config.os_latency_mean_s else 0.0
-                self._wake = self._unstalled(head.at(head.taken) + latency)
+                self._wake = self._unstalled(head.at(head.taken) + self._os_latency())
             if self._wake > now:
                 break
             chunks = []
@@ -158,6 +159,18 @@ class Port:
             out.append((self._wake, b"".join(chunks)))
             self._wake = None
         return out
+
+    def _os_latency(self) -> float:
+        """The next read's OS latency. Drawn a block at a time (the same numbers as one
+        at a time), since a UART capture makes a read every few bytes."""
+        mean = self.config.os_latency_mean_s
+        if not mean:
+            return 0.0
+        if self._next_drawn == len(self._drawn):
+            self._drawn = self._latency.exponential(mean, _DRAW_BLOCK).tolist()
+            self._next_drawn = 0
+        self._next_drawn += 1
+        return self._drawn[self._next_drawn - 1]
 
     def _next_stall(self, after: float) -> None:
         c = self.config

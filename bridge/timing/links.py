@@ -52,6 +52,7 @@ class Inferred:
     transport: str
     latency_timer_ms: int | None
     evidence: str
+    baud: int | None = None  # a UART's, where its reads show it
 
     def describe(self) -> str:
         timer = f", {self.latency_timer_ms} ms latency timer" if self.latency_timer_ms else ""
@@ -105,7 +106,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / FRAME_NS / len(completions))
     if line is not None and line[0] < _LINE_FIT:
         return Inferred("uart", None, f"{said}, each holding every byte the line had "
-                                      f"carried by then at {line[1]} baud")
+                                      f"carried by then at {line[1]} baud", line[1])
     if line is None and unit - host > noise:
         return Inferred("uart", None, f"reads follow the unit's clock, not the host's 1 ms "
                                       f"frames; {said}")
