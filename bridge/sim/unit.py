@@ -423,15 +423,18 @@ class SimUnit:
         return ((s.filter_width - 1) / 2 * CALCULATION_CYCLE_S,
                 (s.mag_filter_width - 1) / 2 * CALCULATION_CYCLE_S)
 
-    def _sample(self, device: np.ndarray, period: float, mag: bool) -> dict[str, np.ndarray]:
-        """The motion as the unit's filters see it at the end of cycles at ``device``."""
+    def _sample(self, device: np.ndarray, period: float, names: list[str]
+                ) -> dict[str, np.ndarray]:
+        """The motion as the unit's filters see it at the end of cycles at ``device``: at
+        least the quantities ``names`` and the quaternion (the truth)."""
+        only = [*names, "quaternion"]
         if not self.config.filter_model:
-            return self.motion.sample(device, period)
+            return self.motion.sample(device, period, only=only)
         delay, mag_delay = self.filter_delays()
         widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
         gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
-        sample = self.motion.sample(device - delay, period, gain)
-        if mag and mag_delay != delay:
+        sample = self.motion.sample(device - delay, period, gain, only)
+        if "mag" in names and mag_delay != delay:
             sample["mag"] = self.motion.magnetometer(device - mag_delay, gain[2])
         return sample
 
@@ -439,7 +442,7 @@ class SimUnit:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
         device = cycles * CALCULATION_CYCLE_S
         names = [f.name for f in REPLIES[code].fields if f.name != "timer"]
-        sample = self._sample(device, self.period, "mag" in names)
+        sample = self._sample(device, self.period, names)
         timers = self.timer_at(cycles)
         columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
@@ -532,7 +535,8 @@ class SimUnit:
         start = self._cycle_after(at)
         device = np.arange(start, start + n) * CALCULATION_CYCLE_S
         done = self.host_time(device[-1] + CALCULATION_CYCLE_S)
-        self.gyro_bias = self._sample(device, CALCULATION_CYCLE_S, False)["ang_rate"].mean(axis=0)
+        rate = self._sample(device, CALCULATION_CYCLE_S, ["ang_rate"])["ang_rate"]
+        self.gyro_bias = rate.mean(axis=0)
         self._busy_until = max(self._busy_until, done)
         values = {"gyro_bias": self.gyro_bias, "timer": self._timer_now(done)}
         self._schedule(done, encode_reply(0xCD, self.little_endian, **values))
