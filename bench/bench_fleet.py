@@ -96,8 +96,10 @@ def main() -> None:
             procs = [*(p.pid for p in bridges), recorder.pid, os.getpid()]
             t0, ns0 = time.monotonic(), time.time_ns()
             cpu0, (busy0, cores) = [cpu_seconds(pid) for pid in procs], machine_busy()
+            lost0 = [slot.lost for slot in sim.slots]
             time.sleep(args.seconds)
             cpu1, (busy1, _) = [cpu_seconds(pid) for pid in procs], machine_busy()
+            lost1 = [slot.lost for slot in sim.slots]
             wall, ns1 = time.monotonic() - t0, time.time_ns()
             for b in bridges:
                 b.send_signal(signal.SIGINT)
@@ -112,7 +114,7 @@ def main() -> None:
                     proc.kill()
                     proc.wait()
         produced = sum(len(u.truth) for u in sim.units)
-        unwritten = [slot.lost for slot in sim.slots]
+        unwritten = (sum(lost1) - sum(lost0), sum(slot.lost for slot in sim.slots))
         from bridge.bus.gx3_pb2 import Event
         from bridge.recorder.read import read_archive
 
@@ -138,10 +140,12 @@ def main() -> None:
          f"{sum(holes):,} in all, {max(holes, default=0):,} at most in one of "
          f"{len(blocks)} units"),
         ("where samples went missing",
-         f"emulator could not write {sum(unwritten):,} bytes (pty full: its bridge not "
-         f"reading) on {sum(n > 0 for n in unwritten)} units; events archived: "
+         f"bytes the emulator could not write (pty full: a bridge not reading): "
+         f"{unwritten[0]:,} in the window, {unwritten[1]:,} in all; events archived: "
          + (", ".join(f"{Event.Kind.Name(kind)} x{n}" for kind, n in
-                      sorted(Counter(e.kind for e in events).items())) or "none")),
+                      sorted(Counter(e.kind for e in events).items())) or "none")
+         + "".join(f"; {e.unit} GAP of {e.count} at {(e.time_ns - ns0) / 1e9:+.1f} s from "
+                   "the window's start" for e in events if e.kind == Event.GAP)),
         ("receive -> recorder (ms)",
          f"p50 {np.percentile(latency, 50):.2f}, p99 {np.percentile(latency, 99):.2f}, "
          f"max {latency.max():.2f} ({len(latency):,} samples in the window; {whole} of "
