@@ -1,23 +1,30 @@
-"""One `gx3 bridge` process at 1,000 Hz with the largest record (0xCC, 79 B) at 921,600 baud.
+"""What one unit at 1,000 Hz of 0xCC (79 B at 921,600 baud) costs, side by side in one run.
 
-Measures the bridge's CPU (its own process: user + system time per second of wall
-time) and the latency from the bridge's receive stamp of the read that completed a
-record (``rx_ns``) to a subscriber callback in another process (this one), both on
-this machine's clock; and that every record the emulator sent was delivered.
+On the same emulated stream (one emulated unit on a pty), one after the other:
 
-    python bench/bench_bridge.py --seconds 30
-    python bench/bench_bridge.py --seconds 30 --floor
+- a C ``select`` + ``read`` loop (compiled with gcc into a temporary folder; skipped,
+  and said so, when there is no gcc): the least any process can spend on the stream;
+- the same loop in Python (``select`` + ``os.read``);
+- that Python loop with one plain Zenoh put per record (an ImuSample-sized payload
+  and its CRC-32 attachment): the least a Python bridge can spend;
+- ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5.
 
-``--floor`` runs, in place of the bridge, the least a process can do with the same
-stream: wait for each read with ``select``, read it, and put one ImuSample-sized
-payload per record through the same Zenoh publisher; no framing, timing or encoding.
-The bridge's CPU above that figure is what parsing and timing in Python cost.
+For each: its process's CPU (user + system time over wall time, % of one core), the
+same per record, the latency from the receive stamp of the read that completed a
+record to a subscriber callback in this process (p50, p99; both on this machine's
+clock), whether every sample the unit sent was delivered, and the CPU as a ratio to
+the Python loop with puts. The bridge's CPU is also given by thread.
+
+    python bench/bench_bridge.py --seconds 10
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
+import select
 import shutil
 import signal
 import subprocess
@@ -25,136 +32,317 @@ import sys
 import tempfile
 import threading
 import time
+import zlib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 
-from bridge.bus.codec import parse
+from bridge.bus.codec import layout, parse
 from bridge.loopback import free_port
-from bridge.protocol.table import Flag
+from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
+CODE = 0xCC
+RATE_HZ = 1000
+START = bytes([0xC4, 0xC1, 0x29, CODE])  # continuous mode, 0xCC
+STOP = bytes([0xFA, 0x75, 0xB4])
+KEY = "gx3/bench/imu"
+#: SIGUSR1 asks a loop for the bytes it has read so far (one line on stdout).
+C_LOOP = r"""
+#include <fcntl.h>
+#include <signal.h>
+#include <stdio.h>
+#include <sys/file.h>
+#include <sys/select.h>
+#include <termios.h>
+#include <unistd.h>
 
-def floor(port: str, config: str, code: int) -> None:
-    """The bare loop of ``--floor``, as its own process, until SIGINT. Each payload is
-    an ImuSample's size and starts with the receive time (int64 LE ns)."""
-    import os
-    import select
+static volatile sig_atomic_t stop = 0, ask = 0;
+static void on_int(int s) { (void)s; stop = 1; }
+static void on_usr1(int s) { (void)s; ask = 1; }
 
-    from bridge.bus.publish import UnitPublisher
+int main(int argc, char **argv) {
+    if (argc < 2) return 2;
+    int fd = open(argv[1], O_RDWR | O_NOCTTY | O_NONBLOCK);
+    if (fd < 0) { perror("open"); return 1; }
+    if (flock(fd, LOCK_EX | LOCK_NB) < 0) { perror("flock"); return 1; }  /* as pyserial */
+    struct termios t;
+    tcgetattr(fd, &t);
+    cfmakeraw(&t);  /* and the rest as pyserial sets a port */
+    t.c_cflag |= CLOCAL | CREAD;
+    t.c_cflag &= ~(HUPCL | CRTSCTS);
+    t.c_cc[VMIN] = 0;
+    t.c_cc[VTIME] = 0;
+    cfsetispeed(&t, B921600);  /* the emulated line checks the host's rate */
+    cfsetospeed(&t, B921600);
+    tcsetattr(fd, TCSANOW, &t);
+    struct sigaction a = {0}, u = {0};
+    a.sa_handler = on_int;
+    u.sa_handler = on_usr1;
+    sigaction(SIGINT, &a, NULL);
+    sigaction(SIGUSR1, &u, NULL);
+    const unsigned char start[] = {0xC4, 0xC1, 0x29, 0xCC}, halt[] = {0xFA, 0x75, 0xB4};
+    write(fd, start, sizeof start);
+    unsigned long long total = 0;
+    unsigned char buf[65536];
+    while (!stop) {
+        if (ask) { ask = 0; printf("%llu\n", total); fflush(stdout); }
+        fd_set r;
+        FD_ZERO(&r);
+        FD_SET(fd, &r);
+        struct timeval tv = {0, 50000};
+        if (select(fd + 1, &r, NULL, NULL, &tv) > 0) {
+            ssize_t n = read(fd, buf, sizeof buf);
+            if (n > 0) total += (unsigned long long)n;
+        }
+    }
+    write(fd, halt, sizeof halt);
+    close(fd);
+    return 0;
+}
+"""
+
+
+def loop(kind: str, port: str, config: str) -> None:
+    """The Python loops, as their own process, until SIGINT: ``read`` reads only, ``put``
+    puts one payload per whole record: an ImuSample's size, starting with the receive
+    time and the record's number (int64 LE each), with its CRC-32 as attachment."""
     from bridge.bus.session import open_session
     from bridge.device.port import Port
-    from bridge.protocol.table import REPLIES
 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
-    size = REPLIES[code].length
-    padding = bytes(127)
-    with open_session(config) as session:
-        pub = UnitPublisher(session, "bench", cache_samples=1000)
+    asked = threading.Event()
+    signal.signal(signal.SIGUSR1, lambda *_: asked.set())
+    size = REPLIES[CODE].length
+    padding = bytes(layout(CODE, "bench").size - 16)
+    total = held = number = 0
+    with contextlib.ExitStack() as stack:  # no Zenoh at all for the read-only loop
+        pub = None
+        if kind == "put":
+            pub = stack.enter_context(open_session(config)).declare_publisher(KEY)
         link = Port.open(port, 921_600)
         fd = link.raw.fileno()
-        link.write(bytes([0xC4, 0xC1, 0x29, code]))
-        held = 0
-        put = pub._imu.put
+        link.write(START)
         while not stop.is_set():
+            if asked.is_set():
+                asked.clear()
+                print(total, flush=True)
             if select.select([fd], [], [], 0.05)[0]:
-                held += len(os.read(fd, 1 << 16))
-                rx = time.time_ns().to_bytes(8, "little")
-                for _ in range(held // size):
-                    put(rx + padding)
-                held %= size
-        link.write(bytes([0xFA, 0x75, 0xB4]))
+                data = os.read(fd, 1 << 16)
+                total += len(data)
+                if pub is not None:
+                    held += len(data)
+                    rx = time.time_ns()
+                    for _ in range(held // size):
+                        payload = rx.to_bytes(8, "little") + number.to_bytes(8, "little") \
+                            + padding
+                        pub.put(payload, attachment=zlib.crc32(payload).to_bytes(4, "little"))
+                        number += 1
+                    held %= size
+        link.write(STOP)
         link.close()
-        pub.close()
+        if pub is not None:
+            pub.undeclare()
+
+
+@dataclass
+class Row:
+    name: str
+    cpu_pct: float = float("nan")
+    records: int = 0  # in the measured window
+    p50_ms: float | None = None
+    p99_ms: float | None = None
+    delivered: str = "n/a"
+    threads: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def us_per_record(self) -> float:
+        return 1e4 * self.cpu_pct / RATE_HZ
+
+
+class Subscriber:
+    """Receive time → callback latency and what arrived, of the samples on ``KEY``."""
+
+    def __init__(self, session: zenoh.Session, floor: bool) -> None:
+        self.floor = floor
+        self.lock = threading.Lock()
+        self.latency: list[int] = []
+        self.ids: list[int] = []
+        self.sub = session.declare_subscriber(KEY, self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        payload = sample.payload.to_bytes()
+        if self.floor:
+            rx, ident = int.from_bytes(payload[:8], "little"), int.from_bytes(payload[8:16],
+                                                                              "little")
+        else:
+            msg = parse(payload)
+            rx, ident = msg.rx_ns, msg.ticks
+        with self.lock:
+            self.latency.append(now - rx)
+            self.ids.append(ident)
+
+    def take(self) -> tuple[np.ndarray, np.ndarray]:
+        with self.lock:
+            out = np.array(self.latency), np.array(self.ids)
+            self.latency.clear()
+            self.ids.clear()
+        return out
+
+    def count(self) -> int:
+        with self.lock:
+            return len(self.ids)
+
+
+def measure(name: str, command: list[str], seconds: float, session: zenoh.Session | None,
+            kind: str) -> Row:
+    """Run ``command`` on the stream; its CPU and deliveries over ``seconds``."""
+    row = Row(name)
+    sub = Subscriber(session, kind == "put") if session is not None else None
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        if sub is not None:  # warm: the unit streams and the subscriber hears it
+            while sub.count() < 1000 and time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(0.1)
+        else:
+            time.sleep(1.5)
+        if proc.poll() is not None:
+            raise SystemExit(f"{name}: exited with {proc.returncode} before the measurement")
+        read0 = asked(proc) if sub is None else 0
+        if sub is not None:
+            sub.take()
+        cpu0, wall0, threads0 = cpu_seconds(proc.pid), time.monotonic(), thread_cpu_seconds(
+            proc.pid)
+        time.sleep(seconds)
+        cpu1, wall1, threads1 = cpu_seconds(proc.pid), time.monotonic(), thread_cpu_seconds(
+            proc.pid)
+        read1 = asked(proc) if sub is None else 0
+        time.sleep(0.3)  # the samples read before the window closed reach the subscriber
+        wall = wall1 - wall0
+        row.cpu_pct = 100 * (cpu1 - cpu0) / wall
+        row.threads = {k: 100 * (v - threads0.get(k, 0.0)) / wall for k, v in threads1.items()}
+        if sub is None:
+            row.records = (read1 - read0) // REPLIES[CODE].length
+            row.delivered = "yes" if row.records >= 0.99 * RATE_HZ * wall else \
+                f"no ({row.records} read)"
+        else:
+            latency, ids = sub.take()
+            sub.sub.undeclare()
+            row.records = len(ids)
+            steps = np.diff(ids) if kind == "put" else np.round(np.diff(ids) / 62.5)
+            missing = int(steps.sum() - len(steps)) if len(ids) else -1
+            enough = len(ids) >= 0.99 * RATE_HZ * wall
+            row.delivered = "yes" if missing == 0 and enough else \
+                f"no ({missing} missing of {len(ids)})"
+            if len(latency):
+                row.p50_ms = float(np.percentile(latency, 50) / 1e6)
+                row.p99_ms = float(np.percentile(latency, 99) / 1e6)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+    return row
+
+
+def asked(proc: subprocess.Popen[str]) -> int:
+    """A loop's bytes read so far."""
+    assert proc.stdout is not None
+    proc.send_signal(signal.SIGUSR1)
+    ready, _, _ = select.select([proc.stdout], [], [], 5.0)
+    if not ready:
+        raise SystemExit("a read loop did not answer SIGUSR1")
+    return int(proc.stdout.readline())
+
+
+def compile_c(folder: Path) -> Path | None:
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        return None
+    source, binary = folder / "loop.c", folder / "loop"
+    source.write_text(C_LOOP)
+    subprocess.run([gcc, "-O2", "-o", str(binary), str(source)], check=True)
+    return binary
+
+
+def table(rows: list[Row]) -> str:
+    base = next((r.cpu_pct for r in rows if r.name.endswith("+ put")), float("nan"))
+    lines = ["| loop on the same pty stream | % of a core | µs per record | rx → subscriber "
+             "p50 / p99 ms | every sample | × Python select+read+put |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        if r.cpu_pct != r.cpu_pct:  # skipped
+            lines.append(f"| {r.name} | {r.delivered} | | | | |")
+            continue
+        latency = "–" if r.p50_ms is None or r.p99_ms is None else \
+            f"{r.p50_ms:.3f} / {r.p99_ms:.3f}"
+        lines.append(f"| {r.name} | {r.cpu_pct:.1f} | {r.us_per_record:.0f} | {latency} | "
+                     f"{r.delivered} | {r.cpu_pct / base:.2f} |")
+    return "\n".join(lines)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--seconds", type=float, default=30.0)
-    parser.add_argument("--code", default="0xCC")
-    parser.add_argument("--floor", action="store_true",
-                        help="run the bare select/read/put loop in place of the bridge")
-    parser.add_argument("--floor-child", nargs=2, help=argparse.SUPPRESS)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=10.0,
+                        help="measured seconds per row (each row warms up first)")
+    parser.add_argument("--budgets", default="1,2,5",
+                        help="gx3 bridge --max-latency-ms values, comma-separated")
+    parser.add_argument("--loop-child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    code = int(args.code, 0)
-    if args.floor_child:
-        port, zenoh_config = args.floor_child
-        floor(port, zenoh_config, code)
+    if args.loop_child:
+        loop(*args.loop_child)
         return
     gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
-    config = UnitConfig(serial="BENCH", motion=MotionConfig(seed=1), stored=Stored(
-        mode_preset=2, continuous_preset=code, baud=921_600,
+    unit = UnitConfig(serial="BENCH", motion=MotionConfig(seed=1), stored=Stored(
+        mode_preset=2, continuous_preset=CODE, baud=921_600,
         sampling=Sampling(decimation=1, flags=int(Flag.CONING_SCULLING))))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
-    with tempfile.TemporaryDirectory() as tmp, Simulator([config], "pty") as sim:
+    rows: list[Row] = []
+    with tempfile.TemporaryDirectory() as tmp, Simulator([unit], "pty") as sim:
+        port = sim.endpoints[0]
         cfg = Path(tmp, "bridge.json5")
         cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
                                    "scouting": scouting}))
-        latencies: list[int] = []
-        ticks: list[int] = []
-        lock = threading.Lock()
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            now = time.time_ns()
-            payload = sample.payload.to_bytes()
-            if args.floor:
-                rx, tick = int.from_bytes(payload[:8], "little"), len(ticks) * 62
-            else:
-                msg = parse(payload)
-                rx, tick = msg.rx_ns, msg.ticks
-            with lock:
-                latencies.append(now - rx)
-                ticks.append(tick)
-
         client = zenoh.Config.from_json5(json.dumps({
             "mode": "peer", "connect": {"endpoints": [endpoint]}, "scouting": scouting}))
-        command = [gx3, "bridge", "--port", sim.endpoints[0], "--baud", "921600", "--unit",
-                   "bench", "--zenoh-config", str(cfg), "--quiet"]
-        if args.floor:
-            command = [sys.executable, __file__, "--code", args.code, "--floor-child",
-                       sim.endpoints[0], str(cfg)]
-        bridge = subprocess.Popen(command)
-        try:
-            with zenoh.open(client) as session:
-                sub = session.declare_subscriber("gx3/bench/imu", on_sample)
-                while True:
-                    with lock:
-                        if len(ticks) > 2000:
-                            break
-                    time.sleep(0.1)
-                with lock:
-                    latencies.clear()
-                    ticks.clear()
-                cpu0, wall0 = cpu_seconds(bridge.pid), time.monotonic()
-                threads0 = thread_cpu_seconds(bridge.pid)
-                time.sleep(args.seconds)
-                cpu1, wall1 = cpu_seconds(bridge.pid), time.monotonic()
-                threads1 = thread_cpu_seconds(bridge.pid)
-                time.sleep(0.5)
-                sub.undeclare()
-        finally:
-            bridge.send_signal(signal.SIGINT)
-            bridge.wait(timeout=30)
-        lat = np.array(latencies) / 1e6
-        t = np.array(ticks)
-        steps = np.diff(t)
-        missing = int(np.sum(np.round(steps / 62.5)) - len(steps))
-        what = "bare select/read/put loop" if args.floor else "bridge"
-        print(f"0x{code:02X} at 1,000 Hz, {args.seconds:g} s: {len(t)} samples received"
-              + ("" if args.floor else f", {missing} missing from the tick sequence"))
-        spent = {name: t - threads0.get(name, 0.0) for name, t in threads1.items()}
-        print(f"{what} CPU: {100 * (cpu1 - cpu0) / (wall1 - wall0):.1f} % of one core; by thread: "
-              + ", ".join(f"{name} {100 * t / (wall1 - wall0):.1f} %"
-                          for name, t in sorted(spent.items(), key=lambda kv: -kv[1]) if t > 0))
-        print(f"rx -> subscriber callback: p50 {np.percentile(lat, 50):.3f} ms, "
-              f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms")
+        binary = compile_c(Path(tmp))
+        if binary is None:
+            rows.append(Row("C select + read", delivered="skipped: no gcc on this machine"))
+        else:
+            rows.append(measure("C select + read", [str(binary), port], args.seconds, None,
+                                "read"))
+        me = [sys.executable, __file__, "--loop-child"]
+        rows.append(measure("Python select + os.read", [*me, "read", port, str(cfg)],
+                            args.seconds, None, "read"))
+        with zenoh.open(client) as session:
+            rows.append(measure("Python select + os.read + put", [*me, "put", port, str(cfg)],
+                                args.seconds, session, "put"))
+            for budget in args.budgets.split(","):
+                command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
+                           "--zenoh-config", str(cfg), "--quiet", "--max-latency-ms", budget]
+                rows.append(measure(f"gx3 bridge --max-latency-ms {budget}", command,
+                                    args.seconds, session, "bridge"))
+    print(f"0x{CODE:02X} at {RATE_HZ:,} Hz, 921,600 baud, pty; {args.seconds:g} s a row")
+    print(table(rows))
+    for r in rows:
+        if r.name.startswith("gx3"):
+            busy = sorted(((t, n) for n, t in r.threads.items() if t >= 0.05), reverse=True)
+            print(f"{r.name}, by thread: " + ", ".join(f"{n} {t:.1f} %" for t, n in busy))
 
 
 if __name__ == "__main__":

@@ -10,28 +10,34 @@ bring-up when the unit is back, so a restarted or power-cycled unit resumes alon
 from __future__ import annotations
 
 import contextlib
+import functools
 import queue
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from bridge.device.port import Port, PortError, is_usb_cdc
+from bridge.device.link import SYSFS, Link, find_link
+from bridge.device.port import Port, PortError
 from bridge.device.session import (
     DeviceError,
     Session,
     UnitInfo,
     find_baud,
 )
-from bridge.protocol.codec import Batch
+from bridge.protocol.codec import Batch, Records
 from bridge.timing.rate import RateWindow
 from bridge.timing.stream import Settings, StreamTiming
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
+#: The part of a latency budget kept for what follows a read: the wake-up, framing,
+#: timing and the put. The rest of the budget is how long reads may gather.
+PUBLISH_RESERVE_S = 0.001
 
 
 @dataclass(frozen=True)
@@ -48,17 +54,45 @@ class Options:
     new_baud: int | None = None
     persist: bool = False
     poll_hz: float | None = None
-    transport: str = "auto"  # uart, usb or auto (usb for ttyACM devices)
+    transport: str = "auto"  # uart, usb, usb-serial or auto (by device name)
     silence_s: float = 1.0
+    sysfs: Path = SYSFS  # where a USB-serial adapter's latency timer is read
+    #: The longest a byte may wait between arriving and its samples going out; above
+    #: ``PUBLISH_RESERVE_S`` reads gather (fewer wake-ups and puts in bursts).
+    max_latency_s: float = PUBLISH_RESERVE_S
+
+    @property
+    def hold_s(self) -> float:
+        """How long reads may gather within the latency budget."""
+        return max(0.0, self.max_latency_s - PUBLISH_RESERVE_S)
 
 
-@dataclass
 class Samples:
-    """One run of records of one type, with their device and host times."""
+    """One run of records of one type, with their device and host times.
 
-    batch: Batch
-    ticks: np.ndarray
-    time_ns: np.ndarray
+    A live read's record or two come as ``Records`` with plain lists of ticks and
+    times (published as they are); ``batch``, ``ticks`` and ``time_ns`` are arrays,
+    made from them only when asked for.
+    """
+
+    def __init__(self, records: Batch | Records, ticks: np.ndarray | list[int],
+                 time_ns: np.ndarray | list[int]) -> None:
+        self.records = records
+        self.tick_values = ticks
+        self.time_values = time_ns
+
+    @functools.cached_property
+    def batch(self) -> Batch:
+        records = self.records
+        return records if isinstance(records, Batch) else records.batch()
+
+    @functools.cached_property
+    def ticks(self) -> np.ndarray:
+        return np.asarray(self.tick_values, np.int64)
+
+    @functools.cached_property
+    def time_ns(self) -> np.ndarray:
+        return np.asarray(self.time_values, np.int64)
 
 
 @dataclass
@@ -114,6 +148,8 @@ class Pipeline:
         self.timing = StreamTiming()
         self.error: Exception | None = None
         self.came_up = False  # the unit was brought up at least once
+        self.link: Link = find_link(options.url, options.transport, options.sysfs)
+        self._warned: str | None = None  # the link warning given (given once)
         self.waiting_for: str | None = None  # why the unit is not up, while it is not
         self.last_failure = ""  # the last failed attempt's message
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
@@ -193,13 +229,14 @@ class Pipeline:
 
     def _open(self) -> Session:
         o = self.options
+        self.link = find_link(o.url, o.transport, o.sysfs)  # a replug may bring a new timer
         if o.baud is None:
             port, _ = find_baud(o.url, 115_200)
         else:
             port = Port.open(o.url, o.baud)
         session = Session(port)
         session.on_read = self.on_read
-        session.paced = self.transport == "uart"
+        session.paced = self.transport != "usb"  # bytes come at a serial line's pace
         return session
 
     def _close(self, session: Session, clean: bool) -> None:
@@ -226,12 +263,15 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
-        warning = info.line_warning() if o.poll_hz is None and self.transport == "uart" \
-            else None
+        warnings = [info.line_warning() if o.poll_hz is None and self.transport != "usb"
+                    else None]
+        if self.link.warning() != self._warned:
+            self._warned = self.link.warning()
+            warnings.append(self._warned)
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
-                    f"0x{info.record:02X} at {info.output_hz:g} Hz"
-                    + (f"; {warning}" if warning else ""))
+                    f"0x{info.record:02X} at {info.output_hz:g} Hz over {self.link.describe()}"
+                    + "".join(f"; {w}" for w in warnings if w))
         self.counters.state = "streaming" if o.poll_hz is None else "polling"
         self.came_up = True
 
@@ -239,16 +279,15 @@ class Pipeline:
         self.timing.configure(Settings(
             record=info.record, decimation=max(1, info.sampling.get("decimation", 1)),
             filter_width=max(1, info.sampling.get("filter_width", 1)), baud=info.baud,
-            transport=self.transport, polled=self.options.poll_hz is not None),
+            transport=self.transport, polled=self.options.poll_hz is not None,
+            latency_timer_ms=self.link.latency_timer_ms),
             restarted=discontinuity)
 
     @property
     def transport(self) -> str:
-        """The link to the unit: "uart", or "usb" (its own USB port, /dev/ttyACM*)."""
-        transport = self.options.transport
-        if transport == "auto":
-            transport = "usb" if is_usb_cdc(self.options.url) else "uart"
-        return transport
+        """The link to the unit: "uart", "usb" (its own USB port, /dev/ttyACM*) or
+        "usb-serial" (an adapter, /dev/ttyUSB*)."""
+        return self.link.transport
 
     def _stream(self, session: Session, stop: threading.Event) -> None:
         assert self.info is not None
@@ -257,7 +296,8 @@ class Pipeline:
         next_poll = time.monotonic()
         poll_hz = self.options.poll_hz
         while not stop.is_set():
-            self._run_actions(session)
+            if self._actions.queue:  # a peek without the queue's lock, once a read
+                self._run_actions(session)
             wait = 0.05
             if poll_hz is not None:
                 if time.monotonic() >= next_poll:
@@ -267,12 +307,12 @@ class Pipeline:
             # Silence is judged from before the read: a host that stalls this thread
             # after a read that held no whole record has not heard a silent unit.
             asked = time.monotonic()
-            batches = session.read(wait)
+            batches = session.read_records(wait, self.options.hold_s)
             now = time.monotonic()
             if batches:
                 last_data = now
                 for batch in batches:
-                    self._process(batch)
+                    self.process(batch)
             elif asked - last_data > self.options.silence_s:
                 raise DeviceError(f"{self.options.url}: the unit fell silent for "
                                   f"{now - last_data:.1f} s")
@@ -280,8 +320,23 @@ class Pipeline:
                 next_status += 1.0
                 self._status(session)
 
-    def _process(self, batch: Batch) -> None:
-        timed = self.timing.process(batch)
+    def process(self, records: Batch | Records) -> None:
+        """Time one read's records of the stream and hand them to the sink. A live read's
+        record or two go through in plain integers while they are intact and one period
+        apart; anything else (a gap, a glitch, a reset, a backlog) through the batch
+        path, with the same ticks, times and events either way."""
+        if isinstance(records, Records):
+            few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,
+                                          records.part_bytes)
+            if few is not None:
+                ticks, time_ns, events = few
+                for ev in events:
+                    self._event(ev.kind, ticks=ev.ticks, count=ev.count)
+                self.counters.samples += len(records)
+                self.sink.samples(Samples(records, ticks, time_ns))
+                return
+            records = records.batch()
+        timed = self.timing.process(records)
         for ev in timed.events:
             self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
         self.counters.glitches += sum(ev.kind == "glitch" for ev in timed.events)

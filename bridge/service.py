@@ -24,8 +24,10 @@ from bridge import __version__
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.actions import ACTIONS, run_action
+from bridge.device.link import Link
 from bridge.device.session import DeviceError, Session, UnitInfo
 from bridge.pipeline import Pipeline, Samples, UnitEvent
+from bridge.protocol.codec import Records
 from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
 
@@ -59,7 +61,7 @@ def claim_name(session: Any, prefix: str, unit: str) -> None:
 
 
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
-                 link: str = "uart", polled: bool = False) -> Info:
+                 link: Link | None = None, polled: bool = False) -> Info:
     s = info.sampling
     return Info(
         unit=unit, port=port, baud=info.baud, firmware=info.firmware,
@@ -70,7 +72,9 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
         north_compensation=s.get("north_compensation", 0), command=info.record,
         mode=int(Mode.ACTIVE if polled else Mode.CONTINUOUS), bring_up_time_ns=info.bring_up_ns,
         bridge_version=__version__,
-        allow_commands=allow_commands, output_rate_hz=info.output_hz, link=link, **info.ids)
+        allow_commands=allow_commands, output_rate_hz=info.output_hz,
+        link=link.transport if link else "uart",
+        latency_timer_ms=(link.latency_timer_ms or 0) if link else 0, **info.ids)
 
 
 def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
@@ -162,7 +166,7 @@ class BusSink:
             self.unit = check_unit(_name_from_serial(info.ids.get("serial", "")))
         assert self.pipeline is not None
         message = info_message(self.unit, self.port, info, self.allow_commands,
-                               self.pipeline.transport, self.pipeline.options.poll_hz is not None)
+                               self.pipeline.link, self.pipeline.options.poll_hz is not None)
         if self.publisher is not None:
             self.publisher.set_info(message)
             return
@@ -208,7 +212,11 @@ class BusSink:
 
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:
-            self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
+            if isinstance(samples.records, Records):
+                self.publisher.publish_records(samples.records, samples.tick_values,
+                                               samples.time_values)
+            else:
+                self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 

@@ -91,14 +91,18 @@ def network(tmp_path: Path) -> tuple[Path, Path]:
             zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
 
 
+@pytest.mark.parametrize("budget_ms", [None, 5], ids=["default", "max-latency-5ms"])
 def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
-        network: tuple[Path, Path]) -> None:
+        network: tuple[Path, Path], budget_ms: int | None) -> None:
+    """With a latency budget too: then reads gather a few records each."""
     bridge_cfg, client_cfg = network
     seconds = 5.0
+    budget = [] if budget_ms is None else ["--max-latency-ms", str(budget_ms)]
     with Simulator([FAST], "pty") as sim, \
             subscribe("gx3/fast/imu", output="batches", zenoh_config=client_cfg,
                       history=20_000) as sub, \
-            bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600", "--unit", "fast"):
+            bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600", "--unit", "fast",
+                           *budget):
         batches: list[SampleBatch] = []
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -114,6 +118,11 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
         misses = sub.misses
     ticks = np.concatenate([b["ticks"] for b in batches])
     timer = np.concatenate([b["timer"] for b in batches])
+    per_read = len(ticks) / len(np.unique(np.concatenate([b["rx_ns"] for b in batches])))
+    if budget_ms is None:
+        assert per_read < 1.5, f"{per_read:.1f} records a read: reads were held back"
+    else:  # a read every 4 ms or so: 4 records a read, a loaded host may read more often
+        assert per_read >= 2, f"{per_read:.1f} records a read: reads did not gather"
     accel = np.concatenate([b["accel"] for b in batches])
     assert ticks[-1] - ticks[0] >= seconds * 62_500, f"not {seconds:g} s of samples"
     steps = np.diff(ticks)

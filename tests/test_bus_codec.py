@@ -9,6 +9,7 @@ from bridge.bus.codec import (
     HEADER,
     decode_batch,
     encode_batch,
+    encode_records,
     layout,
     peek,
     record_quantities,
@@ -89,6 +90,24 @@ def test_records_off_the_wire_encode_from_their_bytes_as_from_their_columns(
         assert one.block is not None
         assert encode_batch("u-9", one, ticks[i : i + 1], time_ns[i : i + 1],
                             rx_ns[i : i + 1]) == [from_bytes[i]]
+
+
+@pytest.mark.parametrize("little_endian", [False, True], ids=["big-endian", "little-endian"])
+@pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
+def test_one_record_at_a_time_encodes_to_the_bulk_bytes(code: int, little_endian: bool) -> None:
+    """A live bridge encodes each record from its own bytes with structs, not arrays:
+    the messages must be the bulk encoder's, whatever the bytes hold (random bytes: NaN
+    payloads, infinities, every bit pattern) and for either float byte order."""
+    n = 9
+    rng = np.random.default_rng(code + little_endian)
+    block = rng.integers(0, 256, (n, REPLIES[code].length), dtype=np.uint8)
+    batch = Batch.from_block(code, block, np.arange(n), np.zeros(n, np.int64), little_endian)
+    ticks = rng.integers(-(2**62), 2**62, n)
+    time_ns = rng.integers(-(2**62), 2**62, n)
+    rx_ns = rng.integers(0, 2**62, n)
+    bulk = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns)
+    assert encode_records("imu-0.a", code, little_endian, [bytes(r) for r in block],
+                          ticks.tolist(), time_ns.tolist(), rx_ns.tolist()) == bulk
 
 
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")

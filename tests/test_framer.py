@@ -256,10 +256,16 @@ def replay(framer: Framer, reads: list[tuple[bytes, int]]) -> list[Batch]:
     return out + framer.flush()
 
 
-def timed(batches: list[Batch]) -> list[tuple[int, int, bool, Record]]:
-    """Per record: offset, receive time, byte order and values."""
-    return [(int(o), int(t), b.little_endian, r)
-            for b in batches for o, t, r in zip(b.offsets, b.rx_ns, as_records([b]), strict=True)]
+def timed(batches: list[Batch]) -> list[tuple[int, int, int, int, bool, Record]]:
+    """Per record: offset, receive time, the partial read's time and bytes, byte order and
+    values."""
+    out = []
+    for b in batches:
+        part_ns, part_bytes = b.partial()
+        out += [(int(o), int(t), int(p), int(k), b.little_endian, r)
+                for o, t, p, k, r in zip(b.offsets, b.rx_ns, part_ns, part_bytes,
+                                         as_records([b]), strict=True)]
+    return out
 
 
 @PROPERTY
@@ -268,7 +274,8 @@ def test_receive_time_is_the_completing_reads_whatever_the_chunking(
     data: st.DataObject, continuous: bool, t0: int
 ) -> None:
     """A capture replayed with its recorded read times, cut finer or not, times every
-    record as the live run did: by the read that brought its last byte."""
+    record as the live run did: by the read that brought its last byte, and by the latest
+    read before it that ended inside the record, with the bytes it had brought."""
     codes = data.draw(ONE_TYPE if continuous else MIXED, label="codes")
     case = data.draw(damaged_streams(codes), label="stream")
     expect = codes if continuous else None
@@ -292,9 +299,13 @@ def test_receive_time_is_the_completing_reads_whatever_the_chunking(
     replay(per_read, live)
     assert bulk_framer.stats == per_read.stats
     ends = np.cumsum([len(chunk) for chunk, _ in live])
-    for offset, rx_ns, _, record in got:
-        last = offset + REPLIES[record[0]].length - 1
-        assert rx_ns == live[int(np.searchsorted(ends, last, side="right"))][1]
+    for offset, rx_ns, part_ns, part_bytes, _, record in got:
+        length = REPLIES[record[0]].length
+        done = int(np.searchsorted(ends, offset + length - 1, side="right"))
+        assert rx_ns == live[done][1]
+        inside = done > 0 and ends[done - 1] > offset
+        assert (part_ns, part_bytes) == ((live[done - 1][1], ends[done - 1] - offset) if inside
+                                         else (rx_ns, length))
 
 
 def test_reads_handed_over_at_once_must_end_where_their_bytes_do() -> None:
@@ -329,6 +340,25 @@ def test_partial_record_takes_the_time_of_the_read_that_completes_it() -> None:
     framer = Framer()
     batches = framer.feed(c7 + c7[:5], 10) + framer.feed(c7[5:], 20) + framer.flush()
     assert [t for b in batches for t in b.rx_ns.tolist()] == [10, 20]
+
+
+def test_a_record_over_several_reads_carries_the_latest_read_inside_it() -> None:
+    """The second record's bytes came in four reads: 3 by 10 ns, 9 by 20 ns (two reads
+    received together count as one), all by 30 ns; the first record was whole at 10 ns."""
+    c7 = frame(0xC7, struct.pack(">3fI", 0, 0, 1.0, 9))
+    framer = Framer()
+    batches = (framer.feed(c7 + c7[:3], 10) + framer.feed(c7[3:5], 20)
+               + framer.feed(c7[5:9], 20) + framer.feed(c7[9:] + c7[:2], 30))
+    batch = Batch.concatenate(batches)
+    assert batch.rx_ns.tolist() == [10, 30]
+    part_ns, part_bytes = batch.partial()
+    assert part_ns.tolist() == [10, 20]
+    assert part_bytes.tolist() == [len(c7), 9]
+    bulk = Framer().feed_reads(c7 + c7 + c7[:2], np.array([len(c7) + 3, len(c7) + 5, len(c7) + 9,
+                                                          len(c7) + 9, 2 * len(c7) + 2]),
+                               np.array([10, 20, 20, 25, 30]))
+    assert [p.tolist() for p in Batch.concatenate(bulk).partial()] == [[10, 20], [len(c7), 9]]
+    assert Batch.concatenate(bulk).select(np.array([False, True])).partial()[1].tolist() == [9]
 
 
 def sampling(flags: int) -> bytes:

@@ -21,7 +21,8 @@ import pytest
 
 from bridge.device.actions import run_action
 from bridge.device.session import Session, UnitInfo
-from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
+from bridge.pipeline import PUBLISH_RESERVE_S, Options, Pipeline, Samples, UnitEvent
+from bridge.protocol.codec import Records
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored
@@ -38,6 +39,7 @@ class ListSink:
     batches: list[Samples] = field(default_factory=list)
     events: list[UnitEvent] = field(default_factory=list)
     statuses: list[dict[str, Any]] = field(default_factory=list)
+    published: list[int] = field(default_factory=list)  # host time of each samples call
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def info(self, info: UnitInfo) -> None:
@@ -46,6 +48,7 @@ class ListSink:
     def samples(self, samples: Samples) -> None:
         with self.lock:
             self.batches.append(samples)
+            self.published.append(time.time_ns())
 
     def event(self, event: UnitEvent) -> None:
         self.events.append(event)
@@ -93,6 +96,44 @@ def test_every_record_once_with_increasing_ticks() -> None:
     got = sink.column("timer")
     start = int(np.flatnonzero(sent == got[0])[0])
     assert (sent[start : start + len(got)] == got).all()
+
+
+def held_s(sink: ListSink) -> np.ndarray:
+    """How long the oldest byte of each read can have waited before its samples went to
+    the sink: it came after the read before (seconds, each read but the first)."""
+    with sink.lock:
+        before = np.array([s.records.rx_ns[-1] for s in sink.batches[:-1]], np.int64)
+        return np.asarray(np.array(sink.published[1:], np.int64) - before) / 1e9
+
+
+def test_by_default_each_read_goes_out_at_once_on_the_per_read_path() -> None:
+    assert Options(url="/dev/ttyS0").max_latency_s == PUBLISH_RESERVE_S
+    with running(BASE) as (_, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 250)
+    with sink.lock:
+        sizes = np.array([len(s.records) for s in sink.batches])
+        # reads past bring-up (records that came while commands waited, the first of a
+        # stream); a read after a stall of this loaded machine's may hold many
+        later = sink.batches[len(sink.batches) // 2 :]
+        lean = sum(isinstance(s.records, Records) for s in later)
+    assert np.median(sizes) == 1, "reads at 100 Hz held more than the record they completed"
+    assert lean >= 0.9 * len(later), "the stream did not take the plain per-read path"
+    assert np.median(held_s(sink)) < 0.010 + 0.005  # the period, and no more
+
+
+def test_a_latency_budget_gathers_reads_keeps_every_sample_and_holds_none_past_it() -> None:
+    budget_s = 0.1
+    with running(BASE, max_latency_s=budget_s) as (_, _, sink):
+        wait_for(lambda: len(sink.column("ticks")) >= 300)
+    ticks = sink.column("ticks")
+    assert (np.diff(ticks) == 625).all(), "a record was lost, doubled or out of order"
+    with sink.lock:
+        sizes = np.array([len(s.records) for s in sink.batches])
+    assert np.median(sizes) >= 5, "reads were not gathered within the budget"
+    held = held_s(sink)
+    # wide bounds: a loaded machine may stall the thread, but not every read
+    assert np.median(held) <= budget_s + 0.03
+    assert held.max() <= budget_s + 0.5
 
 
 def test_ticks_keep_increasing_across_the_rollover() -> None:

@@ -30,6 +30,7 @@ from bridge.cli import app
 
 WRAP = 1 << 32
 C2_LENGTH = 31
+CC_LENGTH = 79
 TIMER_START = 4_294_900_000
 # Every option the brief for `gx3 sim` names; the command's own list is added below.
 DOCUMENTED_OPTIONS = (
@@ -39,6 +40,7 @@ DOCUMENTED_OPTIONS = (
     "--mode-preset", "--baud", "--flip-rate", "--drop-rate", "--stall-every", "--stall-for",
     "--disconnect-every", "--disconnect-for", "--state", "--link", "--duration",
     "--no-filter-model", "--disconnect-power-cycles", "--hard-iron", "--soft-iron", "--tumble",
+    "--usb", "--usb-serial", "--latency-timer",
 )
 
 
@@ -223,6 +225,32 @@ def test_timer_rolls_over_through_zero(run_sim: Callable[..., Sim]) -> None:
     assert {(b - a) % WRAP for a, b in itertools.pairwise(timers)} == {625}
 
 
+@pytest.mark.parametrize("timer_ms", [1, 16])
+def test_usb_serial_delivers_adapter_packets_that_end_mid_record(
+        run_sim: Callable[..., Sim], timer_ms: int) -> None:
+    """Behind an adapter the host reads 62-byte packets (a 16 ms timer never runs out
+    at 100 Hz of 79-byte records: a packet fills first) or whatever each 1 ms frame
+    carried (1 ms timer); either way reads end mid-record, and the stream is intact."""
+    sim = run_sim("--pty", "--usb-serial", "--latency-timer", str(timer_ms),
+                  "--continuous-preset", "0xCC", "--mode-preset", "2", "--decimation", "10")
+    (path,) = sim.endpoints(1)
+    chunks: list[bytes] = []
+    with serial.Serial(path, 115_200, timeout=0.05) as port:
+        deadline = time.monotonic() + 20.0
+        while sum(map(len, chunks)) < 60 * CC_LENGTH and time.monotonic() < deadline:
+            if select.select([port.fileno()], [], [], 0.5)[0]:
+                chunks.append(os.read(port.fileno(), 4096))
+    data = b"".join(chunks)
+    records = stream_records(data, 0xCC, CC_LENGTH)
+    assert len(records) >= 50, f"{len(data)} bytes, {len(records)} records"
+    start = data.index(records[0])
+    ends = np.cumsum([len(c) for c in chunks])
+    assert np.mean((ends[ends > start] - start) % CC_LENGTH != 0) > 0.5
+    if timer_ms == 16:  # every packet after the first was a full one
+        whole = sum(len(c) for c in chunks[1:] if len(c) % 62 == 0)
+        assert whole >= 0.8 * sum(len(c) for c in chunks[1:]), [len(c) for c in chunks]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
                                         sig: signal.Signals) -> None:
@@ -333,6 +361,9 @@ BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
     (("--soft-iron", "1,0,0,0,1,0,0,0"), "--soft-iron"),
     (("--soft-iron", "1,0,0,0,0,0,0,0,1"), "--soft-iron"),
     (("--static", "--tumble"), "--static/--tumble"),
+    (("--usb", "--usb-serial"), "--usb/--usb-serial"),
+    (("--latency-timer", "16"), "--latency-timer"),
+    (("--usb-serial", "--latency-timer", "0"), "--latency-timer"),
 ]
 
 

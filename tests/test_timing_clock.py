@@ -106,7 +106,7 @@ def test_filter_delay_is_taken_out_exactly() -> None:
 
 def test_replay_is_bit_for_bit() -> None:
     a = _capture(80.0, 3.0, 40.0, 0.00041, timer_start=(1 << 32) - 20 * TICKS_PER_SECOND)
-    b = synthesize(a.config, a.usb, 40.0)
+    b = synthesize(a.config, a.delivery, 40.0)
     assert np.array_equal(a.rx_ns, b.rx_ns) and a.data == b.data
     assert np.array_equal(_run(a), _run(b))
 

@@ -11,8 +11,10 @@ the bytes against the protobuf library for every record type.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+import struct
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any, Protocol, cast
 
 import numpy as np
@@ -169,6 +171,88 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     buf = recs.tobytes()
     size = lay.size
     return [buf[i : i + size] for i in range(0, len(buf), size)]
+
+
+class _RecordPacker:
+    """``encode_batch`` of one wire record in plain Python: unpack its timer and quantities
+    as integers of their wire width and byte order, pack them with the message's tags
+    and lengths, little-endian, 4 bytes each. Integers keep every bit (a float would
+    lose a NaN's payload), so the bytes are those ``_byte_map`` moves. Both Structs are
+    derived from ``layout`` and ``reply_dtype``: the table stays the one definition."""
+
+    def __init__(self, code: int, unit: str, little_endian: bool) -> None:
+        lay = layout(code, unit)
+        wire = reply_dtype(code, little_endian)
+        fields = cast(dict[str, tuple[np.dtype, int]], wire.fields)
+        chars = {1: "B", 2: "H", 4: "I"}
+        orders = set()
+        wire_fmt = ""
+        at: dict[str, int] = {}  # where each quantity's first value lands in the unpacked tuple
+        count = 0
+        start = 1
+        for name in wire.names or ():
+            if name in ("code", "timer", "checksum"):
+                continue
+            kind, offset = fields[name][:2]
+            if name not in lay.quantities or offset != start:
+                raise ValueError(f"0x{code:02X}: {name} is not a packed quantity at byte {start}")
+            width = kind.base.itemsize
+            orders.add(kind.base.str[0] if width > 1 else ">")
+            at[name] = count
+            count += kind.itemsize // width
+            wire_fmt += f"{kind.itemsize // width}{chars[width]}"
+            start = offset + kind.itemsize
+        if len(orders) != 1:
+            raise ValueError(f"0x{code:02X}: quantities in more than one byte order")
+        self._values = struct.Struct(orders.pop() + wire_fmt).unpack_from
+        self._timer = struct.Struct(">I").unpack_from
+        self._timer_at = fields["timer"][1]
+        # the unpacked tuple, extended: quantities, timer, ticks, time_ns, rx_ns, constants
+        tail = {"timer": count, "ticks": count + 1, "time_ns": count + 2, "rx_ns": count + 3}
+        consts: list[bytes | int] = []
+        msg_fmt = "<"
+        picks: list[int] = []
+        message = cast(dict[str, tuple[np.dtype, int]], lay.dtype.fields)
+        template = lay.template.tobytes()
+        for name in lay.dtype.names or ():
+            kind, offset = message[name][:2]
+            if name.startswith("_"):
+                picks.append(count + len(tail) + len(consts))
+                consts.append(template[offset : offset + kind.itemsize])
+                msg_fmt += f"{kind.itemsize}s"
+            elif name == "command":
+                picks.append(count + len(tail) + len(consts))
+                consts.append(code)
+                msg_fmt += "I"
+            elif name in tail:
+                picks.append(tail[name])
+                msg_fmt += "q" if kind.itemsize == 8 else "I"
+            else:
+                picks += range(at[name], at[name] + kind.itemsize // 4)
+                msg_fmt += f"{kind.itemsize // 4}I"
+        self._consts = tuple(consts)
+        self._pick: Callable[[tuple[Any, ...]], tuple[Any, ...]] = itemgetter(*picks)
+        self._message = struct.Struct(msg_fmt).pack
+        if struct.calcsize(msg_fmt) != lay.size:
+            raise ValueError(f"0x{code:02X}: message layout of {lay.size} bytes, "
+                             f"packed as {struct.calcsize(msg_fmt)}")
+
+    def pack(self, record: bytes, ticks: int, time_ns: int, rx_ns: int) -> bytes:
+        values = (*self._values(record, 1), self._timer(record, self._timer_at)[0], ticks,
+                  time_ns, rx_ns, *self._consts)
+        return self._message(*self._pick(values))
+
+
+_packer = functools.cache(_RecordPacker)
+
+
+def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[bytes],
+                   ticks: Iterable[int], time_ns: Iterable[int],
+                   rx_ns: Iterable[int]) -> list[bytes]:
+    """``encode_batch`` of wire records held as bytes, one each: a live bridge gets one
+    or two a read, for which array set-up costs more than the work."""
+    pack = _packer(code, unit, little_endian).pack
+    return [pack(r, t, s, x) for r, t, s, x in zip(records, ticks, time_ns, rx_ns, strict=True)]
 
 
 def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:

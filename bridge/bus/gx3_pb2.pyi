@@ -167,7 +167,7 @@ class Event(_message.Message):
     def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., ticks: _Optional[int] = ..., kind: _Optional[_Union[Event.Kind, str]] = ..., count: _Optional[int] = ..., detail: _Optional[str] = ..., leaf: _Optional[str] = ..., end_time_ns: _Optional[int] = ..., end_ticks: _Optional[int] = ...) -> None: ...
 
 class Info(_message.Message):
-    __slots__ = ("unit", "port", "baud", "model_number", "serial", "model_name", "options", "lot", "firmware", "firmware_text", "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation", "north_compensation", "command", "mode", "bring_up_time_ns", "bridge_version", "allow_commands", "output_rate_hz", "link")
+    __slots__ = ("unit", "port", "baud", "model_number", "serial", "model_name", "options", "lot", "firmware", "firmware_text", "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation", "north_compensation", "command", "mode", "bring_up_time_ns", "bridge_version", "allow_commands", "output_rate_hz", "link", "latency_timer_ms")
     UNIT_FIELD_NUMBER: _ClassVar[int]
     PORT_FIELD_NUMBER: _ClassVar[int]
     BAUD_FIELD_NUMBER: _ClassVar[int]
@@ -191,6 +191,7 @@ class Info(_message.Message):
     ALLOW_COMMANDS_FIELD_NUMBER: _ClassVar[int]
     OUTPUT_RATE_HZ_FIELD_NUMBER: _ClassVar[int]
     LINK_FIELD_NUMBER: _ClassVar[int]
+    LATENCY_TIMER_MS_FIELD_NUMBER: _ClassVar[int]
     unit: str
     port: str
     baud: int
@@ -214,4 +215,5 @@ class Info(_message.Message):
     allow_commands: bool
     output_rate_hz: float
     link: str
-    def __init__(self, unit: _Optional[str] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., model_number: _Optional[str] = ..., serial: _Optional[str] = ..., model_name: _Optional[str] = ..., options: _Optional[str] = ..., lot: _Optional[str] = ..., firmware: _Optional[int] = ..., firmware_text: _Optional[str] = ..., decimation: _Optional[int] = ..., flags: _Optional[int] = ..., filter_width: _Optional[int] = ..., mag_filter_width: _Optional[int] = ..., up_compensation: _Optional[int] = ..., north_compensation: _Optional[int] = ..., command: _Optional[int] = ..., mode: _Optional[int] = ..., bring_up_time_ns: _Optional[int] = ..., bridge_version: _Optional[str] = ..., allow_commands: _Optional[bool] = ..., output_rate_hz: _Optional[float] = ..., link: _Optional[str] = ...) -> None: ...
+    latency_timer_ms: int
+    def __init__(self, unit: _Optional[str] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., model_number: _Optional[str] = ..., serial: _Optional[str] = ..., model_name: _Optional[str] = ..., options: _Optional[str] = ..., lot: _Optional[str] = ..., firmware: _Optional[int] = ..., firmware_text: _Optional[str] = ..., decimation: _Optional[int] = ..., flags: _Optional[int] = ..., filter_width: _Optional[int] = ..., mag_filter_width: _Optional[int] = ..., up_compensation: _Optional[int] = ..., north_compensation: _Optional[int] = ..., command: _Optional[int] = ..., mode: _Optional[int] = ..., bring_up_time_ns: _Optional[int] = ..., bridge_version: _Optional[str] = ..., allow_commands: _Optional[bool] = ..., output_rate_hz: _Optional[float] = ..., link: _Optional[str] = ..., latency_timer_ms: _Optional[int] = ...) -> None: ...

@@ -11,7 +11,7 @@ payload damaged on the way is caught.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from types import TracebackType
 from typing import Any
 
@@ -24,10 +24,11 @@ from zenoh.ext import (
     declare_advanced_publisher,
 )
 
-from bridge.bus.codec import RecordBatch, encode_batch
+from bridge.bus.codec import RecordBatch, encode_batch, encode_records
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.bus.integrity import seal, seals
 from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
+from bridge.protocol.codec import Records
 
 #: Default imu cache: five seconds at the unit's top rate of 1 kHz.
 CACHE_SAMPLES = 5000
@@ -94,6 +95,17 @@ class UnitPublisher:
         """
         payloads = encode_batch(self.unit, batch, ticks, time_ns,
                                 batch.rx_ns if rx_ns is None else rx_ns)
+        put = self._imu.put
+        for payload, attachment in zip(payloads, seals(payloads), strict=True):
+            put(payload, attachment=attachment)
+        self.published += len(payloads)
+        return len(payloads)
+
+    def publish_records(self, records: Records, ticks: Iterable[int],
+                        time_ns: Iterable[int]) -> int:
+        """``publish_samples`` of a live read's record or two, from their wire bytes."""
+        payloads = encode_records(self.unit, records.code, records.little_endian,
+                                  records.wire, ticks, time_ns, records.rx_ns)
         put = self._imu.put
         for payload, attachment in zip(payloads, seals(payloads), strict=True):
             put(payload, attachment=attachment)

@@ -23,7 +23,8 @@ from rich.table import Table
 
 from bridge.cli.common import app, err, fail, parse_code
 from bridge.device.actions import ACTIONS, run_action
-from bridge.device.port import Port, PortError, is_usb_cdc
+from bridge.device.link import find_link
+from bridge.device.port import Port, PortError
 from bridge.device.session import DeviceError, Session, find_baud
 from bridge.protocol.table import BAUD_RATES
 
@@ -156,7 +157,7 @@ def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
         raise fail(str(exc)) from None
     try:
         session = Session(port)
-        session.paced = not is_usb_cdc(port_url)  # the line's bandwidth matters
+        session.paced = find_link(port_url).transport != "usb"  # a serial line's pace
         session.quiesce()
         info = session.identify()
         result = run_action(name, session, info, params, confirmed=True)

@@ -175,6 +175,16 @@ def sim(
                       "bytes reach the host in 1 ms frames after an OS latency, with stalls "
                       "now and then that deliver a burst (what the clock model must "
                       "handle).")] = False,
+    usb_serial: Annotated[bool, typer.Option(
+        "--usb-serial", help="Each unit is wired through a USB-serial adapter (FTDI-like, "
+                             "a /dev/ttyUSB* port): bytes cross the serial line at the baud "
+                             "rate into the adapter, which hands them to the host at its 1 ms "
+                             "frames in 62-byte packets, sent when a packet is full or its "
+                             "latency timer has run out; so reads often end mid-record. OS "
+                             "latency and stalls as with --usb.")] = False,
+    latency_timer: Annotated[int | None, typer.Option(
+        help="With --usb-serial: the adapter's latency timer, ms, 1-255 (16, Linux's "
+             "default, unless given; 1 with the rule in configs/udev).")] = None,
     disconnect_power_cycles: Annotated[bool, typer.Option(
         "--disconnect-power-cycles",
         help="A disconnect also cuts a USB-powered unit's power: on replug it boots (timer "
@@ -207,7 +217,7 @@ def sim(
     from bridge.sim.serve import LinkError, Simulator, unit_configs
     from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
-    from bridge.sim.usb import UsbDelivery
+    from bridge.sim.usb import DEFAULT_LATENCY_TIMER_MS, AdapterDelivery, UsbDelivery
 
     try:
         if pty == (tcp is not None):
@@ -230,6 +240,13 @@ def sim(
             raise OptionError(option, message)
         if static and tumble:
             raise OptionError("--static/--tumble", "choose one: hold still or tumble")
+        if usb and usb_serial:
+            raise OptionError("--usb/--usb-serial", "choose one: the unit's own USB port or "
+                              "its serial port through an adapter")
+        if latency_timer is not None and not usb_serial:
+            raise OptionError("--latency-timer", "is the adapter's; it goes with --usb-serial")
+        if latency_timer is not None and not 1 <= latency_timer <= 255:
+            raise OptionError("--latency-timer", f"{latency_timer} ms is not in 1-255")
         hard = parse_numbers("--hard-iron", hard_iron, 3, (0.0, 0.0, 0.0))
         soft = parse_soft_iron(soft_iron)
         preset = parse_number("--continuous-preset", continuous_preset)
@@ -266,10 +283,14 @@ def sim(
                                             for i in range(units)]
     faults = FaultConfig(flip_rate, drop_rate, stall_every, stall_for, disconnect_every,
                          disconnect_for, disconnect_power_cycles)
+    delivery = UsbDelivery(seed=seed) if usb else None
+    if usb_serial:
+        timer_ms = DEFAULT_LATENCY_TIMER_MS if latency_timer is None else latency_timer
+        delivery = AdapterDelivery(latency_timer_s=timer_ms / 1000, seed=seed)
     try:
         simulator = Simulator(configs, "pty" if pty else "tcp", host, port, faults, links,
                               notify=lambda text: err.print(escape(text)),
-                              usb=UsbDelivery(seed=seed) if usb else None)
+                              usb=delivery)
     except StateFileError as exc:
         raise fail(f"--state: {exc}") from None
     except LinkError as exc:

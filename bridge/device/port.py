@@ -130,8 +130,3 @@ class Port:
         with contextlib.suppress(serial.SerialException, OSError):
             self.raw.close()
 
-
-def is_usb_cdc(url: str) -> bool:
-    """A USB CDC-ACM device (the GX3's own USB port): no UART between unit and host."""
-    name = os.path.basename(os.path.realpath(url)) if "://" not in url else ""
-    return name.startswith("ttyACM")

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.device.port import Port, PortError
-from bridge.protocol.codec import Batch, encode_command
+from bridge.protocol.codec import Batch, Records, encode_command
 from bridge.protocol.convert import wake_time_seconds
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import (
@@ -138,6 +138,7 @@ class Session:
         self.paced = False  # bytes come at the UART's line rate (not in USB packets)
         self.on_read: Callable[[bytes, int], None] | None = None  # raw capture hook
         self._backlog: list[Batch] = []
+        self._last_read = 0.0  # time.monotonic() of the last read that brought bytes
 
     # --- reading -----------------------------------------------------------------------
     def _expect(self, *extra: int) -> None:
@@ -146,28 +147,48 @@ class Session:
             codes.add(self.streaming)
         self.framer.expect(codes)
 
-    def _read(self, wait_s: float) -> list[Batch]:
+    def _take(self, wait_s: float) -> tuple[bytes, int]:
         data, rx_ns = self.port.read(wait_s)
-        if not data:
-            return []
-        if self.on_read is not None:
-            self.on_read(data, rx_ns)
-        return self.framer.feed(data, rx_ns)
+        if data:
+            self._last_read = time.monotonic()
+            if self.on_read is not None:
+                self.on_read(data, rx_ns)
+        return data, rx_ns
+
+    def _read(self, wait_s: float) -> list[Batch]:
+        data, rx_ns = self._take(wait_s)
+        return self.framer.feed(data, rx_ns) if data else []
 
     def read(self, wait_s: float = 0.05) -> list[Batch]:
         """Data records of the stream that arrived within ``wait_s`` (or while a command
-        waited for its reply).
+        waited for its reply)."""
+        return [r if isinstance(r, Batch) else r.batch() for r in self.read_records(wait_s)]
 
-        On a UART (``paced``) a record cut in two by a read is not waited for byte by
-        byte: the rest cannot arrive before its line time, so the session sleeps that
-        long first, which halves the wake-ups and adds no latency.
+    def read_records(self, wait_s: float = 0.05, hold_s: float = 0.0) -> list[Batch | Records]:
+        """``read``, a fresh read's records as ``Records`` (a live bridge's per-read path).
+
+        ``hold_s``: let bytes gather in the port this long after the last read before
+        reading again (coalescing reads: fewer wake-ups, a few records a read); a byte
+        that arrives just after a read waits that long. On a UART (``paced``) a record
+        cut in two by a read is not waited for byte by byte either: the rest cannot
+        arrive before its line time, so the session sleeps that long first, which halves
+        the wake-ups and adds no latency.
         """
-        out, self._backlog = self._backlog, []
-        if not out and self.paced and self.streaming is not None and self.framer.pending:
-            rest = REPLIES[self.streaming].length - self.framer.pending
-            if rest > 0:
-                time.sleep(min(wait_s, _line_time(rest, self.port.baud)))
-        out += [b for b in self._read(0.0 if out else wait_s) if b.code == self.streaming]
+        out: list[Batch | Records] = []
+        if self._backlog:
+            out += self._backlog
+            self._backlog = []
+        else:
+            pause = self._last_read + hold_s - time.monotonic()
+            if self.paced and self.streaming is not None and self.framer.pending:
+                rest = REPLIES[self.streaming].length - self.framer.pending
+                if rest > 0:
+                    pause = max(pause, min(wait_s, _line_time(rest, self.port.baud)))
+            if pause > 0:
+                time.sleep(pause)
+        data, rx_ns = self._take(0.0 if out else wait_s)
+        if data:
+            out += [r for r in self.framer.feed_records(data, rx_ns) if r.code == self.streaming]
         return out
 
     def drain(self, quiet_s: float = _QUIET_S, limit_s: float = _DRAIN_MAX_S) -> int:

@@ -240,16 +240,25 @@ class Columns(Mapping[str, np.ndarray]):
 
 @functools.cache
 def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
-    """(unpacker, byte offset, field) for each field of a reply that has a domain."""
-    checks = []
+    """(unpacker, byte offset, field) for each field of a reply that has a domain; adjacent
+    fields of one kind and domain share one unpacker (named by the first), so a data
+    record's vectors cost one call per bound rather than one per field."""
+    checks: list[tuple[str, int, Field]] = []
     offset = 1
+    end = 0
     for f in REPLIES[code].fields:
         if f.domain is not None or f.domain_values is not None:
             order = "<" if f.kind == "f32" and little_endian else ">"
-            fmt = order + str(f.count) + {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
-            checks.append((struct.Struct(fmt), offset, f))
+            fmt = {"f32": "f", "u8": "B", "u16": "H", "u32": "I"}[f.kind]
+            last = checks[-1][2] if checks else None
+            if (last is not None and end == offset and f.domain_values is None
+                    and (last.kind, last.domain, last.domain_values) == (f.kind, f.domain, None)):
+                checks[-1] = (checks[-1][0] + str(f.count) + fmt, checks[-1][1], last)
+            else:
+                checks.append((order + str(f.count) + fmt, offset, f))
+            end = offset + f.size
         offset += f.size
-    return tuple(checks)
+    return tuple((struct.Struct(fmt), at, f) for fmt, at, f in checks)
 
 
 def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
@@ -281,15 +290,15 @@ def _row_checks(
     data record costs one conversion and a few comparisons rather than per field."""
     runs: list[tuple[int, int, list[float]]] = []  # offset, size, bound per element
     ints: list[tuple[int, int, np.dtype[Any], Field]] = []
-    for _, offset, f in _domain_checks(code, little_endian):
+    for unpacker, offset, f in _domain_checks(code, little_endian):
         if f.kind != "f32":
-            ints.append((offset, f.size, np.dtype(_wire_dtype(f, little_endian)), f))
+            ints.append((offset, unpacker.size, np.dtype(_wire_dtype(f, little_endian)), f))
             continue
         assert f.domain is not None and f.domain[0] == -f.domain[1], "float domains are ±bound"
         if not runs or runs[-1][0] + runs[-1][1] != offset:
             runs.append((offset, 0, []))
         start, size, bounds = runs[-1]
-        runs[-1] = (start, size + f.size, bounds + [f.domain[1]] * f.count)
+        runs[-1] = (start, size + unpacker.size, bounds + [f.domain[1]] * (unpacker.size // 4))
     return [(o, n, np.array(b)) for o, n, b in runs], ints
 
 
@@ -320,6 +329,10 @@ class Batch:
     (its last byte), so a replayed capture times every record as the live run did.
     ``little_endian`` is the float byte order the records were decoded with; ``block``
     the records' wire bytes, (n, length) uint8, when they came from a byte stream.
+    ``part_ns`` and ``part_bytes``: for a record whose bytes came in more than one read,
+    the receive time of the latest read before the completing one and how many of the
+    record's bytes had arrived by then (None: no record here had such a read; see
+    ``partial``).
     """
 
     code: int
@@ -328,13 +341,23 @@ class Batch:
     rx_ns: np.ndarray
     little_endian: bool
     block: np.ndarray | None = None
+    part_ns: np.ndarray | None = None
+    part_bytes: np.ndarray | None = None
 
     @classmethod
     def from_block(cls, code: int, block: np.ndarray, offsets: np.ndarray, rx_ns: np.ndarray,
-                   little_endian: bool) -> Batch:
+                   little_endian: bool, part_ns: np.ndarray | None = None,
+                   part_bytes: np.ndarray | None = None) -> Batch:
         """Records as they came off the wire, decoded only as far as they are read."""
         return cls(code, Columns(code, block, little_endian), offsets, rx_ns, little_endian,
-                   block)
+                   block, part_ns, part_bytes)
+
+    def partial(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per record, a receive time and how many of its bytes had arrived by then: the
+        latest read that ended inside it, else the read that completed it (all bytes)."""
+        if self.part_ns is None or self.part_bytes is None:
+            return self.rx_ns, np.full(len(self.rx_ns), REPLIES[self.code].length, np.int64)
+        return self.part_ns, self.part_bytes
 
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
@@ -345,20 +368,29 @@ class Batch:
             return first
         offsets = np.concatenate([b.offsets for b in batches])
         rx_ns = np.concatenate([b.rx_ns for b in batches])
+        part_ns = part_bytes = None
+        if any(b.part_ns is not None for b in batches):
+            parts = [b.partial() for b in batches]
+            part_ns = np.concatenate([p[0] for p in parts])
+            part_bytes = np.concatenate([p[1] for p in parts])
         blocks = [b.block for b in batches if b.block is not None]
         if len(blocks) == len(batches):
             return cls.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
-                                  first.little_endian)
+                                  first.little_endian, part_ns, part_bytes)
         columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
-        return cls(first.code, columns, offsets, rx_ns, first.little_endian)
+        return cls(first.code, columns, offsets, rx_ns, first.little_endian, None, part_ns,
+                   part_bytes)
 
     def select(self, keep: np.ndarray) -> Batch:
         """The records where ``keep`` is True."""
+        part_ns = None if self.part_ns is None else self.part_ns[keep]
+        part_bytes = None if self.part_bytes is None else self.part_bytes[keep]
         if self.block is not None:
             return Batch.from_block(self.code, self.block[keep], self.offsets[keep],
-                                    self.rx_ns[keep], self.little_endian)
+                                    self.rx_ns[keep], self.little_endian, part_ns, part_bytes)
         return Batch(self.code, {k: v[keep] for k, v in self.columns.items()},
-                     self.offsets[keep], self.rx_ns[keep], self.little_endian)
+                     self.offsets[keep], self.rx_ns[keep], self.little_endian, None, part_ns,
+                     part_bytes)
 
     def __len__(self) -> int:
         return len(self.offsets)
@@ -373,3 +405,38 @@ class Batch:
             for name, col in self.columns.items():
                 out[name] = _py(col[i])
             yield out
+
+
+@dataclass
+class Records:
+    """``Batch`` for a live read's record or two: each record's wire bytes and stream
+    position, the receive time of the read that completed it, in plain Python. Array
+    set-up costs more than such a read's work; ``batch`` gives the very ``Batch``."""
+
+    code: int
+    little_endian: bool
+    wire: list[bytes]
+    offsets: list[int]
+    rx_ns: list[int]
+    part_ns: list[int] | None = None  # as ``Batch``'s
+    part_bytes: list[int] | None = None
+
+    def __len__(self) -> int:
+        return len(self.wire)
+
+    def timers(self) -> list[int]:
+        """The unit's timer of each record (big-endian, whatever the float byte order)."""
+        at = _timer_at(self.code)
+        return [int.from_bytes(w[at : at + 4], "big") for w in self.wire]
+
+    def batch(self) -> Batch:
+        block = np.frombuffer(b"".join(self.wire), np.uint8).reshape(len(self.wire), -1)
+        parts = (None, None) if self.part_ns is None or self.part_bytes is None else \
+            (np.array(self.part_ns, np.int64), np.array(self.part_bytes, np.int64))
+        return Batch.from_block(self.code, block, np.array(self.offsets, np.int64),
+                                np.array(self.rx_ns, np.int64), self.little_endian, *parts)
+
+
+@functools.cache
+def _timer_at(code: int) -> int:
+    return REPLIES[code].offset("timer")

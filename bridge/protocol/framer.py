@@ -12,9 +12,15 @@ accept exactly the same records.
 
 Each chunk comes with its receive time; a record carries the time of the chunk that
 held its last byte, whenever the framer lets it out, so a capture replayed with its
-recorded times gives the live run's records and times whatever the chunking. A replay
-hands over many reads at once (``feed_reads``): one scan instead of one per read, the
-same records and times.
+recorded times gives the live run's records and times whatever the chunking. A record
+whose bytes came in more than one read also carries the latest earlier read that ended
+inside it and how many of its bytes had arrived by then: over a serial line that bounds
+when the record began more tightly than its completing read can. Reads with the same
+receive time count as one (a read cut in two says nothing new), and an empty read as
+none. A replay hands over many reads at once (``feed_reads``): one scan instead of one
+per read, the same records and times. A live bridge takes its read's record or two as
+``Records`` (``feed_records``): the same scan, the wire bytes of each record without
+arrays.
 """
 
 from __future__ import annotations
@@ -22,13 +28,15 @@ from __future__ import annotations
 import re
 from bisect import bisect_right
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
 from bridge.protocol.codec import (
     Batch,
+    Records,
     checksum,
     checksum_rows,
     plausible,
@@ -39,6 +47,7 @@ from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
 _MIN_FAST = 8  # records; below this the scanner is cheaper than array set-up
 _MAX_FAST = 1 << 16
 _FLAGS_AT = REPLIES[BYTE_ORDER_REPLY].offset("flags")
+_Out = TypeVar("_Out")
 
 
 @dataclass
@@ -65,22 +74,57 @@ class FramerStats:
 
 
 class _Reads:
-    """Receive time of every read with bytes still held, by the stream position it ends at."""
+    """Receive time of every read with bytes still held, by the stream position it ends at.
+
+    A read received at the same time as the one before it extends that one."""
 
     def __init__(self) -> None:
         self.ends: list[int] = []
         self.ns: list[int] = []
 
     def add(self, ends: list[int], rx_ns: list[int]) -> None:
+        if self.ns and rx_ns[0] == self.ns[-1]:
+            self.ends[-1] = ends[0]
+            ends, rx_ns = ends[1:], rx_ns[1:]
         self.ends += ends
         self.ns += rx_ns
 
-    def times(self, last_bytes: np.ndarray) -> np.ndarray:
-        """The receive time of the read holding each of these stream positions."""
+    def times(self, starts: np.ndarray,
+              length: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """For records of ``length`` bytes at these stream positions: the receive time of
+        the read that completed each, and of the latest read before it (if it ended inside
+        the record, else the completing read's) with the record's bytes it had brought
+        (else ``length``); None, None when no read ended inside any of them."""
         if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
-            return np.full(len(last_bytes), self.ns[0], np.int64)
-        index = np.searchsorted(np.array(self.ends, np.int64), last_bytes, side="right")
-        return np.array(self.ns, np.int64)[index]
+            return np.full(len(starts), self.ns[0], np.int64), None, None
+        ends = np.array(self.ends, np.int64)
+        ns = np.array(self.ns, np.int64)
+        index = np.searchsorted(ends, starts + (length - 1), side="right")
+        rx = ns[index]
+        before = ends[index - 1] - starts
+        inside = (index > 0) & (before > 0)
+        if not inside.any():
+            return rx, None, None
+        return rx, np.where(inside, ns[index - 1], rx), np.where(inside, before, length)
+
+    def times_of(self, starts: list[int],
+                 length: int) -> tuple[list[int], list[int] | None, list[int] | None]:
+        """``times`` in plain integers, for a record or two."""
+        if len(self.ns) == 1:
+            return [self.ns[0]] * len(starts), None, None
+        ends, ns = self.ends, self.ns
+        rx: list[int] = []
+        part_ns: list[int] = []
+        part_bytes: list[int] = []
+        for start in starts:
+            index = bisect_right(ends, start + length - 1)
+            rx.append(ns[index])
+            before = ends[index - 1] - start if index else 0
+            part_ns.append(ns[index - 1] if before > 0 else ns[index])
+            part_bytes.append(before if before > 0 else length)
+        if part_bytes.count(length) == len(part_bytes):
+            return rx, None, None
+        return rx, part_ns, part_bytes
 
     def forget_before(self, position: int) -> None:
         done = bisect_right(self.ends, position)
@@ -88,26 +132,46 @@ class _Reads:
 
 
 class _Runs:
-    """Accepted records gathered into runs of one type and byte order, decoded once per run."""
+    """Accepted records gathered into runs of one type and byte order, decoded once per
+    run. Each run is a list of chunks: consecutive records' bytes and the stream position
+    of the first."""
 
     def __init__(self) -> None:
-        self.runs: list[tuple[int, bool, list[bytes], list[np.ndarray]]] = []
+        self.runs: list[tuple[int, bool, list[tuple[bytes, int]]]] = []
 
-    def add(self, code: int, little_endian: bool, data: bytes, offsets: np.ndarray) -> None:
+    def add(self, code: int, little_endian: bool, data: bytes, start: int) -> None:
         if self.runs and self.runs[-1][:2] == (code, little_endian):
-            self.runs[-1][2].append(data)
-            self.runs[-1][3].append(offsets)
+            self.runs[-1][2].append((data, start))
         else:
-            self.runs.append((code, little_endian, [data], [offsets]))
+            self.runs.append((code, little_endian, [(data, start)]))
 
     def batches(self, reads: _Reads) -> list[Batch]:
         out = []
-        for code, little_endian, chunks, offsets in self.runs:
-            block = np.frombuffer(b"".join(chunks), np.uint8)
-            starts = offsets[0] if len(offsets) == 1 else np.concatenate(offsets)
-            rx_ns = reads.times(starts + (REPLIES[code].length - 1))
+        for code, little_endian, chunks in self.runs:
+            size = REPLIES[code].length
+            block = np.frombuffer(b"".join(data for data, _ in chunks), np.uint8)
+            starts = np.concatenate([start + size * np.arange(len(data) // size, dtype=np.int64)
+                                     for data, start in chunks])
+            rx_ns, part_ns, part_bytes = reads.times(starts, size)
             out.append(Batch.from_block(code, block.reshape(len(starts), -1), starts, rx_ns,
-                                        little_endian))
+                                        little_endian, part_ns, part_bytes))
+        return out
+
+    def records(self, reads: _Reads) -> list[Records]:
+        out = []
+        for code, little_endian, chunks in self.runs:
+            size = REPLIES[code].length
+            wire: list[bytes] = []
+            starts: list[int] = []
+            for data, start in chunks:
+                if len(data) == size:
+                    wire.append(data)
+                    starts.append(start)
+                else:
+                    wire += [data[i : i + size] for i in range(0, len(data), size)]
+                    starts += range(start, start + len(data), size)
+            out.append(Records(code, little_endian, wire, starts,
+                               *reads.times_of(starts, size)))
         return out
 
 
@@ -152,7 +216,13 @@ class Framer:
 
     def feed(self, data: bytes | bytearray | memoryview, rx_ns: int = 0) -> list[Batch]:
         """Take the next read, received at ``rx_ns``; return the records decided so far."""
-        return self._take(data, [len(data)], [rx_ns])
+        return self._take(data, [len(data)], [rx_ns], _Runs.batches)
+
+    def feed_records(self, data: bytes | bytearray | memoryview, rx_ns: int = 0
+                     ) -> list[Records]:
+        """``feed``, the records as ``Records``: a live read's record or two without
+        array set-up (``Records.batch`` gives the very ``Batch``)."""
+        return self._take(data, [len(data)], [rx_ns], _Runs.records)
 
     def feed_reads(self, data: bytes | bytearray | memoryview, ends: np.ndarray,
                    rx_ns: np.ndarray) -> list[Batch]:
@@ -164,24 +234,27 @@ class Framer:
         if ends.shape != rx_ns.shape or ends.ndim != 1:
             raise ValueError(f"ends and rx_ns differ in shape: {ends.shape} vs {rx_ns.shape}")
         last = int(ends[-1]) if len(ends) else 0
-        if last != len(data) or (np.diff(ends, prepend=0) < 0).any():
+        sizes = np.diff(ends, prepend=0)
+        if last != len(data) or (sizes < 0).any():
             raise ValueError(f"read ends must rise to the {len(data)} bytes given")
-        return self._take(data, ends.tolist(), rx_ns.tolist())
+        ends, rx_ns = ends[sizes > 0], rx_ns[sizes > 0]  # an empty read is no read
+        one = np.append(rx_ns[1:] != rx_ns[:-1], True)  # the last of equal-time reads
+        return self._take(data, ends[one].tolist(), rx_ns[one].tolist(), _Runs.batches)
 
-    def _take(self, data: bytes | bytearray | memoryview, ends: list[int],
-              rx_ns: list[int]) -> list[Batch]:
+    def _take(self, data: bytes | bytearray | memoryview, ends: list[int], rx_ns: list[int],
+              out: Callable[[_Runs, _Reads], list[_Out]]) -> list[_Out]:
         if len(data):
             self.stats.bytes_fed += len(data)
             base = self._base + len(self._buf)
             self._reads.add([base + end for end in ends], rx_ns)
             self._buf += data
-        return self._scan(final=False)
+        return self._scan(False, out)
 
     def flush(self) -> list[Batch]:
         """End of stream: decide on every byte still held back."""
-        return self._scan(final=True)
+        return self._scan(True, _Runs.batches)
 
-    def _scan(self, final: bool) -> list[Batch]:
+    def _scan(self, final: bool, out: Callable[[_Runs, _Reads], list[_Out]]) -> list[_Out]:
         buf, lengths, stats = self._buf, self._lengths, self.stats
         runs = _Runs()
         pos, n = 0, len(buf)
@@ -211,7 +284,7 @@ class Framer:
             if checksum(rec[:-2]) != (rec[-2] << 8 | rec[-1]):
                 stats.checksum_failures += 1
             elif plausible(code, rec, self.little_endian):
-                runs.add(code, self.little_endian, rec, np.array([self._base + pos], np.int64))
+                runs.add(code, self.little_endian, rec, self._base + pos)
                 stats.records[code] += 1
                 if code == BYTE_ORDER_REPLY:
                     flags = rec[_FLAGS_AT] << 8 | rec[_FLAGS_AT + 1]
@@ -226,9 +299,9 @@ class Framer:
             pos += 1
         del buf[:pos]
         self._base += pos
-        batches = runs.batches(self._reads)
+        decided = out(runs, self._reads)
         self._reads.forget_before(self._base)
-        return batches
+        return decided
 
     def _checked_from(self, start: int, code: int, size: int) -> np.ndarray | None:
         """The checks already made on the records at ``start``, if a block covered them.
@@ -275,6 +348,6 @@ class Framer:
             self._chunk = min(_MAX_FAST, self._chunk * 2) if good == len(ok) else max(64, 2 * good)
         if good:
             runs.add(code, self.little_endian, bytes(buf[pos : pos + good * size]),
-                     self._base + pos + size * np.arange(good, dtype=np.int64))
+                     self._base + pos)
             self.stats.records[code] += good
         return good, good == len(ok)

@@ -46,7 +46,7 @@ from bridge.recorder.describe import (
 )
 from bridge.recorder.read import Archive, Samples
 from bridge.timing.offline import OfflineClock
-from bridge.timing.stream import TRANSPORTS, USB_FRAME_NS, Settings
+from bridge.timing.stream import TRANSPORTS, Settings
 
 #: Offline re-estimate of sample times: (unit, ticks, rx_ns) -> time_ns, all of one unit
 #: in arrival order, int64 ns; None keeps that unit's live times.
@@ -117,7 +117,8 @@ def unit_settings(archive: Archive, unit: str) -> Settings | None:
         return None
     return Settings(record=info.command, decimation=info.decimation,
                     filter_width=info.filter_width, baud=info.baud,
-                    transport=info.link if info.link in TRANSPORTS else "uart")
+                    transport=info.link if info.link in TRANSPORTS else "uart",
+                    latency_timer_ms=info.latency_timer_ms or None)
 
 
 def archive_prefix(archive: Archive) -> str:
@@ -136,8 +137,8 @@ def offline_times(archive: Archive) -> ReEstimate:
         settings = unit_settings(archive, unit)
         if settings is None or len(ticks) < 2:
             return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns,
-                             USB_FRAME_NS if settings.transport == "usb" else 0)
+        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns,
+                             serial=settings.serial)
         order = np.argsort(ticks, kind="stable")
         out = np.empty(len(ticks), np.int64)
         out[order] = clock.smooth(ticks[order], rx_ns[order])

@@ -42,6 +42,7 @@ def capture_metadata(info: Info) -> dict[str, str]:
             "record": f"0x{info.command:02X}", "firmware": info.firmware_text,
             "flags": str(info.flags), "filter_width": str(info.filter_width),
             "decimation": str(info.decimation), "transport": info.link or "uart",
+            **({"latency_timer_ms": str(info.latency_timer_ms)} if info.latency_timer_ms else {}),
             "polled": str(info.mode == Mode.ACTIVE).lower()}
 
 

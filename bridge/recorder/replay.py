@@ -115,6 +115,11 @@ class Replayed:
     inferred: list[str] = field(default_factory=list)
 
 
+def _timer(text: str | None) -> int | None:
+    """A capture's latency timer, ms; None where it was not known."""
+    return int(text) if text and text.isdigit() and int(text) > 0 else None
+
+
 class UnitReplay:
     """Frames and times one unit's reads exactly as its live bridge did."""
 
@@ -134,7 +139,8 @@ class UnitReplay:
             return Settings(record=int(meta["record"], 0), decimation=int(meta["decimation"]),
                             filter_width=int(meta["filter_width"]), baud=int(meta["baud"]),
                             transport=meta.get("transport", "uart"),
-                            polled=meta.get("polled") == "true")
+                            polled=meta.get("polled") == "true",
+                            latency_timer_ms=_timer(meta.get("latency_timer_ms")))
         record, decimation = self._sniff()
         self.result.inferred += [f"record 0x{record:02X}", f"decimation {decimation}",
                                  f"filter width {FACTORY_FILTER_WIDTH} (factory)"]
@@ -182,7 +188,7 @@ class UnitReplay:
                     command=s.record, decimation=s.decimation, filter_width=s.filter_width,
                     flags=int(meta.get("flags", "0")), output_rate_hz=1000 / s.decimation,
                     firmware_text=meta.get("firmware", ""), link=s.transport,
-                    bring_up_time_ns=at_ns)
+                    latency_timer_ms=s.latency_timer_ms or 0, bring_up_time_ns=at_ns)
         emit(f"{prefix}/{self.capture.unit}/info", [info.SerializeToString()], at_ns)
 
     def run(self, emit: Emit, prefix: str) -> Replayed:

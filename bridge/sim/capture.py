@@ -1,9 +1,10 @@
 """Raw captures in virtual time: what a bridge would have read from one unit.
 
-A unit streaming from power-up is run through a USB delivery model for a given
-stretch of virtual time. The result is what the bridge records (the bytes of each
-read and its host receive time) next to the emulator's truth for every record,
-so the timing layer can be scored against the real sample instants.
+A unit streaming from power-up is run through a delivery model (native USB, a
+USB-serial adapter or a UART: ``bridge.sim.usb``) for a given stretch of virtual
+time. The result is what the bridge records (the bytes of each read and its host
+receive time) next to the emulator's truth for every record, so the timing layer
+can be scored against the real sample instants.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from bridge.protocol.framer import Framer
 from bridge.protocol.table import CALCULATION_CYCLE_S, REPLIES, Mode
 from bridge.sim.state import Sampling
 from bridge.sim.unit import SimUnit, UnitConfig
-from bridge.sim.usb import UsbDelivery, UsbLink
+from bridge.sim.usb import HostDelivery, link_for
 
 #: USB full speed moves about 1 MB/s of payload; the unit's line is paced at baud/10.
 USB_BAUD = 10_000_000
@@ -33,7 +34,7 @@ class Capture:
     code: int
     truth: dict[str, np.ndarray]  # timer, time_ns, value_ns when the emulator has it, ...
     config: UnitConfig
-    usb: UsbDelivery
+    delivery: HostDelivery  # native USB, a USB-serial adapter or a UART
 
     def records(self) -> tuple[np.ndarray, np.ndarray]:
         """Every record's timer and the receive time of the read that completed it,
@@ -49,67 +50,64 @@ class Capture:
 
 
 def streaming_config(config: UnitConfig, code: int = 0xC2, decimation: int = 10,
-                     filter_width: int | None = None) -> UnitConfig:
-    """``config`` with a stored preset that streams ``code`` from power-up over USB."""
+                     filter_width: int | None = None, baud: int = USB_BAUD) -> UnitConfig:
+    """``config`` with a stored preset that streams ``code`` from power-up, its line
+    paced at ``baud``: USB speed by default, a serial port's rate behind a UART or a
+    USB-serial adapter."""
     s = config.stored
     sampling = replace(s.sampling, decimation=decimation,
                        filter_width=s.sampling.filter_width if filter_width is None
                        else filter_width)
     stored = replace(s, mode_preset=int(Mode.CONTINUOUS), continuous_preset=code,
-                     baud=USB_BAUD, sampling=Sampling(**vars(sampling)))
+                     baud=baud, sampling=Sampling(**vars(sampling)))
     return replace(config, stored=stored)
 
 
-def synthesize(config: UnitConfig, usb: UsbDelivery, seconds: float,
+def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
                start: float = 0.0) -> Capture:
     """Run a unit that streams from power-up at host time ``start`` for ``seconds``.
 
-    Only the frames in which a record's bytes can finish are polled (the next
-    record's instant is known from the decimation), which keeps 10 minutes of
-    100 Hz output to a couple of seconds of CPU.
+    Each record is handed to the link whole, with the instant each byte finished
+    crossing the unit's line (known from the record's cycle and the baud rate),
+    before the host reads past its first byte; this keeps 10 minutes of 100 Hz
+    output to a few seconds of CPU on every link.
     """
     code = config.stored.continuous_preset
     if config.stored.mode_preset != Mode.CONTINUOUS or code not in REPLIES:
         raise ValueError("synthesize needs a unit that streams from power-up: "
                          "build its config with streaming_config()")
+    if (delivery.transport == "usb") != (config.stored.baud == USB_BAUD):
+        raise ValueError(f"a {delivery.transport} link needs "
+                         + ("the unit paced at USB speed: streaming_config() without baud"
+                            if delivery.transport == "usb" else
+                            "the unit's baud rate: streaming_config(..., baud=115200)"))
     period = config.stored.sampling.decimation * CALCULATION_CYCLE_S
     size = REPLIES[code].length
+    byte_s = 10.0 / config.stored.baud
     n_records = int(seconds / period) + 2
     config = replace(config, truth_length=n_records + 16)
     unit = SimUnit(config, now=start, wall_ns=WALL_NS)
-    link = UsbLink(usb, start)
-    rate = config.stored.baud / 10.0
+    link = link_for(delivery, start)
     reads: list[tuple[float, bytes]] = []
     end = start + seconds
-    sent = 0
-    device0 = None
-    frame = link.frame_at(start)
-    while frame <= end:
-        data = unit.poll(frame)
-        link.push(data, frame)
-        sent += len(data)
-        reads += link.reads(frame)
-        if device0 is None:
-            if len(unit.truth):
-                device0 = float(unit.truth.arrays()["device_s"][0])
-            frame += usb.frame_s
-            continue
-        # Skip to the frames in which the next record's bytes finish.
-        n = math.ceil(sent / size)
-        t0 = float(unit.host_time(device0 + n * period))
-        frame = max(frame + usb.frame_s, link.frame_at(t0 - 1e-6))
-        last = link.frame_at(t0 + size / rate + 1e-6)
-        while frame <= min(last, end):
-            data = unit.poll(frame)
-            link.push(data, frame)
-            sent += len(data)
-            reads += link.reads(frame)
-            frame += usb.frame_s
+    data, t = b"", start
+    while not len(unit.truth) and t <= end:  # power-up: until the first record begins
+        t += period / 2
+        data += unit.poll(t)
+    device0 = float(unit.truth.arrays()["device_s"][0]) if len(unit.truth) else math.inf
+    done = 0
+    while (finished := float(unit.host_time(device0 + done * period)) + size * byte_s) <= end:
+        data += unit.poll(finished)
+        if len(data) != size:
+            break
+        link.push(data, finished, byte_s)
+        reads += link.reads(finished)
+        data, done = b"", done + 1
     reads += link.reads(end + 1.0)  # what was on its way when the capture stopped
-    done = sent // size  # a record still leaving the unit at the end has begun its truth
     truth = {k: v[:done] for k, v in unit.truth.arrays().items()}
-    if sent != done * size or len(truth["timer"]) != done or unit.records_skipped:
-        raise AssertionError(f"capture out of step: {sent} bytes, {done} records")
+    if len(data) not in (0, size) or unit.records_skipped:
+        raise ValueError(f"the unit's records do not fit its line: {size} bytes every "
+                         f"{period * 1e3:g} ms at {config.stored.baud} baud")
     return Capture(
         rx_ns=np.array([round(t * 1e9) for t, _ in reads], np.int64) + WALL_NS,
-        data=[d for _, d in reads], code=code, truth=truth, config=config, usb=usb)
+        data=[d for _, d in reads], code=code, truth=truth, config=config, delivery=delivery)

@@ -27,7 +27,7 @@ import numpy as np
 
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
-from bridge.sim.usb import UsbDelivery, UsbLink
+from bridge.sim.usb import Port, UsbDelivery, link_for
 
 _log = logging.getLogger(__name__)
 
@@ -241,7 +241,7 @@ class _Slot:
     state_reported: bool = False
     pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
     power_cycle: bool = False
-    usb: UsbLink | None = None  # the unit's own USB port: bytes reach the host in frames
+    usb: Port | None = None  # USB (own port or an adapter's): bytes reach the host in frames
 
 
 class Simulator:
@@ -265,7 +265,7 @@ class Simulator:
         self.slots: list[_Slot] = []
         try:
             for i, config in enumerate(configs):
-                if usb is not None:
+                if usb is not None and usb.transport == "usb":
                     config = replace(config, usb=True)
                 unit = SimUnit(config, now)
                 link: Link
@@ -275,7 +275,7 @@ class Simulator:
                     link = TcpLink(host, port + i if port else 0, notify)
                 self.slots.append(_Slot(
                     unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
-                    usb=None if usb is None else UsbLink(replace(usb, seed=usb.seed + i), now)))
+                    usb=None if usb is None else link_for(replace(usb, seed=usb.seed + i), now)))
         except BaseException:
             self._close_links()
             raise
@@ -379,13 +379,15 @@ class Simulator:
                 slot.power_cycle = False
                 slot.unit.power_cycle(now)
                 line = []
-        if slot.usb is not None:  # USB ignores the baud rate: bytes arrive in frames
-            for _, data in line:
-                slot.usb.push(data, now)
+        if slot.usb is None:
+            host = slot.link.host_baud()
+        else:  # bytes arrive in frames; behind an adapter the unit's UART meets the
+            # adapter's, which runs at the baud rate the host set
+            adapter = None if slot.unit.config.usb else slot.link.host_baud()
+            for baud, data in line:
+                slot.usb.push(reframe(data, baud, adapter) if adapter else data, now, 10 / baud)
             line = [(0, data) for _, data in slot.usb.reads(now)]
             host = None
-        else:
-            host = slot.link.host_baud()
         for baud, data in line:
             slot.held += slot.faults.corrupt(reframe(data, baud, host) if host else data)
         if slot.held and not slot.faults.stalled(now):

@@ -63,6 +63,7 @@ _FRAME_WINDOW_S = 300.0
 _CHORD_TICKS = 20 * TICKS_PER_SECOND  # corners this far apart give the slope
 _GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
 _GRID_DECAY = 0.99  # per refit: the frame grid may drift against the host clock
+_PARTIAL_SHARE = 0.1  # of a window's records with a read ending inside: pinned to bytes
 _SCALAR_RUN = 16  # records; shorter runs are cheaper in plain integers than in NumPy
 
 
@@ -105,13 +106,23 @@ class OnlineClock:
     ``filter_delay_ns``: the unit's moving-average delay, (M - 1) / 2 ms for filter
     width M. ``floor_ns``: the least time from sample to receive the transport
     allows (a UART's line time of the record, len * 10 / baud s; USB: len * 1 us).
-    ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line.
+    ``frame_ns``: the USB frame (1 ms) or 0 for a plain serial line. ``serial``: the
+    bytes crossed a serial line before those frames (a USB-serial adapter): reads that
+    end mid-record pin each record to about a byte time at every frame, so the lower
+    envelope of the snapped points is the line, as on a plain serial line.
+
+    Each record's point is the least upper bound on its sample instant that its reads
+    give: the completing read's receive time (snapped to its frame) less ``floor_ns``,
+    or, where ``update`` is given one, an earlier read that ended inside the record
+    (snapped to its frame) less the line time of the bytes it held.
     """
 
     def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
-                 window_s: float | None = None, refit_s: float = 1.0) -> None:
+                 window_s: float | None = None, refit_s: float = 1.0,
+                 serial: bool = False) -> None:
         if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0:
             raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
+        self.serial = serial
         if window_s is None:
             window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
         if window_s <= 0 or refit_s <= 0:
@@ -125,19 +136,30 @@ class OnlineClock:
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
         self._last_ns: int | None = None  # the latest instant given out
+        #: When a list, each fit over the frame staircase adds (its ticks, the extent of
+        #: the lines it allowed at them; inf when no straight line fitted): the doubt of
+        #: the instants it gives out until the next fit.
+        self.fits: list[tuple[int, float]] | None = None
         self.reset()
 
     def reset(self) -> None:
         """Start over after the tick base changed (device reset); keep rate and grid."""
         self._x = np.zeros(0, np.int64)
         self._y = np.zeros(0, np.int64)
+        # with frames, each record's partial read: receive time less the floor, and the
+        # line time of the bytes it did not hold (zero where there is none)
+        self._q = np.zeros(0, np.int64)
+        self._g = np.zeros(0, np.int64)
         self._new_x: list[int] = []
         self._new_y: list[int] = []
+        self._new_q: list[int] = []
+        self._new_g: list[int] = []
         self._line: _Line | None = None
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._snapped = np.zeros(0, np.int64)  # the window's receive times, snapped
         self._phase: int | None = None
+        self._parts = False  # whether the snapped points take the partial reads in
         # bucket minima of the whole quarter seconds gone by, and the first bucket not
         # yet taken: each is found once, at the first fit after it is complete
         self._lows_x = np.zeros(0, np.int64)
@@ -164,15 +186,54 @@ class OnlineClock:
         line = self._line
         return None if line is None else line.ticks_at(rx_ns - self.floor_ns)
 
-    def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
+    def update(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
+               part_ns: npt.ArrayLike | None = None,
+               part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
         """Sample instants (host ns) of records with increasing ``ticks`` received at
-        ``rx_ns``: the instant their values describe, filter delay taken out."""
+        ``rx_ns``: the instant their values describe, filter delay taken out.
+        ``part_ns``, ``part_lead_ns``: per record, an earlier read that ended inside it
+        and the line time of the bytes it held (the completing read and the floor where
+        there is none)."""
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64)
         if x.shape != y.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {y.shape}")
-        xs, ys = x.tolist(), y.tolist()
+        parts = None
+        if part_ns is not None and part_lead_ns is not None:
+            p, lead = np.asarray(part_ns, np.int64), np.asarray(part_lead_ns, np.int64)
+            if p.shape != y.shape or lead.shape != y.shape:
+                raise ValueError("part_ns and part_lead_ns must match rx_ns in length")
+            parts = (p.tolist(), lead.tolist())
+        return self._increasing(np.array(self._instants(x.tolist(), y.tolist(), x, parts),
+                                         np.int64))
+
+    def update_few(self, ticks: list[int], rx_ns: list[int],
+                   parts: tuple[list[int], list[int]] | None = None) -> list[int]:
+        """``update`` of a few records in plain integers (a live bridge gets one or two a
+        read): the same instants without NumPy's fixed cost per call. ``parts``: the
+        partial reads' receive times and line times, as ``update``'s."""
+        if len(ticks) != len(rx_ns):
+            raise ValueError(f"ticks and rx_ns differ in length: {len(ticks)} vs {len(rx_ns)}")
+        out = self._instants(ticks, rx_ns, None, parts)
+        if not out:
+            return out
+        # ``_increasing`` in plain integers: each instant at least 1 ns after the one before
+        last = self._last_ns
+        least = out[0] if last is None else last + 1
+        for i, value in enumerate(out):
+            least = max(least, value - i)
+            out[i] = least + i
+        self._last_ns = out[-1]
+        return out
+
+    def _instants(self, xs: list[int], ys: list[int], x: np.ndarray | None,
+                  parts: tuple[list[int], list[int]] | None) -> list[int]:
+        """The line's instants at ``xs``, refitting at the ticks-determined points; long
+        runs on one line in NumPy (``x``: ``xs`` as an array, if the caller has it)."""
         floor, delay = self.floor_ns, self.filter_delay_ns
+        if parts is not None and not self.frame_ns:  # no frames: the least bound at once
+            ys = [min(r, p - lead + floor) for r, p, lead in zip(ys, *parts, strict=True)]
+            parts = None
         out: list[int] = []
         i = 0
         while i < len(xs):
@@ -180,17 +241,27 @@ class OnlineClock:
             j = i if self._next_fit is None else bisect_left(xs, self._next_fit, i)
             line = self._line
             if j > i and line is not None:
-                out += (line.at(x[i:j]) - delay).tolist() if j - i > _SCALAR_RUN \
-                    else [line.at_one(t) - delay for t in xs[i:j]]
+                if j - i > _SCALAR_RUN:
+                    run = x[i:j] if x is not None else np.array(xs[i:j], np.int64)
+                    out += (line.at(run) - delay).tolist()
+                else:
+                    out += [line.at_one(t) - delay for t in xs[i:j]]
             self._new_x += xs[i : j + 1]
             self._new_y += [r - floor for r in ys[i : j + 1]]
+            if self.frame_ns:
+                if parts is None:
+                    self._new_q += self._new_y[len(self._new_q):]
+                    self._new_g += [0] * (len(self._new_y) - len(self._new_g))
+                else:
+                    self._new_q += [p - floor for p in parts[0][i : j + 1]]
+                    self._new_g += [floor - lead for lead in parts[1][i : j + 1]]
             if j >= len(xs):
                 break
             self._fit(xs[j])
             assert self._line is not None
             out.append(self._line.at_one(xs[j]) - delay)
             i = j + 1
-        return self._increasing(np.array(out, np.int64))
+        return out
 
     def _increasing(self, out: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
         """Instants that only move forward: a refit may lower the line by more than a
@@ -215,16 +286,30 @@ class OnlineClock:
         self._new_x, self._new_y = [], []
         keep = int(np.searchsorted(self._x, now - self._window))
         self._x, self._y = self._x[keep:], self._y[keep:]
+        if self.frame_ns:
+            self._q = np.concatenate([self._q, np.array(self._new_q, np.int64)])[keep:]
+            self._g = np.concatenate([self._g, np.array(self._new_g, np.int64)])[keep:]
+            self._new_q, self._new_g = [], []
         span = int(self._x[-1] - self._x[0])
         step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
         self._next_fit = now + max(1, step)
-        upper = self._snap(new_y, keep) if self.frame_ns else self._y
-        x_ref = int(self._x[0]) + span // 2
+        # Frames alone carry the time unless reads ending inside records pin them to bytes.
+        staircase = self.frame_ns and not (self.serial and pinned_by_bytes(self._g))
+        upper = self._snap(new_y, keep, not staircase) if self.frame_ns else self._y
+        if not staircase and self.frame_ns:  # the envelope over a serial line's window
+            start = int(np.searchsorted(self._x, now - _LINE_WINDOW_S * TICKS_PER_SECOND))
+            x, upper = self._x[start:], upper[start:]
+            span = int(x[-1] - x[0])
+        else:
+            x = self._x
+        x_ref = int(x[0]) + span // 2
         y_ref = int(upper[0])
         bias = 0.0
-        if self.frame_ns:
+        if staircase:
             bx, by = self._bucket_minima(upper)
             centre = self._centre(bx, by)
+            if self.fits is not None:
+                self.fits.append((now, math.inf if centre is None else centre[3]))
             if centre is not None:
                 self._rate = centre[2]
                 self._line = _Line(centre[0], centre[1], centre[2], 0.0)
@@ -234,15 +319,15 @@ class OnlineClock:
             line = self._frame_fit(bx.tolist(), by.tolist())
             if line is not None:
                 x_ref, y_ref, self._rate = line
-        dx = (self._x - x_ref).astype(np.float64)
+        dx = (x - x_ref).astype(np.float64)
         dy = (upper - y_ref).astype(np.float64)
-        if not self.frame_ns and span >= 2 * TICKS_PER_SECOND:
+        if not staircase and span >= 2 * TICKS_PER_SECOND:
             self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
-        if self.frame_ns:
+        if staircase:
             bias = uncovered_half(residual[dx >= 0], self.frame_ns)
-        y, rate = self._y, self._rate
+        y, rate = self._y[len(self._y) - len(x):], self._rate
         self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
 
@@ -282,23 +367,34 @@ class OnlineClock:
             return None
         return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
 
-    def _snap(self, new_y: np.ndarray, dropped: int) -> np.ndarray:
-        """Receive times moved down to the USB frame that carried them. The window's
-        older points keep their snapped times while the grid's phase stays put (the
-        window lost its first ``dropped`` points since the last fit); when it moves,
+    def _snap(self, new_y: np.ndarray, dropped: int, parts: bool) -> np.ndarray:
+        """Receive times moved down to the USB frame that carried them, and with ``parts``
+        the partial reads' bounds where they are less. The window's older points keep
+        their snapped times while the grid's phase and ``parts`` stay put (the window
+        lost its first ``dropped`` points since the last fit); when either changes,
         every bucket minimum is found anew."""
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
         phase = grid_phase(self._grid, self.frame_ns)
         old = len(self._y) - len(new_y)
-        if phase == self._phase and len(self._snapped) - dropped == old >= 0:
-            fresh = snap_to(self._y[old:], phase, self.frame_ns)
+        if (phase, parts) == (self._phase, self._parts) \
+                and len(self._snapped) - dropped == old >= 0:
+            fresh = self._least(old, phase, parts)
             self._snapped = np.concatenate([self._snapped[dropped:], fresh])
         else:
-            self._snapped = snap_to(self._y, phase, self.frame_ns)
+            self._snapped = self._least(0, phase, parts)
             self._lows_to = None
-        self._phase = phase
+        self._phase, self._parts = phase, parts
         return self._snapped
+
+    def _least(self, start: int, phase: int, parts: bool) -> np.ndarray:
+        """The window's points from ``start`` on, snapped: each record's least bound."""
+        frame = self.frame_ns
+        full = snap_to(self._y[start:], phase, frame)
+        if not parts:
+            return full
+        return np.asarray(np.minimum(full, snap_to(self._q[start:], phase, frame)
+                                     + self._g[start:]))
 
     def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``bucket_minima`` of the window, each bucket's found at the first fit after it
@@ -319,6 +415,15 @@ class OnlineClock:
         return self._lows_x, self._lows_y
 
 
+def pinned_by_bytes(gain: np.ndarray) -> bool:
+    """Whether enough records had a read end inside them (``gain``: the line time of the
+    bytes that read did not hold, 0 where none did) for the lower envelope of the points
+    to be the line. Behind a USB-serial adapter whose packets happen to end with records
+    (a 16 ms latency timer, records that divide its packet) the frames alone carry the
+    time, as on native USB."""
+    return bool(len(gain)) and float(np.count_nonzero(gain)) >= _PARTIAL_SHARE * len(gain)
+
+
 def uncovered_half(residual: np.ndarray, frame: int) -> float:
     """Half the frame that snapped points above a lower-envelope line leave uncovered.
 
@@ -334,12 +439,6 @@ def uncovered_half(residual: np.ndarray, frame: int) -> float:
 def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
     """Receive times folded onto one frame, in 1 us bins."""
     return np.bincount((y % frame) // _GRID_BIN_NS, minlength=max(1, frame // _GRID_BIN_NS))
-
-
-def snap(y: np.ndarray, histogram: np.ndarray, frame: int) -> np.ndarray:
-    """``y`` moved down to the frame boundary before it, the grid's phase being the
-    edge where receive times crowd in (just after each boundary, latency is least)."""
-    return snap_to(y, grid_phase(histogram, frame), frame)
 
 
 def grid_phase(histogram: np.ndarray, frame: int) -> int:

@@ -20,7 +20,7 @@ from bridge.timing.unwrap import TimingEvent
 
 USB_FRAME_NS = 1_000_000
 USB_BYTE_NS = 1_000  # full-speed USB moves about 1 MB/s of payload
-TRANSPORTS = ("uart", "usb")
+TRANSPORTS = ("uart", "usb", "usb-serial")
 
 
 @dataclass(frozen=True)
@@ -33,11 +33,18 @@ class Settings:
     baud: int
     transport: str = "uart"
     polled: bool = False
+    latency_timer_ms: int | None = None  # a USB-serial adapter's, where known
 
     @property
     def period_ticks(self) -> float | None:
         """Output period in ticks (decimation x 62.5); polled records have none."""
         return None if self.polled else TICKS_PER_SECOND * self.decimation / 1000
+
+    @property
+    def frame_ns(self) -> int:
+        """The host's USB frame where one carries the bytes (own port or adapter); 0 on a
+        plain UART."""
+        return 0 if self.transport == "uart" else USB_FRAME_NS
 
     @property
     def filter_delay_ns(self) -> int:
@@ -46,12 +53,29 @@ class Settings:
 
     @property
     def floor_ns(self) -> int:
-        """The least time a record takes to reach the host: its line time on a UART; on
-        USB (the baud setting has no effect there) its transfer at full speed's payload
-        rate."""
+        """The least time a record takes to reach the host: its line time on a serial
+        line (a UART, or one behind a USB-serial adapter); on the unit's own USB port
+        (the baud setting has no effect there) its transfer at full speed's payload rate."""
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
+
+    @property
+    def serial(self) -> bool:
+        """The bytes crossed a serial line before any USB frames (a USB-serial adapter)."""
+        return self.transport == "usb-serial"
+
+    @property
+    def byte_ns(self) -> float:
+        """One byte's time on the link: 10 bits at the baud rate on a serial line (a UART
+        or the line into a USB-serial adapter), full speed's payload rate on USB."""
+        return USB_BYTE_NS if self.transport == "usb" else 10e9 / self.baud
+
+    def part_lead_ns(self, part_bytes: np.ndarray) -> np.ndarray:
+        """The line time of a record's first ``part_bytes`` bytes: the floor less the time
+        of the bytes still to come (so exactly the floor for a whole record)."""
+        missing = REPLIES[self.record].length - np.asarray(part_bytes, np.int64)
+        return self.floor_ns - np.round(missing * self.byte_ns).astype(np.int64)
 
 
 @dataclass
@@ -85,8 +109,7 @@ class StreamTiming:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
         period = settings.period_ticks
         if self.timeline is None:
-            frame = USB_FRAME_NS if settings.transport == "usb" else 0
-            self.timeline = Timeline(period, frame_ns=frame)
+            self.timeline = Timeline(period, frame_ns=settings.frame_ns, serial=settings.serial)
         elif restarted or period != self.timeline.unwrapper.period_ticks:
             self.timeline.expect_discontinuity(period)
         self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
@@ -94,12 +117,32 @@ class StreamTiming:
         self.settings = settings
 
     def process(self, batch: Batch) -> Timed:
-        """Ticks and host times of a batch's records; corrupt timers are dropped."""
-        assert self.timeline is not None, "configure() first"
-        timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        """Ticks and host times of a batch's records; corrupt timers are dropped. A
+        record's partial read, where the framer saw one, bounds its instant too."""
+        assert self.timeline is not None and self.settings is not None, "configure() first"
+        if batch.part_ns is None or batch.part_bytes is None:
+            timed = self.timeline.update(batch["timer"], batch.rx_ns)
+        else:
+            timed = self.timeline.update(batch["timer"], batch.rx_ns, batch.part_ns,
+                                         self.settings.part_lead_ns(batch.part_bytes))
         keep = timed.valid
         invalid = 0 if timed.intact else int((~keep).sum())
         if invalid:
             batch = batch.select(keep)
         return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
                      timed.dropped, invalid)
+
+    def process_few(self, timers: list[int], rx_ns: list[int],
+                    part_ns: list[int] | None = None, part_bytes: list[int] | None = None
+                    ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
+        """``process`` of a live read's record or two in plain integers, when every one is
+        intact and one period after the last: ticks, instants and events. None: nothing
+        changed, ``process`` them. ``part_ns``, ``part_bytes``: the batch's partial
+        reads, if it has them."""
+        assert self.timeline is not None and self.settings is not None, "configure() first"
+        if part_ns is None or part_bytes is None:
+            return self.timeline.update_few(timers, rx_ns)
+        s = self.settings
+        length, floor = REPLIES[s.record].length, s.floor_ns
+        leads = [floor - round((length - k) * s.byte_ns) for k in part_bytes]
+        return self.timeline.update_few(timers, rx_ns, (part_ns, leads))

@@ -30,9 +30,10 @@ class Timeline:
     clock as fed every record before it."""
 
     def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
-                 floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None) -> None:
+                 floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None,
+                 serial: bool = False) -> None:
         self.unwrapper = TimerUnwrapper(period_ticks)
-        self.clock = OnlineClock(filter_delay_ns, floor_ns, frame_ns, window_s)
+        self.clock = OnlineClock(filter_delay_ns, floor_ns, frame_ns, window_s, serial=serial)
 
     @property
     def state(self) -> ClockState:
@@ -42,34 +43,57 @@ class Timeline:
         """The bridge reset the unit, set its timer or changed its sampling."""
         self.unwrapper.expect_discontinuity(period_ticks)
 
-    def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike) -> TimelineBatch:
+    def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike,
+               part_ns: npt.ArrayLike | None = None,
+               part_lead_ns: npt.ArrayLike | None = None) -> TimelineBatch:
+        """``part_ns``, ``part_lead_ns``: the records' partial reads, for the clock (see
+        ``OnlineClock.update``)."""
         rx = np.asarray(rx_ns, np.int64)
+        parts = None if part_ns is None or part_lead_ns is None else \
+            np.stack([np.asarray(part_ns, np.int64), np.asarray(part_lead_ns, np.int64)])
         u = self.unwrapper.update(timer, rx, True)
         if u.pending is None:
-            return self._timed(u, rx)
+            return self._timed(u, rx, parts)
         timers, done = np.asarray(timer), u.pending
-        out = self._timed(u, rx[:done])
+        out = self._timed(u, rx[:done], None if parts is None else parts[:, :done])
         while done < len(rx):  # rare: a jump ahead of its receive time, judged
             self.unwrapper.judge(self.clock.horizon(int(rx[done])))
             u = self.unwrapper.update(timers[done:], rx[done:], True)
-            out = _joined(out, self._timed(u, rx[done : done + len(u.ticks)]), done)
-            done += len(u.ticks)
+            end = done + len(u.ticks)
+            out = _joined(out, self._timed(u, rx[done:end],
+                                           None if parts is None else parts[:, done:end]), done)
+            done = end
         return out
 
-    def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64]) -> TimelineBatch:
+    def update_few(self, timers: list[int], rx_ns: list[int],
+                   parts: tuple[list[int], list[int]] | None = None
+                   ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
+        """``update`` of a few records in plain integers, when the unwrapper takes them
+        as they are (each one period after the last): ticks, instants and rollovers.
+        None: nothing changed, ask ``update``. ``parts``: the partial reads' receive
+        times and line times."""
+        run = self.unwrapper.update_few(timers, rx_ns)
+        if run is None:
+            return None
+        ticks, events = run
+        return ticks, self.clock.update_few(ticks, rx_ns, parts), events
+
+    def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64],
+               parts: npt.NDArray[np.int64] | None) -> TimelineBatch:
         """Host times of one unwrapped stretch's valid records, the clock restarted at
-        each reset in it."""
+        each reset in it; ``parts``: the partial reads' times and line times, stacked."""
         resets = [e.index for e in u.events if e.kind == "reset"]
         if not resets and u.all_valid:  # the common case, without index arithmetic
-            return TimelineBatch(u.ticks, self.clock.update(u.ticks, rx), u.valid, u.events,
-                                 u.dropped, intact=True)
+            time_ns = self.clock.update(u.ticks, rx, *(() if parts is None else parts))
+            return TimelineBatch(u.ticks, time_ns, u.valid, u.events, u.dropped, intact=True)
         time_ns = np.full(len(rx), -1, np.int64)
         starts = [*resets, len(rx)]
         begin = 0
         for end in starts:
             part = np.flatnonzero(u.valid[begin:end]) + begin
             if len(part):
-                time_ns[part] = self.clock.update(u.ticks[part], rx[part])
+                time_ns[part] = self.clock.update(
+                    u.ticks[part], rx[part], *(() if parts is None else parts[:, part]))
             if end < len(rx):
                 self.clock.reset()
             begin = end

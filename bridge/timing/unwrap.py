@@ -175,6 +175,20 @@ class TimerUnwrapper:
                 return joined
             rest, rest_rx = timers[done:], None if rx is None else rx[done:]
 
+    def update_few(self, timers: list[int],
+                   rx_ns: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
+        """``update`` of a few records in plain integers (a live bridge gets one or two a
+        read), when each is one period after the last: their ticks and rollovers. None
+        when they are not, or the state is not plain: nothing changed, ask ``update``."""
+        ref = self._ref
+        if (ref is None or self._candidate is not None or self._fresh or not timers
+                or len(timers) > _SCALAR_BATCH):
+            return None
+        run = self._fast_scalar(ref, timers, rx_ns)
+        if run is not None:
+            self._records += len(timers)
+        return run
+
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
         """The common case in one go: the leading records each exactly one period after
         the last (None when not even the first is)."""
@@ -182,7 +196,9 @@ class TimerUnwrapper:
         if ref is None or self._candidate is not None or self._fresh or not len(timers):
             return None
         if len(timers) <= _SCALAR_BATCH:
-            return self._fast_scalar(ref, timers.tolist(), None if rx is None else rx.tolist())
+            run = self._fast_scalar(ref, timers.tolist(), None if rx is None else rx.tolist())
+            return None if run is None else Unwrapped(
+                np.array(run[0], np.int64), np.ones(len(timers), bool), run[1], intact=True)
         timers = timers[:_FAST_WINDOW]
         rx = None if rx is None else rx[:_FAST_WINDOW]
         d = np.diff(timers, prepend=ref.timer) % TIMER_MODULUS
@@ -210,9 +226,10 @@ class TimerUnwrapper:
                          intact=True)
 
     def _fast_scalar(self, ref: _Anchor, timers: list[int],
-                     rx: list[int] | None) -> Unwrapped | None:
-        """``_fast`` for a few records (a live bridge gets one or two a read), in plain
-        integers: the same rules without NumPy's fixed cost per call."""
+                     rx: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
+        """``_fast`` for a few records, in plain integers: the same rules without NumPy's
+        fixed cost per call. Their ticks and rollovers; None (nothing changed) unless
+        every one is one period after the last."""
         period, slack = self.period_ticks, HOST_SLACK_NS // NS_PER_TICK
         prev_t, prev_rx, value = ref.timer, ref.rx, ref.ticks
         ticks: list[int] = []
@@ -238,8 +255,7 @@ class TimerUnwrapper:
             events.append(TimingEvent("rollover", i, ticks[i], self.rollovers))
         self._ref = _Anchor(timers[-1], value, None if rx is None else rx[-1])
         self._last_ticks = value
-        return Unwrapped(np.array(ticks, np.int64), np.ones(len(timers), bool), events,
-                         intact=True)
+        return ticks, events
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None, ask: bool) -> Unwrapped:
         """Record by record, at least ``_SLOW_RUN`` of them and on until the state is

@@ -1,0 +1,80 @@
+"""Which link a unit's device is on, found from the kernel's name for it.
+
+The timing model differs by link: a plain UART (bytes as they cross the line), the
+GX3's own USB port (``/dev/ttyACM*``, CDC-ACM: 1 ms frames), or its serial port
+through a USB-serial adapter (``/dev/ttyUSB*``: the line, then 1 ms frames, then
+the adapter's latency timer). udev's stable names (``/dev/serial/by-id/...``,
+``/dev/gx3/...``) are symlinks, so the device is followed link by link to its
+kernel name. Linux's FTDI driver sets the latency timer to 16 ms, which holds each
+read back up to 16 ms; sysfs tells, and 1 ms is the fix.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+SYSFS = Path("/sys")
+TIMER_RULE = "configs/udev/99-gx3.rules"
+_KERNEL_TTY = re.compile(r"tty(ACM|USB)\d+")
+_MAX_HOPS = 40  # the kernel's own limit on nested symlinks
+
+
+@dataclass(frozen=True)
+class Link:
+    """How a unit reaches the host: "uart", "usb" or "usb-serial", and for an adapter
+    its latency timer in ms (None where sysfs does not say)."""
+
+    transport: str
+    latency_timer_ms: int | None = None
+    device: str = ""  # kernel name (ttyUSB0, ...), where one was found
+
+    def describe(self) -> str:
+        if self.transport != "usb-serial":
+            return self.transport
+        timer = "unknown" if self.latency_timer_ms is None else f"{self.latency_timer_ms} ms"
+        return f"usb-serial, latency timer {timer}"
+
+    def warning(self) -> str | None:
+        """What to change when the adapter holds reads back longer than a frame."""
+        if self.latency_timer_ms is None or self.latency_timer_ms <= 1:
+            return None
+        name = self.device or "ttyUSB0"
+        return (f"the USB-serial adapter's latency timer is {self.latency_timer_ms} ms, so "
+                f"reads wait up to {self.latency_timer_ms} ms: set it to 1 ms with the udev "
+                f"rule in {TIMER_RULE} (now: echo 1 | sudo tee "
+                f"/sys/bus/usb-serial/devices/{name}/latency_timer)")
+
+
+def kernel_name(url: str) -> str:
+    """The device's kernel name: the first ttyACM*/ttyUSB* on its chain of symlinks, else
+    the name it finally resolves to ("" for a URL such as socket://)."""
+    if "://" in url:
+        return ""
+    path = Path(url)
+    for _ in range(_MAX_HOPS):
+        if _KERNEL_TTY.fullmatch(path.name) or not path.is_symlink():
+            break
+        path = path.parent / path.readlink()
+    return path.name
+
+
+def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
+    """A USB-serial adapter's latency timer as the kernel reports it; None if it does not."""
+    try:
+        text = (sysfs / "bus" / "usb-serial" / "devices" / device / "latency_timer").read_text()
+        return int(text.strip())
+    except (OSError, ValueError):
+        return None
+
+
+def find_link(url: str, transport: str = "auto", sysfs: Path = SYSFS) -> Link:
+    """The link to a unit at ``url``: ``transport`` as given, or with "auto" by device
+    name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart)."""
+    device = kernel_name(url)
+    if transport == "auto":
+        transport = ("usb" if device.startswith("ttyACM") else
+                     "usb-serial" if device.startswith("ttyUSB") else "uart")
+    timer = latency_timer_ms(device, sysfs) if transport == "usb-serial" and device else None
+    return Link(transport, timer, device if _KERNEL_TTY.fullmatch(device) else "")
