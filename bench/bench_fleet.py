@@ -5,15 +5,18 @@ Prints one table:
 
 - samples the units produced against those archived (the units also send before their
   bridge is up and after it stops), and the holes: samples missing inside each unit's
-  recorded span (its first to its last archived sample);
+  recorded span (its first to its last archived sample), with where they went (bytes
+  the emulator could not write because a bridge was not reading; GAP events);
 - latency "receive -> recorder": from a record's ``rx_ns`` (when the bridge's read that
   completed the record returned) to the moment the recorder's receiving thread took the
   sample off Zenoh (the archive's receive time for the message), both on this host's
-  clock; p50, p99 and max over every archived sample of the measured window;
+  clock; p50, p99 and max over every sample archived in the measured window. A bridge
+  with ``--max-latency-ms`` above 1 holds a read's records up to MS - 1 ms before it
+  puts them, which counts here;
 - CPU (user + system time per second of wall time, % of one core) of each bridge, of
   the recorder, of the emulator (it runs in this process; the rest of this process only
-  sleeps), and of the whole machine, whose remainder is the kernel's own work (ptys,
-  loopback TCP, softirqs) and anything else running.
+  sleeps), and of the whole machine: the rest is other processes (other jobs, kernel
+  threads) and time charged to no process (interrupts: loopback TCP, ptys).
 
     python bench/bench_fleet.py --units 16 --rate 1000 --seconds 60 [--max-latency-ms 5]
 """
@@ -42,6 +45,17 @@ from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
 _BRING_UP_S = 20.0  # every bridge's bring-up, with retries on a busy machine
+
+
+def every_process() -> dict[int, float]:
+    """CPU seconds so far of every process on the machine, by pid."""
+    out = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            out[int(stat.parent.name)] = cpu_seconds(int(stat.parent.name))
+        except (OSError, ValueError, IndexError):  # ended meanwhile
+            continue
+    return out
 
 
 def machine_busy() -> tuple[float, int]:
@@ -96,10 +110,10 @@ def main() -> None:
             procs = [*(p.pid for p in bridges), recorder.pid, os.getpid()]
             t0, ns0 = time.monotonic(), time.time_ns()
             cpu0, (busy0, cores) = [cpu_seconds(pid) for pid in procs], machine_busy()
-            lost0 = [slot.lost for slot in sim.slots]
+            lost0, everyone0 = [slot.lost for slot in sim.slots], every_process()
             time.sleep(args.seconds)
             cpu1, (busy1, _) = [cpu_seconds(pid) for pid in procs], machine_busy()
-            lost1 = [slot.lost for slot in sim.slots]
+            lost1, everyone1 = [slot.lost for slot in sim.slots], every_process()
             wall, ns1 = time.monotonic() - t0, time.time_ns()
             for b in bridges:
                 b.send_signal(signal.SIGINT)
@@ -133,6 +147,8 @@ def main() -> None:
     use = [100 * (c1 - c0) / wall for c0, c1 in zip(cpu0, cpu1, strict=True)]
     bridge_use, rec_use, sim_use = use[:-2], use[-2], use[-1]
     machine = 100 * (busy1 - busy0) / wall
+    others = 100 * sum(everyone1[pid] - cpu for pid, cpu in everyone0.items()
+                       if pid in everyone1 and pid not in procs) / wall
     rows = [
         ("samples produced / archived",
          f"{produced:,} / {archived:,} (produced counts bring-up and shutdown)"),
@@ -156,8 +172,9 @@ def main() -> None:
         ("CPU: recorder", f"{rec_use:.1f}"),
         ("CPU: emulator", f"{sim_use:.1f}"),
         ("CPU: whole machine",
-         f"{machine:.0f} of {100 * cores} ({machine - sum(use):.0f} not in these "
-         "processes: kernel, other jobs)"),
+         f"{machine:.0f} of {100 * cores}: {others:.0f} in other processes (other jobs, "
+         f"kernel threads), {machine - sum(use) - others:.0f} charged to no process "
+         "(interrupts)"),
     ]
     budget_note = "" if args.max_latency_ms is None else \
         f", bridges at --max-latency-ms {args.max_latency_ms:g}"
