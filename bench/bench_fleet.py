@@ -35,7 +35,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from procstat import CLK_TCK, cpu_seconds
+from procstat import CLK_TCK, cpu_seconds, thread_cpu_seconds
 
 from bridge.loopback import free_port
 from bridge.protocol.table import Flag
@@ -56,6 +56,18 @@ def every_process() -> dict[int, float]:
         except (OSError, ValueError, IndexError):  # ended meanwhile
             continue
     return out
+
+
+def threads(processes: list[dict[str, float]]) -> str:
+    """The mean % of a core of each kind of thread in ``processes``: Python's ("python",
+    or the program's name), Zenoh's by role ("tx", "rx", "acc", ...)."""
+    kinds: dict[str, float] = {}
+    for process in processes:
+        for name, use in process.items():
+            kind = "python" if name in ("python", "python3", "gx3") else name.rstrip("-0123456789")
+            kinds[kind] = kinds.get(kind, 0.0) + use / len(processes)
+    return ", ".join(f"{kind} {use:.1f}" for kind, use in
+                     sorted(kinds.items(), key=lambda item: -item[1]) if use >= 0.05)
 
 
 def machine_busy() -> tuple[float, int]:
@@ -111,9 +123,11 @@ def main() -> None:
             t0, ns0 = time.monotonic(), time.time_ns()
             cpu0, (busy0, cores) = [cpu_seconds(pid) for pid in procs], machine_busy()
             lost0, everyone0 = [slot.lost for slot in sim.slots], every_process()
+            threads0 = [thread_cpu_seconds(pid) for pid in procs[:-1]]
             time.sleep(args.seconds)
             cpu1, (busy1, _) = [cpu_seconds(pid) for pid in procs], machine_busy()
             lost1, everyone1 = [slot.lost for slot in sim.slots], every_process()
+            threads1 = [thread_cpu_seconds(pid) for pid in procs[:-1]]
             wall, ns1 = time.monotonic() - t0, time.time_ns()
             for b in bridges:
                 b.send_signal(signal.SIGINT)
@@ -147,6 +161,8 @@ def main() -> None:
     use = [100 * (c1 - c0) / wall for c0, c1 in zip(cpu0, cpu1, strict=True)]
     bridge_use, rec_use, sim_use = use[:-2], use[-2], use[-1]
     machine = 100 * (busy1 - busy0) / wall
+    by_thread = [{name: 100 * (cpu - t0.get(name, 0.0)) / wall for name, cpu in t1.items()}
+                 for t0, t1 in zip(threads0, threads1, strict=True)]
     others = 100 * sum(everyone1[pid] - cpu for pid, cpu in everyone0.items()
                        if pid in everyone1 and pid not in procs) / wall
     rows = [
@@ -169,7 +185,8 @@ def main() -> None:
         ("CPU: each bridge (% of a core)",
          f"mean {np.mean(bridge_use):.1f}, min {min(bridge_use):.1f}, "
          f"max {max(bridge_use):.1f}; all {len(bridges)}: {sum(bridge_use):.0f}"),
-        ("CPU: recorder", f"{rec_use:.1f}"),
+        ("CPU: a bridge's threads", threads(by_thread[:-1])),
+        ("CPU: recorder", f"{rec_use:.1f} ({threads(by_thread[-1:])})"),
         ("CPU: emulator", f"{sim_use:.1f}"),
         ("CPU: whole machine",
          f"{machine:.0f} of {100 * cores}: {others:.0f} in other processes (other jobs, "
