@@ -386,6 +386,18 @@ def test_truth_log_keeps_the_newest_records_in_order() -> None:
     assert truth["value_ns"].tolist() == [1993, 2993, 3993]
 
 
+def test_truth_log_reads_the_same_however_its_rows_are_stored() -> None:
+    """Rows go into the columns in batches: any read sees every row so far, in order."""
+    log = TruthLog(300)
+    for i in range(700):
+        log.append((i, i, i * 0.5, i, 0xC2, np.array([i, 0, 0, 1.0])))
+        if i % 97 == 0 or i == 699:
+            truth = log.arrays()
+            assert len(log) == len(truth["time_ns"]) == min(i + 1, 300)
+            assert truth["time_ns"].tolist() == list(range(max(0, i - 299), i + 1))
+            assert (truth["quaternion"][:, 0] == truth["time_ns"]).all()
+
+
 @pytest.mark.parametrize(("name", "params"), [("timer", {"function": 0, "value": 0}),
                                               ("firmware_version", {}),
                                               ("write_gyro_bias", {"gyro_bias": [0.0, 0.0, 0.0]})])

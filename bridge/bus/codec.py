@@ -257,23 +257,25 @@ def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[
 
 def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
     """Which serialized ImuSamples name ``unit`` as every protobuf parser reads them
-    (a repeated ``unit`` field counts as its last value): a batch in the bulk layout of
-    one record type at once, any other message by parsing it; bytes that are not an
-    ImuSample name no unit."""
+    (a repeated ``unit`` field counts as its last value): a message in the bulk layout of
+    its record type by its constant bytes, any other by parsing it; bytes that are not an
+    ImuSample name no unit.
+
+    The constant bytes are compared as one masked integer per message: a recorder that
+    hears samples promptly checks a message or two per key at a time, where NumPy's
+    set-up would cost ten times the check itself."""
     out = [False] * len(payloads)
-    rest: Sequence[int] = range(len(payloads))
     sizes = set(map(len, payloads))
-    if len(sizes) == 1:
-        code = peek_command(unit, payloads[0])
-        if code is not None:
-            at, want = _constants(code, unit)
-            raw = np.frombuffer(b"".join(payloads), np.uint8).reshape(len(payloads), -1)
-            good = (raw[:, at] == want).all(axis=1)
-            if good.all():
-                return [True] * len(payloads)
-            out = good.tolist()
-            rest = np.flatnonzero(~good).tolist()
-    for i in rest:
+    code = peek_command(unit, payloads[0]) if len(sizes) == 1 else None
+    if code is not None:
+        mask, want = _constants(code, unit)
+        from_bytes = int.from_bytes
+        out = [from_bytes(p, "big") & mask == want for p in payloads]
+        if all(out):
+            return out
+    for i, fits in enumerate(out):
+        if fits:
+            continue
         try:
             out[i] = ImuSample.FromString(payloads[i]).unit == unit
         except DecodeError:
@@ -295,11 +297,14 @@ def peek_command(unit: str, payload: bytes) -> int | None:
 
 
 @functools.cache
-def _constants(code: int, unit: str) -> tuple[np.ndarray, np.ndarray]:
-    """Where the tags, lengths, unit and command of ``layout(code, unit)`` are, and
-    their bytes."""
+def _constants(code: int, unit: str) -> tuple[int, int]:
+    """The tags, lengths, unit and command of ``layout(code, unit)`` as a mask over a
+    message read as one big-endian integer, and the bytes they must hold there."""
     lay = layout(code, unit)
-    return np.flatnonzero(lay.const_mask), lay.template.view(np.uint8)[lay.const_mask]
+    const = lay.const_mask
+    template = lay.template.view(np.uint8)
+    return (int.from_bytes(np.where(const, 0xFF, 0).astype(np.uint8).tobytes(), "big"),
+            int.from_bytes(np.where(const, template, 0).astype(np.uint8).tobytes(), "big"))
 
 
 @functools.cache

@@ -44,9 +44,15 @@ _QUERY_TIMEOUT_S = 3.0
 _INFO_TRIES = 10
 _INFO_RETRY_S = 0.5
 _PASS_S = 0.05  # a pass takes ~5,000 messages at 100,000/s: whole batches per key
-#: How often the receiving thread empties Zenoh's channels: they hold far more than
-#: arrives meanwhile, and batches of tens of messages per key are cheap to check.
+#: How often the receiving thread empties Zenoh's channels while messages flow: no
+#: message waits there longer, and a look that finds a message or two per key costs a
+#: few microseconds (Zenoh's channels cannot wake a Python thread without its threads
+#: taking the GIL for every sample, which a busy writer would make them wait for).
+_PROMPT_S = 0.002
+#: ... and once nothing has come for ``_QUIET_S``: an idle recorder barely wakes, and
+#: the first message after the silence waits at most this long.
 _RECEIVE_S = 0.025
+_QUIET_S = 1.0
 _TAKE = 10_000  # messages the receiving thread takes off one channel at a time
 #: Memory the recorder holds for a stalled writer: ~15 s of 100 units at 1 kHz.
 BUFFER_BYTES = 256 << 20
@@ -216,14 +222,20 @@ class Recorder:
 
     def _receive(self) -> None:
         """Take what arrives off Zenoh's channels into memory until close."""
+        heard = -_QUIET_S
         while not self._stop.is_set():
             started = time.monotonic()
-            full = False
+            full = taken = False
             for sub in self._subs:
                 with self._held_lock:
-                    full |= self._hold(sub.take_by_key(_TAKE)) >= _TAKE
+                    n = self._hold(sub.take_by_key(_TAKE))
+                full |= n >= _TAKE
+                taken |= n > 0
+            if taken:
+                heard = started
             if not full:  # else more is waiting: go on at once
-                self._stop.wait(_RECEIVE_S - (time.monotonic() - started))
+                period = _PROMPT_S if started - heard < _QUIET_S else _RECEIVE_S
+                self._stop.wait(period - (time.monotonic() - started))
 
     def _hold(self, groups: dict[str, Arrivals]) -> int:
         """Keep checked messages for the writer (caller holds ``_held_lock``); shed imu

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -204,8 +205,12 @@ class Motion:
         return out
 
     def sample(self, t: npt.ArrayLike, period: float,
-               noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
-        """Everything the unit can report at device times t [s], shape (n,).
+               noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0),
+               only: Collection[str] | None = None) -> dict[str, np.ndarray]:
+        """Everything the unit can report at device times t [s], shape (n,); with ``only``,
+        at least those quantities (DeltaAng and DeltaVel's quadrature and C's previous
+        orientation, most of the cost, are computed only when asked for; every value is
+        the same either way).
 
         period is the output sample period [s]: DeltaAng and DeltaVel integrate over
         [t - period, t] by Gauss-Legendre quadrature, and C spans the last 1 ms
@@ -220,23 +225,29 @@ class Motion:
         cfg = self.config
         gyro_bias, accel_bias = np.asarray(cfg.gyro_bias_rad_s), np.asarray(cfg.accel_bias_g)
 
-        # Gauss-Legendre quadrature over [t - period, t] of the biased rate and specific force.
-        half = 0.5 * period
-        nodes, weights = _gauss_legendre(self._node_count(half))
-        delta_ang, delta_vel = gyro_bias * period, accel_bias * period
-        for node, weight in zip(nodes, weights, strict=True):
-            _, node_rate, node_force = self._kinematics(t + half * (node - 1.0))
-            delta_ang = delta_ang + half * weight * node_rate
-            delta_vel = delta_vel + half * weight * node_force
         m, rate, force = self._kinematics(t)
-        m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])  # for C
         stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
 
         stab_mag = self._ironed(stab_mag)
         noise = self._noise(t, noise_gain)
         accel = force + accel_bias + noise[:, 0:3]
         ang_rate = rate + gyro_bias + noise[:, 3:6]
-        return {
+        out: dict[str, np.ndarray] = {}
+        if only is None or "delta_ang" in only or "delta_vel" in only:
+            # Gauss-Legendre quadrature over [t - period, t] of the biased rate and force
+            half = 0.5 * period
+            nodes, weights = _gauss_legendre(self._node_count(half))
+            delta_ang, delta_vel = gyro_bias * period, accel_bias * period
+            for node, weight in zip(nodes, weights, strict=True):
+                _, node_rate, node_force = self._kinematics(t + half * (node - 1.0))
+                delta_ang = delta_ang + half * weight * node_rate
+                delta_vel = delta_vel + half * weight * node_force
+            out["delta_ang"] = delta_ang + noise[:, 3:6] * period
+            out["delta_vel"] = delta_vel + noise[:, 0:3] * period
+        if only is None or "c" in only:
+            m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])
+            out["c"] = m @ m_prev.swapaxes(1, 2)
+        return out | {
             "m": m,
             "euler": convert.m_to_euler(m),
             "quaternion": convert.m_to_quaternion(m),
@@ -245,9 +256,6 @@ class Motion:
             "mag": stab_mag + noise[:, 6:9],
             "stab_accel": -m[:, :, 2],
             "stab_mag": stab_mag,
-            "delta_ang": delta_ang + noise[:, 3:6] * period,
-            "delta_vel": delta_vel + noise[:, 0:3] * period,
-            "c": m @ m_prev.swapaxes(1, 2),
             "raw_accel": np.clip(RAW_ZERO_CODE + accel * RAW_ACCEL_CODES_PER_G, 0, RAW_MAX_CODE),
             "raw_ang_rate": np.clip(
                 RAW_ZERO_CODE + ang_rate * RAW_GYRO_CODES_PER_RAD_S, 0, RAW_MAX_CODE

@@ -380,7 +380,7 @@ class Simulator:
                 slot.unit.power_cycle(now)
                 line = []
         if slot.usb is None:
-            host = slot.link.host_baud()
+            host = slot.link.host_baud() if line else None  # a syscall: only for bytes
         else:  # bytes arrive in frames; behind an adapter the unit's UART meets the
             # adapter's, which runs at the baud rate the host set
             adapter = None if slot.unit.config.usb else slot.link.host_baud()
