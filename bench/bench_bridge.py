@@ -16,6 +16,7 @@ clock), whether every sample the unit sent was delivered, and the CPU as a ratio
 the Python loop with puts. The bridge's CPU is also given by thread.
 
     python bench/bench_bridge.py --seconds 10
+    PYTHONPATH=OTHER_TREE python bench/bench_bridge.py --budgets default  # another version
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import numpy as np
 import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 
-from bridge.bus.codec import layout, parse
+from bridge.bus.codec import layout
 from bridge.loopback import free_port
 from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
@@ -53,7 +54,8 @@ RATE_HZ = 1000
 START = bytes([0xC4, 0xC1, 0x29, CODE])  # continuous mode, 0xCC
 STOP = bytes([0xFA, 0x75, 0xB4])
 KEY = "gx3/bench/imu"
-#: SIGUSR1 asks a loop for the bytes it has read so far (one line on stdout).
+#: A loop says "ready" once it has the port; SIGUSR1 then asks it for the bytes it has read
+#: so far (one line on stdout each).
 C_LOOP = r"""
 #include <fcntl.h>
 #include <signal.h>
@@ -89,6 +91,8 @@ int main(int argc, char **argv) {
     sigaction(SIGUSR1, &u, NULL);
     const unsigned char start[] = {0xC4, 0xC1, 0x29, 0xCC}, halt[] = {0xFA, 0x75, 0xB4};
     write(fd, start, sizeof start);
+    printf("ready\n");
+    fflush(stdout);
     unsigned long long total = 0;
     unsigned char buf[65536];
     while (!stop) {
@@ -130,6 +134,7 @@ def loop(kind: str, port: str, config: str) -> None:
         link = Port.open(port, 921_600)
         fd = link.raw.fileno()
         link.write(START)
+        print("ready", flush=True)
         while not stop.is_set():
             if asked.is_set():
                 asked.clear()
@@ -172,6 +177,10 @@ class Subscriber:
 
     def __init__(self, session: zenoh.Session, floor: bool) -> None:
         self.floor = floor
+        fields = layout(CODE, "bench").dtype.fields
+        assert fields is not None
+        # read in place, not parsed: this process also runs the emulated unit
+        self.rx_at, self.ticks_at = fields["rx_ns"][1], fields["ticks"][1]
         self.lock = threading.Lock()
         self.latency: list[int] = []
         self.ids: list[int] = []
@@ -184,8 +193,8 @@ class Subscriber:
             rx, ident = int.from_bytes(payload[:8], "little"), int.from_bytes(payload[8:16],
                                                                               "little")
         else:
-            msg = parse(payload)
-            rx, ident = msg.rx_ns, msg.ticks
+            rx = int.from_bytes(payload[self.rx_at : self.rx_at + 8], "little")
+            ident = int.from_bytes(payload[self.ticks_at : self.ticks_at + 8], "little")
         with self.lock:
             self.latency.append(now - rx)
             self.ids.append(ident)
@@ -213,7 +222,8 @@ def measure(name: str, command: list[str], seconds: float, session: zenoh.Sessio
         if sub is not None:  # warm: the unit streams and the subscriber hears it
             while sub.count() < 1000 and time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(0.1)
-        else:
+        else:  # the loop has its port and its signal handlers, then streams a while
+            ready(proc)
             time.sleep(1.5)
         if proc.poll() is not None:
             raise SystemExit(f"{name}: exited with {proc.returncode} before the measurement")
@@ -258,14 +268,24 @@ def measure(name: str, command: list[str], seconds: float, session: zenoh.Sessio
     return row
 
 
+def ready(proc: subprocess.Popen[str]) -> None:
+    """Wait for a loop's first line: it has opened the port."""
+    assert proc.stdout is not None
+    if not select.select([proc.stdout], [], [], 30.0)[0] or proc.stdout.readline() != "ready\n":
+        raise SystemExit(f"a read loop did not start (exit status {proc.poll()}; another "
+                         "program holding the pty?)")
+
+
 def asked(proc: subprocess.Popen[str]) -> int:
     """A loop's bytes read so far."""
     assert proc.stdout is not None
     proc.send_signal(signal.SIGUSR1)
-    ready, _, _ = select.select([proc.stdout], [], [], 5.0)
-    if not ready:
-        raise SystemExit("a read loop did not answer SIGUSR1")
-    return int(proc.stdout.readline())
+    answered, _, _ = select.select([proc.stdout], [], [], 5.0)
+    line = proc.stdout.readline() if answered else ""
+    if not line:
+        raise SystemExit(f"a read loop did not answer SIGUSR1 (exit status {proc.poll()}; "
+                         "another program holding the pty?)")
+    return int(line)
 
 
 def compile_c(folder: Path) -> Path | None:
@@ -300,7 +320,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0,
                         help="measured seconds per row (each row warms up first)")
     parser.add_argument("--budgets", default="1,2,5",
-                        help="gx3 bridge --max-latency-ms values, comma-separated")
+                        help="gx3 bridge --max-latency-ms values, comma-separated; 'default' "
+                             "runs it without the option (also a bridge from before it)")
     parser.add_argument("--loop-child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.loop_child:
@@ -333,10 +354,11 @@ def main() -> None:
             rows.append(measure("Python select + os.read + put", [*me, "put", port, str(cfg)],
                                 args.seconds, session, "put"))
             for budget in args.budgets.split(","):
+                option = [] if budget == "default" else ["--max-latency-ms", budget]
                 command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
-                           "--zenoh-config", str(cfg), "--quiet", "--max-latency-ms", budget]
-                rows.append(measure(f"gx3 bridge --max-latency-ms {budget}", command,
-                                    args.seconds, session, "bridge"))
+                           "--zenoh-config", str(cfg), "--quiet", *option]
+                rows.append(measure(" ".join(["gx3 bridge", *option]), command, args.seconds,
+                                    session, "bridge"))
     print(f"0x{CODE:02X} at {RATE_HZ:,} Hz, 921,600 baud, pty; {args.seconds:g} s a row")
     print(table(rows))
     for r in rows:

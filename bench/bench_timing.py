@@ -8,11 +8,12 @@ native USB, a UART at 115,200 baud, and a USB-serial adapter at 115,200 baud wit
 1 ms and a 16 ms latency timer. Each capture is timed as ``gx3 replay`` times it
 (the framer's records and partial reads through ``StreamTiming``: the live
 ``time_ns``, which replay reproduces bit for bit) and by ``OfflineClock`` over the
-whole capture, told the link by the capture's metadata.
+whole capture, told the link by the capture's metadata, and again told the link
+``infer_transport`` finds in the receive times (a capture without metadata).
 
-Prints, per link, p50 / p99 / max / mean of (time_ns - truth) after a 30 s warm-up in
-microseconds, the spread of the units' mean errors, and whether offline is at least
-as good as live (p99 and max) on every unit.
+Prints, per link, p50 / p99 / max of |time_ns - truth| and its mean after a 30 s
+warm-up in microseconds, the spread of the units' mean errors, and whether offline is
+at least as good as live (p99 and max) on every unit.
 
 Run: .venv/bin/python bench/bench_timing.py [--seconds 600] [--links usb,uart,...]
 """
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from bridge.recorder.replay import frame_reads
 from bridge.sim.capture import USB_BAUD, Capture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
+from bridge.timing.links import infer_transport
 from bridge.timing.offline import OfflineClock
 from bridge.timing.stream import Settings, StreamTiming
 
@@ -98,6 +100,12 @@ def timed(capture: Capture, settings: Settings) -> tuple[np.ndarray, np.ndarray,
     return np.concatenate(live), offline, truth
 
 
+def _row(err_ns: np.ndarray) -> tuple[float, float, float, float]:
+    a = np.abs(err_ns) / 1e3
+    return (float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()),
+            float(err_ns.mean()) / 1e3)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=600.0, help="capture length")
@@ -106,30 +114,32 @@ def main() -> None:
     args = parser.parse_args()
     for key in args.links.split(","):
         link = LINKS[key]
-        settings = Settings(CODE, 10, FILTER_WIDTH, link.baud, link.transport)
-        print(f"\n{link.name}: {args.seconds:.0f} s at 100 Hz; |time_ns - truth| after 30 s, us")
-        print(f"{'unit':30} {'method':8} {'p50':>7} {'p99':>7} {'max':>7} {'mean':>7}")
-        means: dict[str, list[float]] = {"live": [], "offline": []}
-        worse = []
-        t0 = time.process_time()
+        told = Settings(CODE, 10, FILTER_WIDTH, link.baud, link.transport)
+        print(f"\n{link.name}: {args.seconds:.0f} s at 100 Hz; time_ns - truth after 30 s, us "
+              "(p50, p99, max of |error|; mean)")
+        print(f"{'unit':27} {'link':16} {'live p50':>8} {'p99':>6} {'max':>6} {'mean':>6} "
+              f"{'offline p50':>11} {'p99':>6} {'max':>6} {'mean':>6}")
+        means: dict[str, list[float]] = {}
+        worse, t0 = [], time.process_time()
         for k, (name, ppm, wander, period, phase, latency, timer_start) in enumerate(UNITS):
             config = streaming_config(UnitConfig(
                 clock_ppm=ppm, clock_wander_ppm=wander, clock_wander_period_s=period,
                 clock_seed=k, timer_start=timer_start), code=CODE, filter_width=FILTER_WIDTH,
                 baud=link.baud)
             capture = synthesize(config, link.delivery(phase, latency, k), args.seconds)
-            live, offline, truth = timed(capture, settings)
-            late = truth >= truth[0] + WARM_NS
-            stats = {}
-            for method, est in (("live", live), ("offline", offline)):
-                err = (est - truth)[late] / 1e3
-                a = np.abs(err)
-                stats[method] = (np.percentile(a, 99), a.max())
-                means[method].append(float(err.mean()))
-                print(f"{name:30} {method:8} {np.percentile(a, 50):7.1f} "
-                      f"{np.percentile(a, 99):7.1f} {a.max():7.1f} {err.mean():7.1f}")
-            if any(o > v for o, v in zip(stats["offline"], stats["live"], strict=True)):
-                worse.append(name)
+            inferred = infer_transport(capture.rx_ns, capture.data, CODE)
+            for source, settings in (("metadata", told),
+                                     ("inferred", replace(told, transport=inferred.transport))):
+                live, offline, truth = timed(capture, settings)
+                late = truth >= truth[0] + WARM_NS
+                lv, of = _row((live - truth)[late]), _row((offline - truth)[late])
+                said = settings.transport if source == "inferred" else "metadata"
+                print(f"{name:27} {said:16} {lv[0]:8.1f} {lv[1]:6.1f} {lv[2]:6.1f} {lv[3]:6.1f} "
+                      f"{of[0]:11.1f} {of[1]:6.1f} {of[2]:6.1f} {of[3]:6.1f}")
+                means.setdefault(f"live, {source}", []).append(lv[3])
+                means.setdefault(f"offline, {source}", []).append(of[3])
+                if of[1] > lv[1] or of[2] > lv[2]:
+                    worse.append(f"{name} ({source})")
         print("spread of the units' mean errors (max - min), us: "
               + ", ".join(f"{m} {max(v) - min(v):.1f}" for m, v in means.items()))
         print("offline worse than live (p99 or max) on: " + (", ".join(worse) or "no unit")

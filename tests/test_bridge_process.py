@@ -119,10 +119,9 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
     ticks = np.concatenate([b["ticks"] for b in batches])
     timer = np.concatenate([b["timer"] for b in batches])
     per_read = len(ticks) / len(np.unique(np.concatenate([b["rx_ns"] for b in batches])))
-    if budget_ms is None:
-        assert per_read < 1.5, f"{per_read:.1f} records a read: reads were held back"
-    else:  # a read every 4 ms or so: 4 records a read, a loaded host may read more often
-        assert per_read >= 2, f"{per_read:.1f} records a read: reads did not gather"
+    if budget_ms is not None:  # a read every 4 ms: 4 records a read (by default about 1,
+        # more only when a loaded host reads late)
+        assert per_read >= 3, f"{per_read:.1f} records a read: reads did not gather"
     accel = np.concatenate([b["accel"] for b in batches])
     assert ticks[-1] - ticks[0] >= seconds * 62_500, f"not {seconds:g} s of samples"
     steps = np.diff(ticks)

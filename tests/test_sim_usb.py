@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bridge.device.link import ADAPTER_PACKET_BYTES
 from bridge.protocol.table import REPLIES
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.clock import UnitClock
 from bridge.sim.unit import SimUnit, UnitConfig
 from bridge.sim.usb import (
-    ADAPTER_PACKET_BYTES,
     AdapterDelivery,
     AdapterLink,
     HostDelivery,

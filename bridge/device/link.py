@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SYSFS = Path("/sys")
+#: Payload of one full-speed bulk packet from an FTDI-like adapter: 64 less 2 status bytes.
+ADAPTER_PACKET_BYTES = 62
 TIMER_RULE = "configs/udev/99-gx3.rules"
 _KERNEL_TTY = re.compile(r"tty(ACM|USB)\d+")
 _MAX_HOPS = 40  # the kernel's own limit on nested symlinks

@@ -248,6 +248,9 @@ class Framer:
             base = self._base + len(self._buf)
             self._reads.add([base + end for end in ends], rx_ns)
             self._buf += data
+        buf = self._buf
+        if buf and self._lengths.get(buf[0], 0) > len(buf):
+            return []  # a record begun and not yet whole: the scan would stop right there
         return self._scan(False, out)
 
     def flush(self) -> list[Batch]:

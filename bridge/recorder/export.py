@@ -132,13 +132,14 @@ def archive_prefix(archive: Archive) -> str:
 def offline_times(archive: Archive) -> ReEstimate:
     """Each unit's sample instants re-estimated over the whole recording (the live
     estimate only had the past), with the settings of the unit's archived Info; units
-    without one keep their live times."""
+    without one keep their live times, and so do units behind a USB-serial adapter: the
+    archive keeps each record's completing read only, not the reads that ended inside
+    it, which timed it live to a byte."""
     def estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray | None:
         settings = unit_settings(archive, unit)
-        if settings is None or len(ticks) < 2:
+        if settings is None or settings.serial or len(ticks) < 2:
             return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns,
-                             serial=settings.serial)
+        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
         order = np.argsort(ticks, kind="stable")
         out = np.empty(len(ticks), np.int64)
         out[order] = clock.smooth(ticks[order], rx_ns[order])

@@ -30,10 +30,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from bridge.device.link import ADAPTER_PACKET_BYTES
 from bridge.sim.unit import STEP_SLACK
 
-#: Payload of one full-speed bulk packet from an FTDI-like adapter: 64 less 2 status bytes.
-ADAPTER_PACKET_BYTES = 62
 #: What Linux's FTDI driver sets; 1 ms is the fix for timing (configs/udev).
 DEFAULT_LATENCY_TIMER_MS = 16
 

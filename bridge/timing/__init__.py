@@ -13,8 +13,12 @@
 
 What the caller passes: ``period_ticks`` = decimation x 62.5 (None if unknown);
 ``filter_delay_ns`` = (M - 1) x 500,000 for filter width M (0xDB); ``floor_ns`` =
-the record's line time on a UART (length x 10 / baud s, in ns), length x 1 us on USB;
-``frame_ns`` = 1,000,000 on USB (full-speed frames), 0 on a UART. A bridge that
+the record's line time on a serial line (length x 10 / baud s, in ns: a UART or a
+USB-serial adapter), length x 1 us on the unit's own USB port; ``frame_ns`` =
+1,000,000 where USB frames carry the bytes (own port or adapter), 0 on a UART;
+``serial`` = True behind an adapter. Per record, optionally, the latest earlier read
+that ended inside it and the line time of the bytes it held (``Batch.partial``,
+``Settings.part_lead_ns``): the tighter bound on a serial line. A bridge that
 resets the unit, sets its timer or changes its sampling calls
 ``expect_discontinuity`` first; a Timeline resets its clock itself on a reset.
 

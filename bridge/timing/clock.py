@@ -24,6 +24,17 @@ line is used. When no straight line fits any of them, the slope comes from the
 two latest corners of the frame staircase and half the frame the points have
 not covered is taken off.
 
+A read that ends inside a record bounds it too: over a serial line, the record
+began no later than that read's time (snapped to its frame, where frames carry the
+bytes) less the line time of the bytes it held, which pins the record to about a
+byte time. Behind a USB-serial adapter whose reads often end mid-record the points
+are then the line's to a byte, and the lower envelope of a minute of them (as on a
+UART) replaces the polygon; where its packets end with records (a 16 ms latency
+timer with records that divide its 62-byte packet) only the frames carry the time,
+and the polygon stays. On the unit's own USB port (no ``serial``) they are left out:
+only a record that straddles a frame boundary has one, and a bound that tight from
+above, with none to match it from below, would pull the polygon's middle early.
+
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,
 not on how they are split into ``update`` calls.
@@ -233,7 +244,7 @@ class OnlineClock:
         floor, delay = self.floor_ns, self.filter_delay_ns
         if parts is not None and not self.frame_ns:  # no frames: the least bound at once
             ys = [min(r, p - lead + floor) for r, p, lead in zip(ys, *parts, strict=True)]
-            parts = None
+        keep_parts = self.serial and self.frame_ns
         out: list[int] = []
         i = 0
         while i < len(xs):
@@ -248,7 +259,7 @@ class OnlineClock:
                     out += [line.at_one(t) - delay for t in xs[i:j]]
             self._new_x += xs[i : j + 1]
             self._new_y += [r - floor for r in ys[i : j + 1]]
-            if self.frame_ns:
+            if keep_parts:
                 if parts is None:
                     self._new_q += self._new_y[len(self._new_q):]
                     self._new_g += [0] * (len(self._new_y) - len(self._new_g))
@@ -286,7 +297,7 @@ class OnlineClock:
         self._new_x, self._new_y = [], []
         keep = int(np.searchsorted(self._x, now - self._window))
         self._x, self._y = self._x[keep:], self._y[keep:]
-        if self.frame_ns:
+        if self.serial and self.frame_ns:
             self._q = np.concatenate([self._q, np.array(self._new_q, np.int64)])[keep:]
             self._g = np.concatenate([self._g, np.array(self._new_g, np.int64)])[keep:]
             self._new_q, self._new_g = [], []

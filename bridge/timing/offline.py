@@ -11,6 +11,14 @@ bends every window so that no straight line fits its staircase, an anchor gets
 the lower envelope's line through the shortest window, less half of the frame
 its points leave uncovered: nothing where the phase has swept the frame (the
 envelope then runs along the staircase's corners), half a frame where it has not.
+
+Over a serial line (a UART, or an adapter whose reads end inside records: see
+``OnlineClock``) the points are the line's to a byte, and each anchor gets the lower
+envelope of a window centred on it (moved inside the recording at its ends): 20 s on
+a UART, behind an adapter's frames long enough for the unit's phase to sweep an
+eighth of a frame. Over the frame staircase the live clock is run on the same
+records, and where the offline lines are no narrower than the live ones were (no
+crossing pinned either) the live instant stands: never worse than live.
 """
 
 from __future__ import annotations
@@ -106,8 +114,8 @@ class OfflineClock:
         solved = [self._solve(x, y, bx, by, int(a), rate, staircase, half)
                   for a in anchors.tolist()]
         values = np.array([v for v, _ in solved])
-        out = y0 + np.round(np.interp(dx, (anchors - x0).astype(np.float64), values - y0))
-        out = np.asarray(out, np.int64) - self.filter_delay_ns
+        step = np.round(np.interp(dx, (anchors - x0).astype(np.float64), values))
+        out: npt.NDArray[np.int64] = y0 + step.astype(np.int64) - self.filter_delay_ns
         if not staircase:
             return out
         # Where the staircase leaves the offline pass no surer than live (no frame crossing
@@ -128,8 +136,9 @@ class OfflineClock:
 
     def _solve(self, x: np.ndarray, y: np.ndarray, bx: np.ndarray, by: np.ndarray, at: int,
                rate: float, staircase: bool, half: int) -> tuple[float, float]:
-        """The line's value at ticks ``at`` from the window around it that pins it best,
-        and the extent of the lines the staircase allows there (inf: the envelope's);
+        """The line's value at ticks ``at`` less ``y[0]`` (in float64 the absolute value
+        would be rounded to 256 ns) from the window around it that pins it best, and
+        the extent of the lines the staircase allows there (inf: the envelope's);
         ``half``: half the envelope's window, where no staircase does."""
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
         if len(bx):
@@ -137,13 +146,14 @@ class OfflineClock:
                      for h in halves]
             centre = best_centre(bx, by, at, self.frame_ns, rate, spans)
             if centre is not None:
-                return float(centre[1]), centre[3]
+                return float(centre[1] - int(y[0])), centre[3]
         # the shortest window, moved inside the recording near its ends: a window cut
         # short there would let the envelope pivot on the last few points
         middle = max(int(x[0]) + half, min(at, int(x[-1]) - half))
         lo, hi = np.searchsorted(x, [middle - half, middle + half])
         lo, hi = max(0, lo - 1), max(hi + 1, lo + 2)
-        return self._envelope(x[lo:hi], y[lo:hi], at, middle, rate, staircase), math.inf
+        return self._envelope(x[lo:hi], y[lo:hi], int(y[0]), at, middle, rate,
+                              staircase), math.inf
 
     def _line_window(self, rate: float) -> float:
         """Seconds of envelope: the shortest on a UART; behind frames, long enough for the
@@ -154,15 +164,15 @@ class OfflineClock:
         sweep_s = _SWEEP * self.frame_ns / 1e3 / max(ppm, 1e-9)  # phase moves ppm us/s
         return min(_LINE_S[1], max(_LINE_S[0], sweep_s))
 
-    def _envelope(self, x: np.ndarray, y: np.ndarray, at: int, middle: int, rate: float,
-                  staircase: bool) -> float:
-        """The lower envelope's value at ``at``, its slope judged at ``middle``, less half
-        of the frame uncovered."""
+    def _envelope(self, x: np.ndarray, y: np.ndarray, base: int, at: int, middle: int,
+                  rate: float, staircase: bool) -> float:
+        """The lower envelope's value at ``at`` less ``base``, its slope judged at
+        ``middle``, less half of the frame uncovered."""
         dx, dy = (x - middle).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
         residual = dy - slope * dx
         level = float(np.min(residual)) + slope * (at - middle)
         if not staircase:
-            return int(y[0]) + level
-        return int(y[0]) + level - uncovered_half(residual - float(np.min(residual)),
+            return (int(y[0]) - base) + level
+        return (int(y[0]) - base) + level - uncovered_half(residual - float(np.min(residual)),
                                                   self.frame_ns)

@@ -66,6 +66,12 @@ class Settings:
         return self.transport == "usb-serial"
 
     @property
+    def by_bytes(self) -> bool:
+        """Whether reads that end inside records time them (a serial line's bytes); on
+        the unit's own USB port the frames alone do."""
+        return self.transport != "usb"
+
+    @property
     def byte_ns(self) -> float:
         """One byte's time on the link: 10 bits at the baud rate on a serial line (a UART
         or the line into a USB-serial adapter), full speed's payload rate on USB."""
@@ -120,7 +126,7 @@ class StreamTiming:
         """Ticks and host times of a batch's records; corrupt timers are dropped. A
         record's partial read, where the framer saw one, bounds its instant too."""
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if batch.part_ns is None or batch.part_bytes is None:
+        if batch.part_ns is None or batch.part_bytes is None or not self.settings.by_bytes:
             timed = self.timeline.update(batch["timer"], batch.rx_ns)
         else:
             timed = self.timeline.update(batch["timer"], batch.rx_ns, batch.part_ns,
@@ -140,7 +146,7 @@ class StreamTiming:
         changed, ``process`` them. ``part_ns``, ``part_bytes``: the batch's partial
         reads, if it has them."""
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if part_ns is None or part_bytes is None:
+        if part_ns is None or part_bytes is None or not self.settings.by_bytes:
             return self.timeline.update_few(timers, rx_ns)
         s = self.settings
         length, floor = REPLIES[s.record].length, s.floor_ns

@@ -1,0 +1,189 @@
+"""Which link a capture came over, from its receive times alone.
+
+A capture from another program says nothing of its link, yet the clock model needs
+it: a frame clock to take out on USB, a line time to take out on a serial line.
+The reads themselves tell:
+
+- A frame clock: on USB (the unit's own port, or an adapter's) bytes reach the host
+  only at the host's 1 ms frame boundaries, so the reads that complete records
+  crowd just after one phase of the host's millisecond: sharper there than at any
+  phase of the unit's own clock. On a UART they crowd just after the record's end
+  on the unit's clock instead (its line time past the record's instant). The two
+  clocks beat by the unit's clock error, which over minutes smears whichever one
+  the reads do not follow; a unit whose clock stays locked to the host's leaves
+  the two alike, and the capture is timed as a serial line, which assumes least.
+- Behind a frame clock, an adapter rather than the unit's own port: its reads end
+  mid-record (the serial line is slower than USB, and packets end anywhere), or
+  come in whole 62-byte packets (a 16 ms latency timer lets only full packets out
+  while data flows, and otherwise a read about 16 ms after the last).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bridge.device.link import ADAPTER_PACKET_BYTES
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+
+FRAME_NS = 1_000_000
+_BIN_NS = 10_000
+_WINDOW_BINS = 10  # reads counted within 0.1 ms either side of a phase
+_OUTLIER_S = 0.002  # a stalled read is left out of the clock fit
+_SIGMAS = 4.0
+_PACKETS = 0.5  # fraction of reads made of whole packets that only a 16 ms timer gives
+_TIMER_GAPS = 0.3  # fraction of reads a 16 ms timer's length after the one before
+_LINE_READS = 20  # neighbouring mid-record reads needed to judge a serial line
+_LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
+_LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
+_MID_RECORD = 0.25  # reads ending mid-record: more than the unit's own USB port gives
+_PACE_NS = 5_000  # per byte: slower than any USB payload rate, faster than any UART
+_STALL_NS = 20_000_000  # a completion this late waited out a stall
+BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
+
+
+@dataclass(frozen=True)
+class Inferred:
+    """The link a capture's reads show, with what showed it (one line)."""
+
+    transport: str
+    latency_timer_ms: int | None
+    evidence: str
+
+    def describe(self) -> str:
+        timer = f", {self.latency_timer_ms} ms latency timer" if self.latency_timer_ms else ""
+        return f"transport {self.transport}{timer} ({self.evidence})"
+
+
+def crowding(phase_ns: np.ndarray) -> float:
+    """How sharply times crowd just after one phase of a 1 ms cycle: the most reads in
+    0.1 ms after any phase less those in the 0.1 ms before it, as a fraction of all
+    (0 for times spread evenly; about 0.11 for a frame read after an exponential OS
+    latency of 0.8 ms mean, 0.28 at 0.3 ms)."""
+    if not len(phase_ns):
+        return 0.0
+    bins = FRAME_NS // _BIN_NS
+    hist = np.bincount((np.mod(phase_ns, FRAME_NS) // _BIN_NS).astype(np.int64),
+                       minlength=bins)
+    after = np.convolve(np.concatenate([hist, hist]), np.ones(_WINDOW_BINS, np.int64),
+                        "valid")[:bins]
+    before = np.roll(after, _WINDOW_BINS)
+    return float((after - before).max() / len(phase_ns))
+
+
+def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
+                    little_endian: bool = False) -> Inferred:
+    """The link of a capture of ``record`` records: its reads' receive times and bytes."""
+    rx_ns = np.asarray(rx_ns, np.int64)
+    sizes = np.array([len(d) for d in data], np.int64)
+    ends = np.cumsum(sizes)
+    framer = Framer([record], little_endian=little_endian)
+    batches = [b for b in framer.feed_reads(b"".join(data), ends, rx_ns) + framer.flush()
+               if b.code == record]
+    if not batches:
+        return Inferred("uart", None, "no records to judge by")
+    length = REPLIES[record].length
+    starts = np.concatenate([b.offsets for b in batches])
+    completions = np.concatenate([b.rx_ns for b in batches])
+    ticks = np.concatenate([[0], np.cumsum(np.mod(np.diff(
+        np.concatenate([b["timer"] for b in batches]).astype(np.int64)), np.int64(1 << 32)))])
+    # reads whose last byte falls inside a record: which record, and how much of it
+    inside = np.searchsorted(starts, ends, "left") - 1
+    got = ends - starts[np.maximum(inside, 0)]
+    mid = (inside >= 0) & (got < length) & (sizes > 0)
+    ends_mid = float(mid.mean())
+    said = f"{ends_mid:.0%} end mid-record"
+    packets = float(np.mean((sizes % ADAPTER_PACKET_BYTES == 0) & (sizes > 0)))
+    period_s = float(np.median(np.diff(ticks))) / TICKS_PER_SECOND if len(ticks) > 1 else 1.0
+    line = _line_fit(ticks, completions, rx_ns[mid], got[mid], inside[mid],
+                     [b for b in BAUD_GUESSES if b / 10 * period_s >= length])
+    host = crowding(completions)
+    unit = crowding(_unit_phase(ticks, completions))
+    noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / FRAME_NS / len(completions))
+    if line is not None and line[0] < _LINE_FIT:
+        return Inferred("uart", None, f"{said}, each holding every byte the line had "
+                                      f"carried by then at {line[1]} baud")
+    if line is None and unit - host > noise:
+        return Inferred("uart", None, f"reads follow the unit's clock, not the host's 1 ms "
+                                      f"frames; {said}")
+    why = ("reads crowd just after 1 ms frames" if host - unit > noise else
+           "reads end mid-record short of what a serial line had carried" if line else
+           "reads that a serial line would split arrive whole")
+    gaps = np.diff(rx_ns) / 1e6
+    timer_gaps = float(np.mean((gaps > 14.0) & (gaps < 18.5))) if len(gaps) else 0.0
+    if packets > _PACKETS or (timer_gaps > _TIMER_GAPS and not 14.0 < period_s * 1e3 < 18.5):
+        return Inferred("usb-serial", 16, f"{why}; {said}; " + (
+            f"{packets:.0%} are whole 62-byte packets" if packets > _PACKETS else
+            f"{timer_gaps:.0%} come 16 ms after the one before"))
+    pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
+    if pace is not None and pace > _PACE_NS:
+        return Inferred("usb-serial", 1, f"{why}; {said}, the rest of each record "
+                                         f"{pace / 1e3:.0f} us a byte later")
+    if ends_mid > _MID_RECORD:
+        return Inferred("usb-serial", 1, f"{why}; {said}")
+    return Inferred("usb", None, f"{why}; {said}")
+
+
+def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
+               mid_record: np.ndarray) -> float | None:
+    """How much later a record split by a read is completed per byte still to come (ns):
+    a serial line's byte time behind an adapter, next to nothing on the unit's own USB
+    port (the rest of the record is there at the next frame). None: too few to tell."""
+    inside = mid_record < len(completions)
+    wait = completions[mid_record[inside]] - mid_at[inside]
+    left = left[inside]
+    keep = wait < _STALL_NS
+    if keep.sum() < _LINE_READS or np.ptp(left[keep]) == 0:
+        return None
+    x, y = left[keep].astype(float), wait[keep].astype(float)
+    slope, offset = np.polyfit(x, y, 1)
+    error = np.std(y - (offset + slope * x)) / (np.std(x) * np.sqrt(len(x)))
+    return float(slope) if slope > _SIGMAS * error else None
+
+
+def _line_fit(ticks: np.ndarray, completions: np.ndarray, mid_at: np.ndarray,
+              mid_bytes: np.ndarray, mid_record: np.ndarray,
+              bauds: Sequence[int]) -> tuple[float, int] | None:
+    """How well reads that end mid-record fit a plain serial line, at the baud rate that
+    fits best among ``bauds`` (those that carry the stream): (score, baud), or None
+    with too few such reads to tell.
+
+    On a UART a read takes every byte that has crossed the line, so its time less the
+    record's bytes so far times the byte time falls within one byte time of the
+    record's start, which follows the unit's clock. Behind USB frames the reads come
+    an OS latency after the frame that carried the bytes, which no baud rate takes
+    out. The score is the median disagreement between neighbouring such reads, in
+    byte times (about 1/3 on a UART, several behind frames).
+    """
+    if len(mid_at) < _LINE_READS or len(ticks) < 2 or not bauds:
+        return None
+    rate = float(np.polyfit(ticks / TICKS_PER_SECOND, (completions - completions[0]) / 1e9,
+                            1)[0])
+    record_ns = ticks[mid_record] / TICKS_PER_SECOND * 1e9 * rate
+    near = np.abs(np.diff(record_ns)) < _LINE_SPAN_NS
+    if near.sum() < _LINE_READS:
+        return None
+    spread = {}
+    for baud in bauds:
+        start = mid_at - mid_bytes * (1e10 / baud) - record_ns
+        spread[baud] = float(np.median(np.abs(np.diff(start)[near])))
+    baud = min(spread, key=spread.__getitem__)  # a wrong byte time spreads with the count
+    return spread[baud] / (1e10 / baud), baud
+
+
+def _unit_phase(ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray:
+    """Receive times against the unit's clock (a line through ticks and receive times,
+    stalls left out), in ns: what the reads follow on a serial line."""
+    x = ticks / TICKS_PER_SECOND
+    residual = (rx_ns - rx_ns[0]) / 1e9
+    keep = np.ones(len(x), bool)
+    for _ in range(3):
+        if keep.sum() < 2:
+            break
+        slope, offset = np.polyfit(x[keep], residual[keep], 1)
+        residual = residual - (offset + slope * x)
+        keep = np.abs(residual - np.median(residual[keep])) < _OUTLIER_S
+    return np.asarray(np.round(residual * 1e9), np.int64)
