@@ -122,7 +122,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
                                       f"frames; {said}")
     why = ("reads crowd just after 1 ms frames" if host - unit > noise else
            "reads end mid-record short of what a serial line had carried" if line else
-           "reads that a serial line would split arrive whole")
+           "reads keep step with the host's frames and the unit's clock alike")
     gaps = np.diff(rx_ns) / 1e6
     timer_gaps = float(np.mean((gaps > 14.0) & (gaps < 18.5))) if len(gaps) else 0.0
     if packets > _PACKETS or (timer_gaps > _TIMER_GAPS and not 14.0 < period_s * 1e3 < 18.5):
