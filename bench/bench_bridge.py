@@ -54,7 +54,8 @@ RATE_HZ = 1000
 START = bytes([0xC4, 0xC1, 0x29, CODE])  # continuous mode, 0xCC
 STOP = bytes([0xFA, 0x75, 0xB4])
 KEY = "gx3/bench/imu"
-#: SIGUSR1 asks a loop for the bytes it has read so far (one line on stdout).
+#: A loop says "ready" once it has the port; SIGUSR1 then asks it for the bytes it has read
+#: so far (one line on stdout each).
 C_LOOP = r"""
 #include <fcntl.h>
 #include <signal.h>
@@ -90,6 +91,8 @@ int main(int argc, char **argv) {
     sigaction(SIGUSR1, &u, NULL);
     const unsigned char start[] = {0xC4, 0xC1, 0x29, 0xCC}, halt[] = {0xFA, 0x75, 0xB4};
     write(fd, start, sizeof start);
+    printf("ready\n");
+    fflush(stdout);
     unsigned long long total = 0;
     unsigned char buf[65536];
     while (!stop) {
@@ -131,6 +134,7 @@ def loop(kind: str, port: str, config: str) -> None:
         link = Port.open(port, 921_600)
         fd = link.raw.fileno()
         link.write(START)
+        print("ready", flush=True)
         while not stop.is_set():
             if asked.is_set():
                 asked.clear()
@@ -218,7 +222,8 @@ def measure(name: str, command: list[str], seconds: float, session: zenoh.Sessio
         if sub is not None:  # warm: the unit streams and the subscriber hears it
             while sub.count() < 1000 and time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(0.1)
-        else:
+        else:  # the loop has its port and its signal handlers, then streams a while
+            ready(proc)
             time.sleep(1.5)
         if proc.poll() is not None:
             raise SystemExit(f"{name}: exited with {proc.returncode} before the measurement")
@@ -263,12 +268,20 @@ def measure(name: str, command: list[str], seconds: float, session: zenoh.Sessio
     return row
 
 
+def ready(proc: subprocess.Popen[str]) -> None:
+    """Wait for a loop's first line: it has opened the port."""
+    assert proc.stdout is not None
+    if not select.select([proc.stdout], [], [], 30.0)[0] or proc.stdout.readline() != "ready\n":
+        raise SystemExit(f"a read loop did not start (exit status {proc.poll()}; another "
+                         "program holding the pty?)")
+
+
 def asked(proc: subprocess.Popen[str]) -> int:
     """A loop's bytes read so far."""
     assert proc.stdout is not None
     proc.send_signal(signal.SIGUSR1)
-    ready, _, _ = select.select([proc.stdout], [], [], 5.0)
-    line = proc.stdout.readline() if ready else ""
+    answered, _, _ = select.select([proc.stdout], [], [], 5.0)
+    line = proc.stdout.readline() if answered else ""
     if not line:
         raise SystemExit(f"a read loop did not answer SIGUSR1 (exit status {proc.poll()}; "
                          "another program holding the pty?)")

@@ -16,7 +16,8 @@ Prints one table:
 - CPU (user + system time per second of wall time, % of one core) of each bridge, of
   the recorder, of the emulator (it runs in this process; the rest of this process only
   sleeps), and of the whole machine: the rest is other processes (other jobs, kernel
-  threads) and time charged to no process (interrupts: loopback TCP, ptys).
+  threads) and time in no process that lived through the window (interrupts: loopback
+  TCP, ptys; processes that started or ended meanwhile).
 
     python bench/bench_fleet.py --units 16 --rate 1000 --seconds 60 [--max-latency-ms 5]
 """
@@ -190,8 +191,8 @@ def main() -> None:
         ("CPU: emulator", f"{sim_use:.1f}"),
         ("CPU: whole machine",
          f"{machine:.0f} of {100 * cores}: {others:.0f} in other processes (other jobs, "
-         f"kernel threads), {machine - sum(use) - others:.0f} charged to no process "
-         "(interrupts)"),
+         f"kernel threads), {machine - sum(use) - others:.0f} in no process that lived "
+         "through the window (interrupts, short-lived processes)"),
     ]
     budget_note = "" if args.max_latency_ms is None else \
         f", bridges at --max-latency-ms {args.max_latency_ms:g}"

@@ -2,20 +2,28 @@
 
 A capture from another program says nothing of its link, yet the clock model needs
 it: a frame clock to take out on USB, a line time to take out on a serial line.
-The reads themselves tell:
+The reads themselves tell, in this order:
 
-- A frame clock: on USB (the unit's own port, or an adapter's) bytes reach the host
-  only at the host's 1 ms frame boundaries, so the reads that complete records
-  crowd just after one phase of the host's millisecond: sharper there than at any
-  phase of the unit's own clock. On a UART they crowd just after the record's end
-  on the unit's clock instead (its line time past the record's instant). The two
-  clocks beat by the unit's clock error, which over minutes smears whichever one
-  the reads do not follow; a unit whose clock stays locked to the host's leaves
-  the two alike, and the capture is timed as a serial line, which assumes least.
-- Behind a frame clock, an adapter rather than the unit's own port: its reads end
-  mid-record (the serial line is slower than USB, and packets end anywhere), or
-  come in whole 62-byte packets (a 16 ms latency timer lets only full packets out
-  while data flows, and otherwise a read about 16 ms after the last).
+- A UART: a read takes every byte that has crossed the line, so a read that ends
+  mid-record, less that record's bytes so far at one byte time each, falls within a
+  byte time of the record's start on the unit's clock; at one baud rate (which
+  this gives too) and no other. Behind USB frames reads come an OS latency after
+  the frame that carried the bytes, which no baud rate takes out.
+- A frame clock: on USB the reads that complete records crowd just after one phase
+  of the host's millisecond, sharper there than at any phase of the unit's clock.
+  Where too few reads end mid-record to judge the line, this decides, and a unit
+  that stays in step with the host's frames (the two alike) is taken to be on its
+  own USB port, since a serial line would have split its records.
+- Behind a frame clock, an adapter rather than the unit's own port: whole 62-byte
+  packets, or reads about 16 ms apart (a 16 ms latency timer); records completed a
+  byte time later per byte still to come; or reads ending mid-record more often
+  than a unit's own port splits records, judged only where the unit's clock beats
+  through the frames over the capture (in step, its own port may split every
+  record at the same place).
+
+Known blind spot: a 1 ms-timer adapter at 921,600 baud carrying 1 kHz, its unit
+within a few ppm of the host over the capture, reads as the unit's own USB port
+(its records cross the line within a frame, as USB's do).
 """
 
 from __future__ import annotations
@@ -36,10 +44,12 @@ _OUTLIER_S = 0.002  # a stalled read is left out of the clock fit
 _SIGMAS = 4.0
 _PACKETS = 0.5  # fraction of reads made of whole packets that only a 16 ms timer gives
 _TIMER_GAPS = 0.3  # fraction of reads a 16 ms timer's length after the one before
-_LINE_READS = 20  # neighbouring mid-record reads needed to judge a serial line
+_LINE_READS = 50  # neighbouring mid-record reads needed to judge a serial line
 _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
 _MID_RECORD = 0.25  # reads ending mid-record: more than the unit's own USB port gives
+_BEAT_NS = 3_000_000  # the unit's clock beat this far through the frames: splits are fair
+_MANY_PARTS = 0.05  # split records in three reads or more: more than the next frame's worth
 _PACE_NS = 5_000  # per byte: slower than any USB payload rate, faster than any UART
 _STALL_NS = 20_000_000  # a completion this late waited out a stall
 BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
@@ -102,7 +112,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     line = _line_fit(ticks, completions, rx_ns[mid], got[mid], inside[mid],
                      [b for b in BAUD_GUESSES if b / 10 * period_s >= length])
     host = crowding(completions)
-    unit = crowding(_unit_phase(ticks, completions))
+    unit = crowding(_unit_fit(ticks, completions)[1])
     noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / FRAME_NS / len(completions))
     if line is not None and line[0] < _LINE_FIT:
         return Inferred("uart", None, f"{said}, each holding every byte the line had "
@@ -112,7 +122,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
                                       f"frames; {said}")
     why = ("reads crowd just after 1 ms frames" if host - unit > noise else
            "reads end mid-record short of what a serial line had carried" if line else
-           "reads that a serial line would split arrive whole")
+           "reads keep step with the host's frames and the unit's clock alike")
     gaps = np.diff(rx_ns) / 1e6
     timer_gaps = float(np.mean((gaps > 14.0) & (gaps < 18.5))) if len(gaps) else 0.0
     if packets > _PACKETS or (timer_gaps > _TIMER_GAPS and not 14.0 < period_s * 1e3 < 18.5):
@@ -123,7 +133,13 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     if pace is not None and pace > _PACE_NS:
         return Inferred("usb-serial", 1, f"{why}; {said}, the rest of each record "
                                          f"{pace / 1e3:.0f} us a byte later")
-    if ends_mid > _MID_RECORD:
+    # How often a read ends mid-record tells the line's pace only where the unit's clock
+    # beats through the frames; one that stays in step with them may split every record
+    # at one place, which on its own USB port leaves the rest for the next frame alone.
+    drift_ns = abs(_unit_fit(ticks, completions)[0] - 1.0) * (completions[-1] - completions[0])
+    parts = np.bincount(inside[mid], minlength=len(starts)) if mid.any() else np.zeros(1)
+    many = float(np.mean(parts[parts > 0] > 1)) if (parts > 0).any() else 0.0
+    if ends_mid > _MID_RECORD and (drift_ns > _BEAT_NS or many > _MANY_PARTS):
         return Inferred("usb-serial", 1, f"{why}; {said}")
     return Inferred("usb", None, f"{why}; {said}")
 
@@ -161,9 +177,7 @@ def _line_fit(ticks: np.ndarray, completions: np.ndarray, mid_at: np.ndarray,
     """
     if len(mid_at) < _LINE_READS or len(ticks) < 2 or not bauds:
         return None
-    rate = float(np.polyfit(ticks / TICKS_PER_SECOND, (completions - completions[0]) / 1e9,
-                            1)[0])
-    record_ns = ticks[mid_record] / TICKS_PER_SECOND * 1e9 * rate
+    record_ns = ticks[mid_record] / TICKS_PER_SECOND * 1e9 * _unit_fit(ticks, completions)[0]
     near = np.abs(np.diff(record_ns)) < _LINE_SPAN_NS
     if near.sum() < _LINE_READS:
         return None
@@ -175,16 +189,18 @@ def _line_fit(ticks: np.ndarray, completions: np.ndarray, mid_at: np.ndarray,
     return spread[baud] / (1e10 / baud), baud
 
 
-def _unit_phase(ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray:
-    """Receive times against the unit's clock (a line through ticks and receive times,
-    stalls left out), in ns: what the reads follow on a serial line."""
+def _unit_fit(ticks: np.ndarray, completions: np.ndarray) -> tuple[float, np.ndarray]:
+    """A line through the records' ticks and receive times, stalls left out: host
+    seconds per second of the unit's clock, and each receive time against it (ns),
+    which is what reads follow on a serial line."""
     x = ticks / TICKS_PER_SECOND
-    residual = (rx_ns - rx_ns[0]) / 1e9
+    y = (completions - completions[0]) / 1e9
     keep = np.ones(len(x), bool)
+    slope, offset = 1.0, 0.0
     for _ in range(3):
         if keep.sum() < 2:
             break
-        slope, offset = np.polyfit(x[keep], residual[keep], 1)
-        residual = residual - (offset + slope * x)
+        slope, offset = (float(v) for v in np.polyfit(x[keep], y[keep], 1))
+        residual = y - (offset + slope * x)
         keep = np.abs(residual - np.median(residual[keep])) < _OUTLIER_S
-    return np.asarray(np.round(residual * 1e9), np.int64)
+    return slope, np.asarray(np.round((y - (offset + slope * x)) * 1e9), np.int64)
