@@ -160,9 +160,11 @@ class Pipeline:
             try:
                 session = self._open()
                 self._bring_up(session)
-            except (PortError, DeviceError) as exc:
+            except BaseException as exc:
                 if session is not None:
                     self._close(session, clean=stop.is_set())
+                if not isinstance(exc, (PortError, DeviceError)):
+                    raise  # not a unit that may come up later: retrying cannot help
                 self._wait(exc, lost=lost_at is not None)
                 stop.wait(backoff)
                 backoff = min(_RETRY_MAX_S, backoff * 2)

@@ -323,3 +323,17 @@ def test_a_busy_port_is_told_apart_and_a_new_reason_said_again(
     assert "port is busy: another program has it open" in busy
     assert "no reply to 0xE9" in silent
     assert "disconnect" not in text
+
+
+@pytest.mark.parametrize("model", ["3DM-GX2", "Inertia-Link"])
+def test_a_gx2_family_unit_is_refused_at_bring_up_not_mistimed(
+        network: tuple[Path, Path], model: str) -> None:
+    bridge_cfg, _ = network
+    with Simulator([replace(FAST, model_name=model)], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600") as proc:
+        assert proc.wait(timeout=60) == 2
+        text = Stderr(proc).read()
+    last = text.splitlines()[-1]
+    assert last.startswith(f"error: the unit says it is a {model}, not a 3DM-GX3: ")
+    assert "19,660,800 ticks/s" in last and "Traceback" not in text
+    assert "retrying" not in text

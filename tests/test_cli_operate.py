@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -54,6 +55,14 @@ def test_a_lasting_change_needs_yes_and_a_target_is_required(port: str) -> None:
     assert "Traceback" not in refused.stderr
     nowhere = gx3("reset")
     assert nowhere.returncode != 0 and "--port" in nowhere.stderr and "--unit" in nowhere.stderr
+
+
+def test_info_on_a_gx2_says_it_is_not_a_gx3_with_exit_2() -> None:
+    with Simulator([replace(UNIT, model_name="3DM-GX2")], "pty") as sim:
+        result = gx3("info", "--port", sim.endpoints[0])
+    assert result.returncode == 2
+    assert result.stderr.startswith("error: the unit says it is a 3DM-GX2, not a 3DM-GX3")
+    assert len(result.stderr.splitlines()) == 1
 
 
 def peer(path: Path, listen: list[str] | None = None, connect: list[str] | None = None) -> Path:

@@ -178,6 +178,7 @@ def run_bridge(
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     from bridge.bus.session import SessionError, open_session
+    from bridge.device.session import UnsupportedUnit
     from bridge.service import BusSink, NameTaken, claim_name
 
     try:
@@ -230,7 +231,7 @@ def run_bridge(
             sink.close()
             for w in writer:
                 w.close()
-    if isinstance(pipeline.error, NameTaken):
+    if isinstance(pipeline.error, (NameTaken, UnsupportedUnit)):
         raise fail(str(pipeline.error))
     if pipeline.error is not None:
         raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "

@@ -25,7 +25,7 @@ from bridge.cli.common import app, err, fail, parse_code
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import find_link
 from bridge.device.port import Port, PortError
-from bridge.device.session import DeviceError, Session, find_baud
+from bridge.device.session import DeviceError, Session, UnsupportedUnit, find_baud
 from bridge.protocol.table import BAUD_RATES
 
 PortOpt = Annotated[str, typer.Option(
@@ -161,6 +161,8 @@ def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
         session.quiesce()
         info = session.identify()
         result = run_action(name, session, info, params, confirmed=True)
+    except UnsupportedUnit as exc:
+        raise fail(str(exc)) from None
     except (PortError, DeviceError) as exc:
         raise fail(str(exc), 1) from None
     finally:

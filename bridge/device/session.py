@@ -47,6 +47,27 @@ class DeviceError(Exception):
     why = "unit refused"
 
 
+class UnsupportedUnit(Exception):
+    """The unit is not a 3DM-GX3: retrying cannot help, so this is not a DeviceError."""
+
+
+#: Model-name fragments of the units the protocol's ancestors ran on. Their 32-bit
+#: timer counts 19,660,800 ticks/s (wrapping every 218 s), not 62,500, and their
+#: command set is not the manual's: timed as a GX3, every instant would be wrong.
+_OTHER_MODELS = ("GX2", "INERTIA-LINK", "INERTIALINK")
+
+
+def check_model(ids: dict[str, str]) -> None:
+    """Refuse a 3DM-GX2 or Inertia-Link unit with what to do instead."""
+    text = f"{ids.get('model_name', '')} {ids.get('model_number', '')}".upper()
+    if any(other in text.replace(" ", "") for other in _OTHER_MODELS):
+        raise UnsupportedUnit(
+            f"the unit says it is a {ids.get('model_name', '').strip() or 'GX2-family unit'}, "
+            "not a 3DM-GX3: its timer counts 19,660,800 ticks/s, not 62,500, and its "
+            "commands differ, so its samples would be mistimed; use a 3DM-GX3 "
+            "(-15, -25, -35 or -45)")
+
+
 class CommandTimeout(DeviceError):
     """No reply within the timeout, after every retry."""
 
@@ -268,6 +289,7 @@ class Session:
         ids = {}
         for selector, key in enumerate(ID_FIELDS):
             ids[key] = str(self.command("device_id", selector=selector)["text"])
+        check_model(ids)
         sampling = self.command("sampling_settings", function=0)
         preset = int(self.command("continuous_preset", continuous_preset=0)["continuous_preset"])
         return UnitInfo(firmware=firmware, ids=ids,
