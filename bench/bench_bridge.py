@@ -42,7 +42,7 @@ import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 
 from bridge.bus.codec import layout
-from bridge.loopback import free_port
+from bridge.loopback import free_port, interrupt
 from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -257,12 +257,7 @@ def measure(name: str, command: list[str], seconds: float, session: zenoh.Sessio
                 row.p50_ms = float(np.percentile(latency, 50) / 1e6)
                 row.p99_ms = float(np.percentile(latency, 99) / 1e6)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        interrupt([proc], timeout=30)
         if proc.stdout is not None:
             proc.stdout.close()
     return row

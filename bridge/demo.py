@@ -10,7 +10,6 @@ dashboard. Everything it starts, it stops; what it made stays in the output fold
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import threading
@@ -20,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
 
-from bridge.loopback import free_port
+from bridge.loopback import free_port, interrupt
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
@@ -122,15 +121,8 @@ class Processes:
         return [name for name, proc, _ in self.children if proc.poll() not in (None, 0)]
 
     def stop(self) -> None:
-        for _, proc, _ in reversed(self.children):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for _, proc, out in reversed(self.children):
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        interrupt(proc for _, proc, _ in reversed(self.children))
+        for _, _, out in self.children:
             out.close()
 
 

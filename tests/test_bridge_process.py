@@ -29,6 +29,7 @@ import zenoh
 
 from bridge.bus.gx3_pb2 import Info, Status
 from bridge.bus.subscribe import SampleBatch, subscribe
+from bridge.loopback import interrupt
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -71,13 +72,7 @@ def bridge_process(port: str, cfg: Path, *args: str) -> Iterator[subprocess.Pope
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        interrupt([proc])
         for stream in (proc.stdout, proc.stderr):
             if stream is not None:
                 stream.close()

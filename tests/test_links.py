@@ -4,20 +4,19 @@ its device and carried through timing, bring-up, Info and raw-capture metadata."
 from __future__ import annotations
 
 import re
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from bridge.device.link import TIMER_RULE, Link, find_link, kernel_name
-from bridge.pipeline import Options, Pipeline
+from bridge.pipeline import Pipeline
 from bridge.protocol.table import REPLIES
 from bridge.recorder.rawcapture import capture_metadata
 from bridge.service import info_message
 from bridge.sim.serve import Simulator
 from bridge.sim.usb import AdapterDelivery
 from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming
-from tests.test_pipeline import BASE, ListSink
+from tests.test_pipeline import BASE, ListSink, running
 from tests.waiting import wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,20 +82,10 @@ def test_an_adapter_is_timed_as_its_serial_line_behind_usb_frames() -> None:
 def _adapter_unit(tmp_path: Path, timer_ms: int) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
     """An emulated unit behind an adapter, on a pty named as the kernel names one, with
     the adapter's sysfs entry; the pipeline on it with transport auto."""
-    link = tmp_path / "ttyUSB5"
     sysfs = _sysfs(tmp_path / "sys", "ttyUSB5", f"{timer_ms}\n")
     delivery = AdapterDelivery(latency_timer_s=timer_ms / 1000, stall_every_s=0.0, seed=2)
-    with Simulator([BASE], "pty", links=[link], usb=delivery) as sim:
-        sink = ListSink()
-        pipeline = Pipeline(Options(url=str(link), sysfs=sysfs), sink)
-        stop = threading.Event()
-        worker = threading.Thread(target=pipeline.run, args=(stop,))
-        worker.start()
-        try:
-            yield sim, pipeline, sink
-        finally:
-            stop.set()
-            worker.join(timeout=30)
+    with running(BASE, tmp_path / "ttyUSB5", delivery, sysfs=sysfs) as unit:
+        yield unit
 
 
 def test_bring_up_names_the_adapter_warns_once_and_info_carries_it(tmp_path: Path) -> None:

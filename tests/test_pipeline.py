@@ -27,6 +27,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored
 from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UsbDelivery
 from tests.waiting import wait_for
 
 STREAMING = Stored(mode_preset=2, continuous_preset=0xC2)
@@ -67,11 +68,12 @@ class ListSink:
 
 
 @contextmanager
-def running(config: UnitConfig, link: Path | None = None,
+def running(config: UnitConfig, link: Path | None = None, usb: UsbDelivery | None = None,
             **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
     """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
-    (the kernel may give a replugged pty another number, as udev rules prevent for real)."""
-    with Simulator([config], "pty", links=[link] if link else None) as sim:
+    (the kernel may give a replugged pty another number, as udev rules prevent for real);
+    ``usb`` how the unit's bytes reach the host."""
+    with Simulator([config], "pty", links=[link] if link else None, usb=usb) as sim:
         sink = ListSink()
         pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
         stop = threading.Event()
