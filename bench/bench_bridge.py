@@ -7,6 +7,11 @@ On the same emulated stream (one emulated unit on a pty), one after the other:
 - the same loop in Python (``select`` + ``os.read``);
 - that Python loop with one plain Zenoh put per record (an ImuSample-sized payload
   and its CRC-32 attachment): the least a Python bridge can spend;
+- that loop coalescing reads as the bridge does at each latency budget above 1 ms
+  (after a read it sleeps so that bytes gather for the budget less 1 ms): the floor
+  for that budget;
+- that loop, at 1 ms and at the largest budget, putting through an advanced publisher
+  declared as the bridge declares its imu key: what the publisher kind costs;
 - ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5.
 
 For each: its process's CPU (user + system time over wall time, % of one core), the
@@ -40,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
+from zenoh.ext import AdvancedPublisher
 
 from bridge.bus.codec import layout
 from bridge.loopback import free_port
@@ -113,12 +119,17 @@ int main(int argc, char **argv) {
 """
 
 
-def loop(kind: str, port: str, config: str) -> None:
+def loop(kind: str, budget_ms: str, port: str, config: str) -> None:
     """The Python loops, as their own process, until SIGINT: ``read`` reads only, ``put``
     puts one payload per whole record: an ImuSample's size, starting with the receive
-    time and the record's number (int64 LE each), with its CRC-32 as attachment."""
+    time and the record's number (int64 LE each), with its CRC-32 as attachment;
+    ``advanced`` puts the same through the bridge's kind of publisher. Above a 1 ms
+    budget, bytes gather for the budget less 1 ms after each read, as in the bridge."""
+    from bridge.bus.keys import ENCODINGS
+    from bridge.bus.publish import CACHE_SAMPLES, declare_data_publisher
     from bridge.bus.session import open_session
     from bridge.device.port import Port
+    from bridge.pipeline import PUBLISH_RESERVE_S
 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -126,11 +137,16 @@ def loop(kind: str, port: str, config: str) -> None:
     signal.signal(signal.SIGUSR1, lambda *_: asked.set())
     size = REPLIES[CODE].length
     padding = bytes(layout(CODE, "bench").size - 16)
+    hold_s = max(0.0, float(budget_ms) / 1000 - PUBLISH_RESERVE_S)
     total = held = number = 0
+    last = 0.0
     with contextlib.ExitStack() as stack:  # no Zenoh at all for the read-only loop
-        pub = None
-        if kind == "put":
-            pub = stack.enter_context(open_session(config)).declare_publisher(KEY)
+        pub: zenoh.Publisher | AdvancedPublisher | None = None
+        if kind != "read":
+            session = stack.enter_context(open_session(config))
+            pub = session.declare_publisher(KEY) if kind == "put" else declare_data_publisher(
+                session, KEY, ENCODINGS["imu"], CACHE_SAMPLES)
+            stack.callback(pub.undeclare)
         link = Port.open(port, 921_600)
         fd = link.raw.fileno()
         link.write(START)
@@ -139,8 +155,12 @@ def loop(kind: str, port: str, config: str) -> None:
             if asked.is_set():
                 asked.clear()
                 print(total, flush=True)
+            pause = last + hold_s - time.monotonic()
+            if pause > 0:
+                time.sleep(pause)
             if select.select([fd], [], [], 0.05)[0]:
                 data = os.read(fd, 1 << 16)
+                last = time.monotonic()
                 total += len(data)
                 if pub is not None:
                     held += len(data)
@@ -153,8 +173,6 @@ def loop(kind: str, port: str, config: str) -> None:
                     held %= size
         link.write(STOP)
         link.close()
-        if pub is not None:
-            pub.undeclare()
 
 
 @dataclass
@@ -322,7 +340,7 @@ def main() -> None:
     parser.add_argument("--budgets", default="1,2,5",
                         help="gx3 bridge --max-latency-ms values, comma-separated; 'default' "
                              "runs it without the option (also a bridge from before it)")
-    parser.add_argument("--loop-child", nargs=3, help=argparse.SUPPRESS)
+    parser.add_argument("--loop-child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.loop_child:
         loop(*args.loop_child)
@@ -348,12 +366,21 @@ def main() -> None:
             rows.append(measure("C select + read", [str(binary), port], args.seconds, None,
                                 "read"))
         me = [sys.executable, __file__, "--loop-child"]
-        rows.append(measure("Python select + os.read", [*me, "read", port, str(cfg)],
+        rows.append(measure("Python select + os.read", [*me, "read", "1", port, str(cfg)],
                             args.seconds, None, "read"))
+        budgets = args.budgets.split(",")
+        floors = sorted({1.0, *(float(b) for b in budgets if b != "default")})
+        loops = [("put", ms) for ms in floors] + [("advanced", ms) for ms in
+                                                  sorted({floors[0], floors[-1]})]
         with zenoh.open(client) as session:
-            rows.append(measure("Python select + os.read + put", [*me, "put", port, str(cfg)],
-                                args.seconds, session, "put"))
-            for budget in args.budgets.split(","):
+            for kind, ms in loops:
+                name = "Python select + os.read + " + ("put" if kind == "put" else
+                                                       "advanced put")
+                if ms > 1:
+                    name += f", {ms:g} ms budget"
+                rows.append(measure(name, [*me, kind, str(ms), port, str(cfg)], args.seconds,
+                                    session, "put"))
+            for budget in budgets:
                 option = [] if budget == "default" else ["--max-latency-ms", budget]
                 command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
                            "--zenoh-config", str(cfg), "--quiet", *option]
