@@ -7,13 +7,19 @@ On the same emulated stream (one emulated unit on a pty), one after the other:
 - the same loop in Python (``select`` + ``os.read``);
 - that Python loop with one plain Zenoh put per record (an ImuSample-sized payload
   and its CRC-32 attachment): the least a Python bridge can spend;
+- that loop coalescing reads as the bridge does at each latency budget above 1 ms
+  (after a read it sleeps so that bytes gather for the budget less 1 ms): the floor
+  for that budget;
+- that loop, at 1 ms and at the largest budget, putting through an advanced publisher
+  declared as the bridge declares its imu key: what the publisher kind costs;
 - ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5.
 
 For each: its process's CPU (user + system time over wall time, % of one core), the
 same per record, the latency from the receive stamp of the read that completed a
 record to a subscriber callback in this process (p50, p99; both on this machine's
 clock), whether every sample the unit sent was delivered, and the CPU as a ratio to
-the Python loop with puts. The bridge's CPU is also given by thread.
+the Python loop with puts and to the floor of its budget (the plain-put loop
+coalescing as it does). The bridge's CPU is also given by thread.
 
     python bench/bench_bridge.py --seconds 10
     PYTHONPATH=OTHER_TREE python bench/bench_bridge.py --budgets default  # another version
@@ -40,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
+from zenoh.ext import AdvancedPublisher
 
 from bridge.bus.codec import layout
 from bridge.loopback import free_port, interrupt
@@ -113,12 +120,17 @@ int main(int argc, char **argv) {
 """
 
 
-def loop(kind: str, port: str, config: str) -> None:
+def loop(kind: str, budget_ms: str, port: str, config: str) -> None:
     """The Python loops, as their own process, until SIGINT: ``read`` reads only, ``put``
     puts one payload per whole record: an ImuSample's size, starting with the receive
-    time and the record's number (int64 LE each), with its CRC-32 as attachment."""
+    time and the record's number (int64 LE each), with its CRC-32 as attachment;
+    ``advanced`` puts the same through the bridge's kind of publisher. Above a 1 ms
+    budget, bytes gather for the budget less 1 ms after each read, as in the bridge."""
+    from bridge.bus.keys import ENCODINGS
+    from bridge.bus.publish import CACHE_SAMPLES, declare_data_publisher
     from bridge.bus.session import open_session
     from bridge.device.port import Port
+    from bridge.pipeline import PUBLISH_RESERVE_S
 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -126,11 +138,16 @@ def loop(kind: str, port: str, config: str) -> None:
     signal.signal(signal.SIGUSR1, lambda *_: asked.set())
     size = REPLIES[CODE].length
     padding = bytes(layout(CODE, "bench").size - 16)
+    hold_s = max(0.0, float(budget_ms) / 1000 - PUBLISH_RESERVE_S)
     total = held = number = 0
+    last = 0.0
     with contextlib.ExitStack() as stack:  # no Zenoh at all for the read-only loop
-        pub = None
-        if kind == "put":
-            pub = stack.enter_context(open_session(config)).declare_publisher(KEY)
+        pub: zenoh.Publisher | AdvancedPublisher | None = None
+        if kind != "read":
+            session = stack.enter_context(open_session(config))
+            pub = session.declare_publisher(KEY) if kind == "put" else declare_data_publisher(
+                session, KEY, ENCODINGS["imu"], CACHE_SAMPLES)
+            stack.callback(pub.undeclare)
         link = Port.open(port, 921_600)
         fd = link.raw.fileno()
         link.write(START)
@@ -139,8 +156,12 @@ def loop(kind: str, port: str, config: str) -> None:
             if asked.is_set():
                 asked.clear()
                 print(total, flush=True)
+            pause = last + hold_s - time.monotonic()
+            if pause > 0:
+                time.sleep(pause)
             if select.select([fd], [], [], 0.05)[0]:
                 data = os.read(fd, 1 << 16)
+                last = time.monotonic()
                 total += len(data)
                 if pub is not None:
                     held += len(data)
@@ -153,14 +174,13 @@ def loop(kind: str, port: str, config: str) -> None:
                     held %= size
         link.write(STOP)
         link.close()
-        if pub is not None:
-            pub.undeclare()
 
 
 @dataclass
 class Row:
     name: str
     cpu_pct: float = float("nan")
+    budget_ms: float = 1.0  # the latency budget it reads with (coalescing above 1 ms)
     records: int = 0  # in the measured window
     p50_ms: float | None = None
     p99_ms: float | None = None
@@ -212,9 +232,9 @@ class Subscriber:
 
 
 def measure(name: str, command: list[str], seconds: float, session: zenoh.Session | None,
-            kind: str) -> Row:
+            kind: str, budget_ms: float = 1.0) -> Row:
     """Run ``command`` on the stream; its CPU and deliveries over ``seconds``."""
-    row = Row(name)
+    row = Row(name, budget_ms=budget_ms)
     sub = Subscriber(session, kind == "put") if session is not None else None
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
@@ -295,17 +315,23 @@ def compile_c(folder: Path) -> Path | None:
 
 def table(rows: list[Row]) -> str:
     base = next((r.cpu_pct for r in rows if r.name.endswith("+ put")), float("nan"))
+    #: the floor of each budget: the plain-put loop coalescing as a bridge with that budget
+    floors = {r.budget_ms: r.cpu_pct for r in rows if r.name.startswith("Python")
+              and " put" in r.name and "advanced" not in r.name}
     lines = ["| loop on the same pty stream | % of a core | µs per record | rx → subscriber "
-             "p50 / p99 ms | every sample | × Python select+read+put |",
-             "|---|---|---|---|---|---|"]
+             "p50 / p99 ms | every sample | × Python select+read+put | × its budget's floor |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         if r.cpu_pct != r.cpu_pct:  # skipped
-            lines.append(f"| {r.name} | {r.delivered} | | | | |")
+            lines.append(f"| {r.name} | {r.delivered} | | | | | |")
             continue
         latency = "–" if r.p50_ms is None or r.p99_ms is None else \
             f"{r.p50_ms:.3f} / {r.p99_ms:.3f}"
+        floor = floors.get(r.budget_ms) if " put" in r.name or r.name.startswith("gx3") \
+            else None
         lines.append(f"| {r.name} | {r.cpu_pct:.1f} | {r.us_per_record:.0f} | {latency} | "
-                     f"{r.delivered} | {r.cpu_pct / base:.2f} |")
+                     f"{r.delivered} | {r.cpu_pct / base:.2f} | "
+                     f"{'–' if floor is None else f'{r.cpu_pct / floor:.2f}'} |")
     return "\n".join(lines)
 
 
@@ -317,7 +343,7 @@ def main() -> None:
     parser.add_argument("--budgets", default="1,2,5",
                         help="gx3 bridge --max-latency-ms values, comma-separated; 'default' "
                              "runs it without the option (also a bridge from before it)")
-    parser.add_argument("--loop-child", nargs=3, help=argparse.SUPPRESS)
+    parser.add_argument("--loop-child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.loop_child:
         loop(*args.loop_child)
@@ -343,17 +369,27 @@ def main() -> None:
             rows.append(measure("C select + read", [str(binary), port], args.seconds, None,
                                 "read"))
         me = [sys.executable, __file__, "--loop-child"]
-        rows.append(measure("Python select + os.read", [*me, "read", port, str(cfg)],
+        rows.append(measure("Python select + os.read", [*me, "read", "1", port, str(cfg)],
                             args.seconds, None, "read"))
+        budgets = args.budgets.split(",")
+        floors = sorted({1.0, *(float(b) for b in budgets if b != "default")})
+        loops = [("put", ms) for ms in floors] + [("advanced", ms) for ms in
+                                                  sorted({floors[0], floors[-1]})]
         with zenoh.open(client) as session:
-            rows.append(measure("Python select + os.read + put", [*me, "put", port, str(cfg)],
-                                args.seconds, session, "put"))
-            for budget in args.budgets.split(","):
+            for kind, ms in loops:
+                name = "Python select + os.read + " + ("put" if kind == "put" else
+                                                       "advanced put")
+                if ms > 1:
+                    name += f", {ms:g} ms budget"
+                rows.append(measure(name, [*me, kind, str(ms), port, str(cfg)], args.seconds,
+                                    session, "put", ms))
+            for budget in budgets:
                 option = [] if budget == "default" else ["--max-latency-ms", budget]
                 command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
                            "--zenoh-config", str(cfg), "--quiet", *option]
                 rows.append(measure(" ".join(["gx3 bridge", *option]), command, args.seconds,
-                                    session, "bridge"))
+                                    session, "bridge", 1.0 if budget == "default" else
+                                    float(budget)))
     print(f"0x{CODE:02X} at {RATE_HZ:,} Hz, 921,600 baud, pty; {args.seconds:g} s a row")
     print(table(rows))
     for r in rows:

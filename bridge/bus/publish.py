@@ -41,6 +41,19 @@ REFUSAL = ("commands are disabled on this bridge: restart it with --allow-comman
 CommandHandler = Callable[[str], str]
 
 
+def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
+                           cache: int, heartbeat_s: float = HEARTBEAT_S) -> AdvancedPublisher:
+    """A data key's publisher, as every bridge declares it (also measured by the bench)."""
+    return declare_advanced_publisher(
+        session, key, encoding=encoding,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        reliability=zenoh.Reliability.RELIABLE,
+        cache=CacheConfig(max_samples=cache),
+        sample_miss_detection=MissDetectionConfig(heartbeat=heartbeat_s,
+                                                  sporadic_heartbeat=None),
+        publisher_detection=True)
+
+
 class UnitPublisher:
     """The imu, status and event publishers, info and command queryables and the
     liveliness token of one unit, declared together and undeclared together.
@@ -75,14 +88,8 @@ class UnitPublisher:
 
     def _advanced(self, session: zenoh.Session, leaf: str, cache: int,
                   heartbeat_s: float) -> AdvancedPublisher:
-        pub = declare_advanced_publisher(
-            session, getattr(self.keys, leaf), encoding=ENCODINGS[leaf],
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            reliability=zenoh.Reliability.RELIABLE,
-            cache=CacheConfig(max_samples=cache),
-            sample_miss_detection=MissDetectionConfig(heartbeat=heartbeat_s,
-                                                      sporadic_heartbeat=None),
-            publisher_detection=True)
+        pub = declare_data_publisher(session, getattr(self.keys, leaf), ENCODINGS[leaf], cache,
+                                     heartbeat_s)
         self._declared.append(pub)
         return pub
 
