@@ -27,6 +27,8 @@ BENCHMARKS: tuple[tuple[str, list[str], list[str]], ...] = (
     ("Zenoh publishing", ["bench_bus.py"], ["bench_bus.py"]),
     ("one bridge at 1 kHz, 0xCC", ["bench_bridge.py", "--seconds", "30"],
      ["bench_bridge.py", "--seconds", "5"]),
+    ("the bridge's per-read stages", ["bench_per_read.py", "--cadence-ms", "1"],
+     ["bench_per_read.py", "--records", "500", "--cadence-ms", "1"]),
     ("archive writing and export", ["bench_archive.py"], ["bench_archive.py"]),
     ("one flipped byte in an archive", ["bench_damage.py"],
      ["bench_damage.py", "--minutes", "2"]),
