@@ -6,6 +6,7 @@ from __future__ import annotations
 import signal
 import socket
 import subprocess
+import time
 from collections.abc import Iterable
 from typing import Any
 
@@ -18,15 +19,17 @@ def free_port() -> int:
 
 
 def interrupt(procs: Iterable[subprocess.Popen[Any]], timeout: float = 20.0) -> None:
-    """Ctrl-C each child that still runs, then wait for all; kill one that has not
-    stopped within ``timeout`` seconds (a hung child must not hang its parent)."""
+    """Ctrl-C each child that still runs, then wait for all; kill those that have not
+    stopped within ``timeout`` seconds of the Ctrl-C (a hung child must not hang its
+    parent)."""
     procs = list(procs)
     for proc in procs:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + timeout
     for proc in procs:
         try:
-            proc.wait(timeout=timeout)
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()

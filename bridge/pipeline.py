@@ -265,11 +265,12 @@ class Pipeline:
             session.start_streaming(info.record)
         else:
             session.start_polling(info.record)
-        warnings = [info.line_warning() if o.poll_hz is None and self.transport != "usb"
-                    else None]
-        if self.link.warning() != self._warned:
-            self._warned = self.link.warning()
-            warnings.append(self._warned)
+        warnings = [info.line_warning()] if o.poll_hz is None and self.transport != "usb" \
+            else []
+        link_warning = self.link.warning()
+        if link_warning != self._warned:
+            self._warned = link_warning
+            warnings.append(link_warning)
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz over {self.link.describe()}"

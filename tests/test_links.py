@@ -53,6 +53,28 @@ def test_auto_finds_an_adapter_through_udev_links_with_its_latency_timer(
     assert find_link(str(by_id), sysfs=tmp_path / "none") == Link("usb-serial", None, "ttyUSB3")
 
 
+def test_a_sysfs_timer_that_is_garbage_or_unreadable_is_unknown_not_a_crash(
+        tmp_path: Path) -> None:
+    dev = tmp_path / "ttyUSB0"
+    dev.touch()
+    for k, text in enumerate(("-3\n", "0\n", "4294967296\n", "sixteen\n", "")):
+        sysfs = _sysfs(tmp_path / f"sys{k}", "ttyUSB0", text)
+        assert find_link(str(dev), sysfs=sysfs) == Link("usb-serial", None, "ttyUSB0"), text
+    unreadable = _sysfs(tmp_path / "locked", "ttyUSB0", "16\n")
+    (unreadable / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer").unlink()
+    (unreadable / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer").mkdir()
+    assert find_link(str(dev), sysfs=unreadable).latency_timer_ms is None
+    assert find_link(str(dev), sysfs=_sysfs(tmp_path / "max", "ttyUSB0", "255\n")) == \
+        Link("usb-serial", 255, "ttyUSB0")
+
+
+def test_a_path_that_cannot_be_looked_at_leaves_the_error_to_opening_the_port(
+        tmp_path: Path) -> None:
+    bad = tmp_path / ("x" * 300)  # lstat fails (a name too long), as a vanishing link can
+    assert kernel_name(str(bad)) == bad.name
+    assert find_link(str(bad)) == Link("uart")
+
+
 def test_a_long_latency_timer_is_warned_about_with_the_fix() -> None:
     slow = Link("usb-serial", 16, "ttyUSB3")
     assert slow.describe() == "usb-serial, latency timer 16 ms"

@@ -100,19 +100,17 @@ class UnitPublisher:
         ``ticks`` (unwrapped timer) and ``time_ns`` (host-clock estimate with the
         filter delay taken out) are per record, from the timing model.
         """
-        payloads = encode_batch(self.unit, batch, ticks, time_ns,
-                                batch.rx_ns if rx_ns is None else rx_ns)
-        put = self._imu.put
-        for payload, attachment in zip(payloads, seals(payloads), strict=True):
-            put(payload, attachment=attachment)
-        self.published += len(payloads)
-        return len(payloads)
+        return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns,
+                                          batch.rx_ns if rx_ns is None else rx_ns))
 
     def publish_records(self, records: Records, ticks: Iterable[int],
                         time_ns: Iterable[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes."""
-        payloads = encode_records(self.unit, records.code, records.little_endian,
-                                  records.wire, ticks, time_ns, records.rx_ns)
+        return self._put_imu(encode_records(self.unit, records.code, records.little_endian,
+                                            records.wire, ticks, time_ns, records.rx_ns))
+
+    def _put_imu(self, payloads: list[bytes]) -> int:
+        """Put ImuSample payloads back to back, each sealed with its CRC-32."""
         put = self._imu.put
         for payload, attachment in zip(payloads, seals(payloads), strict=True):
             put(payload, attachment=attachment)

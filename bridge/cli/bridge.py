@@ -76,9 +76,10 @@ def run_bridge(
         help="Link between unit and host, for the latency floor and frame clock the clock "
              "model takes out: uart (line time of each record at the baud rate), usb (the "
              "unit's own USB port, 1 ms frames), usb-serial (its serial port through a "
-             "USB-serial adapter: line time, then 1 ms frames and the adapter's latency "
-             "timer, read from /sys/bus/usb-serial; a 16 ms timer is warned about, with "
-             "the fix), auto (usb for /dev/ttyACM*, usb-serial for /dev/ttyUSB*, also "
+             "USB-serial adapter: line time, then 1 ms frames; its latency timer is read "
+             "from /sys/bus/usb-serial for the bring-up line and the unit's Info, and one "
+             "above 1 ms is warned about, with the fix), auto (usb for /dev/ttyACM*, "
+             "usb-serial for /dev/ttyUSB*, also "
              "through /dev/serial/by-id links; uart otherwise). The bring-up line says "
              "which link was found.")] = "auto",
     max_latency_ms: Annotated[float, typer.Option(

@@ -212,12 +212,13 @@ def sim(
     import signal
     import time
 
+    from bridge.device.link import DEFAULT_LATENCY_TIMER_MS
     from bridge.sim.faults import FaultConfig
     from bridge.sim.motion import MotionConfig, tumbling
     from bridge.sim.serve import LinkError, Simulator, unit_configs
     from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
-    from bridge.sim.usb import DEFAULT_LATENCY_TIMER_MS, AdapterDelivery, UsbDelivery
+    from bridge.sim.usb import AdapterDelivery, UsbDelivery
 
     try:
         if pty == (tcp is not None):

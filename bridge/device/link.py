@@ -18,9 +18,12 @@ from pathlib import Path
 SYSFS = Path("/sys")
 #: Payload of one full-speed bulk packet from an FTDI-like adapter: 64 less 2 status bytes.
 ADAPTER_PACKET_BYTES = 62
+#: What Linux's FTDI driver sets; 1 ms is the fix for timing (configs/udev).
+DEFAULT_LATENCY_TIMER_MS = 16
 TIMER_RULE = "configs/udev/99-gx3.rules"
 _KERNEL_TTY = re.compile(r"tty(ACM|USB)\d+")
 _MAX_HOPS = 40  # the kernel's own limit on nested symlinks
+_MAX_LATENCY_TIMER_MS = 255  # the FTDI driver's range is 1-255 ms
 
 
 @dataclass(frozen=True)
@@ -42,41 +45,48 @@ class Link:
         """What to change when the adapter holds reads back longer than a frame."""
         if self.latency_timer_ms is None or self.latency_timer_ms <= 1:
             return None
-        name = self.device or "ttyUSB0"
         return (f"the USB-serial adapter's latency timer is {self.latency_timer_ms} ms, so "
                 f"reads wait up to {self.latency_timer_ms} ms: set it to 1 ms with the udev "
                 f"rule in {TIMER_RULE} (now: echo 1 | sudo tee "
-                f"/sys/bus/usb-serial/devices/{name}/latency_timer)")
+                f"/sys/bus/usb-serial/devices/{self.device}/latency_timer)")
 
 
 def kernel_name(url: str) -> str:
     """The device's kernel name: the first ttyACM*/ttyUSB* on its chain of symlinks, else
-    the name it finally resolves to ("" for a URL such as socket://)."""
+    the name it finally resolves to ("" for a URL such as socket://). A link udev
+    removes meanwhile (an unplug) or one it may not read ends the walk where it is:
+    opening the port then says what is wrong."""
     if "://" in url:
         return ""
     path = Path(url)
-    for _ in range(_MAX_HOPS):
-        if _KERNEL_TTY.fullmatch(path.name) or not path.is_symlink():
-            break
-        path = path.parent / path.readlink()
+    try:
+        for _ in range(_MAX_HOPS):
+            if _KERNEL_TTY.fullmatch(path.name) or not path.is_symlink():
+                break
+            path = path.parent / path.readlink()
+    except OSError:
+        pass
     return path.name
 
 
 def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
-    """A USB-serial adapter's latency timer as the kernel reports it; None if it does not."""
+    """A USB-serial adapter's latency timer as the kernel reports it; None if it does not
+    (no such file, unreadable, or not a timer the kernel allows: 1 to 255 ms)."""
     try:
         text = (sysfs / "bus" / "usb-serial" / "devices" / device / "latency_timer").read_text()
-        return int(text.strip())
+        value = int(text.strip())
     except (OSError, ValueError):
         return None
+    return value if 1 <= value <= _MAX_LATENCY_TIMER_MS else None
 
 
 def find_link(url: str, transport: str = "auto", sysfs: Path = SYSFS) -> Link:
     """The link to a unit at ``url``: ``transport`` as given, or with "auto" by device
     name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart)."""
-    device = kernel_name(url)
+    name = kernel_name(url)
+    device = name if _KERNEL_TTY.fullmatch(name) else ""
     if transport == "auto":
         transport = ("usb" if device.startswith("ttyACM") else
                      "usb-serial" if device.startswith("ttyUSB") else "uart")
     timer = latency_timer_ms(device, sysfs) if transport == "usb-serial" and device else None
-    return Link(transport, timer, device if _KERNEL_TTY.fullmatch(device) else "")
+    return Link(transport, timer, device)

@@ -378,8 +378,8 @@ class Batch:
             return cls.from_block(first.code, np.concatenate(blocks), offsets, rx_ns,
                                   first.little_endian, part_ns, part_bytes)
         columns = {k: np.concatenate([b.columns[k] for b in batches]) for k in first.columns}
-        return cls(first.code, columns, offsets, rx_ns, first.little_endian, None, part_ns,
-                   part_bytes)
+        return cls(first.code, columns, offsets, rx_ns, first.little_endian,
+                   part_ns=part_ns, part_bytes=part_bytes)
 
     def select(self, keep: np.ndarray) -> Batch:
         """The records where ``keep`` is True."""
@@ -389,8 +389,8 @@ class Batch:
             return Batch.from_block(self.code, self.block[keep], self.offsets[keep],
                                     self.rx_ns[keep], self.little_endian, part_ns, part_bytes)
         return Batch(self.code, {k: v[keep] for k, v in self.columns.items()},
-                     self.offsets[keep], self.rx_ns[keep], self.little_endian, None, part_ns,
-                     part_bytes)
+                     self.offsets[keep], self.rx_ns[keep], self.little_endian,
+                     part_ns=part_ns, part_bytes=part_bytes)
 
     def __len__(self) -> int:
         return len(self.offsets)

@@ -119,7 +119,7 @@ class Replayed:
     inferred: list[str] = field(default_factory=list)
 
 
-def _timer(text: str | None) -> int | None:
+def _latency_timer_ms(text: str | None) -> int | None:
     """A capture's latency timer, ms; None where it was not known."""
     return int(text) if text and text.isdigit() and int(text) > 0 else None
 
@@ -148,7 +148,7 @@ class UnitReplay:
                             transport=transport or meta.get("transport", "uart"),
                             polled=meta.get("polled") == "true",
                             latency_timer_ms=None if transport else
-                            _timer(meta.get("latency_timer_ms")))
+                            _latency_timer_ms(meta.get("latency_timer_ms")))
         record, decimation = self._sniff()
         self.result.inferred += [f"record 0x{record:02X}", f"decimation {decimation}",
                                  f"filter width {FACTORY_FILTER_WIDTH} (factory)"]

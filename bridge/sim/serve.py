@@ -383,7 +383,7 @@ class Simulator:
             host = slot.link.host_baud() if line else None  # a syscall: only for bytes
         else:  # bytes arrive in frames; behind an adapter the unit's UART meets the
             # adapter's, which runs at the baud rate the host set
-            adapter = None if slot.unit.config.usb else slot.link.host_baud()
+            adapter = slot.link.host_baud() if line and not slot.unit.config.usb else None
             for baud, data in line:
                 slot.usb.push(reframe(data, baud, adapter) if adapter else data, now, 10 / baud)
             line = [(0, data) for _, data in slot.usb.reads(now)]

@@ -445,14 +445,13 @@ class SimUnit:
     def _sample(self, device: np.ndarray, period: float, names: list[str]
                 ) -> dict[str, np.ndarray]:
         """The motion as the unit's filters see it at the end of cycles at ``device``: at
-        least the quantities ``names`` and the quaternion (the truth)."""
-        only = [*names, "quaternion"]
+        least the quantities ``names`` and the quaternion (the truth, always computed)."""
         if not self.config.filter_model:
-            return self.motion.sample(device, period, only=only)
+            return self.motion.sample(device, period, only=names)
         delay, mag_delay = self.filter_delays()
         widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
         gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
-        sample = self.motion.sample(device - delay, period, gain, only)
+        sample = self.motion.sample(device - delay, period, gain, names)
         if "mag" in names and mag_delay != delay:
             sample["mag"] = self.motion.magnetometer(device - mag_delay, gain[2])
         return sample

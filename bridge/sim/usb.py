@@ -30,11 +30,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from bridge.device.link import ADAPTER_PACKET_BYTES
+from bridge.device.link import ADAPTER_PACKET_BYTES, DEFAULT_LATENCY_TIMER_MS
 from bridge.sim.unit import STEP_SLACK
 
-#: What Linux's FTDI driver sets; 1 ms is the fix for timing (configs/udev).
-DEFAULT_LATENCY_TIMER_MS = 16
 _DRAW_BLOCK = 4096
 
 

@@ -33,11 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bridge.device.link import ADAPTER_PACKET_BYTES
+from bridge.device.link import ADAPTER_PACKET_BYTES, DEFAULT_LATENCY_TIMER_MS
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+from bridge.timing.stream import USB_FRAME_NS
+from bridge.timing.unwrap import TIMER_MODULUS
 
-FRAME_NS = 1_000_000
 _BIN_NS = 10_000
 _WINDOW_BINS = 10  # reads counted within 0.1 ms either side of a phase
 _OUTLIER_S = 0.002  # a stalled read is left out of the clock fit
@@ -76,8 +77,8 @@ def crowding(phase_ns: np.ndarray) -> float:
     latency of 0.8 ms mean, 0.28 at 0.3 ms)."""
     if not len(phase_ns):
         return 0.0
-    bins = FRAME_NS // _BIN_NS
-    hist = np.bincount((np.mod(phase_ns, FRAME_NS) // _BIN_NS).astype(np.int64),
+    bins = USB_FRAME_NS // _BIN_NS
+    hist = np.bincount((np.mod(phase_ns, USB_FRAME_NS) // _BIN_NS).astype(np.int64),
                        minlength=bins)
     after = np.convolve(np.concatenate([hist, hist]), np.ones(_WINDOW_BINS, np.int64),
                         "valid")[:bins]
@@ -100,7 +101,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     starts = np.concatenate([b.offsets for b in batches])
     completions = np.concatenate([b.rx_ns for b in batches])
     ticks = np.concatenate([[0], np.cumsum(np.mod(np.diff(
-        np.concatenate([b["timer"] for b in batches]).astype(np.int64)), np.int64(1 << 32)))])
+        np.concatenate([b["timer"] for b in batches]).astype(np.int64)), np.int64(TIMER_MODULUS)))])
     # reads whose last byte falls inside a record: which record, and how much of it
     inside = np.searchsorted(starts, ends, "left") - 1
     got = ends - starts[np.maximum(inside, 0)]
@@ -109,11 +110,12 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     said = f"{ends_mid:.0%} end mid-record"
     packets = float(np.mean((sizes % ADAPTER_PACKET_BYTES == 0) & (sizes > 0)))
     period_s = float(np.median(np.diff(ticks))) / TICKS_PER_SECOND if len(ticks) > 1 else 1.0
-    line = _line_fit(ticks, completions, rx_ns[mid], got[mid], inside[mid],
+    rate, against_unit = _unit_fit(ticks, completions)
+    line = _line_fit(ticks, rate, rx_ns[mid], got[mid], inside[mid],
                      [b for b in BAUD_GUESSES if b / 10 * period_s >= length])
     host = crowding(completions)
-    unit = crowding(_unit_fit(ticks, completions)[1])
-    noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / FRAME_NS / len(completions))
+    unit = crowding(against_unit)
+    noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / USB_FRAME_NS / len(completions))
     if line is not None and line[0] < _LINE_FIT:
         return Inferred("uart", None, f"{said}, each holding every byte the line had "
                                       f"carried by then at {line[1]} baud", line[1])
@@ -126,7 +128,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     gaps = np.diff(rx_ns) / 1e6
     timer_gaps = float(np.mean((gaps > 14.0) & (gaps < 18.5))) if len(gaps) else 0.0
     if packets > _PACKETS or (timer_gaps > _TIMER_GAPS and not 14.0 < period_s * 1e3 < 18.5):
-        return Inferred("usb-serial", 16, f"{why}; {said}; " + (
+        return Inferred("usb-serial", DEFAULT_LATENCY_TIMER_MS, f"{why}; {said}; " + (
             f"{packets:.0%} are whole 62-byte packets" if packets > _PACKETS else
             f"{timer_gaps:.0%} come 16 ms after the one before"))
     pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
@@ -136,7 +138,7 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     # How often a read ends mid-record tells the line's pace only where the unit's clock
     # beats through the frames; one that stays in step with them may split every record
     # at one place, which on its own USB port leaves the rest for the next frame alone.
-    drift_ns = abs(_unit_fit(ticks, completions)[0] - 1.0) * (completions[-1] - completions[0])
+    drift_ns = abs(rate - 1.0) * (completions[-1] - completions[0])
     parts = np.bincount(inside[mid], minlength=len(starts)) if mid.any() else np.zeros(1)
     many = float(np.mean(parts[parts > 0] > 1)) if (parts > 0).any() else 0.0
     if ends_mid > _MID_RECORD and (drift_ns > _BEAT_NS or many > _MANY_PARTS):
@@ -161,12 +163,13 @@ def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
     return float(slope) if slope > _SIGMAS * error else None
 
 
-def _line_fit(ticks: np.ndarray, completions: np.ndarray, mid_at: np.ndarray,
+def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
               mid_bytes: np.ndarray, mid_record: np.ndarray,
               bauds: Sequence[int]) -> tuple[float, int] | None:
     """How well reads that end mid-record fit a plain serial line, at the baud rate that
     fits best among ``bauds`` (those that carry the stream): (score, baud), or None
-    with too few such reads to tell.
+    with too few such reads to tell. ``rate``: host seconds per second of the unit's
+    clock (``_unit_fit``).
 
     On a UART a read takes every byte that has crossed the line, so its time less the
     record's bytes so far times the byte time falls within one byte time of the
@@ -177,7 +180,7 @@ def _line_fit(ticks: np.ndarray, completions: np.ndarray, mid_at: np.ndarray,
     """
     if len(mid_at) < _LINE_READS or len(ticks) < 2 or not bauds:
         return None
-    record_ns = ticks[mid_record] / TICKS_PER_SECOND * 1e9 * _unit_fit(ticks, completions)[0]
+    record_ns = ticks[mid_record] / TICKS_PER_SECOND * 1e9 * rate
     near = np.abs(np.diff(record_ns)) < _LINE_SPAN_NS
     if near.sum() < _LINE_READS:
         return None

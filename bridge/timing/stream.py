@@ -103,6 +103,9 @@ class StreamTiming:
     def __init__(self) -> None:
         self.timeline: Timeline | None = None
         self.settings: Settings | None = None
+        #: (record length, floor ns, byte ns) where partial reads time records, fixed by
+        #: the settings and so worked out once, not per read
+        self._parts: tuple[int, int, float] | None = None
 
     @property
     def state(self) -> ClockState | None:
@@ -121,12 +124,14 @@ class StreamTiming:
         self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
         self.timeline.clock.floor_ns = settings.floor_ns
         self.settings = settings
+        self._parts = (REPLIES[settings.record].length, settings.floor_ns, settings.byte_ns) \
+            if settings.by_bytes else None
 
     def process(self, batch: Batch) -> Timed:
         """Ticks and host times of a batch's records; corrupt timers are dropped. A
         record's partial read, where the framer saw one, bounds its instant too."""
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if batch.part_ns is None or batch.part_bytes is None or not self.settings.by_bytes:
+        if batch.part_ns is None or batch.part_bytes is None or self._parts is None:
             timed = self.timeline.update(batch["timer"], batch.rx_ns)
         else:
             timed = self.timeline.update(batch["timer"], batch.rx_ns, batch.part_ns,
@@ -146,9 +151,8 @@ class StreamTiming:
         changed, ``process`` them. ``part_ns``, ``part_bytes``: the batch's partial
         reads, if it has them."""
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if part_ns is None or part_bytes is None or not self.settings.by_bytes:
+        if part_ns is None or part_bytes is None or self._parts is None:
             return self.timeline.update_few(timers, rx_ns)
-        s = self.settings
-        length, floor = REPLIES[s.record].length, s.floor_ns
-        leads = [floor - round((length - k) * s.byte_ns) for k in part_bytes]
+        length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
+        leads = [floor - round((length - k) * byte_ns) for k in part_bytes]
         return self.timeline.update_few(timers, rx_ns, (part_ns, leads))
