@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bridge.bus.codec import encode_batch, encode_records
+from bridge.bus.codec import encode_batch
+from bridge.bus.integrity import seals
+from bridge.bus.publish import sealed_records
 from bridge.device.session import UnitInfo
 from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
 from bridge.protocol.codec import Records, checksum, encode_replies
@@ -52,9 +54,10 @@ class Collect:
         if isinstance(records, Records):  # as UnitPublisher.publish_records
             self.lean += len(records)
             self.partial += len(records) - (records.part_bytes or [SIZE] * len(records)).count(SIZE)
-            self.payloads += encode_records("u1", records.code, records.little_endian,
-                                            records.wire, samples.tick_values,
-                                            samples.time_values, records.rx_ns)
+            payloads, attachments = sealed_records("u1", records, list(samples.tick_values),
+                                                   list(samples.time_values))
+            assert attachments == seals(payloads)
+            self.payloads += payloads
         else:  # as UnitPublisher.publish_samples
             self.payloads += encode_batch("u1", samples.batch, samples.ticks, samples.time_ns,
                                           samples.batch.rx_ns)

@@ -147,6 +147,24 @@ def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np
     return np.array(dst), np.array(src)
 
 
+@functools.cache
+def native_layout(code: int, unit: str, little_endian: bool
+                  ) -> tuple[bytes, bytes, tuple[int, int, int]]:
+    """``layout`` and ``_byte_map`` as the compiled core reads them
+    (``bridge/_records.c``): the message template, the byte moves as little-endian
+    uint16 pairs (message position, record position), and where ticks, time_ns and
+    rx_ns go."""
+    lay = layout(code, unit)
+    dst, src = _byte_map(code, unit, little_endian)
+    fields = cast(dict[str, tuple[np.dtype, int]], lay.dtype.fields)
+    times = ("ticks", "time_ns", "rx_ns")
+    if any(fields[name][0] != np.dtype("<i8") for name in times):
+        raise ValueError(f"0x{code:02X}: the message's times are not little-endian int64")
+    at = cast(tuple[int, int, int], tuple(fields[name][1] for name in times))
+    moves = np.stack([dst, src], axis=1).astype("<u2").tobytes()
+    return lay.template.tobytes(), moves, at
+
+
 def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
                  rx_ns: np.ndarray) -> list[bytes]:
     """One serialized ImuSample per record of ``batch``: what protobuf would produce.

@@ -11,7 +11,7 @@ payload damaged on the way is caught.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
@@ -24,7 +24,8 @@ from zenoh.ext import (
     declare_advanced_publisher,
 )
 
-from bridge.bus.codec import RecordBatch, encode_batch, encode_records
+from bridge import native
+from bridge.bus.codec import RecordBatch, encode_batch, encode_records, native_layout
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.bus.integrity import seal, seals
 from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
@@ -52,6 +53,20 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
         sample_miss_detection=MissDetectionConfig(heartbeat=heartbeat_s,
                                                   sporadic_heartbeat=None),
         publisher_detection=True)
+
+
+def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int]
+                   ) -> tuple[list[bytes], list[bytes]]:
+    """The ImuSample payloads of a live read's records and their attachments (``seal``):
+    in one call of the compiled core where it is built, else ``encode_records`` and
+    ``seals``, with the same bytes."""
+    core = native.records
+    if core is None:
+        payloads = encode_records(unit, records.code, records.little_endian, records.wire,
+                                  ticks, time_ns, records.rx_ns)
+        return payloads, seals(payloads)
+    return core.messages(*native_layout(records.code, unit, records.little_endian),
+                         records.wire, ticks, time_ns, records.rx_ns)
 
 
 class UnitPublisher:
@@ -103,16 +118,14 @@ class UnitPublisher:
         return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns,
                                           batch.rx_ns if rx_ns is None else rx_ns))
 
-    def publish_records(self, records: Records, ticks: Iterable[int],
-                        time_ns: Iterable[int]) -> int:
+    def publish_records(self, records: Records, ticks: list[int], time_ns: list[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes."""
-        return self._put_imu(encode_records(self.unit, records.code, records.little_endian,
-                                            records.wire, ticks, time_ns, records.rx_ns))
+        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns))
 
-    def _put_imu(self, payloads: list[bytes]) -> int:
+    def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
         """Put ImuSample payloads back to back, each sealed with its CRC-32."""
         put = self._imu.put
-        for payload, attachment in zip(payloads, seals(payloads), strict=True):
+        for payload, attachment in zip(payloads, attachments or seals(payloads), strict=True):
             put(payload, attachment=attachment)
         self.published += len(payloads)
         return len(payloads)

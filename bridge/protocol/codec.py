@@ -261,6 +261,22 @@ def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct,
     return tuple((struct.Struct(fmt), at, f) for fmt, at, f in checks)
 
 
+@functools.cache
+def native_checks(code: int, little_endian: bool) -> bytes:
+    """``_domain_checks`` as the compiled core reads them (``bridge/_records.c``): per
+    check, as float64s, its offset, value count, value width, whether floats, whether
+    little-endian, its bounds (infinite when it has none), and its allowed values
+    after their count."""
+    out: list[float] = []
+    for unpacker, offset, f in _domain_checks(code, little_endian):
+        count = len(unpacker.unpack_from(bytes(unpacker.size)))
+        lo, hi = f.domain if f.domain is not None else (-math.inf, math.inf)
+        values = sorted(f.domain_values or ())
+        out += [offset, count, unpacker.size // count, f.kind == "f32",
+                unpacker.format[0] == "<", lo, hi, len(values), *values]
+    return struct.pack(f"={len(out)}d", *out)
+
+
 def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
     """Whether every field of one reply holds a value a unit can send.
 

@@ -34,11 +34,13 @@ from typing import TypeVar
 
 import numpy as np
 
+from bridge import native
 from bridge.protocol.codec import (
     Batch,
     Records,
     checksum,
     checksum_rows,
+    native_checks,
     plausible,
     plausible_rows,
 )
@@ -258,7 +260,7 @@ class Framer:
         return self._scan(True, _Runs.batches)
 
     def _scan(self, final: bool, out: Callable[[_Runs, _Reads], list[_Out]]) -> list[_Out]:
-        buf, lengths, stats = self._buf, self._lengths, self.stats
+        buf, lengths, stats, core = self._buf, self._lengths, self.stats, native.records
         runs = _Runs()
         pos, n = 0, len(buf)
         fast = True
@@ -278,7 +280,17 @@ class Framer:
                 pos += 1
                 continue
             # A 0xDB reply changes how the next record decodes: the scanner takes it.
-            if (fast and self._locked and code != BYTE_ORDER_REPLY
+            if core is not None and code != BYTE_ORDER_REPLY:
+                good = core.intact(buf, pos, size, code, (n - pos) // size,
+                                   native_checks(code, self.little_endian))
+                if good:  # else the one that failed is counted below, as without the core
+                    runs.add(code, self.little_endian, bytes(buf[pos : pos + good * size]),
+                             self._base + pos)
+                    stats.records[code] += good
+                    self._locked = True
+                    pos += good * size
+                    continue
+            elif (fast and self._locked and code != BYTE_ORDER_REPLY
                     and (n - pos) // size >= _MIN_FAST):
                 good, fast = self._fast(buf, pos, code, size, runs)
                 pos += good * size

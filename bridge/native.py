@@ -1,0 +1,38 @@
+"""The compiled per-record core (``bridge/_records.c``), or None where it is not built.
+
+It is built with the package when a C compiler and Python's headers are at hand, and
+skipped otherwise: every caller then runs its pure-Python path, which gives the same
+records and bytes (tests/test_native.py). ``GX3_NATIVE=0`` in the environment runs
+the pure-Python paths on purpose (to compare the two, or to rule the core out).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from typing import Protocol, cast
+
+
+class Core(Protocol):
+    """What ``bridge/_records.c`` offers (its docstrings say more)."""
+
+    def intact(self, buf: bytes | bytearray | memoryview, start: int, size: int, code: int,
+               limit: int, checks: bytes, /) -> int:
+        """How many records in a row from ``start`` are whole, summed and plausible."""
+
+    def messages(self, template: bytes, moves: bytes, at: tuple[int, int, int],
+                 wire: list[bytes], ticks: list[int], time_ns: list[int], rx_ns: list[int], /
+                 ) -> tuple[list[bytes], list[bytes]]:
+        """Each wire record's message, and its CRC-32 seal."""
+
+
+def _load() -> Core | None:
+    if os.environ.get("GX3_NATIVE", "1") == "0":
+        return None
+    try:
+        return cast(Core, importlib.import_module("bridge._records"))
+    except ImportError:
+        return None
+
+
+records = _load()

@@ -1,0 +1,213 @@
+"""The compiled per-record core gives what the pure-Python paths give, byte for byte.
+
+Where the package is installed without a C compiler or Python's headers, the core is
+not built and the pure-Python paths run; these tests prove that nothing a user sees
+depends on which one ran: the framer's records and counts, and every ImuSample
+payload and its CRC-32 seal. Without the core they are skipped, and say why.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bridge import native
+from bridge.bus.codec import encode_records, native_layout
+from bridge.bus.integrity import seals
+from bridge.bus.publish import sealed_records
+from bridge.protocol.codec import Records, checksum, native_checks, plausible
+from bridge.protocol.framer import Framer
+from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
+
+CODES = sorted(DATA_CODES)
+CORE = native.records
+needs_core = pytest.mark.skipif(CORE is None, reason="the compiled core is not built here "
+                                "(no C compiler or Python headers at install)")
+CHECKED = sorted(c for c in REPLIES if c != BYTE_ORDER_REPLY)
+
+
+def python_intact(buf: bytes, start: int, code: int, little_endian: bool) -> int:
+    """The framer's per-record rule, record after record, as the scanner applies it."""
+    size = REPLIES[code].length
+    good = 0
+    while start + (good + 1) * size <= len(buf):
+        rec = buf[start + good * size : start + (good + 1) * size]
+        if (rec[0] != code or checksum(rec[:-2]) != (rec[-2] << 8 | rec[-1])
+                or not plausible(code, rec, little_endian)):
+            break
+        good += 1
+    return good
+
+
+def summed(body: bytes) -> bytes:
+    return body + struct.pack(">H", checksum(body))
+
+
+@needs_core
+@settings(max_examples=300, deadline=None)
+@given(code=st.sampled_from(CHECKED), little_endian=st.booleans(), data=st.data())
+def test_intact_counts_what_the_scanner_accepts(code: int, little_endian: bool,
+                                                data: st.DataObject) -> None:
+    """Records of random bytes with their sum made right, so the values decide: NaN,
+    infinities, out-of-domain floats and integers, enumerations (0xDB's neighbours
+    included); some with a flipped byte, a wrong header or a bad sum."""
+    size = REPLIES[code].length
+    n = data.draw(st.integers(1, 6), label="records")
+    recs = []
+    for i in range(n):
+        body = bytes([code]) + data.draw(st.binary(min_size=size - 3, max_size=size - 3),
+                                         label=f"body {i}")
+        if data.draw(st.booleans(), label=f"small floats {i}"):
+            body = bytes([code]) + bytes(b & 0x3F if k % 4 == (0 if little_endian else 1) else b
+                                         for k, b in enumerate(body[1:], 1))
+        rec = bytearray(summed(body))
+        damage = data.draw(st.sampled_from(["none", "none", "sum", "header", "flip"]),
+                           label=f"damage {i}")
+        if damage == "sum":
+            rec[-1] ^= 1
+        elif damage == "header":
+            rec[0] ^= 0x40
+        elif damage == "flip":
+            rec[data.draw(st.integers(0, size - 1))] ^= 0x10
+        recs.append(bytes(rec))
+    buf = b"\x00" * 3 + b"".join(recs) + b"\xc2"
+    assert CORE is not None
+    for start in (3, 3 + size * (n // 2)):
+        limit = (len(buf) - start) // size
+        assert CORE.intact(buf, start, size, code, limit, native_checks(code, little_endian)) \
+            == python_intact(buf, start, code, little_endian)
+    assert CORE.intact(buf, 3, size, code, 1, native_checks(code, little_endian)) <= 1
+
+
+@needs_core
+def test_intact_passes_non_finite_floats_and_refuses_finite_ones_out_of_domain() -> None:
+    code = 0xCC
+    size = REPLIES[code].length
+    checks = native_checks(code, False)
+    accel = REPLIES[code].offset("accel")
+    for value, ok in [(float("nan"), True), (float("inf"), True), (-float("inf"), True),
+                      (1.0, True), (1e30, False), (-1e30, False)]:
+        body = bytearray(size - 2)
+        body[0] = code
+        body[accel : accel + 4] = struct.pack(">f", value)
+        rec = summed(bytes(body))
+        assert plausible(code, rec) is ok
+        assert CORE is not None and CORE.intact(rec, 0, size, code, 1, checks) == int(ok)
+
+
+def wire(code: int, n: int, seed: int) -> list[bytes]:
+    """n records of ``code`` with random bytes: every bit pattern, NaN payloads included."""
+    rng = np.random.default_rng(seed)
+    return [bytes(r) for r in rng.integers(0, 256, (n, REPLIES[code].length), dtype=np.uint8)]
+
+
+@needs_core
+@pytest.mark.parametrize("little_endian", [False, True], ids=["big-endian", "little-endian"])
+@pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
+def test_messages_are_the_encoders_bytes_and_seals(code: int, little_endian: bool) -> None:
+    n = 7
+    rng = np.random.default_rng(code)
+    ticks = [0, -1, 2**63 - 1, -(2**63), *rng.integers(-(2**62), 2**62, n - 4).tolist()]
+    time_ns = rng.integers(-(2**62), 2**62, n).tolist()
+    rx_ns = rng.integers(0, 2**62, n).tolist()
+    records = wire(code, n, code + little_endian)
+    for unit in ("u", "imu-0.a", "x" * 200):
+        payloads = encode_records(unit, code, little_endian, records, ticks, time_ns, rx_ns)
+        assert CORE is not None
+        assert CORE.messages(*native_layout(code, unit, little_endian), records, ticks,
+                             time_ns, rx_ns) == (payloads, seals(payloads))
+
+
+@needs_core
+def test_messages_refuses_what_it_cannot_lay_out() -> None:
+    template, moves, at = native_layout(0xCC, "u", False)
+    rec = wire(0xCC, 1, 0)
+    assert CORE is not None
+    with pytest.raises(ValueError, match="record 0"):
+        CORE.messages(template, moves, at, [rec[0][:10]], [1], [2], [3])
+    with pytest.raises(ValueError, match="different lengths"):
+        CORE.messages(template, moves, at, rec, [1, 2], [2], [3])
+    with pytest.raises(OverflowError):
+        CORE.messages(template, moves, at, rec, [2**64], [2], [3])
+    with pytest.raises(ValueError, match="outside the message"):
+        CORE.messages(template, moves, (0, 1, len(template)), rec, [1], [2], [3])
+
+
+def records_of(code: int, recs: list[bytes], little_endian: bool) -> Records:
+    size = REPLIES[code].length
+    return Records(code, little_endian, recs, [i * size for i in range(len(recs))],
+                   [5] * len(recs))
+
+
+@pytest.mark.parametrize("core", [True, False], ids=["core", "pure Python"])
+def test_the_publishers_payloads_do_not_depend_on_the_core(
+        core: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What ``UnitPublisher.publish_records`` puts, with the core or without it."""
+    if core and CORE is None:
+        pytest.skip("the compiled core is not built here")
+    if not core:
+        monkeypatch.setattr(native, "records", None)
+    recs = wire(0xCC, 3, 1)
+    payloads, attachments = sealed_records("b", records_of(0xCC, recs, False), [1, 2, 3],
+                                           [4, 5, 6])
+    expected = encode_records("b", 0xCC, False, recs, [1, 2, 3], [4, 5, 6], [5, 5, 5])
+    assert payloads == expected
+    assert attachments == seals(expected)
+
+
+def damaged_stream(seed: int) -> bytes:
+    """0xCC records, then 0xDB turning floats little-endian, then more; with garbage, a
+    bad sum, a flipped float and a record cut short in between."""
+    rng = np.random.default_rng(seed)
+    size = REPLIES[0xCC].length
+    parts: list[bytes] = []
+    for i in range(40):
+        rec = bytearray(summed(bytes([0xCC]) + bytes(size - 3)))
+        if i == 7:
+            rec[-1] ^= 1
+        if i == 13:
+            rec[1] = 0x7F  # accel x: 1e38-ish, finite, out of domain; sum made right
+            rec[-2:] = struct.pack(">H", checksum(bytes(rec[:-2])))
+        parts.append(bytes(rec))
+        if i == 20:
+            parts.append(rng.integers(0, 256, 30, dtype=np.uint8).tobytes())
+        if i == 25:
+            parts.append(bytes(rec[:40]))
+        if i == 30:
+            flags = REPLIES[BYTE_ORDER_REPLY]
+            body = bytearray(flags.length - 2)
+            body[0] = BYTE_ORDER_REPLY
+            body[flags.offset("flags") : flags.offset("flags") + 2] = struct.pack(
+                ">H", Flag.LITTLE_ENDIAN_FLOATS)
+            body[flags.offset("decimation") + 1] = 1  # a big-endian u16
+            body[flags.offset("filter_width")] = body[flags.offset("mag_filter_width")] = 1
+            parts.append(summed(bytes(body)))
+    return b"".join(parts)
+
+
+@needs_core
+@pytest.mark.parametrize("seed", range(4))
+def test_the_framer_gives_the_same_records_and_counts_with_and_without_the_core(
+        seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    stream = damaged_stream(seed)
+    cuts = sorted(np.random.default_rng(seed).choice(len(stream), 60, replace=False).tolist())
+
+    def run() -> tuple[list[tuple[int, bool, list[bytes], list[int]]], str]:
+        framer = Framer(expect=[0xCC, BYTE_ORDER_REPLY])
+        out = []
+        for i, piece in enumerate(np.split(np.frombuffer(stream, np.uint8), cuts)):
+            out += [(r.code, r.little_endian, r.wire, r.offsets)
+                    for r in framer.feed_records(piece.tobytes(), i)]
+        out += [(b.code, b.little_endian, [bytes(row) for row in b.block], b.offsets.tolist())
+                for b in framer.flush() if b.block is not None]
+        return out, framer.stats.summary()
+
+    with_core = run()
+    monkeypatch.setattr(native, "records", None)
+    assert run() == with_core
+    assert "0xCC×38, 0xDB×1;" in with_core[1] and "implausible: 1;" in with_core[1]
+    assert {little_endian for _, little_endian, _, _ in with_core[0]} == {False, True}
