@@ -12,7 +12,8 @@ On the same emulated stream (one emulated unit on a pty), one after the other:
   for that budget;
 - that loop, at 1 ms and at the largest budget, putting through an advanced publisher
   declared as the bridge declares its imu key: what the publisher kind costs;
-- ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5.
+- ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5; where the compiled core
+  (``bridge/_records.c``) is built, each also without it (``GX3_NATIVE=0``): what it gives.
 
 For each: its process's CPU (user + system time over wall time, % of one core), the
 same per record, the latency from the receive stamp of the read that completed a
@@ -48,6 +49,7 @@ import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 from zenoh.ext import AdvancedPublisher
 
+from bridge import native
 from bridge.bus.codec import layout
 from bridge.loopback import free_port, interrupt
 from bridge.protocol.table import REPLIES, Flag
@@ -61,6 +63,7 @@ RATE_HZ = 1000
 START = bytes([0xC4, 0xC1, 0x29, CODE])  # continuous mode, 0xCC
 STOP = bytes([0xFA, 0x75, 0xB4])
 KEY = "gx3/bench/imu"
+PURE = ", pure Python"
 #: A loop says "ready" once it has the port; SIGUSR1 then asks it for the bytes it has read
 #: so far (one line on stdout each).
 C_LOOP = r"""
@@ -232,11 +235,12 @@ class Subscriber:
 
 
 def measure(name: str, command: list[str], seconds: float, session: zenoh.Session | None,
-            kind: str, budget_ms: float = 1.0) -> Row:
+            kind: str, budget_ms: float = 1.0, env: dict[str, str] | None = None) -> Row:
     """Run ``command`` on the stream; its CPU and deliveries over ``seconds``."""
     row = Row(name, budget_ms=budget_ms)
     sub = Subscriber(session, kind == "put") if session is not None else None
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True,
+                            env=None if env is None else {**os.environ, **env})
     try:
         deadline = time.monotonic() + 30
         if sub is not None:  # warm: the unit streams and the subscriber hears it
@@ -383,13 +387,16 @@ def main() -> None:
                     name += f", {ms:g} ms budget"
                 rows.append(measure(name, [*me, kind, str(ms), port, str(cfg)], args.seconds,
                                     session, "put", ms))
+            cores = [False] if native.records is None else [True, False]
             for budget in budgets:
                 option = [] if budget == "default" else ["--max-latency-ms", budget]
                 command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
                            "--zenoh-config", str(cfg), "--quiet", *option]
-                rows.append(measure(" ".join(["gx3 bridge", *option]), command, args.seconds,
-                                    session, "bridge", 1.0 if budget == "default" else
-                                    float(budget)))
+                for core in cores:
+                    name = " ".join(["gx3 bridge", *option]) + ("" if core else PURE)
+                    rows.append(measure(name, command, args.seconds, session, "bridge",
+                                        1.0 if budget == "default" else float(budget),
+                                        None if core else {"GX3_NATIVE": "0"}))
     print(f"0x{CODE:02X} at {RATE_HZ:,} Hz, 921,600 baud, pty; {args.seconds:g} s a row")
     print(table(rows))
     for r in rows:

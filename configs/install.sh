@@ -2,7 +2,7 @@
 # Install gx3 for a fleet on a Debian machine (or any with systemd), as root:
 #
 #   sudo configs/install.sh                # gx3 from this checkout
-#   sudo configs/install.sh gx3_bridge-0.1.0-py3-none-any.whl     # or from a built wheel
+#   sudo configs/install.sh gx3_bridge-0.1.0-*.whl  # or from a built wheel
 #
 # It puts gx3 in a virtual environment at /opt/gx3 (pip fetches its dependencies),
 # creates the system user gx3 in the group dialout (serial ports), /etc/gx3 (zenoh.json5

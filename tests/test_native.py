@@ -8,7 +8,13 @@ payload and its CRC-32 seal. Without the core they are skipped, and say why.
 
 from __future__ import annotations
 
+import os
+import shutil
 import struct
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +34,7 @@ CORE = native.records
 needs_core = pytest.mark.skipif(CORE is None, reason="the compiled core is not built here "
                                 "(no C compiler or Python headers at install)")
 CHECKED = sorted(c for c in REPLIES if c != BYTE_ORDER_REPLY)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def python_intact(buf: bytes, start: int, code: int, little_endian: bool) -> int:
@@ -211,3 +218,31 @@ def test_the_framer_gives_the_same_records_and_counts_with_and_without_the_core(
     assert run() == with_core
     assert "0xCC×38, 0xDB×1;" in with_core[1] and "implausible: 1;" in with_core[1]
     assert {little_endian for _, little_endian, _, _ in with_core[0]} == {False, True}
+
+
+def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path: Path) -> None:
+    """The README's set-up on a fresh machine with no compiler: the core's build fails,
+    the wheel is built without it, and the package it installs runs pure Python."""
+    source = tmp_path / "src"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source)
+    shutil.copytree(ROOT / "bridge", source / "bridge",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    env = {**os.environ, "CC": "false", "LDSHARED": "false"}
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
+                            "--no-build-isolation", "-w", str(tmp_path / "dist"), str(source)],
+                           capture_output=True, text=True, timeout=300, check=False, env=env)
+    assert built.returncode == 0, built.stderr
+    (wheel,) = (tmp_path / "dist").glob("gx3_bridge-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "bridge/native.py" in names
+    assert not [n for n in names if n.startswith("bridge/_records") and n.endswith(".so")]
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-index",
+                    "--target", str(target), str(wheel)], check=True, timeout=300)
+    probe = ("import bridge, bridge.native as n; from bridge.protocol.framer import Framer; "
+             "print(bridge.__file__, n.records)")
+    ran = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=60, check=True, env={**os.environ, "PYTHONPATH": str(target)})
+    assert ran.stdout.split() == [str(target / "bridge" / "__init__.py"), "None"]
