@@ -13,6 +13,7 @@ import shutil
 import struct
 import subprocess
 import sys
+import sysconfig
 import zipfile
 from pathlib import Path
 
@@ -243,6 +244,11 @@ def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path:
                     "--target", str(target), str(wheel)], check=True, timeout=300)
     probe = ("import bridge, bridge.native as n; from bridge.protocol.framer import Framer; "
              "print(bridge.__file__, n.records)")
-    ran = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         timeout=60, check=True, env={**os.environ, "PYTHONPATH": str(target)})
+    # -S and another folder: neither this checkout nor its editable install (a .pth
+    # hook), only the wheel and the dependencies beside it
+    path = os.pathsep.join([str(target), sysconfig.get_paths()["purelib"],
+                            sysconfig.get_paths()["platlib"]])
+    ran = subprocess.run([sys.executable, "-S", "-c", probe], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=60, check=True,
+                         env={**os.environ, "PYTHONPATH": path})
     assert ran.stdout.split() == [str(target / "bridge" / "__init__.py"), "None"]
