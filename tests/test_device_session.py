@@ -20,6 +20,7 @@ from bridge.device.session import (
     PersistRefused,
     Session,
     find_baud,
+    pace,
 )
 from bridge.protocol.table import Flag, Mode
 from bridge.sim.motion import MotionConfig
@@ -205,3 +206,16 @@ def test_the_first_streamed_record_is_kept() -> None:
             timers = stream_some(s, 0xC2, 5)
             sent = sim.units[0].truth.arrays()["timer"]
         assert timers[:5] == sent[:5].tolist(), "the stream's first record was dropped"
+
+
+def test_a_record_cut_by_a_read_is_waited_for_only_where_it_would_come_in_pieces() -> None:
+    """A UART whose FIFO hands over a few bytes at a time would wake the bridge for each:
+    it sleeps for the rest's line time instead. A link that hands over large pieces (a
+    pty, a driver that gathers) brings the rest in one wake-up, and a sleep, a timer
+    wake-up, would only add one."""
+    baud = 921_600
+    assert pace(66, 13.0, baud) == pytest.approx(66 * 10 / baud)
+    assert pace(66, 46.0, baud) == 0.0
+    assert pace(20, 9.0, baud) == pytest.approx(20 * 10 / baud)
+    assert pace(0, 1.0, baud) == 0.0
+    assert pace(-4, 1.0, baud) == 0.0
