@@ -3,8 +3,9 @@
 A 1 kHz 0xCC stream is fed from memory as the pty gives it (each record in two reads,
 cut at a varying place), through what ``gx3 bridge`` runs per read: the framer
 (``Framer.feed_records``), the pipeline's timing (``Pipeline.process``) and the
-encoding of each ImuSample with its CRC (``encode_records`` and ``seals``, as
-``UnitPublisher.publish_records`` does before its puts). Each stage's thread CPU
+encoding of each ImuSample with its CRC (``sealed_records``, as
+``UnitPublisher.publish_records`` does before its puts: in the compiled core where it
+is built; ``GX3_NATIVE=0`` measures the pure-Python paths). Each stage's thread CPU
 is summed. ``--cadence-ms`` sleeps between records as a live bridge waits for the
 next one: the caches go cold, and the same work costs several times what it costs
 back to back (``--cadence-ms 0``).
@@ -21,8 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from bridge.bus.codec import encode_batch, encode_records
+from bridge.bus.codec import encode_batch
 from bridge.bus.integrity import seals
+from bridge.bus.publish import sealed_records
 from bridge.device.session import UnitInfo
 from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
 from bridge.protocol.codec import Records, encode_replies
@@ -47,8 +49,8 @@ class Encode:
         start = time.thread_time_ns()
         records = samples.records
         if isinstance(records, Records):
-            seals(encode_records("bench", records.code, records.little_endian, records.wire,
-                                 samples.tick_values, samples.time_values, records.rx_ns))
+            sealed_records("bench", records, list(samples.tick_values),
+                           list(samples.time_values))
         else:  # the first record of a stream: the batch path
             seals(encode_batch("bench", samples.batch, samples.ticks, samples.time_ns,
                                samples.batch.rx_ns))

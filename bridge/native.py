@@ -1,16 +1,18 @@
-"""The compiled per-record core (``bridge/_records.c``), or None where it is not built.
+"""The compiled core of a live read, or None where it is not built: the per-record byte
+work (``bridge/_records.c``) and reading a port until a record is whole
+(``bridge/_gather.c``).
 
-It is built with the package when a C compiler and Python's headers are at hand, and
-skipped otherwise: every caller then runs its pure-Python path, which gives the same
-records and bytes (tests/test_native.py). ``GX3_NATIVE=0`` in the environment runs
-the pure-Python paths on purpose (to compare the two, or to rule the core out).
+Both are built with the package when a C compiler and Python's headers are at hand,
+and skipped otherwise: every caller then runs its pure-Python path, which gives the
+same records and bytes (tests/test_native.py). ``GX3_NATIVE=0`` in the environment
+runs the pure-Python paths on purpose (to compare the two, or to rule the core out).
 """
 
 from __future__ import annotations
 
 import importlib
 import os
-from typing import Protocol, cast
+from typing import Any, Protocol, cast
 
 
 class Core(Protocol):
@@ -26,13 +28,23 @@ class Core(Protocol):
         """Each wire record's message, and its CRC-32 seal."""
 
 
-def _load() -> Core | None:
+class Reader(Protocol):
+    """What ``bridge/_gather.c`` offers."""
+
+    def gather(self, fd: int, need: int, wait_s: float, /
+               ) -> tuple[list[bytes], list[int], bool]:
+        """Reads until ``need`` bytes came or ``wait_s`` passed: their bytes, their
+        receive times, and whether the other end was gone."""
+
+
+def _load(name: str) -> Any:
     if os.environ.get("GX3_NATIVE", "1") == "0":
         return None
     try:
-        return cast(Core, importlib.import_module("bridge._records"))
+        return importlib.import_module(name)
     except ImportError:
         return None
 
 
-records = _load()
+records = cast(Core | None, _load("bridge._records"))
+reader = cast(Reader | None, _load("bridge._gather"))

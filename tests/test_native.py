@@ -8,13 +8,18 @@ payload and its CRC-32 seal. Without the core they are skipped, and say why.
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 import struct
 import subprocess
 import sys
 import sysconfig
+import threading
+import time
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +31,7 @@ from bridge import native
 from bridge.bus.codec import encode_records, native_layout
 from bridge.bus.integrity import seals
 from bridge.bus.publish import sealed_records
+from bridge.device.port import Port, PortError
 from bridge.protocol.codec import Records, checksum, native_checks, plausible
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
@@ -34,6 +40,8 @@ CODES = sorted(DATA_CODES)
 CORE = native.records
 needs_core = pytest.mark.skipif(CORE is None, reason="the compiled core is not built here "
                                 "(no C compiler or Python headers at install)")
+needs_reader = pytest.mark.skipif(native.reader is None, reason="the compiled reader is not "
+                                  "built here (no C compiler or Python headers at install)")
 CHECKED = sorted(c for c in REPLIES if c != BYTE_ORDER_REPLY)
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -252,3 +260,86 @@ def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path:
                          cwd=tmp_path, timeout=60, check=True,
                          env={**os.environ, "PYTHONPATH": path})
     assert ran.stdout.split() == [str(target / "bridge" / "__init__.py"), "None"]
+
+
+@contextmanager
+def pty_port() -> Iterator[tuple[Port, int]]:
+    """A Port on a real pseudo-terminal, and the master end that plays the unit."""
+    master, slave = os.openpty()
+    try:
+        port = Port.open(os.ttyname(slave), 115_200)
+        try:
+            yield port, master
+        finally:
+            port.close()
+    finally:
+        os.close(slave)
+        os.close(master)
+
+
+@needs_reader
+def test_a_port_reads_on_until_the_record_is_whole_keeping_each_read() -> None:
+    """Half a record now and half later: one call, two reads with their own times (the
+    framer and the clock use both), as two calls without the compiled reader give."""
+    with pty_port() as (port, master):
+        os.write(master, b"a" * 10)
+        later = threading.Timer(0.2, os.write, (master, b"b" * 10))
+        later.start()
+        try:
+            reads, rx_ns = port.read_until(20, 30.0)
+        finally:
+            later.join()
+        assert reads == [b"a" * 10, b"b" * 10]
+        assert rx_ns[0] < rx_ns[1] <= time.time_ns()
+
+
+@needs_reader
+def test_a_port_read_that_times_out_gives_what_came() -> None:
+    with pty_port() as (port, master):
+        assert port.read_until(20, 0.05) == ([], [])
+        os.write(master, b"c" * 7)
+        reads, _ = port.read_until(20, 0.5)
+        while sum(map(len, reads)) < 7:
+            reads += port.read_until(20, 0.5)[0]
+        assert b"".join(reads) == b"c" * 7
+
+
+@needs_reader
+def test_a_port_whose_device_went_away_says_so() -> None:
+    master, slave = os.openpty()
+    port = Port.open(os.ttyname(slave), 115_200)
+    try:
+        os.close(master)
+        with pytest.raises(PortError, match="went away"):
+            port.read_until(20, 5.0)
+    finally:
+        port.close()
+        os.close(slave)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_feeding_a_records_pieces_at_once_is_feeding_them_one_by_one(seed: int) -> None:
+    stream = damaged_stream(seed)
+    rng = np.random.default_rng(seed)
+    cuts = sorted(rng.choice(len(stream), 300, replace=False).tolist())
+    pieces = [p.tobytes() for p in np.split(np.frombuffer(stream, np.uint8), cuts)]
+    pieces[5:5] = [b""]  # an empty read is no read
+    times = list(range(len(pieces)))
+    times[9] = times[10]  # of reads at one time the last stands for them
+
+    def run(groups: list[int]) -> list[tuple[int, bool, bytes, int, int, int, int]]:
+        """Each record: its type, byte order, bytes, offset, receive time and partial read."""
+        framer = Framer(expect=[0xCC, BYTE_ORDER_REPLY])
+        out = []
+        for start, end in itertools.pairwise([0, *groups, len(pieces)]):
+            for r in framer.feed_pieces(pieces[start:end], times[start:end]):
+                size = REPLIES[r.code].length
+                part_ns = r.part_ns or r.rx_ns
+                part_bytes = r.part_bytes or [size] * len(r)
+                out += [(r.code, r.little_endian, *one) for one in zip(
+                    r.wire, r.offsets, r.rx_ns, part_ns, part_bytes, strict=True)]
+        return out
+
+    one_by_one = run(list(range(1, len(pieces))))
+    assert one_by_one == run(sorted(rng.choice(len(pieces), 60, replace=False).tolist()))
+    assert len(one_by_one) >= 38

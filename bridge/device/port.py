@@ -19,6 +19,8 @@ from typing import Any
 
 import serial
 
+from bridge import native
+
 _READ_SIZE = 1 << 16
 
 
@@ -118,6 +120,29 @@ class Port:
             raise
         except (serial.SerialException, OSError) as exc:
             raise _error(self.url, exc) from None
+
+    def read_until(self, need: int, wait_s: float) -> tuple[list[bytes], list[int]]:
+        """Reads as bytes come until ``need`` bytes have come or ``wait_s`` has passed:
+        each read's bytes and receive time. A live bridge waits so for the rest of a
+        record in compiled code (``bridge/_gather.c``, the GIL released), and wakes in
+        Python once a record rather than once a piece the link hands over. Without it,
+        or without a file descriptor, this is one ``read``, and the caller reads again:
+        the same reads either way.
+
+        Raises PortError when the transport is gone (cable pulled, server closed).
+        """
+        fd = self._fileno()
+        reader = native.reader
+        if fd is None or reader is None or need <= 1:
+            data, rx_ns = self.read(wait_s)
+            return ([data], [rx_ns]) if data else ([], [])
+        try:
+            reads, times, gone = reader.gather(fd, need, wait_s)
+        except OSError as exc:
+            raise _error(self.url, exc) from None
+        if gone and not reads:  # the bytes before the end go out first, as reads would
+            raise PortError(f"{self.url}: the device went away (cable pulled?)", "port gone")
+        return reads, times
 
     def write(self, data: bytes) -> None:
         try:

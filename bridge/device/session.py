@@ -186,17 +186,19 @@ class Session:
             codes.add(self.streaming)
         self.framer.expect(codes)
 
-    def _take(self, wait_s: float) -> tuple[bytes, int]:
-        data, rx_ns = self.port.read(wait_s)
-        if data:
+    def _take(self, wait_s: float, need: int = 1) -> tuple[list[bytes], list[int]]:
+        """Reads until ``need`` bytes came (``Port.read_until``), handed to ``on_read``."""
+        reads, rx_ns = self.port.read_until(need, wait_s)
+        if reads:
             self._last_read = time.monotonic()
             if self.on_read is not None:
-                self.on_read(data, rx_ns)
-        return data, rx_ns
+                for data, rx in zip(reads, rx_ns, strict=True):
+                    self.on_read(data, rx)
+        return reads, rx_ns
 
     def _read(self, wait_s: float) -> list[Batch]:
-        data, rx_ns = self._take(wait_s)
-        return self.framer.feed(data, rx_ns) if data else []
+        reads, rx_ns = self._take(wait_s)
+        return self.framer.feed(reads[0], rx_ns[0]) if reads else []
 
     def read(self, wait_s: float = 0.05) -> list[Batch]:
         """Data records of the stream that arrived within ``wait_s`` (or while a command
@@ -226,11 +228,12 @@ class Session:
                 pause = max(pause, min(wait_s, pace(rest, self._piece, self.port.baud)))
             if pause > 0:
                 time.sleep(pause)
-        data, rx_ns = self._take(0.0 if out else wait_s)
-        if data and pause <= 0:  # woken by the link: how large its pieces are
-            self._piece += (len(data) - self._piece) / _PIECE_SMOOTHING
-        if data:
-            out += [r for r in self.framer.feed_records(data, rx_ns) if r.code == self.streaming]
+        need = 1 if self.streaming is None else REPLIES[self.streaming].length - self.framer.pending
+        reads, rx_ns = self._take(0.0 if out else wait_s, need)
+        if reads and pause <= 0:  # woken by the link: how large its pieces are
+            self._piece += (len(reads[0]) - self._piece) / _PIECE_SMOOTHING
+        if reads:
+            out += [r for r in self.framer.feed_pieces(reads, rx_ns) if r.code == self.streaming]
         return out
 
     def drain(self, quiet_s: float = _QUIET_S, limit_s: float = _DRAIN_MAX_S) -> int:

@@ -226,6 +226,24 @@ class Framer:
         array set-up (``Records.batch`` gives the very ``Batch``)."""
         return self._take(data, [len(data)], [rx_ns], _Runs.records)
 
+    def feed_pieces(self, reads: list[bytes], rx_ns: list[int]) -> list[Records]:
+        """``feed_records`` of several reads (the pieces a record came in while a port
+        read on until it was whole): one scan for them all, the records and times that
+        feeding them one by one gives. As ``feed_reads``, an empty read is no read and
+        of reads received at one time the last stands for them."""
+        if len(reads) == 1:
+            return self._take(reads[0], [len(reads[0])], rx_ns, _Runs.records)
+        pieces = [(data, rx) for data, rx in zip(reads, rx_ns, strict=True) if data]
+        ends: list[int] = []
+        times: list[int] = []
+        end = 0
+        for i, (data, rx) in enumerate(pieces):
+            end += len(data)
+            if i + 1 == len(pieces) or rx != pieces[i + 1][1]:
+                ends.append(end)
+                times.append(rx)
+        return self._take(b"".join(reads), ends, times, _Runs.records)
+
     def feed_reads(self, data: bytes | bytearray | memoryview, ends: np.ndarray,
                    rx_ns: np.ndarray) -> list[Batch]:
         """Take many reads at once, their bytes end to end in ``data``: read i ends at
