@@ -89,7 +89,7 @@ def main() -> None:
     for end in ends:
         rx_ns = T0 + end * 1_000_000 // size + 200_000
         t0 = time.thread_time_ns()
-        found = framer.feed_records(raw[start:end], rx_ns)
+        found = framer.feed_records([raw[start:end]], [rx_ns])
         t1 = time.thread_time_ns()
         spent["framer"] += t1 - t0
         for records in found:

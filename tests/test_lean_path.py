@@ -153,7 +153,7 @@ def live_path(data: bytes, read_ends: list[int], rx: np.ndarray, transport: str)
     framer = Framer(expect=[CODE])
     start = 0
     for end, rx_ns in zip(read_ends, rx.tolist(), strict=True):
-        for records in framer.feed_records(data[start:end], rx_ns):
+        for records in framer.feed_records([data[start:end]], [rx_ns]):
             pipeline.process(records)
         start = end
     return out

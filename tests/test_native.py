@@ -217,7 +217,7 @@ def test_the_framer_gives_the_same_records_and_counts_with_and_without_the_core(
         out = []
         for i, piece in enumerate(np.split(np.frombuffer(stream, np.uint8), cuts)):
             out += [(r.code, r.little_endian, r.wire, r.offsets)
-                    for r in framer.feed_records(piece.tobytes(), i)]
+                    for r in framer.feed_records([piece.tobytes()], [i])]
         out += [(b.code, b.little_endian, [bytes(row) for row in b.block], b.offsets.tolist())
                 for b in framer.flush() if b.block is not None]
         return out, framer.stats.summary()
@@ -332,7 +332,7 @@ def test_feeding_a_records_pieces_at_once_is_feeding_them_one_by_one(seed: int) 
         framer = Framer(expect=[0xCC, BYTE_ORDER_REPLY])
         out = []
         for start, end in itertools.pairwise([0, *groups, len(pieces)]):
-            for r in framer.feed_pieces(pieces[start:end], times[start:end]):
+            for r in framer.feed_records(pieces[start:end], times[start:end]):
                 size = REPLIES[r.code].length
                 part_ns = r.part_ns or r.rx_ns
                 part_bytes = r.part_bytes or [size] * len(r)

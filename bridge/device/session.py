@@ -216,11 +216,10 @@ class Session:
         before its line time, so the session sleeps that long first (``pace``).
         """
         out: list[Batch | Records] = []
-        pause = 0.0
+        woken = False  # whether the read below waits for the link's bytes
         if self._backlog:
             out += self._backlog
             self._backlog = []
-            pause = math.inf  # the read below does not wait for the link
         else:
             pause = self._last_read + hold_s - time.monotonic()
             if self.paced and self.streaming is not None and self.framer.pending:
@@ -228,12 +227,13 @@ class Session:
                 pause = max(pause, min(wait_s, pace(rest, self._piece, self.port.baud)))
             if pause > 0:
                 time.sleep(pause)
+            woken = pause <= 0
         need = 1 if self.streaming is None else REPLIES[self.streaming].length - self.framer.pending
         reads, rx_ns = self._take(0.0 if out else wait_s, need)
-        if reads and pause <= 0:  # woken by the link: how large its pieces are
+        if reads and woken:  # how large the pieces are that the link hands over
             self._piece += (len(reads[0]) - self._piece) / _PIECE_SMOOTHING
         if reads:
-            out += [r for r in self.framer.feed_pieces(reads, rx_ns) if r.code == self.streaming]
+            out += [r for r in self.framer.feed_records(reads, rx_ns) if r.code == self.streaming]
         return out
 
     def drain(self, quiet_s: float = _QUIET_S, limit_s: float = _DRAIN_MAX_S) -> int:

@@ -18,7 +18,7 @@ inside it and how many of its bytes had arrived by then: over a serial line that
 when the record began more tightly than its completing read can. Reads with the same
 receive time count as one (a read cut in two says nothing new), and an empty read as
 none. A replay hands over many reads at once (``feed_reads``): one scan instead of one
-per read, the same records and times. A live bridge takes its read's record or two as
+per read, the same records and times. A live bridge takes its reads' record or two as
 ``Records`` (``feed_records``): the same scan, the wire bytes of each record without
 arrays.
 """
@@ -220,17 +220,13 @@ class Framer:
         """Take the next read, received at ``rx_ns``; return the records decided so far."""
         return self._take(data, [len(data)], [rx_ns], _Runs.batches)
 
-    def feed_records(self, data: bytes | bytearray | memoryview, rx_ns: int = 0
-                     ) -> list[Records]:
-        """``feed``, the records as ``Records``: a live read's record or two without
-        array set-up (``Records.batch`` gives the very ``Batch``)."""
-        return self._take(data, [len(data)], [rx_ns], _Runs.records)
-
-    def feed_pieces(self, reads: list[bytes], rx_ns: list[int]) -> list[Records]:
-        """``feed_records`` of several reads (the pieces a record came in while a port
-        read on until it was whole): one scan for them all, the records and times that
-        feeding them one by one gives. As ``feed_reads``, an empty read is no read and
-        of reads received at one time the last stands for them."""
+    def feed_records(self, reads: list[bytes], rx_ns: list[int]) -> list[Records]:
+        """``feed`` of a live bridge's reads, the records as ``Records``: a record or
+        two without array set-up (``Records.batch`` gives the very ``Batch``). The reads
+        are one, or the pieces a record came in while the port read on until it was
+        whole: one scan for them all, the records and times that feeding them one by one
+        gives. As ``feed_reads``, an empty read is no read and of reads received at one
+        time the last stands for them."""
         if len(reads) == 1:
             return self._take(reads[0], [len(reads[0])], rx_ns, _Runs.records)
         pieces = [(data, rx) for data, rx in zip(reads, rx_ns, strict=True) if data]

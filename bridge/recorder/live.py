@@ -48,7 +48,7 @@ _PASS_S = 0.05  # a pass takes ~5,000 messages at 100,000/s: whole batches per k
 #: message waits there longer, and a look that finds a message or two per key costs a
 #: few microseconds (Zenoh's channels cannot wake a Python thread without its threads
 #: taking the GIL for every sample, which a busy writer would make them wait for).
-_PROMPT_S = 0.002
+_PROMPT_S = 0.001
 #: ... and once nothing has come for ``_QUIET_S``: an idle recorder barely wakes, and
 #: the first message after the silence waits at most this long.
 _RECEIVE_S = 0.025
