@@ -65,10 +65,12 @@ def zenoh_config(path: Path, listen: list[str] | None = None,
 
 
 @contextmanager
-def bridge_process(port: str, cfg: Path, *args: str) -> Iterator[subprocess.Popen[bytes]]:
+def bridge_process(port: str, cfg: Path, *args: str, env: dict[str, str] | None = None
+                   ) -> Iterator[subprocess.Popen[bytes]]:
     assert GX3, "the gx3 console script is not installed next to this interpreter"
     proc = subprocess.Popen([GX3, "bridge", "--port", port, "--zenoh-config", str(cfg),
-                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=None if env is None else {**os.environ, **env})
     try:
         yield proc
     finally:
@@ -86,10 +88,12 @@ def network(tmp_path: Path) -> tuple[Path, Path]:
             zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
 
 
-@pytest.mark.parametrize("budget_ms", [None, 5], ids=["default", "max-latency-5ms"])
+@pytest.mark.parametrize(("budget_ms", "pure"), [(None, False), (5, False), (None, True)],
+                         ids=["default", "max-latency-5ms", "pure-python"])
 def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
-        network: tuple[Path, Path], budget_ms: int | None) -> None:
-    """With a latency budget too: then reads gather a few records each."""
+        network: tuple[Path, Path], budget_ms: int | None, pure: bool) -> None:
+    """With a latency budget too: then reads gather a few records each; and without the
+    compiled core (``GX3_NATIVE=0``, as on a machine without a compiler)."""
     bridge_cfg, client_cfg = network
     seconds = 5.0
     budget = [] if budget_ms is None else ["--max-latency-ms", str(budget_ms)]
@@ -97,7 +101,7 @@ def test_every_sample_of_a_1khz_unit_arrives_equal_to_the_truth(
             subscribe("gx3/fast/imu", output="batches", zenoh_config=client_cfg,
                       history=20_000) as sub, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600", "--unit", "fast",
-                           *budget):
+                           *budget, env={"GX3_NATIVE": "0"} if pure else None):
         batches: list[SampleBatch] = []
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:

@@ -343,3 +343,13 @@ def test_feeding_a_records_pieces_at_once_is_feeding_them_one_by_one(seed: int) 
     one_by_one = run(list(range(1, len(pieces))))
     assert one_by_one == run(sorted(rng.choice(len(pieces), 60, replace=False).tolist()))
     assert len(one_by_one) >= 38
+
+
+def test_without_the_compiled_reader_a_port_gives_one_read_and_the_caller_reads_on(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(native, "reader", None)
+    with pty_port() as (port, master):
+        os.write(master, b"a" * 10)
+        reads, rx_ns = port.read_until(20, 30.0)
+        assert reads == [b"a" * 10] and len(rx_ns) == 1
+        assert port.read_until(20, 0.05) == ([], [])
