@@ -297,7 +297,7 @@ class Pipeline:
         last_data = time.monotonic()
         next_status = time.monotonic() + 1.0
         next_poll = time.monotonic()
-        poll_hz = self.options.poll_hz
+        poll_hz, hold_s = self.options.poll_hz, self.options.hold_s
         while not stop.is_set():
             if self._actions.queue:  # a peek without the queue's lock, once a read
                 self._run_actions(session)
@@ -310,7 +310,7 @@ class Pipeline:
             # Silence is judged from before the read: a host that stalls this thread
             # after a read that held no whole record has not heard a silent unit.
             asked = time.monotonic()
-            batches = session.read_records(wait, self.options.hold_s)
+            batches = session.read_records(wait, hold_s)
             now = time.monotonic()
             if batches:
                 last_data = now

@@ -217,19 +217,19 @@ class Session:
         """
         out: list[Batch | Records] = []
         woken = False  # whether the read below waits for the link's bytes
+        # the bytes that complete the record begun (1: a whole reply is not waited for)
+        rest = 1 if self.streaming is None else REPLIES[self.streaming].length - self.framer.pending
         if self._backlog:
             out += self._backlog
             self._backlog = []
         else:
             pause = self._last_read + hold_s - time.monotonic()
             if self.paced and self.streaming is not None and self.framer.pending:
-                rest = REPLIES[self.streaming].length - self.framer.pending
                 pause = max(pause, min(wait_s, pace(rest, self._piece, self.port.baud)))
             if pause > 0:
                 time.sleep(pause)
             woken = pause <= 0
-        need = 1 if self.streaming is None else REPLIES[self.streaming].length - self.framer.pending
-        reads, rx_ns = self._take(0.0 if out else wait_s, need)
+        reads, rx_ns = self._take(0.0 if out else wait_s, rest)
         if reads and woken:  # how large the pieces are that the link hands over
             self._piece += (len(reads[0]) - self._piece) / _PIECE_SMOOTHING
         if reads:
