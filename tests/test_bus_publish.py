@@ -18,6 +18,7 @@ from bridge.pipeline import Options, Pipeline
 from bridge.protocol.table import DATA_CODES
 from bridge.service import EARLY_READS, BusSink
 from tests.test_bus_codec import times, wire_batch
+from tests.waiting import wait_for
 
 
 @pytest.fixture
@@ -79,7 +80,9 @@ def test_a_subscription_closes_its_own_session_and_leaves_no_thread() -> None:
     sub.close()
     waiter.join(5)
     assert not waiter.is_alive()
-    assert set(threading.enumerate()) == before
+    # Zenoh's callback thread (pyo3) ends just after close; a loaded host may see it
+    # for a moment, never for long
+    wait_for(lambda: set(threading.enumerate()) == before, 30, "the subscription's threads to end")
     assert sub.get(timeout=0.1) is None
 
 
