@@ -69,11 +69,13 @@ class ListSink:
 
 @contextmanager
 def running(config: UnitConfig, link: Path | None = None, usb: UsbDelivery | None = None,
-            **options: Any) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
+            transport: str = "pty", **options: Any
+            ) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
     """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
     (the kernel may give a replugged pty another number, as udev rules prevent for real);
-    ``usb`` how the unit's bytes reach the host."""
-    with Simulator([config], "pty", links=[link] if link else None, usb=usb) as sim:
+    ``usb`` how the unit's bytes reach the host; ``transport`` "pty" or "tcp" (a serial
+    server, ``socket://``)."""
+    with Simulator([config], transport, links=[link] if link else None, usb=usb) as sim:
         sink = ListSink()
         pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
         stop = threading.Event()
@@ -87,8 +89,11 @@ def running(config: UnitConfig, link: Path | None = None, usb: UsbDelivery | Non
             assert not worker.is_alive(), "the pipeline did not stop"
 
 
-def test_every_record_once_with_increasing_ticks() -> None:
-    with running(BASE) as (sim, _, sink):
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_every_record_once_with_increasing_ticks(transport: str) -> None:
+    """Over a tty and over a serial server's socket, each read by the port on until a
+    record is whole."""
+    with running(BASE, transport=transport) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 150)
     ticks = sink.column("ticks")
     assert (np.diff(ticks) == 625).all(), "a record was lost, doubled or out of order"
