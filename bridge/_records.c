@@ -72,6 +72,23 @@ static int record_ok(const uint8_t *rec, Py_ssize_t size, int code, const double
     return 1;
 }
 
+/* Whether every check reads whole values inside a record of ``size`` bytes. */
+static int checks_fit(const double *checks, Py_ssize_t n_checks, Py_ssize_t size) {
+    Py_ssize_t at = 0;
+    while (at < n_checks) {
+        if (n_checks - at < 8) return 0;
+        const double *c = checks + at;
+        double offset = c[0], count = c[1], width = c[2], n_values = c[7];
+        if (!(offset >= 1 && count >= 1 && (width == 1 || width == 2 || width == 4)
+              && offset + count * width <= size - 2 && n_values >= 0
+              && n_values <= (double)(n_checks - at - 8)))
+            return 0;
+        if (c[3] != 0 && width != 4) return 0;  /* floats are float32 */
+        at += 8 + (Py_ssize_t)n_values;
+    }
+    return 1;
+}
+
 PyDoc_STRVAR(intact_doc,
 "intact(buf, start, size, code, limit, checks) -> int\n\n"
 "How many records of ``size`` bytes from ``start`` in ``buf``, at most ``limit``, in a\n"
@@ -94,7 +111,9 @@ static PyObject *intact(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     Py_ssize_t good = 0;
-    if (size < 3 || start < 0 || checks.len % sizeof(double)) {
+    if (size < 3 || start < 0 || !checks_fit((const double *)checks.buf,
+                                             checks.len / (Py_ssize_t)sizeof(double), size)
+        || checks.len % sizeof(double)) {
         PyErr_SetString(PyExc_ValueError, "intact(): bad size, start or checks");
     } else {
         const uint8_t *p = (const uint8_t *)buf.buf;

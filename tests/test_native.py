@@ -353,3 +353,14 @@ def test_without_the_compiled_reader_a_port_gives_one_read_and_the_caller_reads_
         reads, rx_ns = port.read_until(20, 30.0)
         assert reads == [b"a" * 10] and len(rx_ns) == 1
         assert port.read_until(20, 0.05) == ([], [])
+
+
+@needs_core
+def test_intact_refuses_checks_that_read_outside_a_record() -> None:
+    rec = summed(bytes([0xCC]) + bytes(REPLIES[0xCC].length - 3))
+    size = REPLIES[0xCC].length
+    assert CORE is not None
+    for bad in ([size - 2.0, 1, 4, 1, 0, 0, 1, 0], [1, 100, 4, 1, 0, 0, 1, 0],
+                [1, 1, 3, 0, 0, 0, 1, 0], [1, 1, 4, 1, 0, 0, 1, 5], [1, 1, 4]):
+        with pytest.raises(ValueError, match="bad size, start or checks"):
+            CORE.intact(rec, 0, size, 0xCC, 1, struct.pack(f"={len(bad)}d", *bad))
