@@ -8,6 +8,7 @@ payload and its CRC-32 seal. Without the core they are skipped, and say why.
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import shutil
@@ -15,6 +16,7 @@ import struct
 import subprocess
 import sys
 import sysconfig
+import termios
 import threading
 import time
 import zipfile
@@ -35,6 +37,7 @@ from bridge.device.port import Port, PortError
 from bridge.protocol.codec import Records, checksum, native_checks, plausible
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
+from tests.waiting import wait_for
 
 CODES = sorted(DATA_CODES)
 CORE = native.records
@@ -283,7 +286,13 @@ def test_a_port_reads_on_until_the_record_is_whole_keeping_each_read() -> None:
     framer and the clock use both), as two calls without the compiled reader give."""
     with pty_port() as (port, master):
         os.write(master, b"a" * 10)
-        later = threading.Timer(0.2, os.write, (master, b"b" * 10))
+        wait_for(lambda: queued(port) == 10, 30, "the first piece to reach the tty")
+
+        def rest() -> None:  # once the first piece is read, however late that is
+            wait_for(lambda: queued(port) == 0, 30, "the first piece to be read")
+            os.write(master, b"b" * 10)
+
+        later = threading.Thread(target=rest)
         later.start()
         try:
             reads, rx_ns = port.read_until(20, 30.0)
@@ -291,6 +300,12 @@ def test_a_port_reads_on_until_the_record_is_whole_keeping_each_read() -> None:
             later.join()
         assert reads == [b"a" * 10, b"b" * 10]
         assert rx_ns[0] < rx_ns[1] <= time.time_ns()
+
+
+def queued(port: Port) -> int:
+    """Bytes waiting in the tty for the port to read."""
+    answer = fcntl.ioctl(port.raw.fileno(), termios.FIONREAD, b"\0\0\0\0")
+    return int(struct.unpack("i", answer)[0])
 
 
 @needs_reader
