@@ -50,10 +50,10 @@ class Encode:
         records = samples.records
         if isinstance(records, Records):
             sealed_records("bench", records, list(samples.tick_values),
-                           list(samples.time_values))
+                           list(samples.time_values), list(samples.rx_values))
         else:  # the first record of a stream: the batch path
             seals(encode_batch("bench", samples.batch, samples.ticks, samples.time_ns,
-                               samples.batch.rx_ns))
+                               samples.rx_ns, samples.batch.rx_ns))
         self.records += len(records)
         self.spent["encode + CRC"] += time.thread_time_ns() - start
 

@@ -3,7 +3,7 @@
  * wakes once per whole record instead of once per piece the link hands over.
  *
  * Each read keeps its own bytes and receive time, as Python's reads would (the framer
- * and the clock use both). Where this module is not built, bridge.device.port makes
+ * and the clock use both): the raw monotonic and the realtime clock, read together. Where this module is not built, bridge.device.port makes
  * one read per call and its caller loops: the same reads, the same records.
  */
 #define PY_SSIZE_T_CLEAN
@@ -16,17 +16,37 @@
 
 #define READ_SIZE 65536
 
+#define PAIR_NS 20000 /* as bridge.device.clock.PAIR_NS */
+#define PAIR_TRIES 3
+
 static int64_t ns_of(clockid_t clock) {
     struct timespec t;
     clock_gettime(clock, &t);
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
+/* The raw and realtime clocks read together, as bridge.device.clock.stamp reads them: the
+ * realtime clock between two raw readings (again where something came between). */
+static void stamp(int64_t *raw, int64_t *real) {
+    int64_t best = -1;
+    for (int i = 0; i < PAIR_TRIES; i++) {
+        int64_t before = ns_of(CLOCK_MONOTONIC_RAW), now = ns_of(CLOCK_REALTIME),
+                after = ns_of(CLOCK_MONOTONIC_RAW);
+        if (best < 0 || after - before < best) {
+            best = after - before;
+            *raw = (before + after) >> 1;
+            *real = now;
+        }
+        if (after - before <= PAIR_NS) break;
+    }
+}
+
 PyDoc_STRVAR(gather_doc,
-"gather(fd, need, wait_s) -> (reads, rx_ns, gone)\n\n"
+"gather(fd, need, wait_s) -> (reads, raw_ns, real_ns, gone)\n\n"
 "Read the non-blocking ``fd`` as its bytes come until ``need`` bytes have come or\n"
-"``wait_s`` has passed: each read's bytes and its receive time (ns since the epoch,\n"
-"as time.time_ns), and whether the other end was gone (a read of no bytes).");
+"``wait_s`` has passed: each read's bytes and its receive time on the raw monotonic\n"
+"and the realtime clock, read together, and whether the other end was gone (a read of\n"
+"no bytes).");
 
 static PyObject *gather(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
@@ -40,8 +60,8 @@ static PyObject *gather(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     if (PyErr_Occurred()) return NULL;
     if (wait_s < 0) wait_s = 0;
     char *buf = PyMem_Malloc(READ_SIZE);
-    PyObject *reads = PyList_New(0), *times = PyList_New(0);
-    if (buf == NULL || reads == NULL || times == NULL) {
+    PyObject *reads = PyList_New(0), *raws = PyList_New(0), *reals = PyList_New(0);
+    if (buf == NULL || reads == NULL || raws == NULL || reals == NULL) {
         PyErr_NoMemory();
         goto fail;
     }
@@ -55,12 +75,12 @@ static PyObject *gather(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
         struct pollfd p = {fd, POLLIN, 0};
         int ready, err = 0;
         ssize_t n = -1;
-        int64_t rx = 0;
+        int64_t raw = 0, real = 0;
         Py_BEGIN_ALLOW_THREADS
         ready = ppoll(&p, 1, &timeout, NULL);
         if (ready > 0) {
             n = read(fd, buf, READ_SIZE);
-            rx = ns_of(CLOCK_REALTIME);
+            stamp(&raw, &real);
         }
         err = errno;
         Py_END_ALLOW_THREADS
@@ -84,24 +104,25 @@ static PyObject *gather(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             gone = 1;
             break;
         }
-        PyObject *data = PyBytes_FromStringAndSize(buf, n), *stamp = PyLong_FromLongLong(rx);
-        if (data == NULL || stamp == NULL || PyList_Append(reads, data) < 0
-            || PyList_Append(times, stamp) < 0) {
-            Py_XDECREF(data);
-            Py_XDECREF(stamp);
-            goto fail;
-        }
-        Py_DECREF(data);
-        Py_DECREF(stamp);
+        PyObject *data = PyBytes_FromStringAndSize(buf, n), *at_raw = PyLong_FromLongLong(raw),
+                 *at_real = PyLong_FromLongLong(real);
+        int appended = data != NULL && at_raw != NULL && at_real != NULL
+            && PyList_Append(reads, data) == 0 && PyList_Append(raws, at_raw) == 0
+            && PyList_Append(reals, at_real) == 0;
+        Py_XDECREF(data);
+        Py_XDECREF(at_raw);
+        Py_XDECREF(at_real);
+        if (!appended) goto fail;
         got += n;
         if (got >= need || left == 0) break;
     }
     PyMem_Free(buf);
-    return Py_BuildValue("(NNO)", reads, times, gone ? Py_True : Py_False);
+    return Py_BuildValue("(NNNO)", reads, raws, reals, gone ? Py_True : Py_False);
 fail:
     PyMem_Free(buf);
     Py_XDECREF(reads);
-    Py_XDECREF(times);
+    Py_XDECREF(raws);
+    Py_XDECREF(reals);
     return NULL;
 }
 

@@ -134,37 +134,41 @@ static void put_le64(uint8_t *p, long long v) {
     for (int b = 0; b < 8; b++) p[b] = (uint8_t)(u >> (8 * b));
 }
 
+#define MAX_TIMES 8
+
 PyDoc_STRVAR(messages_doc,
-"messages(template, moves, at, wire, ticks, time_ns, rx_ns) -> (payloads, seals)\n\n"
+"messages(template, moves, at, wire, times) -> (payloads, seals)\n\n"
 "One message per wire record: ``template`` with the record's bytes moved in\n"
 "(``moves``: uint16 little-endian pairs, message position then record position) and\n"
-"ticks, time_ns and rx_ns written as little-endian int64 at the three positions of\n"
-"``at``; each with its CRC-32 as 4 little-endian bytes.");
+"each list of ``times`` (one int per record) written as a little-endian int64 at the\n"
+"position ``at`` gives it; each message with its CRC-32 as 4 little-endian bytes.");
 
 static PyObject *messages(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 7) {
-        PyErr_SetString(PyExc_TypeError, "messages() takes 7 arguments");
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "messages() takes 5 arguments");
         return NULL;
     }
-    PyObject *wire = args[3], *ticks = args[4], *time_ns = args[5], *rx_ns = args[6];
-    if (!PyList_Check(wire) || !PyList_Check(ticks) || !PyList_Check(time_ns)
-        || !PyList_Check(rx_ns)) {
-        PyErr_SetString(PyExc_TypeError, "messages(): wire, ticks, time_ns and rx_ns are lists");
+    PyObject *wire = args[3], *times = args[4];
+    if (!PyList_Check(wire) || !PyTuple_Check(times) || !PyTuple_Check(args[2])) {
+        PyErr_SetString(PyExc_TypeError, "messages(): wire is a list, at and times tuples");
+        return NULL;
+    }
+    Py_ssize_t k_times = PyTuple_GET_SIZE(times);
+    if (PyTuple_GET_SIZE(args[2]) != k_times || k_times > MAX_TIMES) {
+        PyErr_SetString(PyExc_ValueError, "messages(): a position in at for each of times");
         return NULL;
     }
     Py_ssize_t n = PyList_GET_SIZE(wire);
-    if (PyList_GET_SIZE(ticks) != n || PyList_GET_SIZE(time_ns) != n
-        || PyList_GET_SIZE(rx_ns) != n) {
-        PyErr_SetString(PyExc_ValueError, "messages(): lists of different lengths");
-        return NULL;
-    }
-    Py_ssize_t at[3];
-    if (!PyTuple_Check(args[2]) || PyTuple_GET_SIZE(args[2]) != 3) {
-        PyErr_SetString(PyExc_TypeError, "messages(): at is a tuple of three positions");
-        return NULL;
-    }
-    for (int k = 0; k < 3; k++) {
+    PyObject *columns[MAX_TIMES];
+    Py_ssize_t at[MAX_TIMES];
+    for (Py_ssize_t k = 0; k < k_times; k++) {
+        columns[k] = PyTuple_GET_ITEM(times, k);
+        if (!PyList_Check(columns[k]) || PyList_GET_SIZE(columns[k]) != n) {
+            PyErr_SetString(PyExc_ValueError,
+                            "messages(): each of times is a list as long as wire");
+            return NULL;
+        }
         at[k] = PyLong_AsSsize_t(PyTuple_GET_ITEM(args[2], k));
         if (at[k] == -1 && PyErr_Occurred()) return NULL;
     }
@@ -186,7 +190,7 @@ static PyObject *messages(PyObject *self, PyObject *const *args, Py_ssize_t narg
         }
         if (from >= need) need = from + 1;
     }
-    for (int k = 0; k < 3; k++) {
+    for (Py_ssize_t k = 0; k < k_times; k++) {
         if (at[k] < 0 || at[k] + 8 > size) {
             PyErr_SetString(PyExc_ValueError, "messages(): a time lands outside the message");
             goto fail;
@@ -200,10 +204,9 @@ static PyObject *messages(PyObject *self, PyObject *const *args, Py_ssize_t narg
                          i, need);
             goto fail;
         }
-        long long values[3] = {
-            PyLong_AsLongLong(PyList_GET_ITEM(ticks, i)),
-            PyLong_AsLongLong(PyList_GET_ITEM(time_ns, i)),
-            PyLong_AsLongLong(PyList_GET_ITEM(rx_ns, i))};
+        long long values[MAX_TIMES];
+        for (Py_ssize_t k = 0; k < k_times; k++)
+            values[k] = PyLong_AsLongLong(PyList_GET_ITEM(columns[k], i));
         if (PyErr_Occurred()) goto fail;
         PyObject *out = PyBytes_FromStringAndSize(NULL, size);
         if (out == NULL) goto fail;
@@ -212,7 +215,7 @@ static PyObject *messages(PyObject *self, PyObject *const *args, Py_ssize_t narg
         memcpy(o, tpl.buf, size);
         for (Py_ssize_t m = 0; m < n_moves; m++)
             o[mv[4 * m] | mv[4 * m + 1] << 8] = r[mv[4 * m + 2] | mv[4 * m + 3] << 8];
-        for (int k = 0; k < 3; k++) put_le64(o + at[k], values[k]);
+        for (Py_ssize_t k = 0; k < k_times; k++) put_le64(o + at[k], values[k]);
         PyList_SET_ITEM(payloads, i, out);
         uint32_t crc = crc32_of(o, size);
         uint8_t le[4] = {(uint8_t)crc, (uint8_t)(crc >> 8), (uint8_t)(crc >> 16),

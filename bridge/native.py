@@ -22,19 +22,21 @@ class Core(Protocol):
                limit: int, checks: bytes, /) -> int:
         """How many records in a row from ``start`` are whole, summed and plausible."""
 
-    def messages(self, template: bytes, moves: bytes, at: tuple[int, int, int],
-                 wire: list[bytes], ticks: list[int], time_ns: list[int], rx_ns: list[int], /
+    def messages(self, template: bytes, moves: bytes, at: tuple[int, ...],
+                 wire: list[bytes], times: tuple[list[int], ...], /
                  ) -> tuple[list[bytes], list[bytes]]:
-        """Each wire record's message, and its CRC-32 seal."""
+        """Each wire record's message, with each list of ``times`` at its position in
+        ``at``, and its CRC-32 seal."""
 
 
 class Reader(Protocol):
     """What ``bridge/_gather.c`` offers."""
 
     def gather(self, fd: int, need: int, wait_s: float, /
-               ) -> tuple[list[bytes], list[int], bool]:
+               ) -> tuple[list[bytes], list[int], list[int], bool]:
         """Reads until ``need`` bytes came or ``wait_s`` passed: their bytes, their
-        receive times, and whether the other end was gone."""
+        receive times on the raw monotonic and the realtime clock, and whether the other
+        end was gone."""
 
 
 def _load(name: str) -> Any:

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from bridge.device import clock
 from bridge.device.link import SYSFS, Link, find_link
 from bridge.device.port import Port, PortError
 from bridge.device.session import (
@@ -31,10 +32,14 @@ from bridge.device.session import (
 )
 from bridge.protocol.codec import Batch, Records
 from bridge.timing.rate import RateWindow
+from bridge.timing.realtime import ClockChange
 from bridge.timing.stream import Settings, StreamTiming
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
+UNSYNCHRONISED = ("the host clock is not synchronised (no chrony, ntpd or PTP daemon "
+                  "disciplines it): time_ns is only as true as this clock; see the docs on "
+                  "a fleet's clocks")
 #: The part of a latency budget kept for what follows a read: the wake-up, framing,
 #: timing and the put. The rest of the budget is how long reads may gather.
 PUBLISH_RESERVE_S = 0.001
@@ -71,15 +76,18 @@ class Samples:
     """One run of records of one type, with their device and host times.
 
     A live read's record or two come as ``Records`` with plain lists of ticks and
-    times (published as they are); ``batch``, ``ticks`` and ``time_ns`` are arrays,
-    made from them only when asked for.
+    times (published as they are); ``batch``, ``ticks``, ``time_ns`` and ``rx_ns`` are
+    arrays, made from them only when asked for. The records' own ``rx_ns`` are their
+    completing reads' receive times on the raw monotonic clock; ``rx_ns`` here the same
+    reads' on the realtime clock, as ``time_ns`` is.
     """
 
     def __init__(self, records: Batch | Records, ticks: np.ndarray | list[int],
-                 time_ns: np.ndarray | list[int]) -> None:
+                 time_ns: np.ndarray | list[int], rx_ns: np.ndarray | list[int]) -> None:
         self.records = records
         self.tick_values = ticks
         self.time_values = time_ns
+        self.rx_values = rx_ns
 
     @functools.cached_property
     def batch(self) -> Batch:
@@ -94,6 +102,10 @@ class Samples:
     def time_ns(self) -> np.ndarray:
         return np.asarray(self.time_values, np.int64)
 
+    @functools.cached_property
+    def rx_ns(self) -> np.ndarray:
+        return np.asarray(self.rx_values, np.int64)
+
 
 @dataclass
 class UnitEvent:
@@ -102,6 +114,7 @@ class UnitEvent:
     ticks: int = 0
     count: int = 0
     detail: str = ""
+    clock_change_ns: int = 0  # a host clock step or slew: how far the clock moved
 
 
 @dataclass
@@ -139,7 +152,7 @@ class Pipeline:
     between reads, on the port's own thread."""
 
     def __init__(self, options: Options, sink: Sink,
-                 on_read: Callable[[bytes, int], None] | None = None) -> None:
+                 on_read: Callable[[bytes, int, int], None] | None = None) -> None:
         self.options = options
         self.sink = sink
         self.on_read = on_read
@@ -150,6 +163,7 @@ class Pipeline:
         self.came_up = False  # the unit was brought up at least once
         self.link: Link = find_link(options.url, options.transport, options.sysfs)
         self._warned: str | None = None  # the link warning given (given once)
+        self._host_checked = False  # whether the host clock's sync state was looked at
         self.waiting_for: str | None = None  # why the unit is not up, while it is not
         self.last_failure = ""  # the last failed attempt's message
         self._actions: queue.Queue[tuple[Action, str, queue.Queue[Any]]] = queue.Queue()
@@ -204,7 +218,7 @@ class Pipeline:
             self.waiting_for = None
             if lost_at is not None:
                 self.counters.reconnects += 1
-                gap = (time.time_ns() - lost_at) / 1e9
+                gap = (clock.raw_ns() - lost_at) / 1e9
                 self._event("reconnect", detail=f"back after {gap:.1f} s")
             lost_at = None
             try:
@@ -212,7 +226,7 @@ class Pipeline:
             except _Restart:
                 self.counters.state = "bring-up"
             except (PortError, DeviceError) as exc:
-                lost_at = time.time_ns()
+                lost_at = clock.raw_ns()
                 self.counters.state = "lost"
                 self._event("disconnect", detail=str(exc))
             finally:
@@ -237,9 +251,23 @@ class Pipeline:
         else:
             port = Port.open(o.url, o.baud)
         session = Session(port)
-        session.on_read = self.on_read
+        session.on_reads = self._heard
         session.paced = self.transport != "usb"  # bytes come at a serial line's pace
         return session
+
+    def _heard(self, reads: list[bytes], raws: list[int], reals: list[int]) -> None:
+        """Every read, before its records: the host clock's offset at it (its steps and
+        slews said as events), then ``on_read`` (a raw capture)."""
+        for change in self.timing.hear(raws, reals):
+            self._clock_changed(change)
+        if self.on_read is not None:
+            for data, raw, real in zip(reads, raws, reals, strict=True):
+                self.on_read(data, raw, real)
+
+    def _clock_changed(self, change: ClockChange) -> None:
+        kind = "host_clock_step" if change.kind == "step" else "host_clock_slew"
+        self.sink.event(UnitEvent(kind, change.real_ns, detail=change.describe(),
+                                  clock_change_ns=change.size_ns))
 
     def _close(self, session: Session, clean: bool) -> None:
         if clean:
@@ -271,6 +299,11 @@ class Pipeline:
         if link_warning != self._warned:
             self._warned = link_warning
             warnings.append(link_warning)
+        if not self._host_checked:  # once: the host's state is not the unit's
+            self._host_checked = True
+            sync = clock.host_sync()
+            if sync.known and not sync.synchronised:
+                warnings.append(UNSYNCHRONISED)
         self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz over {self.link.describe()}"
@@ -332,11 +365,10 @@ class Pipeline:
             few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,
                                           records.part_bytes)
             if few is not None:
-                ticks, time_ns, events = few
-                for ev in events:
+                for ev in few.events:
                     self._event(ev.kind, ticks=ev.ticks, count=ev.count)
                 self.counters.samples += len(records)
-                self.sink.samples(Samples(records, ticks, time_ns))
+                self.sink.samples(Samples(records, few.ticks, few.time_ns, few.rx_ns))
                 return
             records = records.batch()
         timed = self.timing.process(records)
@@ -346,7 +378,7 @@ class Pipeline:
         self.counters.dropped += timed.dropped
         if len(timed.batch):
             self.counters.samples += len(timed.batch)
-            self.sink.samples(Samples(timed.batch, timed.ticks, timed.time_ns))
+            self.sink.samples(Samples(timed.batch, timed.ticks, timed.time_ns, timed.rx_ns))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None
@@ -376,17 +408,18 @@ class Pipeline:
         c.implausible = stats.implausible
         c.bytes_skipped = stats.bytes_skipped
         c.resyncs = stats.resyncs
-        clock = self.timing.state
+        model = self.timing.state
         self.sink.status({
             "state": c.state, "samples": c.samples, "samples_per_s": c.rate(time.monotonic()),
             "dropped": c.dropped, "glitches": c.glitches, "reconnects": c.reconnects,
             "checksum_failures": c.checksum_failures, "implausible": c.implausible,
             "bytes_skipped": c.bytes_skipped, "resyncs": c.resyncs,
-            "clock": clock,
+            "clock": model, "host_sync": clock.host_sync(),
+            "host_offset_ns": self.timing.host.offset_ns,
         })
 
     def _event(self, kind: str, ticks: int = 0, count: int = 0, detail: str = "") -> None:
-        self.sink.event(UnitEvent(kind, time.time_ns(), ticks, count, detail))
+        self.sink.event(UnitEvent(kind, clock.realtime_ns(), ticks, count, detail))
 
 
 class _Restart(Exception):

@@ -22,7 +22,8 @@ from typing import Any
 
 from bridge import __version__
 from bridge.bus.events import LEVEL
-from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
+from bridge.device import clock
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import Link
 from bridge.device.session import DeviceError, Session, UnitInfo
@@ -42,7 +43,8 @@ _STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
            "stopped": Status.STOPPED}
 _KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
           "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
-          "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND}
+          "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND,
+          "host_clock_step": Event.HOST_CLOCK_STEP, "host_clock_slew": Event.HOST_CLOCK_SLEW}
 
 
 class NameTaken(RuntimeError):
@@ -60,10 +62,20 @@ def claim_name(session: Any, prefix: str, unit: str) -> None:
                         "alive): stop it first, or give this unit another name with --unit")
 
 
+def host_clock_message(sync: clock.HostSync, offset_ns: int | None = None) -> HostClock:
+    """The host's clock as the kernel reports it, and its offset at the latest read."""
+    return HostClock(host=sync.host, synchronised=sync.synchronised, known=sync.known,
+                     estimated_error_ns=sync.estimated_error_ns,
+                     maximum_error_ns=sync.maximum_error_ns, tai_offset_s=sync.tai_offset_s,
+                     state=sync.state, realtime_minus_raw_ns=offset_ns or 0)
+
+
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
-                 link: Link | None = None, polled: bool = False) -> Info:
+                 link: Link | None = None, polled: bool = False,
+                 sync: clock.HostSync | None = None) -> Info:
     s = info.sampling
     return Info(
+        host_clock=host_clock_message(sync or clock.host_sync()),
         unit=unit, port=port, baud=info.baud, firmware=info.firmware,
         firmware_text=info.firmware_text, decimation=s.get("decimation", 0),
         flags=s.get("flags", 0), filter_width=s.get("filter_width", 0),
@@ -78,9 +90,11 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
 
 
 def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
-    clock = status.get("clock")
+    model = status.get("clock")
+    sync = status.get("host_sync")
     msg = Status(
-        unit=unit, time_ns=time.time_ns(), connected=status["state"] in ("streaming", "polling"),
+        unit=unit, time_ns=clock.realtime_ns(),
+        connected=status["state"] in ("streaming", "polling"),
         state=_STATES.get(status["state"], Status.STATE_UNSPECIFIED),
         samples_per_s=status["samples_per_s"], port=port,
         **{k: status[k] for k in ("samples", "dropped", "checksum_failures", "implausible",
@@ -89,17 +103,20 @@ def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str
         msg.command = info.record
         msg.output_rate_hz = info.output_hz
         msg.baud = info.baud
-    if clock is not None:
-        msg.clock_offset_ns = int(clock.offset_ns)
-        msg.clock_drift_ppm = float(clock.drift_ppm)
-        msg.clock_spread_ns = float(clock.spread_ns)
+    if model is not None:
+        msg.clock_offset_ns = int(model.offset_ns)
+        msg.clock_drift_ppm = float(model.drift_ppm)
+        msg.clock_spread_ns = float(model.spread_ns)
+    if sync is not None:
+        msg.host_clock.CopyFrom(host_clock_message(sync, status.get("host_offset_ns")))
     return msg
 
 
 def event_message(unit: str, event: UnitEvent) -> Event:
     return Event(unit=unit, time_ns=event.time_ns, ticks=event.ticks,
                  kind=_KINDS.get(event.kind, Event.KIND_UNSPECIFIED),
-                 count=event.count or 1, detail=event.detail)
+                 count=event.count or 1, detail=event.detail,
+                 clock_change_ns=event.clock_change_ns)
 
 
 def command_handler(pipeline: Pipeline) -> Callable[[str], str]:
@@ -143,8 +160,8 @@ class BusSink:
         self.raw, self.ros2_domain = raw, ros2_domain
         self.ros2: Any = None  # the unit's ROS 2 topics, with ros2_domain
         # a unit that never comes up (a wrong baud rate) must not fill the memory
-        self._early_reads: deque[tuple[bytes, int]] = deque(maxlen=EARLY_READS)
-        self._read_listeners: list[Callable[[bytes, int], None]] = []
+        self._early_reads: deque[tuple[bytes, int, int]] = deque(maxlen=EARLY_READS)
+        self._read_listeners: list[Callable[[bytes, int, int], None]] = []
         self.publisher: Any = None
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
@@ -186,37 +203,39 @@ class BusSink:
         # Let the new publisher's declaration reach subscribers that already run (a
         # recorder) before the first sample, which they would otherwise miss.
         time.sleep(DECLARE_SETTLE_S)
-        for data, rx_ns in self._early_reads:
-            self._deliver(data, rx_ns)
+        for read in self._early_reads:
+            self._deliver(*read)
         self._early_reads.clear()
 
-    def on_read(self, listener: Callable[[bytes, int], None]) -> None:
-        """``listener(data, rx_ns)`` hears every read from the port (a raw capture)."""
+    def on_read(self, listener: Callable[[bytes, int, int], None]) -> None:
+        """``listener(data, raw_ns, real_ns)`` hears every read from the port with its
+        receive times on the raw monotonic and the realtime clock (a raw capture)."""
         self._read_listeners.append(listener)
 
-    def read(self, data: bytes, rx_ns: int) -> None:
+    def read(self, data: bytes, raw_ns: int, real_ns: int) -> None:
         """A read from the port: to the read listeners, and published raw with ``raw``.
         The reads of the first bring-up wait for the unit's name (and publisher)."""
         if not (self.raw or self._read_listeners):
             return
         if self.publisher is None:
-            self._early_reads.append((data, rx_ns))
+            self._early_reads.append((data, raw_ns, real_ns))
         else:
-            self._deliver(data, rx_ns)
+            self._deliver(data, raw_ns, real_ns)
 
-    def _deliver(self, data: bytes, rx_ns: int) -> None:
+    def _deliver(self, data: bytes, raw_ns: int, real_ns: int) -> None:
         for listener in self._read_listeners:
-            listener(data, rx_ns)
+            listener(data, raw_ns, real_ns)
         if self.raw:
-            self.publisher.publish_raw(data, rx_ns)
+            self.publisher.publish_raw(data, raw_ns, real_ns)
 
     def samples(self, samples: Samples) -> None:
         if self.publisher is not None:
             if isinstance(samples.records, Records):
                 self.publisher.publish_records(samples.records, samples.tick_values,
-                                               samples.time_values)
+                                               samples.time_values, samples.rx_values)
             else:
-                self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns)
+                self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns,
+                                               samples.rx_ns)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 

@@ -66,7 +66,8 @@ def describe(sample: Any) -> str:
     parts = [f"{sample.unit} 0x{sample.command:02X} ticks={sample.ticks}",
              f"time={when.isoformat(timespec='milliseconds')}"]
     for field, values in sample.ListFields():
-        if field.name not in {"unit", "command", "timer", "ticks", "time_ns", "rx_ns"}:
+        if field.name not in {"unit", "command", "timer", "ticks", "time_ns", "rx_ns",
+                              "rx_mono_raw_ns"}:
             parts.append(f"{field.name}={[round(v, 4) for v in values]}")
     return " ".join(parts)
 

@@ -66,7 +66,7 @@ def test_a_flipped_byte_loses_one_chunk_and_says_which(archive: Path, tmp_path: 
     """A byte flipped a quarter into the file: that chunk's CRC fails; the chunks after it
     are read, and the warning gives the span and the messages lost, per topic, from the
     chunk index and its message indexes (on main: 23 % of the samples, "not finished")."""
-    at = archive.stat().st_size // 4
+    at = a_quarter_in(archive)
     hit, lost = chunk_at(archive, at)
     warned: list[str] = []
     damaged = read_archive(flipped(archive, tmp_path / "flip.mcap", at), warn=warned.append)
@@ -82,6 +82,14 @@ def test_a_flipped_byte_loses_one_chunk_and_says_which(archive: Path, tmp_path: 
     # zstd's own check or the chunk's CRC, whichever the flipped byte trips first
     assert str(sum(lost.values())) in warned[0]
     assert "CRC" in warned[0].upper() or "CORRUPTION" in warned[0].upper()
+
+
+def a_quarter_in(path: Path) -> int:
+    """A byte about a quarter into the file, in the middle of a chunk's messages."""
+    quarter = path.stat().st_size // 4
+    chunk = min(summary_of(path).chunk_indexes,
+                key=lambda c: abs(c.chunk_start_offset + c.chunk_length // 2 - quarter))
+    return chunk.chunk_start_offset + chunk.chunk_length // 2
 
 
 def chunk_at(path: Path, at: int) -> tuple[ChunkIndex, dict[str, int]]:
@@ -120,7 +128,7 @@ def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
 
 
 def test_export_rrd_and_repair_of_a_damaged_archive(archive: Path, tmp_path: Path) -> None:
-    at = archive.stat().st_size // 4
+    at = a_quarter_in(archive)
     damaged = flipped(archive, tmp_path / "flip.mcap", at)
     _, lost = chunk_at(archive, at)
     imu_lost = sum(n for t, n in lost.items() if t.endswith("/imu"))

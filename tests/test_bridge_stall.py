@@ -163,8 +163,8 @@ def test_a_host_stall_after_a_read_with_no_whole_record_is_not_a_silent_unit() -
     the port kept its bytes, so there is nothing to report and nothing is lost."""
     sink, framer, stalled = ListSink(), Framer(expect=[0xC2]), threading.Event()
 
-    def on_read(data: bytes, rx_ns: int) -> None:
-        whole = framer.feed(data, rx_ns)  # the same bytes the session frames
+    def on_read(data: bytes, raw_ns: int, real_ns: int) -> None:
+        whole = framer.feed(data, raw_ns)  # the same bytes the session frames
         if not whole and not stalled.is_set() and len(sink.column("ticks")) >= 50:
             stalled.set()
             time.sleep(1.5)

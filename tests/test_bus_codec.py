@@ -49,10 +49,12 @@ def times(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.ndarray,
-              rx_ns: np.ndarray) -> ImuSample:
-    """The message built field by field with the protobuf library."""
+              rx_ns: np.ndarray, mono: np.ndarray | None = None) -> ImuSample:
+    """The message built field by field with the protobuf library (``mono``: the raw-clock
+    receive times; a bridge that knows none writes 0)."""
     return ImuSample(unit=unit, command=batch.code, timer=int(batch["timer"][i]),
                      ticks=int(ticks[i]), time_ns=int(time_ns[i]), rx_ns=int(rx_ns[i]),
+                     rx_mono_raw_ns=0 if mono is None else int(mono[i]),
                      **{q: batch[q][i].reshape(-1).tolist() for q in record_quantities(batch.code)})
 
 
@@ -60,10 +62,12 @@ def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.nd
 def test_bulk_encoding_is_byte_identical_to_protobuf(code: int) -> None:
     batch = wire_batch(code, 6, code)
     ticks, time_ns, rx_ns = times(6)
-    encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns)
+    mono = rx_ns - 1_700_000_000_000_000_000
+    encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono)
     assert len(encoded) == 6
     for i, payload in enumerate(encoded):
-        assert payload == reference("imu-0.a", batch, i, ticks, time_ns, rx_ns).SerializeToString()
+        assert payload == reference("imu-0.a", batch, i, ticks, time_ns, rx_ns,
+                                    mono).SerializeToString()
         assert peek(payload) == ("imu-0.a", code)
 
 
@@ -105,9 +109,11 @@ def test_one_record_at_a_time_encodes_to_the_bulk_bytes(code: int, little_endian
     ticks = rng.integers(-(2**62), 2**62, n)
     time_ns = rng.integers(-(2**62), 2**62, n)
     rx_ns = rng.integers(0, 2**62, n)
-    bulk = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns)
+    mono = rng.integers(0, 2**62, n)
+    bulk = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono)
     assert encode_records("imu-0.a", code, little_endian, [bytes(r) for r in block],
-                          ticks.tolist(), time_ns.tolist(), rx_ns.tolist()) == bulk
+                          ticks.tolist(), time_ns.tolist(), rx_ns.tolist(),
+                          mono.tolist()) == bulk
 
 
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
@@ -156,7 +162,7 @@ def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
     for i in range(3):
         full = reference("imu0", batch, i, ticks, time_ns, rx_ns)
         head = ImuSample(unit="imu0", command=code, timer=full.timer, ticks=full.ticks,
-                         time_ns=full.time_ns, rx_ns=full.rx_ns)
+                         time_ns=full.time_ns, rx_ns=full.rx_ns, rx_mono_raw_ns=0)
         body = ImuSample(accel=full.accel, ang_rate=full.ang_rate, m=full.m)
         theirs.append(body.SerializeToString() + head.SerializeToString())  # protobuf merges
     assert [len(p) for p in theirs] == [len(p) for p in ours] and theirs != ours

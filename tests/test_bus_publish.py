@@ -42,7 +42,7 @@ def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Sess
                 done = sum(len(g) for g in got)
                 got.append(b["ticks"])
                 for q in b.columns:
-                    if q not in ("command", "ticks", "time_ns", "rx_ns"):
+                    if q not in ("command", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns"):
                         np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
                                                       err_msg=q)
             np.testing.assert_array_equal(np.concatenate(got), ticks)
@@ -58,7 +58,7 @@ def test_status_event_and_raw_carry_the_unit(session: zenoh.Session) -> None:
             UnitPublisher(session, "imu0", raw=True) as pub:
         pub.publish_status(Status(samples=10, state=Status.STREAMING))
         pub.publish_event(Event(kind=Event.GAP, count=3, detail="ticks 10 -> 50"))
-        pub.publish_raw(b"\xc2\x00", rx_ns=-5)
+        pub.publish_raw(b"\xc2\x00", raw_ns=7, real_ns=-5)
         got = {m.key: m for m in (sub.get(timeout=10) for _ in range(3)) if m is not None}
         status = Status.FromString(got["gx3/imu0/status"].payload)
         event = Event.FromString(got["gx3/imu0/event"].payload)
@@ -111,15 +111,15 @@ def test_reads_from_before_the_first_bring_up_reach_the_capture_boundedly(
     sink = BusSink(session, "gx3", "late", "/dev/ttyUSB9", False, 1.0, quiet=True)
     sink.attach(Pipeline(Options(url="/dev/ttyUSB9"), sink))
     heard: list[int] = []
-    sink.on_read(lambda data, rx_ns: heard.append(rx_ns))
+    sink.on_read(lambda data, raw_ns, real_ns: heard.append(real_ns))
     for rx_ns in range(EARLY_READS + 5):
-        sink.read(b"\x00", rx_ns)
+        sink.read(b"\x00", rx_ns, rx_ns)
     assert heard == []
     sink.info(UnitInfo(firmware=1127, ids={"serial": "1"}, sampling={"decimation": 10},
                        baud=115_200, continuous_preset=0xCC, record=0xCC))
     try:
         assert heard == list(range(5, EARLY_READS + 5))
-        sink.read(b"\x00", 10**18)
+        sink.read(b"\x00", 1, 10**18)
         assert heard[-1] == 10**18
     finally:
         sink.close()

@@ -133,12 +133,14 @@ def test_messages_are_the_encoders_bytes_and_seals(code: int, little_endian: boo
     ticks = [0, -1, 2**63 - 1, -(2**63), *rng.integers(-(2**62), 2**62, n - 4).tolist()]
     time_ns = rng.integers(-(2**62), 2**62, n).tolist()
     rx_ns = rng.integers(0, 2**62, n).tolist()
+    mono = rng.integers(0, 2**62, n).tolist()
     records = wire(code, n, code + little_endian)
     for unit in ("u", "imu-0.a", "x" * 200):
-        payloads = encode_records(unit, code, little_endian, records, ticks, time_ns, rx_ns)
+        payloads = encode_records(unit, code, little_endian, records, ticks, time_ns, rx_ns,
+                                  mono)
         assert CORE is not None
-        assert CORE.messages(*native_layout(code, unit, little_endian), records, ticks,
-                             time_ns, rx_ns) == (payloads, seals(payloads))
+        assert CORE.messages(*native_layout(code, unit, little_endian), records,
+                             (ticks, time_ns, rx_ns, mono)) == (payloads, seals(payloads))
 
 
 @needs_core
@@ -147,13 +149,15 @@ def test_messages_refuses_what_it_cannot_lay_out() -> None:
     rec = wire(0xCC, 1, 0)
     assert CORE is not None
     with pytest.raises(ValueError, match="record 0"):
-        CORE.messages(template, moves, at, [rec[0][:10]], [1], [2], [3])
-    with pytest.raises(ValueError, match="different lengths"):
-        CORE.messages(template, moves, at, rec, [1, 2], [2], [3])
+        CORE.messages(template, moves, at, [rec[0][:10]], ([1], [2], [3], [4]))
+    with pytest.raises(ValueError, match="as long as wire"):
+        CORE.messages(template, moves, at, rec, ([1, 2], [2], [3], [4]))
+    with pytest.raises(ValueError, match="a position in at"):
+        CORE.messages(template, moves, at, rec, ([1], [2], [3]))
     with pytest.raises(OverflowError):
-        CORE.messages(template, moves, at, rec, [2**64], [2], [3])
+        CORE.messages(template, moves, at, rec, ([2**64], [2], [3], [4]))
     with pytest.raises(ValueError, match="outside the message"):
-        CORE.messages(template, moves, (0, 1, len(template)), rec, [1], [2], [3])
+        CORE.messages(template, moves, (0, 1, 2, len(template)), rec, ([1], [2], [3], [4]))
 
 
 def records_of(code: int, recs: list[bytes], little_endian: bool) -> Records:
@@ -172,8 +176,9 @@ def test_the_publishers_payloads_do_not_depend_on_the_core(
         monkeypatch.setattr(native, "records", None)
     recs = wire(0xCC, 3, 1)
     payloads, attachments = sealed_records("b", records_of(0xCC, recs, False), [1, 2, 3],
-                                           [4, 5, 6])
-    expected = encode_records("b", 0xCC, False, recs, [1, 2, 3], [4, 5, 6], [5, 5, 5])
+                                           [4, 5, 6], [7, 8, 9])
+    expected = encode_records("b", 0xCC, False, recs, [1, 2, 3], [4, 5, 6], [7, 8, 9],
+                              [5, 5, 5])
     assert payloads == expected
     assert attachments == seals(expected)
 
@@ -295,11 +300,16 @@ def test_a_port_reads_on_until_the_record_is_whole_keeping_each_read() -> None:
         later = threading.Thread(target=rest)
         later.start()
         try:
-            reads, rx_ns = port.read_until(20, 30.0)
+            before = time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW)
+            reads, raws, reals = port.read_until(20, 30.0)
         finally:
             later.join()
         assert reads == [b"a" * 10, b"b" * 10]
-        assert rx_ns[0] < rx_ns[1] <= time.time_ns()
+        # each read stamped on both clocks, taken together
+        assert before < raws[0] < raws[1] <= time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW)
+        assert reals[0] < reals[1] <= time.time_ns()
+        offsets = [real - raw for raw, real in zip(raws, reals, strict=True)]
+        assert abs(offsets[1] - offsets[0]) < 1_000_000, "the clocks were read apart"
 
 
 def queued(port: Port) -> int:
@@ -311,9 +321,9 @@ def queued(port: Port) -> int:
 @needs_reader
 def test_a_port_read_that_times_out_gives_what_came() -> None:
     with pty_port() as (port, master):
-        assert port.read_until(20, 0.05) == ([], [])
+        assert port.read_until(20, 0.05) == ([], [], [])
         os.write(master, b"c" * 7)
-        reads, _ = port.read_until(20, 0.5)
+        reads, _, _ = port.read_until(20, 0.5)
         while sum(map(len, reads)) < 7:
             reads += port.read_until(20, 0.5)[0]
         assert b"".join(reads) == b"c" * 7
@@ -365,9 +375,9 @@ def test_without_the_compiled_reader_a_port_gives_one_read_and_the_caller_reads_
     monkeypatch.setattr(native, "reader", None)
     with pty_port() as (port, master):
         os.write(master, b"a" * 10)
-        reads, rx_ns = port.read_until(20, 30.0)
-        assert reads == [b"a" * 10] and len(rx_ns) == 1
-        assert port.read_until(20, 0.05) == ([], [])
+        reads, raws, reals = port.read_until(20, 30.0)
+        assert reads == [b"a" * 10] and len(raws) == len(reals) == 1
+        assert port.read_until(20, 0.05) == ([], [], [])
 
 
 @needs_core

@@ -40,7 +40,7 @@ class ListSink:
     batches: list[Samples] = field(default_factory=list)
     events: list[UnitEvent] = field(default_factory=list)
     statuses: list[dict[str, Any]] = field(default_factory=list)
-    published: list[int] = field(default_factory=list)  # host time of each samples call
+    published: list[int] = field(default_factory=list)  # raw-clock time of each samples call
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def info(self, info: UnitInfo) -> None:
@@ -49,7 +49,7 @@ class ListSink:
     def samples(self, samples: Samples) -> None:
         with self.lock:
             self.batches.append(samples)
-            self.published.append(time.time_ns())
+            self.published.append(time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW))
 
     def event(self, event: UnitEvent) -> None:
         self.events.append(event)
@@ -59,8 +59,9 @@ class ListSink:
 
     def column(self, name: str) -> np.ndarray:
         with self.lock:
-            parts = [getattr(s, name) if name in ("ticks", "time_ns") else
-                     s.batch.rx_ns if name == "rx_ns" else s.batch[name] for s in self.batches]
+            parts = [getattr(s, name) if name in ("ticks", "time_ns", "rx_ns") else
+                     s.batch.rx_ns if name == "rx_mono_raw_ns" else s.batch[name]
+                     for s in self.batches]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def kinds(self) -> list[str]:

@@ -101,8 +101,8 @@ def test_live_reads_give_replays_instants_with_partial_reads() -> None:
                     live_ticks += timed.ticks.tolist()
                     live += timed.time_ns.tolist()
                 else:
-                    live_ticks += few[0]
-                    live += few[1]
+                    live_ticks += few.ticks
+                    live += few.time_ns
         assert np.array_equal(np.array(live_ticks), ticks)
         assert np.array_equal(np.array(live), replayed)
 

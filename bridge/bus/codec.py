@@ -27,7 +27,10 @@ from bridge.protocol.codec import reply_dtype
 from bridge.protocol.table import DATA_CODES, QUANTITIES, REPLIES
 
 #: Columns every sample carries besides its quantities.
-HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns")
+HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")
+#: The header of samples from bridges that did not stamp reads on the raw clock: their
+#: messages have a bulk layout of their own, read as fast (``rx_mono_raw_ns`` is 0).
+LEGACY_HEADER = HEADER[:-1]
 _FIELDS = ImuSample.DESCRIPTOR.fields_by_name
 _NUMPY = {FieldDescriptor.TYPE_FIXED32: "<u4", FieldDescriptor.TYPE_SFIXED64: "<i8",
           FieldDescriptor.TYPE_FLOAT: "<f4"}
@@ -92,10 +95,10 @@ class Layout:
 
 
 @functools.cache
-def layout(code: int, unit: str) -> Layout:
-    """The message layout of record type ``code`` published by ``unit``."""
-    # protobuf writes fields in field-number order, not in the record's wire order
-    quantities = tuple(sorted(record_quantities(code), key=lambda q: _FIELDS[q].number))
+def layout(code: int, unit: str, header: tuple[str, ...] = HEADER) -> Layout:
+    """The message layout of record type ``code`` published by ``unit`` (with ``header``:
+    ``LEGACY_HEADER`` for an older bridge's)."""
+    quantities = tuple(record_quantities(code))
     name = unit.encode()
     parts: list[tuple[Any, ...]] = []
     consts: dict[str, bytes] = {}
@@ -105,15 +108,16 @@ def layout(code: int, unit: str) -> Layout:
         consts[key] = raw
 
     const("_unit", _tag("unit", _LENGTH_DELIMITED) + _varint(len(name)) + name)
-    for col in HEADER:
+    # protobuf writes fields in field-number order, not in the record's wire order
+    for col in sorted((*header, *quantities), key=lambda f: _FIELDS[f].number):
         kind = _NUMPY[_FIELDS[col].type]
-        const(f"_{col}", _tag(col, _WIRE_TYPE[kind]))
-        parts.append((col, kind))
-    for q in quantities:
-        count = elements(q)
-        kind = _NUMPY[_FIELDS[q].type]
-        const(f"_{q}", _tag(q, _LENGTH_DELIMITED) + _varint(4 * count))
-        parts.append((q, kind, (count,)))
+        if col in header:
+            const(f"_{col}", _tag(col, _WIRE_TYPE[kind]))
+            parts.append((col, kind))
+            continue
+        count = elements(col)
+        const(f"_{col}", _tag(col, _LENGTH_DELIMITED) + _varint(4 * count))
+        parts.append((col, kind, (count,)))
     dtype = np.dtype(parts)
     template = np.zeros(1, dtype)
     mask = np.zeros(dtype.itemsize, bool)
@@ -123,7 +127,8 @@ def layout(code: int, unit: str) -> Layout:
         mask[offset : offset + len(raw)] = True
     template["command"] = code
     mask[dtype.fields["command"][1] : dtype.fields["command"][1] + 4] = True  # type: ignore[index]
-    return Layout(unit, code, quantities, dtype, template, mask)
+    return Layout(unit, code, tuple(sorted(quantities, key=lambda q: _FIELDS[q].number)),
+                  dtype, template, mask)
 
 
 @functools.cache
@@ -147,27 +152,32 @@ def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np
     return np.array(dst), np.array(src)
 
 
+#: The int64 columns a message gets besides its record's bytes, in the order
+#: ``encode_records`` and the compiled core take them.
+TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")
+
+
 @functools.cache
 def native_layout(code: int, unit: str, little_endian: bool
-                  ) -> tuple[bytes, bytes, tuple[int, int, int]]:
+                  ) -> tuple[bytes, bytes, tuple[int, ...]]:
     """``layout`` and ``_byte_map`` as the compiled core reads them
     (``bridge/_records.c``): the message template, the byte moves as little-endian
-    uint16 pairs (message position, record position), and where ticks, time_ns and
-    rx_ns go."""
+    uint16 pairs (message position, record position), and where each of ``TIMES``
+    goes."""
     lay = layout(code, unit)
     dst, src = _byte_map(code, unit, little_endian)
     fields = cast(dict[str, tuple[np.dtype, int]], lay.dtype.fields)
-    times = ("ticks", "time_ns", "rx_ns")
-    if any(fields[name][0] != np.dtype("<i8") for name in times):
+    if any(fields[name][0] != np.dtype("<i8") for name in TIMES):
         raise ValueError(f"0x{code:02X}: the message's times are not little-endian int64")
-    at = cast(tuple[int, int, int], tuple(fields[name][1] for name in times))
+    at = tuple(fields[name][1] for name in TIMES)
     moves = np.stack([dst, src], axis=1).astype("<u2").tobytes()
     return lay.template.tobytes(), moves, at
 
 
 def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
-                 rx_ns: np.ndarray) -> list[bytes]:
-    """One serialized ImuSample per record of ``batch``: what protobuf would produce.
+                 rx_ns: np.ndarray, rx_mono_raw_ns: np.ndarray | None = None) -> list[bytes]:
+    """One serialized ImuSample per record of ``batch``: what protobuf would produce
+    (``rx_mono_raw_ns`` None: not known, 0).
 
     Records that came off the wire are moved byte by byte from their wire bytes, with
     no decoding: a live bridge encodes a record or two per read.
@@ -186,6 +196,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     recs["ticks"] = ticks
     recs["time_ns"] = time_ns
     recs["rx_ns"] = rx_ns
+    if rx_mono_raw_ns is not None:
+        recs["rx_mono_raw_ns"] = rx_mono_raw_ns
     buf = recs.tobytes()
     size = lay.size
     return [buf[i : i + size] for i in range(0, len(buf), size)]
@@ -225,8 +237,8 @@ class _RecordPacker:
         self._values = struct.Struct(orders.pop() + wire_fmt).unpack_from
         self._timer = struct.Struct(">I").unpack_from
         self._timer_at = fields["timer"][1]
-        # the unpacked tuple, extended: quantities, timer, ticks, time_ns, rx_ns, constants
-        tail = {"timer": count, "ticks": count + 1, "time_ns": count + 2, "rx_ns": count + 3}
+        # the unpacked tuple, extended: quantities, timer, the times, constants
+        tail = {"timer": count, **{name: count + 1 + i for i, name in enumerate(TIMES)}}
         consts: list[bytes | int] = []
         msg_fmt = "<"
         picks: list[int] = []
@@ -255,9 +267,10 @@ class _RecordPacker:
             raise ValueError(f"0x{code:02X}: message layout of {lay.size} bytes, "
                              f"packed as {struct.calcsize(msg_fmt)}")
 
-    def pack(self, record: bytes, ticks: int, time_ns: int, rx_ns: int) -> bytes:
+    def pack(self, record: bytes, ticks: int, time_ns: int, rx_ns: int,
+             rx_mono_raw_ns: int) -> bytes:
         values = (*self._values(record, 1), self._timer(record, self._timer_at)[0], ticks,
-                  time_ns, rx_ns, *self._consts)
+                  time_ns, rx_ns, rx_mono_raw_ns, *self._consts)
         return self._message(*self._pick(values))
 
 
@@ -265,12 +278,13 @@ _packer = functools.cache(_RecordPacker)
 
 
 def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[bytes],
-                   ticks: Iterable[int], time_ns: Iterable[int],
-                   rx_ns: Iterable[int]) -> list[bytes]:
+                   ticks: Iterable[int], time_ns: Iterable[int], rx_ns: Iterable[int],
+                   rx_mono_raw_ns: Iterable[int]) -> list[bytes]:
     """``encode_batch`` of wire records held as bytes, one each: a live bridge gets one
     or two a read, for which array set-up costs more than the work."""
     pack = _packer(code, unit, little_endian).pack
-    return [pack(r, t, s, x) for r, t, s, x in zip(records, ticks, time_ns, rx_ns, strict=True)]
+    return [pack(r, t, s, x, m) for r, t, s, x, m
+            in zip(records, ticks, time_ns, rx_ns, rx_mono_raw_ns, strict=True)]
 
 
 def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
@@ -354,29 +368,36 @@ def decode_batch(unit: str, code: int,
     """Columns (header and quantities, shaped as in the command table) of serialized
     ImuSamples of one unit and record type.
 
-    Messages in the bulk layout are read as one array; any other valid encoding of the
-    same message (another producer's field order, say) is parsed one by one.
-    ``payloads`` may also be an (n, layout size) uint8 array, one message per row (read
-    straight out of a buffer, without a bytes object each).
+    Messages in the bulk layout (or an older bridge's, without ``rx_mono_raw_ns``) are
+    read as one array; any other valid encoding of the same message (another
+    producer's field order, say) is parsed one by one. ``payloads`` may also be an
+    (n, layout size) uint8 array, one message per row (read straight out of a buffer,
+    without a bytes object each).
     """
     lay = layout(code, unit)
     n = len(payloads)
     recs = np.zeros(n, lay.dtype)
-    size = lay.size
     if isinstance(payloads, np.ndarray):
-        raw = payloads.reshape(n, size)
-        fits = np.ones(n, bool)
+        legacy = layout(code, unit, LEGACY_HEADER)
+        bulk, header = (legacy, LEGACY_HEADER) if n and payloads.size == n * legacy.size \
+            else (lay, HEADER)
+        raw = payloads.reshape(n, bulk.size)
+        good = _constant_bytes_hold(bulk, raw)
+        rows = raw[good].reshape(-1).view(bulk.dtype)
+        for name in (*header, *bulk.quantities):
+            recs[name][good] = rows[name]
+        todo = np.flatnonzero(~good)
     else:
-        fits = np.fromiter((len(p) == size for p in payloads), bool, n)
-        raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
-                            np.uint8).reshape(-1, size)
-    if fits.any():
-        const = lay.template.view(np.uint8)[lay.const_mask]
-        good = (raw[:, lay.const_mask] == const).all(axis=1)
-        idx = np.flatnonzero(fits)
-        recs[idx[good]] = raw[good].reshape(-1).view(lay.dtype)
-        fits[idx[~good]] = False
-    for i in np.flatnonzero(~fits).tolist():
+        todo = np.arange(n)
+        for header in (HEADER, LEGACY_HEADER):
+            if not len(todo):
+                break
+            bulk = layout(code, unit, header)
+            done, rows = _bulk_rows(bulk, [payloads[i] for i in todo.tolist()])
+            for name in (*header, *bulk.quantities):
+                recs[name][todo[done]] = rows[name]
+            todo = np.delete(todo, done)
+    for i in todo.tolist():
         msg = parse(bytes(payloads[i]))
         if msg.unit != unit or msg.command != code:
             raise ValueError(f"sample {i} is from {msg.unit!r} 0x{msg.command:02X}, "
@@ -389,6 +410,28 @@ def decode_batch(unit: str, code: int,
                 recs[q][i] = values
             elif recs[q].dtype.kind == "f":
                 recs[q][i] = np.nan
+    return _columns(lay, recs)
+
+
+def _bulk_rows(lay: Layout, payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """Which ``payloads`` have the bulk layout ``lay`` (by length and constant bytes), and
+    those read as one record array."""
+    size = lay.size
+    fits = np.fromiter((len(p) == size for p in payloads), bool, len(payloads))
+    raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),
+                        np.uint8).reshape(-1, size)
+    good = _constant_bytes_hold(lay, raw)
+    return np.flatnonzero(fits)[good], raw[good].reshape(-1).view(lay.dtype)
+
+
+def _constant_bytes_hold(lay: Layout, raw: np.ndarray) -> np.ndarray:
+    """Per row of message bytes: whether its tags, lengths, unit and command are ``lay``'s."""
+    return np.asarray((raw[:, lay.const_mask]
+                       == lay.template.view(np.uint8)[lay.const_mask]).all(axis=1))
+
+
+def _columns(lay: Layout, recs: np.ndarray) -> dict[str, np.ndarray]:
+    n = len(recs)
     columns = {name: np.ascontiguousarray(recs[name]) for name in HEADER}
     for q in lay.quantities:
         columns[q] = np.ascontiguousarray(recs[q]).reshape(n, *QUANTITIES[q].shape)

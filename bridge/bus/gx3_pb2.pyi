@@ -3,7 +3,7 @@ from google.protobuf.internal import containers as _containers
 from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
 from google.protobuf import descriptor as _descriptor
 from google.protobuf import message as _message
-from collections.abc import Iterable as _Iterable
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
 from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
@@ -13,13 +13,14 @@ PHYSICAL_UNIT_FIELD_NUMBER: _ClassVar[int]
 physical_unit: _descriptor.FieldDescriptor
 
 class ImuSample(_message.Message):
-    __slots__ = ("unit", "command", "timer", "ticks", "time_ns", "rx_ns", "raw_accel", "raw_ang_rate", "accel", "stab_accel", "ang_rate", "delta_ang", "delta_vel", "mag", "stab_mag", "m", "c", "euler", "quaternion", "temperature")
+    __slots__ = ("unit", "command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "raw_accel", "raw_ang_rate", "accel", "stab_accel", "ang_rate", "delta_ang", "delta_vel", "mag", "stab_mag", "m", "c", "euler", "quaternion", "temperature")
     UNIT_FIELD_NUMBER: _ClassVar[int]
     COMMAND_FIELD_NUMBER: _ClassVar[int]
     TIMER_FIELD_NUMBER: _ClassVar[int]
     TICKS_FIELD_NUMBER: _ClassVar[int]
     TIME_NS_FIELD_NUMBER: _ClassVar[int]
     RX_NS_FIELD_NUMBER: _ClassVar[int]
+    RX_MONO_RAW_NS_FIELD_NUMBER: _ClassVar[int]
     RAW_ACCEL_FIELD_NUMBER: _ClassVar[int]
     RAW_ANG_RATE_FIELD_NUMBER: _ClassVar[int]
     ACCEL_FIELD_NUMBER: _ClassVar[int]
@@ -40,6 +41,7 @@ class ImuSample(_message.Message):
     ticks: int
     time_ns: int
     rx_ns: int
+    rx_mono_raw_ns: int
     raw_accel: _containers.RepeatedScalarFieldContainer[float]
     raw_ang_rate: _containers.RepeatedScalarFieldContainer[float]
     accel: _containers.RepeatedScalarFieldContainer[float]
@@ -54,10 +56,10 @@ class ImuSample(_message.Message):
     euler: _containers.RepeatedScalarFieldContainer[float]
     quaternion: _containers.RepeatedScalarFieldContainer[float]
     temperature: _containers.RepeatedScalarFieldContainer[int]
-    def __init__(self, unit: _Optional[str] = ..., command: _Optional[int] = ..., timer: _Optional[int] = ..., ticks: _Optional[int] = ..., time_ns: _Optional[int] = ..., rx_ns: _Optional[int] = ..., raw_accel: _Optional[_Iterable[float]] = ..., raw_ang_rate: _Optional[_Iterable[float]] = ..., accel: _Optional[_Iterable[float]] = ..., stab_accel: _Optional[_Iterable[float]] = ..., ang_rate: _Optional[_Iterable[float]] = ..., delta_ang: _Optional[_Iterable[float]] = ..., delta_vel: _Optional[_Iterable[float]] = ..., mag: _Optional[_Iterable[float]] = ..., stab_mag: _Optional[_Iterable[float]] = ..., m: _Optional[_Iterable[float]] = ..., c: _Optional[_Iterable[float]] = ..., euler: _Optional[_Iterable[float]] = ..., quaternion: _Optional[_Iterable[float]] = ..., temperature: _Optional[_Iterable[int]] = ...) -> None: ...
+    def __init__(self, unit: _Optional[str] = ..., command: _Optional[int] = ..., timer: _Optional[int] = ..., ticks: _Optional[int] = ..., time_ns: _Optional[int] = ..., rx_ns: _Optional[int] = ..., rx_mono_raw_ns: _Optional[int] = ..., raw_accel: _Optional[_Iterable[float]] = ..., raw_ang_rate: _Optional[_Iterable[float]] = ..., accel: _Optional[_Iterable[float]] = ..., stab_accel: _Optional[_Iterable[float]] = ..., ang_rate: _Optional[_Iterable[float]] = ..., delta_ang: _Optional[_Iterable[float]] = ..., delta_vel: _Optional[_Iterable[float]] = ..., mag: _Optional[_Iterable[float]] = ..., stab_mag: _Optional[_Iterable[float]] = ..., m: _Optional[_Iterable[float]] = ..., c: _Optional[_Iterable[float]] = ..., euler: _Optional[_Iterable[float]] = ..., quaternion: _Optional[_Iterable[float]] = ..., temperature: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class Status(_message.Message):
-    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud")
+    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud", "host_clock")
     class State(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         STATE_UNSPECIFIED: _ClassVar[Status.State]
@@ -92,6 +94,7 @@ class Status(_message.Message):
     CLOCK_SPREAD_NS_FIELD_NUMBER: _ClassVar[int]
     PORT_FIELD_NUMBER: _ClassVar[int]
     BAUD_FIELD_NUMBER: _ClassVar[int]
+    HOST_CLOCK_FIELD_NUMBER: _ClassVar[int]
     unit: str
     time_ns: int
     connected: bool
@@ -112,10 +115,31 @@ class Status(_message.Message):
     clock_spread_ns: float
     port: str
     baud: int
-    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ...) -> None: ...
+    host_clock: HostClock
+    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ...) -> None: ...
+
+class HostClock(_message.Message):
+    __slots__ = ("host", "synchronised", "known", "estimated_error_ns", "maximum_error_ns", "tai_offset_s", "state", "realtime_minus_raw_ns")
+    HOST_FIELD_NUMBER: _ClassVar[int]
+    SYNCHRONISED_FIELD_NUMBER: _ClassVar[int]
+    KNOWN_FIELD_NUMBER: _ClassVar[int]
+    ESTIMATED_ERROR_NS_FIELD_NUMBER: _ClassVar[int]
+    MAXIMUM_ERROR_NS_FIELD_NUMBER: _ClassVar[int]
+    TAI_OFFSET_S_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    REALTIME_MINUS_RAW_NS_FIELD_NUMBER: _ClassVar[int]
+    host: str
+    synchronised: bool
+    known: bool
+    estimated_error_ns: int
+    maximum_error_ns: int
+    tai_offset_s: int
+    state: str
+    realtime_minus_raw_ns: int
+    def __init__(self, host: _Optional[str] = ..., synchronised: _Optional[bool] = ..., known: _Optional[bool] = ..., estimated_error_ns: _Optional[int] = ..., maximum_error_ns: _Optional[int] = ..., tai_offset_s: _Optional[int] = ..., state: _Optional[str] = ..., realtime_minus_raw_ns: _Optional[int] = ...) -> None: ...
 
 class Event(_message.Message):
-    __slots__ = ("unit", "time_ns", "ticks", "kind", "count", "detail", "leaf", "end_time_ns", "end_ticks")
+    __slots__ = ("unit", "time_ns", "ticks", "kind", "count", "detail", "leaf", "end_time_ns", "end_ticks", "clock_change_ns")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         KIND_UNSPECIFIED: _ClassVar[Event.Kind]
@@ -132,6 +156,9 @@ class Event(_message.Message):
         REJECTED: _ClassVar[Event.Kind]
         SHED: _ClassVar[Event.Kind]
         DUPLICATE_UNIT: _ClassVar[Event.Kind]
+        HOST_CLOCK_STEP: _ClassVar[Event.Kind]
+        HOST_CLOCK_SLEW: _ClassVar[Event.Kind]
+        HOST_CLOCK_OFFSET: _ClassVar[Event.Kind]
     KIND_UNSPECIFIED: Event.Kind
     GAP: Event.Kind
     RESET: Event.Kind
@@ -146,6 +173,9 @@ class Event(_message.Message):
     REJECTED: Event.Kind
     SHED: Event.Kind
     DUPLICATE_UNIT: Event.Kind
+    HOST_CLOCK_STEP: Event.Kind
+    HOST_CLOCK_SLEW: Event.Kind
+    HOST_CLOCK_OFFSET: Event.Kind
     UNIT_FIELD_NUMBER: _ClassVar[int]
     TIME_NS_FIELD_NUMBER: _ClassVar[int]
     TICKS_FIELD_NUMBER: _ClassVar[int]
@@ -155,6 +185,7 @@ class Event(_message.Message):
     LEAF_FIELD_NUMBER: _ClassVar[int]
     END_TIME_NS_FIELD_NUMBER: _ClassVar[int]
     END_TICKS_FIELD_NUMBER: _ClassVar[int]
+    CLOCK_CHANGE_NS_FIELD_NUMBER: _ClassVar[int]
     unit: str
     time_ns: int
     ticks: int
@@ -164,10 +195,11 @@ class Event(_message.Message):
     leaf: str
     end_time_ns: int
     end_ticks: int
-    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., ticks: _Optional[int] = ..., kind: _Optional[_Union[Event.Kind, str]] = ..., count: _Optional[int] = ..., detail: _Optional[str] = ..., leaf: _Optional[str] = ..., end_time_ns: _Optional[int] = ..., end_ticks: _Optional[int] = ...) -> None: ...
+    clock_change_ns: int
+    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., ticks: _Optional[int] = ..., kind: _Optional[_Union[Event.Kind, str]] = ..., count: _Optional[int] = ..., detail: _Optional[str] = ..., leaf: _Optional[str] = ..., end_time_ns: _Optional[int] = ..., end_ticks: _Optional[int] = ..., clock_change_ns: _Optional[int] = ...) -> None: ...
 
 class Info(_message.Message):
-    __slots__ = ("unit", "port", "baud", "model_number", "serial", "model_name", "options", "lot", "firmware", "firmware_text", "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation", "north_compensation", "command", "mode", "bring_up_time_ns", "bridge_version", "allow_commands", "output_rate_hz", "link", "latency_timer_ms")
+    __slots__ = ("unit", "port", "baud", "model_number", "serial", "model_name", "options", "lot", "firmware", "firmware_text", "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation", "north_compensation", "command", "mode", "bring_up_time_ns", "bridge_version", "allow_commands", "output_rate_hz", "link", "latency_timer_ms", "host_clock")
     UNIT_FIELD_NUMBER: _ClassVar[int]
     PORT_FIELD_NUMBER: _ClassVar[int]
     BAUD_FIELD_NUMBER: _ClassVar[int]
@@ -192,6 +224,7 @@ class Info(_message.Message):
     OUTPUT_RATE_HZ_FIELD_NUMBER: _ClassVar[int]
     LINK_FIELD_NUMBER: _ClassVar[int]
     LATENCY_TIMER_MS_FIELD_NUMBER: _ClassVar[int]
+    HOST_CLOCK_FIELD_NUMBER: _ClassVar[int]
     unit: str
     port: str
     baud: int
@@ -216,4 +249,5 @@ class Info(_message.Message):
     output_rate_hz: float
     link: str
     latency_timer_ms: int
-    def __init__(self, unit: _Optional[str] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., model_number: _Optional[str] = ..., serial: _Optional[str] = ..., model_name: _Optional[str] = ..., options: _Optional[str] = ..., lot: _Optional[str] = ..., firmware: _Optional[int] = ..., firmware_text: _Optional[str] = ..., decimation: _Optional[int] = ..., flags: _Optional[int] = ..., filter_width: _Optional[int] = ..., mag_filter_width: _Optional[int] = ..., up_compensation: _Optional[int] = ..., north_compensation: _Optional[int] = ..., command: _Optional[int] = ..., mode: _Optional[int] = ..., bring_up_time_ns: _Optional[int] = ..., bridge_version: _Optional[str] = ..., allow_commands: _Optional[bool] = ..., output_rate_hz: _Optional[float] = ..., link: _Optional[str] = ..., latency_timer_ms: _Optional[int] = ...) -> None: ...
+    host_clock: HostClock
+    def __init__(self, unit: _Optional[str] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., model_number: _Optional[str] = ..., serial: _Optional[str] = ..., model_name: _Optional[str] = ..., options: _Optional[str] = ..., lot: _Optional[str] = ..., firmware: _Optional[int] = ..., firmware_text: _Optional[str] = ..., decimation: _Optional[int] = ..., flags: _Optional[int] = ..., filter_width: _Optional[int] = ..., mag_filter_width: _Optional[int] = ..., up_compensation: _Optional[int] = ..., north_compensation: _Optional[int] = ..., command: _Optional[int] = ..., mode: _Optional[int] = ..., bring_up_time_ns: _Optional[int] = ..., bridge_version: _Optional[str] = ..., allow_commands: _Optional[bool] = ..., output_rate_hz: _Optional[float] = ..., link: _Optional[str] = ..., latency_timer_ms: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ...) -> None: ...

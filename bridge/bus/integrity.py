@@ -11,7 +11,9 @@ apps in other languages):
 
 - bytes 0-3: CRC-32 of the payload (IEEE 802.3 / zlib / PNG polynomial), uint32;
 - bytes 4-11, raw reads only: the host receive time of the read, int64 ns since the
-  Unix epoch.
+  Unix epoch;
+- bytes 12-19, raw reads only: the same instant on the host's ``CLOCK_MONOTONIC_RAW``,
+  int64 ns (older bridges leave it out).
 
 Readers ignore any bytes beyond those they know, so fields can be added at the end.
 """
@@ -31,6 +33,7 @@ from bridge.bus.gx3_pb2 import Event, Info, Status
 SEALED = ("imu", "status", "event", "raw", "info")
 _CRC = struct.Struct("<I")
 _CRC_TIME = struct.Struct("<Iq")
+_CRC_TIMES = struct.Struct("<Iqq")
 _TYPED: dict[str, type[Status] | type[Event] | type[Info]] = {
     "status": Status, "event": Event, "info": Info}
 
@@ -39,10 +42,13 @@ BAD_CHECKSUM = "checksum"
 NOT_OF_KEY = "key"
 
 
-def seal(payload: bytes, rx_ns: int | None = None) -> bytes:
-    """The attachment of ``payload``: its CRC-32, then the receive time of a raw read."""
+def seal(payload: bytes, rx_ns: int | None = None, raw_ns: int | None = None) -> bytes:
+    """The attachment of ``payload``: its CRC-32, then a raw read's receive times (on the
+    realtime clock, then the raw monotonic one)."""
     crc = zlib.crc32(payload)
-    return _CRC.pack(crc) if rx_ns is None else _CRC_TIME.pack(crc, rx_ns)
+    if rx_ns is None:
+        return _CRC.pack(crc)
+    return _CRC_TIME.pack(crc, rx_ns) if raw_ns is None else _CRC_TIMES.pack(crc, rx_ns, raw_ns)
 
 
 def seals(payloads: Sequence[bytes]) -> list[bytes]:
@@ -62,6 +68,14 @@ def read_time(attachment: bytes | None) -> int | None:
     if attachment is None or len(attachment) < _CRC_TIME.size:
         return None
     return int(_CRC_TIME.unpack_from(attachment)[1])
+
+
+def read_raw_time(attachment: bytes | None) -> int | None:
+    """The raw-clock receive time a raw read's attachment carries (None: an older
+    bridge's, with none)."""
+    if attachment is None or len(attachment) < _CRC_TIMES.size:
+        return None
+    return int(_CRC_TIMES.unpack_from(attachment)[2])
 
 
 def agree(unit: str, leaf: str, payloads: Sequence[bytes]) -> list[bool]:

@@ -55,18 +55,19 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
         publisher_detection=True)
 
 
-def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int]
-                   ) -> tuple[list[bytes], list[bytes]]:
+def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int],
+                   rx_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
     """The ImuSample payloads of a live read's records and their attachments (``seal``):
     in one call of the compiled core where it is built, else ``encode_records`` and
-    ``seals``, with the same bytes."""
+    ``seals``, with the same bytes. ``rx_ns``: the completing reads' realtime stamps (the
+    records' own are the raw clock's)."""
     core = native.records
     if core is None:
         payloads = encode_records(unit, records.code, records.little_endian, records.wire,
-                                  ticks, time_ns, records.rx_ns)
+                                  ticks, time_ns, rx_ns, records.rx_ns)
         return payloads, seals(payloads)
     return core.messages(*native_layout(records.code, unit, records.little_endian),
-                         records.wire, ticks, time_ns, records.rx_ns)
+                         records.wire, (ticks, time_ns, rx_ns, records.rx_ns))
 
 
 class UnitPublisher:
@@ -110,17 +111,22 @@ class UnitPublisher:
 
     def publish_samples(self, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
                         rx_ns: np.ndarray | None = None) -> int:
-        """One ImuSample per record of ``batch``; ``rx_ns`` defaults to ``batch.rx_ns``.
+        """One ImuSample per record of ``batch``.
 
         ``ticks`` (unwrapped timer) and ``time_ns`` (host-clock estimate with the
-        filter delay taken out) are per record, from the timing model.
+        filter delay taken out) are per record, from the timing model. ``rx_ns``: the
+        completing reads' realtime stamps, ``batch.rx_ns`` then their raw-clock ones (a
+        live bridge's); None: ``batch.rx_ns`` are realtime stamps, with no raw ones.
         """
-        return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns,
-                                          batch.rx_ns if rx_ns is None else rx_ns))
+        if rx_ns is None:
+            return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns))
+        return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, rx_ns,
+                                          batch.rx_ns))
 
-    def publish_records(self, records: Records, ticks: list[int], time_ns: list[int]) -> int:
+    def publish_records(self, records: Records, ticks: list[int], time_ns: list[int],
+                        rx_ns: list[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes."""
-        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns))
+        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns))
 
     def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
         """Put ImuSample payloads back to back, each sealed with its CRC-32."""
@@ -138,11 +144,11 @@ class UnitPublisher:
         payload = self._own(event).SerializeToString()
         self._event.put(payload, attachment=seal(payload))
 
-    def publish_raw(self, data: bytes, rx_ns: int) -> None:
-        """The bytes of one read, its checksum and host receive time attached."""
+    def publish_raw(self, data: bytes, raw_ns: int, real_ns: int) -> None:
+        """The bytes of one read, its checksum and host receive times attached."""
         if self._raw is None:
             raise ValueError("this UnitPublisher was declared without raw=True")
-        self._raw.put(data, attachment=seal(data, rx_ns))
+        self._raw.put(data, attachment=seal(data, real_ns, raw_ns))
 
     def set_info(self, info: Info) -> None:
         """What the info queryable answers from now on."""

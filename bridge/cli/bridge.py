@@ -203,11 +203,11 @@ def run_bridge(
             raise fail(str(exc)) from None
     writer: list[RawCaptureWriter] = []
 
-    def write_capture(data: bytes, rx_ns: int) -> None:
+    def write_capture(data: bytes, raw_ns: int, real_ns: int) -> None:
         if not writer or writer[0].stopped:
             return
         try:
-            writer[0].write(data, rx_ns)
+            writer[0].write(data, real_ns, raw_ns)
         except CaptureError as exc:
             err.print(f"[yellow]capture stopped:[/] {exc}")
             writer[0].stopped = True

@@ -4,7 +4,9 @@ Any pyserial URL or device path works: a real tty, a pty, ``socket://``, ``rfc22
 Reads are non-blocking behind ``select`` where the transport has a file descriptor,
 so the receive time stamped on a read is the moment its bytes were handed over,
 not the end of a read timeout (pyserial's socket ``read(n)`` otherwise waits for n
-bytes or the timeout, which would smear every stamp by up to the timeout).
+bytes or the timeout, which would smear every stamp by up to the timeout). Each read
+is stamped on two clocks read together (``bridge.device.clock.stamp``): the raw
+monotonic clock the unit's clock is fitted against, and the host's realtime clock.
 """
 
 from __future__ import annotations
@@ -13,13 +15,13 @@ import contextlib
 import errno
 import os
 import select
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import serial
 
 from bridge import native
+from bridge.device import clock
 
 _READ_SIZE = 1 << 16
 
@@ -94,8 +96,9 @@ class Port:
         except (AttributeError, NotImplementedError, serial.SerialException, OSError):
             return None
 
-    def read(self, wait_s: float) -> tuple[bytes, int]:
-        """Bytes that arrived within ``wait_s``, and the host time (ns) they were read.
+    def read(self, wait_s: float) -> tuple[bytes, int, int]:
+        """Bytes that arrived within ``wait_s``, and when they were read (ns) on the raw
+        monotonic and on the realtime clock (``clock.stamp``).
 
         Raises PortError when the transport is gone (cable pulled, server closed).
         """
@@ -104,28 +107,29 @@ class Port:
             if fd is not None:
                 ready, _, _ = select.select([fd], [], [], wait_s)
                 if not ready:
-                    return b"", time.time_ns()
+                    return (b"", *clock.stamp())
                 data = os.read(fd, _READ_SIZE)  # pyserial's read would select again
-                rx_ns = time.time_ns()
+                raw, real = clock.stamp()
                 if not data:
                     raise PortError(f"{self.url}: the device went away (cable pulled?)",
                                     "port gone")
-                return bytes(data), rx_ns
+                return bytes(data), raw, real
             self.raw.timeout = wait_s
             data = self.raw.read(max(1, self.raw.in_waiting))
             if data and self.raw.in_waiting:
                 data += self.raw.read(self.raw.in_waiting)
-            return bytes(data), time.time_ns()
+            return (bytes(data), *clock.stamp())
         except PortError:
             raise
         except (serial.SerialException, OSError) as exc:
             raise _error(self.url, exc) from None
 
-    def read_until(self, need: int, wait_s: float) -> tuple[list[bytes], list[int]]:
+    def read_until(self, need: int, wait_s: float
+                   ) -> tuple[list[bytes], list[int], list[int]]:
         """Reads as bytes come until ``need`` bytes have come or ``wait_s`` has passed:
-        each read's bytes and receive time. A live bridge waits so for the rest of a
-        record in compiled code (``bridge/_gather.c``, the GIL released), and wakes in
-        Python once a record rather than once a piece the link hands over. Without it,
+        each read's bytes and receive times (raw, realtime). A live bridge waits so for the
+        rest of a record in compiled code (``bridge/_gather.c``, the GIL released), and
+        wakes in Python once a record rather than once a piece the link hands over. Without it,
         or without a file descriptor, this is one ``read``, and the caller reads again:
         the same reads either way.
 
@@ -134,15 +138,15 @@ class Port:
         fd = self._fileno()
         reader = native.reader
         if fd is None or reader is None or need <= 1:
-            data, rx_ns = self.read(wait_s)
-            return ([data], [rx_ns]) if data else ([], [])
+            data, raw, real = self.read(wait_s)
+            return ([data], [raw], [real]) if data else ([], [], [])
         try:
-            reads, times, gone = reader.gather(fd, need, wait_s)
+            reads, raws, reals, gone = reader.gather(fd, need, wait_s)
         except OSError as exc:
             raise _error(self.url, exc) from None
         if gone and not reads:  # the bytes before the end go out first, as reads would
             raise PortError(f"{self.url}: the device went away (cable pulled?)", "port gone")
-        return reads, times
+        return reads, raws, clock.moved(reals)
 
     def write(self, data: bytes) -> None:
         try:

@@ -7,7 +7,7 @@ command never costs a sample.
 
 Nothing that writes the unit's non-volatile memory is sent unless the caller says
 so for that exact command (``persist=True``); the command table decides what
-persists, taking the firmware into account (DESIGN.md, "Safety of commands").
+persists, taking the firmware into account (``bridge.protocol.table``).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+from bridge.device import clock
 from bridge.device.port import Port, PortError
 from bridge.protocol.codec import Batch, Records, encode_command
 from bridge.protocol.convert import wake_time_seconds
@@ -172,7 +173,9 @@ class Session:
         self.streaming: int | None = None  # the record ``read`` returns: streamed or polled
         self.polling = False
         self.paced = False  # bytes come at the UART's line rate (not in USB packets)
-        self.on_read: Callable[[bytes, int], None] | None = None  # raw capture hook
+        #: hears every read the session makes, in order: its bytes and receive times on
+        #: the raw monotonic and the realtime clock (the host clock, a raw capture)
+        self.on_reads: Callable[[list[bytes], list[int], list[int]], None] | None = None
         self._backlog: list[Batch] = []
         self._last_read = 0.0  # time.monotonic() of the last read that brought bytes
         #: The bytes a read brings when woken by the link itself (not after a sleep),
@@ -187,14 +190,14 @@ class Session:
         self.framer.expect(codes)
 
     def _take(self, wait_s: float, need: int = 1) -> tuple[list[bytes], list[int]]:
-        """Reads until ``need`` bytes came (``Port.read_until``), handed to ``on_read``."""
-        reads, rx_ns = self.port.read_until(need, wait_s)
+        """Reads until ``need`` bytes came (``Port.read_until``), handed to ``on_reads``:
+        their bytes and raw-clock receive times, which the framer and the clock model use."""
+        reads, raws, reals = self.port.read_until(need, wait_s)
         if reads:
             self._last_read = time.monotonic()
-            if self.on_read is not None:
-                for data, rx in zip(reads, rx_ns, strict=True):
-                    self.on_read(data, rx)
-        return reads, rx_ns
+            if self.on_reads is not None:
+                self.on_reads(reads, raws, reals)
+        return reads, raws
 
     def _read(self, wait_s: float) -> list[Batch]:
         reads, rx_ns = self._take(wait_s)
@@ -241,7 +244,7 @@ class Session:
         dropped = 0
         deadline = time.monotonic() + limit_s
         while time.monotonic() < deadline:
-            data, _ = self.port.read(quiet_s)
+            data, _, _ = self.port.read(quiet_s)
             if not data:
                 break
             dropped += len(data)
@@ -340,7 +343,7 @@ class Session:
         return UnitInfo(firmware=firmware, ids=ids,
                         sampling={k: int(v) for k, v in sampling.items()},
                         baud=self.port.baud, continuous_preset=preset,
-                        bring_up_ns=time.time_ns())
+                        bring_up_ns=clock.realtime_ns())
 
     def apply_sampling(self, info: UnitInfo, persist: bool = False,
                        **changes: int | None) -> None:

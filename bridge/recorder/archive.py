@@ -21,15 +21,16 @@ Layout (DESIGN.md, "Archives"):
   3-D view for transforms alone).
 - ``<prefix>/log``: every archived Event again as a ``foxglove.Log`` (name = unit), at
   the event's log time, for Foxglove's Log panel and Rerun's text log: eventlog.py.
-- Raw captures (``<prefix>/<unit>/raw``) keep their receive time as log time,
-  octet-stream, no schema, as bridge/recorder/rawcapture.py writes them.
+- Raw captures (``<prefix>/<unit>/raw``) keep their receive time on the realtime clock
+  as log time and on the raw monotonic clock as publish time, octet-stream, no schema,
+  as bridge/recorder/rawcapture.py writes them.
 - Chunked (1 MiB), zstd, indexed, with a summary, in log-time order (chunks never
   overlap). A message waits ``reorder_s`` (0.5 s of receive time) for any logged
   before it, then is written at the next flush, at least once a second: a killed
   recorder loses at most the last 1.5 s and the file still opens with read.py. A
   message that comes later than that is written at the log time of the last one
-  written (its own time stays in its payload; a raw read's in its publish time, the
-  receive time too) and counted (``late``, and a
+  written (its own time stays in its payload; a raw read's raw-clock stamp in its
+  publish time) and counted (``late``, and a
   ``gx3.order`` metadata record). ``reorder_s=None`` sorts the whole file when it is
   finished (a replay writes unit after unit).
   ``write_many`` takes a batch of one key at once (bridge/recorder/mcap_writer.py lays
@@ -60,6 +61,7 @@ from bridge.bus.codec import decode_batch, parse, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
+from bridge.device import clock
 from bridge.outputs import OutputRefused, create_locked, refuse_if_written
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.eventlog import LOG_CLASS, log_message
@@ -73,7 +75,7 @@ from bridge.recorder.frames import (
     sensor_to_earth,
 )
 from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.rawcapture import RAW_ENCODING
+from bridge.recorder.rawcapture import RAW_CLOCK, RAW_ENCODING
 
 T = TypeVar("T")
 PROTOBUF = "protobuf"
@@ -364,7 +366,7 @@ class ArchiveWriter:
         f = self._current()
         if leaf == "raw":
             schema_id, encoding = 0, RAW_ENCODING
-            meta = {"unit": unit, "zenoh_encoding": ENCODINGS["raw"]}
+            meta = {"unit": unit, "zenoh_encoding": ENCODINGS["raw"], **RAW_CLOCK}
         else:
             cls = ADDED[leaf] if leaf in ADDED else MESSAGES[leaf][0]
             name = cls.DESCRIPTOR.full_name
@@ -389,10 +391,12 @@ class ArchiveWriter:
         return self._file
 
     def _add(self, topic: str, unit: str, leaf: str, log_ns: np.ndarray,
-             payloads: Sequence[bytes], receive_ns: np.ndarray) -> int:
+             payloads: Sequence[bytes], receive_ns: np.ndarray,
+             publish_ns: np.ndarray | None = None) -> int:
         """Hand messages of one topic to the file's writer; returns how many were taken
         (all, unless the file splits by size: then about a chunk's worth, so the caller
-        can look at the file's size)."""
+        can look at the file's size). Their publish times are ``publish_ns``, by default
+        their receive times."""
         f = self._current()
         cid = f.channels.get(topic) or self._register(topic, unit, leaf)
         n = len(payloads)
@@ -400,7 +404,8 @@ class ArchiveWriter:
             sizes = np.cumsum(np.fromiter(map(len, payloads), np.int64, n))
             n = min(n, int(np.searchsorted(sizes, self.chunk_size)) + 1)
         seq = self._sequence.get(topic, 0)
-        self._guard(f.writer.add, cid, seq, log_ns[:n], receive_ns[:n], payloads[:n])
+        published = receive_ns if publish_ns is None else publish_ns
+        self._guard(f.writer.add, cid, seq, log_ns[:n], published[:n], payloads[:n])
         self._sequence[topic] = seq + n
         self.messages += n
         if n:
@@ -450,7 +455,7 @@ class ArchiveWriter:
             self._drain()
         payloads, received = self._held.setdefault(key, ([], []))
         payloads.append(payload)
-        received.append(time.time_ns() if receive_ns is None else receive_ns)
+        received.append(clock.realtime_ns() if receive_ns is None else receive_ns)
         self._saw(received[-1])
         self._holding += 1
         if self._holding >= _HOLD or self._clock() - self._flushed >= FLUSH_EVERY_S:
@@ -470,9 +475,11 @@ class ArchiveWriter:
         self._release_if_full()
 
     def write_many(self, key: str, payloads: Sequence[bytes],
-                   receive_ns: int | np.ndarray) -> None:
+                   receive_ns: int | np.ndarray, publish_ns: np.ndarray | None = None) -> None:
         """Messages of one key, received at ``receive_ns`` (host ns: one for all, or one
-        per payload): the archive ``write`` gives message by message, in bulk."""
+        per payload): the archive ``write`` gives message by message, in bulk.
+        ``publish_ns``: raw reads' raw-clock stamps, their publish times (rawcapture.py);
+        by default the receive times are."""
         if self._broken is not None:
             raise self._broken
         self._drain()
@@ -482,6 +489,9 @@ class ArchiveWriter:
             rx = np.full(n, rx, np.int64)
         if rx.shape != (n,):
             raise ValueError(f"{key}: {n} payloads but {rx.size} receive times")
+        published = rx if publish_ns is None else np.asarray(publish_ns, np.int64)
+        if published.shape != (n,):
+            raise ValueError(f"{key}: {n} payloads but {published.size} publish times")
         unit, leaf = self.route(key)
         units: list[str] = []
         codes = np.zeros(0, np.int64)
@@ -500,7 +510,7 @@ class ArchiveWriter:
                 self._maybe_split(int(rx[done]))
             end = self._split_due(rx, done)
             taken = self._add(key, unit, leaf, log_ns[done:end], payloads[done:end],
-                              rx[done:end])
+                              rx[done:end], published[done:end])
             if leaf == "imu" and self.frames:
                 self._queue_frames(unit, units[done : done + taken],
                                    codes[done : done + taken], log_ns[done : done + taken],

@@ -33,9 +33,10 @@ import zenoh
 
 from bridge.bus.codec import parse
 from bridge.bus.gx3_pb2 import Event, Status
-from bridge.bus.integrity import read_time
+from bridge.bus.integrity import read_raw_time, read_time
 from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
+from bridge.device import clock
 from bridge.recorder.archive import ArchiveError, ArchiveWriter
 from bridge.timing.rate import RateWindow
 
@@ -148,7 +149,9 @@ class Recorder:
         self._lock = threading.Lock()  # the views
         # what the receiving thread holds for the writer, guarded by _held_lock
         self._held_lock = threading.RLock()  # a reject is reported while it is held
-        self._held: dict[str, tuple[list[bytes], list[int]]] = {}
+        # by key: payloads, receive times, and a raw read's raw-clock stamps (its publish
+        # time in the archive; an older bridge's reads have none: their receive time)
+        self._held: dict[str, tuple[list[bytes], list[int], list[int]]] = {}
         self._held_bytes = 0
         self._shedding = False
         self._last: dict[str, bytes] = {}  # the last message of each key that arrived
@@ -240,7 +243,7 @@ class Recorder:
     def _hold(self, groups: dict[str, Arrivals]) -> int:
         """Keep checked messages for the writer (caller holds ``_held_lock``); shed imu
         and raw ones while the held memory is over its cap."""
-        now = time.time_ns()
+        now = clock.realtime_ns()
         n = 0
         for key, got in groups.items():
             leaf = key.rpartition("/")[2]
@@ -260,10 +263,13 @@ class Recorder:
                                                         first_ticks, last_ticks)
                 continue
             self._held_bytes += size
-            held, received = self._held.setdefault(key, ([], []))
+            held, received, published = self._held.setdefault(key, ([], [], []))
             held += payloads
             if leaf == "raw":  # a raw read's time is when its bridge received it
-                received += [now if t is None else t for t in map(read_time, got.attachments)]
+                reals = [now if t is None else t for t in map(read_time, got.attachments)]
+                received += reals
+                published += [real if raw is None else raw for raw, real
+                              in zip(map(read_raw_time, got.attachments), reals, strict=True)]
             else:
                 received += [now] * len(payloads)
         return n
@@ -274,12 +280,12 @@ class Recorder:
             came before it is taken first, so the loss has its place among them."""
             with self._held_lock:
                 self._hold(self._subs[index].take_by_key(1 << 30))
-                loss = _Loss(key, count, time.time_ns(), self._last.get(key))
+                loss = _Loss(key, count, clock.realtime_ns(), self._last.get(key))
                 self._open_losses.setdefault(key, []).append(loss)
         return missed
 
     def _rejected(self, key: str, reason: str, count: int) -> None:
-        now = time.time_ns()
+        now = clock.realtime_ns()
         with self._held_lock:
             self._rejects.setdefault((key, reason), _Span()).add(count, now, now)
 
@@ -288,7 +294,7 @@ class Recorder:
             return
         self._conflicts.add((key, tuple(sessions)))
         unit = self._unit(key)
-        now = time.time_ns()
+        now = clock.realtime_ns()
         note = Event(unit=unit, time_ns=now, kind=Event.DUPLICATE_UNIT, count=len(sessions),
                      detail=f"{key} is published by {len(sessions)} sessions at once "
                             f"({', '.join(sessions)}): two bridges run under the name "
@@ -322,7 +328,7 @@ class Recorder:
     def _pass(self) -> None:
         """Everything held into the archive, one write per key, then the events that
         account for what was not archived."""
-        now = time.time_ns()
+        now = clock.realtime_ns()
         with self._held_lock:
             held, self._held, self._held_bytes = self._held, {}, 0
             self._shedding = False
@@ -333,8 +339,9 @@ class Recorder:
         answers = check([self._answers.popleft() for _ in range(len(self._answers))],
                         self._rejected)
         written: list[RawMessage] | None = None if self._on_written is None else []
-        for key, (payloads, received) in held.items():
-            self._write(key, payloads, np.array(received, np.int64), written)
+        for key, (payloads, received, published) in held.items():
+            self._write(key, payloads, np.array(received, np.int64), written,
+                        np.array(published, np.int64) if published else None)
         for key, got in answers.items():
             self._write(key, got.payloads, now, written)
         notes += [self._lost(loss, after, now) for loss, after in losses]
@@ -384,13 +391,14 @@ class Recorder:
                            detail=f"{key}: {detail}")
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
-               written: list[RawMessage] | None) -> None:
+               written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
         """Archive messages of one key, received at ``received`` (host ns: one for all, or
-        one each), and count them in their unit's view."""
+        one each; ``published``: raw reads' raw-clock stamps), and count them in their
+        unit's view."""
         if self.error is not None:
             return
         try:
-            self.writer.write_many(key, payloads, received)
+            self.writer.write_many(key, payloads, received, published)
         except ArchiveError as exc:
             self.error = exc
             return

@@ -1,11 +1,15 @@
-"""Raw captures: the exact bytes read from a unit, with the host time of each read.
+"""Raw captures: the exact bytes read from a unit, with the host times of each read.
 
-DESIGN.md's format: MCAP messages on topic ``<prefix>/<unit>/raw``, log time = host
-receive time in ns, data = the bytes of that read, encoding
-``application/octet-stream``, no schema. Replaying one through the pipeline gives
-what the live run gave, because framing and timing are pure functions of
-(bytes, receive times). The file is flushed at least once a second, so a crash
-loses at most that second, and a full disk stops the capture, never the bridge.
+MCAP messages on topic ``<prefix>/<unit>/raw``, data = the bytes of that read, encoding
+``application/octet-stream``, no schema; log time = the read's receive time on the
+host's realtime clock (ns since the epoch), publish time = the same instant on its
+``CLOCK_MONOTONIC_RAW`` (the channel's metadata says so: ``publish_time``). Older
+captures have the realtime stamp in both; a publish time of 10^18 ns or more (2001
+on) is a realtime stamp, as no host has been up for 31 years. Replaying a capture
+through the pipeline gives what the live run gave, because framing and timing are
+pure functions of (bytes, receive times). The file is flushed at least once a second,
+so a crash loses at most that second, and a full disk stops the capture, never the
+bridge.
 """
 
 from __future__ import annotations
@@ -24,6 +28,10 @@ from bridge.protocol.table import Mode
 T = TypeVar("T")
 RAW_ENCODING = "application/octet-stream"
 FLUSH_EVERY_S = 1.0
+#: A raw channel's metadata: which clock its messages' publish times are on.
+RAW_CLOCK = {"publish_time": "CLOCK_MONOTONIC_RAW"}
+#: Publish times from here on are realtime stamps (an older capture's), not raw ones.
+REALTIME_FROM_NS = 10**18
 
 
 class CaptureError(OSError):
@@ -63,7 +71,7 @@ class RawCaptureWriter:
                               compression=CompressionType.ZSTD)
         self._guard(self._writer.start, "gx3-raw", "gx3-bridge")
         self._channel = self._guard(self._writer.register_channel, raw_topic(prefix, unit),
-                                    RAW_ENCODING, 0, {"unit": unit})
+                                    RAW_ENCODING, 0, {"unit": unit, **RAW_CLOCK})
         if metadata:
             self._guard(self._writer.add_metadata, "gx3.capture", dict(metadata))
         self._sequence = 0
@@ -79,9 +87,11 @@ class RawCaptureWriter:
             raise CaptureError(f"{self.path}: {exc.strerror or exc}; the capture stops here "
                                "(what was written stays readable)") from None
 
-    def write(self, data: bytes, rx_ns: int) -> None:
-        """One read's bytes, stamped with its receive time."""
-        self._guard(self._writer.add_message, self._channel, rx_ns, data, rx_ns, self._sequence)
+    def write(self, data: bytes, real_ns: int, raw_ns: int | None = None) -> None:
+        """One read's bytes, stamped with its receive times on the realtime and (where
+        known) the raw monotonic clock."""
+        self._guard(self._writer.add_message, self._channel, real_ns, data,
+                    real_ns if raw_ns is None else raw_ns, self._sequence)
         self._sequence += 1
         self.reads += 1
         self.bytes += len(data)

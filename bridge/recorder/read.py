@@ -30,7 +30,7 @@ from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Header, Metadat
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.summary import Summary
 
-from bridge.bus.codec import decode_batch, layout, parse, peek
+from bridge.bus.codec import HEADER, LEGACY_HEADER, decode_batch, layout, parse, peek
 from bridge.bus.gx3_pb2 import Event
 
 _log = logging.getLogger(__name__)
@@ -240,6 +240,12 @@ class Archive:
 
     # -- messages ------------------------------------------------------------------------
 
+    def log_times(self, topic: str) -> np.ndarray:
+        """The log times of ``topic``'s messages, in the file's order (no payloads read)."""
+        ids = self._ids(topic)
+        return np.concatenate([b.log_time[np.isin(b.channel, ids)] for b in self.blocks]
+                              or [np.zeros(0, np.int64)]).astype(np.int64)
+
     def messages(self, topic: str) -> Messages:
         """Every message of ``topic``, in log-time order."""
         ids = self._ids(topic)
@@ -382,12 +388,15 @@ class Archive:
 def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
             ) -> dict[str, np.ndarray]:
     """decode_batch of the messages ``parts`` pick out of their chunks: rows read straight
-    out of the chunks when all have the bulk layout's size, else a bytes object each."""
-    size = layout(code, unit).size
-    found: np.ndarray | list[bytes]
-    if all((b.length[p] == size).all() for b, p in parts):
-        found = np.concatenate([b.rows(p, size) for b, p in parts])
-    else:
+    out of the chunks when all have the size of one bulk layout (an older bridge's too),
+    else a bytes object each."""
+    found: np.ndarray | list[bytes] | None = None
+    for header in (HEADER, LEGACY_HEADER):
+        size = layout(code, unit, header).size
+        if all((b.length[p] == size).all() for b, p in parts):
+            found = np.concatenate([b.rows(p, size) for b, p in parts])
+            break
+    if found is None:
         found = [payload for b, p in parts for payload in b.payloads(p)]
     return decode_batch(unit, code, found)
 

@@ -1,6 +1,7 @@
 """`gx3 replay`: raw captures through the live path's framer and timing, into an archive.
 
-A raw capture holds every read a bridge made, with its receive time. Replaying it
+A raw capture holds every read a bridge made, with its receive times on the raw
+monotonic and the realtime clock (``bridge.recorder.rawcapture``). Replaying it
 frames the same bytes with the same framer and times the records with the same
 ``StreamTiming``, told what the live bridge told it at the same points of the
 stream: settings from each 0xDB reply, a restarted stream at each 0xC4 reply
@@ -41,15 +42,17 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
 from bridge.recorder.archive import ArchiveWriter
-from bridge.recorder.rawcapture import capture_metadata
+from bridge.recorder.rawcapture import REALTIME_FROM_NS, capture_metadata
 from bridge.recorder.read import Archive, ArchiveReadError, read_archive, summary_counts
 from bridge.timing.links import infer_transport
+from bridge.timing.realtime import ClockChange, RealtimeReads, jumps
 from bridge.timing.stream import Settings, StreamTiming
 
 SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
 _EXPECT = frozenset(DATA_CODES | {SET_CONTINUOUS, SAMPLING, TIMER})
 _EVENT_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
                 "glitch": Event.GLITCH}
+_CLOCK_KINDS = {"step": Event.HOST_CLOCK_STEP, "slew": Event.HOST_CLOCK_SLEW}
 FACTORY_FILTER_WIDTH = 15
 _SNIFF_READS = 400
 _INFER_READS = 500_000  # minutes of reads: plenty to tell the link by
@@ -73,13 +76,48 @@ class UnusableCapture(ReplayError):
 
 @dataclass
 class Capture:
-    """One unit's reads from a raw capture: receive times, bytes, what its bridge said."""
+    """One unit's reads from a raw capture, in the order they were made: receive times on
+    the realtime clock and (None: an older capture's, with none) on the raw monotonic
+    clock, bytes, what its bridge said."""
 
     unit: str
     rx_ns: np.ndarray
     data: list[bytes]
     metadata: dict[str, str] = field(default_factory=dict)
     topic: str = ""
+    raw_ns: np.ndarray | None = None
+
+    @property
+    def steady_ns(self) -> np.ndarray:
+        """The receive times the unit's clock is fitted against: the raw clock's where the
+        capture has them."""
+        return self.rx_ns if self.raw_ns is None else self.raw_ns
+
+
+def _read_times(archive: Archive, log: np.ndarray, published: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+    """A raw topic's receive times on the realtime clock and (None: an older capture's) the
+    raw one, from its messages' log and publish times in read order.
+
+    A publish time of 10^18 or more is an older capture's realtime stamp. Otherwise it is
+    the raw stamp and the log time the realtime one, except where an archive wrote a read
+    that came later than its reorder window at the log time of the message written last:
+    such a log time is another message's to the nanosecond, and the read's realtime stamp
+    is its raw one moved by the offset of the read before it."""
+    if len(published) == 0 or (published >= REALTIME_FROM_NS).any():
+        return np.where(published >= REALTIME_FROM_NS, published, log), None
+    offsets = log - published
+    if not jumps(np.diff(offsets), np.diff(published)).any():
+        return log, published  # no step to tell from a late read: the common case
+    raw_topics = set(archive.topics("raw"))
+    others = np.concatenate([archive.log_times(t) for t in archive.topics()
+                             if t not in raw_topics] or [np.zeros(0, np.int64)])
+    late = np.isin(log, others) | np.concatenate([[False], log[1:] == log[:-1]])
+    if late.any() and not late.all():
+        known = np.flatnonzero(~late)
+        before = known[np.maximum(np.searchsorted(known, np.flatnonzero(late)) - 1, 0)]
+        offsets[late] = offsets[before]
+    return published + offsets, published
 
 
 def captures(path: Path, prefix: str = "gx3",
@@ -99,11 +137,11 @@ def captures(path: Path, prefix: str = "gx3",
         if topics is not None and topic not in topics:
             continue
         messages = archive.messages(topic)
-        unit = messages.unit
-        # publish time: the receive time itself even where a read came later than the
-        # archive's reorder window (its log time is then the last one written before it)
-        out.append(Capture(unit, messages.publish_time.astype(np.int64), messages.payloads,
-                           meta.get(unit, {}), topic))
+        order = np.argsort(messages.sequence, kind="stable")  # the order they were read in
+        real, raw = _read_times(archive, messages.log_time[order].astype(np.int64),
+                                messages.publish_time[order].astype(np.int64))
+        out.append(Capture(messages.unit, real, [messages.payloads[i] for i in order.tolist()],
+                           meta.get(messages.unit, {}), topic, raw))
     if not out:
         raise UnusableCapture(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
                           "one with gx3 bridge --capture FILE.mcap")
@@ -133,7 +171,8 @@ class UnitReplay:
         little_endian = self._little_endian()
         self.settings = self._initial_settings(little_endian, transport)
         self.framer = Framer(_EXPECT, little_endian=little_endian)
-        self.timing = StreamTiming()
+        self.host = RealtimeReads(capture.steady_ns, capture.rx_ns)
+        self.timing = StreamTiming(self.host)
         self._pending: list[Batch] = []
         self._pending_records = 0
 
@@ -156,7 +195,7 @@ class UnitReplay:
                             filter_width=FACTORY_FILTER_WIDTH, baud=DEFAULT_BAUD)
         if transport:
             return replace(settings, transport=transport)
-        link = infer_transport(self.capture.rx_ns[:_INFER_READS],
+        link = infer_transport(self.capture.steady_ns[:_INFER_READS],
                                self.capture.data[:_INFER_READS], record, little_endian)
         self.result.inferred.append(link.describe())
         return replace(settings, transport=link.transport, baud=link.baud or DEFAULT_BAUD,
@@ -165,7 +204,7 @@ class UnitReplay:
     def _sniff_batches(self, little_endian: bool) -> list[Batch]:
         framer = Framer(DATA_CODES, little_endian=little_endian)
         reads = self.capture.data[:_SNIFF_READS]
-        return [b for found in frame_reads(framer, self.capture.rx_ns[:len(reads)], reads)
+        return [b for found in frame_reads(framer, self.capture.steady_ns[:len(reads)], reads)
                 for b in found]
 
     def _little_endian(self) -> bool:
@@ -209,7 +248,9 @@ class UnitReplay:
     def run(self, emit: Emit, prefix: str) -> Replayed:
         if len(self.capture.rx_ns):
             self._info(emit, prefix, int(self.capture.rx_ns[0]))
-        for found in frame_reads(self.framer, self.capture.rx_ns, self.capture.data):
+        for change in self.host.changes():
+            self._clock_changed(change, emit, prefix)
+        for found in frame_reads(self.framer, self.capture.steady_ns, self.capture.data):
             for batch in found:
                 self._batch(batch, emit, prefix)
         for batch in self.framer.flush():
@@ -247,22 +288,32 @@ class UnitReplay:
         elif batch.code == TIMER and self.timing.timeline is not None:
             self.timing.configure(self.settings, restarted=True)
 
+    def _clock_changed(self, change: ClockChange, emit: Emit, prefix: str) -> None:
+        """A step or slew of the host clock, as the live bridge published it."""
+        unit = self.capture.unit
+        self.result.events[f"host clock {change.kind}"] += 1
+        event = Event(unit=unit, time_ns=change.real_ns, kind=_CLOCK_KINDS[change.kind],
+                      count=1, detail=change.describe(), clock_change_ns=change.size_ns)
+        emit(f"{prefix}/{unit}/event", [event.SerializeToString()], change.real_ns)
+
     def _samples(self, batch: Batch, emit: Emit, prefix: str) -> None:
         unit = self.capture.unit
         timed = self.timing.process(batch)
         for ev in timed.events:
             self.result.events[ev.kind] += 1
             # the live bridge tells right after the read that held the record
-            at = int(batch.rx_ns[min(max(ev.index, 0), len(batch) - 1)])
+            read = batch.rx_ns[min(max(ev.index, 0), len(batch) - 1) :][:1]
+            at = int(self.host.map_array(read, read)[0])
             event = Event(unit=unit, time_ns=at, ticks=int(ev.ticks),
                           kind=_EVENT_KINDS.get(ev.kind, Event.KIND_UNSPECIFIED),
                           count=max(1, int(ev.count)))
             emit(f"{prefix}/{unit}/event", [event.SerializeToString()], at)
         if not len(timed.batch):
             return
-        payloads = encode_batch(unit, timed.batch, timed.ticks, timed.time_ns,
-                                timed.batch.rx_ns)
-        emit(f"{prefix}/{unit}/imu", payloads, timed.batch.rx_ns)
+        payloads = encode_batch(unit, timed.batch, timed.ticks, timed.time_ns, timed.rx_ns,
+                                timed.batch.rx_ns if self.capture.raw_ns is not None
+                                else np.zeros(len(timed.batch), np.int64))
+        emit(f"{prefix}/{unit}/imu", payloads, timed.rx_ns)
         self.result.samples += len(payloads)
 
 

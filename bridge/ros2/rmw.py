@@ -23,7 +23,6 @@ from __future__ import annotations
 import functools
 import struct
 import threading
-import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -32,6 +31,7 @@ import numpy as np
 import zenoh
 
 from bridge.bus.codec import RecordBatch, record_quantities
+from bridge.device import clock
 from bridge.ros2.messages import (
     ATTITUDE,
     IMU,
@@ -182,7 +182,7 @@ class Ros2Publisher:
         """Publish CDR messages, each with the next sequence number; the source
         timestamp is the publication time, as rmw_zenoh's."""
         put, source_gid = self._pub.put, self.gid
-        sequence, now = self.sequence, time.time_ns()
+        sequence, now = self.sequence, clock.realtime_ns()
         for payload in payloads:
             sequence += 1
             put(payload, attachment=attachment(sequence, now, source_gid))

@@ -4,6 +4,10 @@ The live pipeline and ``gx3 replay`` both time records through this class, so a
 raw capture replays to the very ticks and ``time_ns`` the live bridge published:
 the same timeline, told the same things (output period, filter delay, transport
 floor, "streaming restarted here") at the same points of the byte stream.
+
+Records' receive times are on the raw monotonic clock: the timeline fits the unit's
+clock against it, and ``host`` (each read's realtime offset) puts every instant, and
+the completing read's receive time, on the host's realtime clock.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
 from bridge.timing.clock import ClockState
+from bridge.timing.realtime import ClockChange, RealtimeReads, RealtimeTrack
 from bridge.timing.timeline import Timeline
 from bridge.timing.unwrap import TimingEvent
 
@@ -48,7 +53,7 @@ class Settings:
 
     @property
     def filter_delay_ns(self) -> int:
-        """The moving average of width M delays the values by (M-1)/2 ms (DESIGN.md)."""
+        """The moving average of width M delays the values by (M-1)/2 ms (Equations 2-5)."""
         return (self.filter_width - 1) * 500_000
 
     @property
@@ -86,21 +91,35 @@ class Settings:
 
 @dataclass
 class Timed:
-    """One batch's valid records with their ticks and host times, and what happened."""
+    """One batch's valid records with their ticks, sample instants and receive times on
+    the realtime clock (the batch's ``rx_ns`` are the raw clock's), and what happened."""
 
     batch: Batch
     ticks: np.ndarray
     time_ns: np.ndarray
+    rx_ns: np.ndarray
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0
     invalid: int = 0
+
+
+@dataclass
+class TimedFew:
+    """``Timed`` of a live read's record or two, in plain integers."""
+
+    ticks: list[int]
+    time_ns: list[int]
+    rx_ns: list[int]
+    events: list[TimingEvent]
 
 
 class StreamTiming:
     """One timeline for a unit's whole life: ticks keep increasing across reconnects
     (a gap or a reset is for the unwrapper to find); settings changes update it."""
 
-    def __init__(self) -> None:
+    def __init__(self, host: RealtimeTrack | RealtimeReads | None = None) -> None:
+        #: each read's realtime offset: live, fed by ``hear``; a capture's, all at once
+        self.host = RealtimeTrack() if host is None else host
         self.timeline: Timeline | None = None
         self.settings: Settings | None = None
         #: (record length, floor ns, byte ns) where partial reads time records, fixed by
@@ -127,6 +146,12 @@ class StreamTiming:
         self._parts = (REPLIES[settings.record].length, settings.floor_ns, settings.byte_ns) \
             if settings.by_bytes else None
 
+    def hear(self, raws: list[int], reals: list[int]) -> list[ClockChange]:
+        """The next reads' stamps on both clocks, before their records are processed: the
+        host clock's steps and slews they show."""
+        assert isinstance(self.host, RealtimeTrack), "a capture's reads come all at once"
+        return self.host.add(raws, reals)
+
     def process(self, batch: Batch) -> Timed:
         """Ticks and host times of a batch's records; corrupt timers are dropped. A
         record's partial read, where the framer saw one, bounds its instant too."""
@@ -140,19 +165,25 @@ class StreamTiming:
         invalid = 0 if timed.intact else int((~keep).sum())
         if invalid:
             batch = batch.select(keep)
-        return Timed(batch, timed.ticks[keep], timed.time_ns[keep], timed.events,
-                     timed.dropped, invalid)
+        map_array = self.host.map_array
+        return Timed(batch, timed.ticks[keep], map_array(timed.time_ns[keep], batch.rx_ns),
+                     map_array(batch.rx_ns, batch.rx_ns), timed.events, timed.dropped, invalid)
 
     def process_few(self, timers: list[int], rx_ns: list[int],
                     part_ns: list[int] | None = None, part_bytes: list[int] | None = None
-                    ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
+                    ) -> TimedFew | None:
         """``process`` of a live read's record or two in plain integers, when every one is
-        intact and one period after the last: ticks, instants and events. None: nothing
-        changed, ``process`` them. ``part_ns``, ``part_bytes``: the batch's partial
-        reads, if it has them."""
+        intact and one period after the last. None: nothing changed, ``process`` them.
+        ``part_ns``, ``part_bytes``: the batch's partial reads, if it has them."""
         assert self.timeline is not None and self.settings is not None, "configure() first"
         if part_ns is None or part_bytes is None or self._parts is None:
-            return self.timeline.update_few(timers, rx_ns)
-        length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
-        leads = [floor - round((length - k) * byte_ns) for k in part_bytes]
-        return self.timeline.update_few(timers, rx_ns, (part_ns, leads))
+            run = self.timeline.update_few(timers, rx_ns)
+        else:
+            length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
+            leads = [floor - round((length - k) * byte_ns) for k in part_bytes]
+            run = self.timeline.update_few(timers, rx_ns, (part_ns, leads))
+        if run is None:
+            return None
+        ticks, instants, events = run
+        host = self.host.map
+        return TimedFew(ticks, host(instants, rx_ns), host(rx_ns, rx_ns), events)
