@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -130,9 +131,10 @@ def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written])
     path, written = fleet
     calls: list[int] = []
 
-    def re_estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray:
+    def re_estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray:
+        ticks = columns["ticks"]
         calls.append(len(ticks))
-        assert np.all(np.diff(rx_ns) >= 0)
+        assert np.all(np.diff(columns["rx_ns"]) >= 0)
         return T0 + ticks * 16_000  # 62.5 kHz ticks
 
     table = sample_table(read_archive(path), re_estimate=re_estimate)

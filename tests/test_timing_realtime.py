@@ -75,8 +75,8 @@ def live(raw: np.ndarray, real: np.ndarray, lag_ns: int, cuts: int = 1
     that completed it). The instants, their realtime, and the changes named."""
     track, changes, out = RealtimeTrack(), [], []
     for start in range(0, len(raw), cuts):
-        changes += track.add(raw[start : start + cuts].tolist(), real[start : start + cuts].tolist())
         until = raw[start : start + cuts]
+        changes += track.add(until.tolist(), real[start : start + cuts].tolist())
         out += track.map((until - lag_ns).tolist(), until.tolist())
     return raw - lag_ns, np.array(out), changes
 

@@ -21,6 +21,9 @@ LEVEL = {
     Event.REJECTED: "WARN",
     Event.SHED: "WARN",
     Event.DUPLICATE_UNIT: "ERROR",
+    Event.HOST_CLOCK_STEP: "WARN",
+    Event.HOST_CLOCK_SLEW: "WARN",
+    Event.HOST_CLOCK_OFFSET: "WARN",
 }
 #: Kinds whose count is records lost: they span count output periods.
 _RECORDS = {Event.GAP, Event.RESET}

@@ -18,7 +18,7 @@ Info, the source archive, the options and the schema version as file metadata.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -46,11 +46,13 @@ from bridge.recorder.describe import (
 )
 from bridge.recorder.read import Archive, Samples
 from bridge.timing.offline import OfflineClock
+from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings
 
-#: Offline re-estimate of sample times: (unit, ticks, rx_ns) -> time_ns, all of one unit
-#: in arrival order, int64 ns; None keeps that unit's live times.
-ReEstimate = Callable[[str, np.ndarray, np.ndarray], np.ndarray | None]
+#: Offline re-estimate of sample times: (unit, its columns ``ticks``, ``time_ns`` (live),
+#: ``rx_ns`` and ``rx_mono_raw_ns``, in the order they were received) -> time_ns, int64
+#: ns; None keeps that unit's live times.
+ReEstimate = Callable[[str, Mapping[str, np.ndarray]], np.ndarray | None]
 
 FORMATS = (".parquet", ".csv")
 
@@ -90,13 +92,15 @@ def _unit_times(unit: str, blocks: Sequence[Samples],
     live = [b.columns["time_ns"] for b in blocks]
     if re_estimate is None:
         return live
-    ticks = np.concatenate([b.columns["ticks"] for b in blocks])
-    rx = np.concatenate([b.columns["rx_ns"] for b in blocks])
-    order = np.argsort(rx, kind="stable")
-    found = re_estimate(unit, ticks[order], rx[order])
+    columns = {name: np.concatenate([b.columns[name] for b in blocks])
+               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")}
+    raw = columns["rx_mono_raw_ns"]
+    # the raw clock orders reads truly; the realtime clock may have been stepped back
+    order = np.argsort(raw if (raw > 0).all() else columns["rx_ns"], kind="stable")
+    found = re_estimate(unit, {name: col[order] for name, col in columns.items()})
     if found is None:
         return live
-    estimate = np.empty(len(rx), np.int64)
+    estimate = np.empty(len(raw), np.int64)
     estimate[order] = np.asarray(found, np.int64)
     return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
 
@@ -134,15 +138,29 @@ def offline_times(archive: Archive) -> ReEstimate:
     estimate only had the past), with the settings of the unit's archived Info; units
     without one keep their live times, and so do units behind a USB-serial adapter: the
     archive keeps each record's completing read only, not the reads that ended inside
-    it, which timed it live to a byte."""
-    def estimate(unit: str, ticks: np.ndarray, rx_ns: np.ndarray) -> np.ndarray | None:
+    it, which timed it live to a byte.
+
+    Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
+    against the raw clock and each instant mapped onto the realtime clock as live
+    (``bridge.timing.realtime``), by the offsets of the samples' reads (``rx_ns`` less
+    ``rx_mono_raw_ns``); between two reads around a step the archive cannot tell which
+    side an instant was on, and takes the side the live estimate took."""
+    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+        ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
         settings = unit_settings(archive, unit)
         if settings is None or settings.serial or len(ticks) < 2:
             return None
         clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
+        on_raw = bool((raw > 0).all())
         order = np.argsort(ticks, kind="stable")
+        instants = clock.smooth(ticks[order], (raw if on_raw else rx_ns)[order])
+        if on_raw:
+            reads, first = np.unique(raw, return_index=True)
+            track = RealtimeReads(reads, rx_ns[first])
+            live_offset = columns["time_ns"][order] - instants
+            instants = track.map_array(instants, raw[order], sides=live_offset)
         out = np.empty(len(ticks), np.int64)
-        out[order] = clock.smooth(ticks[order], rx_ns[order])
+        out[order] = instants
         return out
 
     return estimate

@@ -203,7 +203,12 @@ class RealtimeReads:
         self.raw = np.asarray(raw, np.int64)
         self.off = np.asarray(real, np.int64) - self.raw
 
-    def map_array(self, instants: np.ndarray, until: np.ndarray) -> np.ndarray:
+    def map_array(self, instants: np.ndarray, until: np.ndarray,
+                  sides: np.ndarray | None = None) -> np.ndarray:
+        """``RealtimeTrack.map`` of many instants at once; ``sides``: per instant, an
+        offset it is known to be near, which decides its side of a step between the reads
+        around it (an archive's samples keep only their completing reads: the live
+        estimate, which had every read, took the side)."""
         raw, off = self.raw, self.off
         t = np.asarray(instants, np.int64)
         if not len(raw):
@@ -216,7 +221,8 @@ class RealtimeReads:
         span = np.maximum(rb - ra, 1)
         with np.errstate(invalid="ignore"):
             linear = oa + np.round((ob - oa) * ((t - ra) / span)).astype(np.int64)
-        nearer = np.where(t - ra < rb - t, oa, ob)
+        nearer = np.where(t - ra < rb - t, oa, ob) if sides is None else \
+            np.where(np.abs(oa - sides) <= np.abs(ob - sides), oa, ob)
         o = np.where(jumps(ob - oa, rb - ra), nearer, linear)
         o = np.where(t >= raw[hi], off[hi], np.where(t < raw[lo], off[lo], o))
         return t + o

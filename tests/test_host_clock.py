@@ -1,0 +1,154 @@
+"""A fleet on hosts whose realtime clock is disciplined: stepped, slewed, a leap second.
+
+Real processes: an emulated 500 Hz unit on a pty, a `gx3 bridge` and a `gx3 record`
+whose realtime clocks a clock script moves as chrony, ntpd or PTP would (the raw
+monotonic clock runs on, as it does on a real host). Judged by the archive: each
+archived sample's `time_ns` against the emulator's truth on the moved clock, the
+events written, and a replay of the bridge's raw capture against the live run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bridge.bus.events import LEVEL
+from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.device.clock import SCRIPT_ENV, ClockScript
+from bridge.recorder.export import offline_times, sample_table
+from bridge.recorder.read import Archive, read_archive
+from bridge.sim.serve import Simulator
+from tests.test_bridge_process import GX3, bridge_process, zenoh_config
+from tests.test_bridge_stall import FIVE_HUNDRED_HZ, PERIOD
+from tests.test_record_live import samples_in
+from tests.waiting import free_port, wait_for
+
+DAY_NS = 86_400 * 10**9
+STEP_NS = 50_000_000
+FAST_SLEW = (50_000_000, 83_333.0)  # chrony's fastest
+SLOW_SLEW = (-2_000_000, 500.0)  # ntpd's rate
+
+
+Change = dict[str, int | float]
+
+
+def move_clock(path: Path, changes: list[Change], synchronised: bool) -> None:
+    """Write the clock script at once (a process reads it again once it changed)."""
+    part = path.with_suffix(".part")
+    part.write_text(json.dumps({"changes": changes, "sync": {"synchronised": synchronised}}))
+    os.replace(part, path)
+
+
+def test_time_ns_follows_the_host_clock_through_steps_slews_and_a_leap_second(
+        tmp_path: Path) -> None:
+    script = tmp_path / "clock.json"
+    # from the start, the moved clock passes a midnight 15 s from now: a leap second there
+    start = time.time_ns()
+    midnight = (start // DAY_NS + 2) * DAY_NS
+    base: Change = {"at_ns": 0, "step_ns": midnight - (start + 15 * 10**9)}
+    leap: Change = {"at_ns": midnight - base["step_ns"], "step_ns": -1_000_000_000}
+    changes = [base, leap]
+    move_clock(script, changes, synchronised=False)
+    env = {SCRIPT_ENV: str(script)}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    out, capture = tmp_path / "fleet.mcap", tmp_path / "raw.mcap"
+    rec = subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(rec_cfg),
+                            "--quiet", "--history", "100000"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, env={**os.environ, **env})
+    try:
+        with Simulator([FIVE_HUNDRED_HZ], "pty") as sim, \
+                bridge_process(sim.endpoints[0], bridge_cfg, "--baud", "921600", "--unit",
+                               "a", "--capture", str(capture), env=env) as bridge:
+            wait_for(lambda: samples_in(out, "a") >= 500, what="a second of samples")
+            assert time.time_ns() < leap["at_ns"] - 10**9, "bring-up took past the leap second"
+            t0 = leap["at_ns"] + 2 * 10**9
+            changes += [{"at_ns": t0, "step_ns": STEP_NS},
+                        {"at_ns": t0 + 2 * 10**9, "step_ns": -STEP_NS},
+                        {"at_ns": t0 + 4 * 10**9, "slew_ns": FAST_SLEW[0], "ppm": FAST_SLEW[1]},
+                        {"at_ns": t0 + 6 * 10**9, "slew_ns": SLOW_SLEW[0], "ppm": SLOW_SLEW[1]}]
+            move_clock(script, changes, synchronised=False)
+            end = t0 + 6 * 10**9 + round(abs(SLOW_SLEW[0]) / SLOW_SLEW[1] * 1e6) + 2 * 10**9
+            wait_for(lambda: time.time_ns() > end, timeout=120,
+                     what="the clock's changes and 2 s after the last")
+            bridge.send_signal(signal.SIGINT)
+            _, bridge_err = bridge.communicate(timeout=30)
+            truth = sim.units[0].truth.arrays()
+    finally:
+        rec.send_signal(signal.SIGINT)
+        rec.communicate(timeout=60)
+    moved = ClockScript(script)
+
+    archive = read_archive(out)
+    table = sample_table(archive, ["a"], re_estimate=offline_times(archive))
+    table = {k: v[np.argsort(table["ticks"], kind="stable")] for k, v in table.items()}
+    ticks, timer = table["ticks"], table["timer"]
+    assert set(np.diff(ticks).tolist()) == {PERIOD}, "a sample was lost or repeated"
+    at = np.searchsorted(truth["timer"][: np.argmax(truth["timer"] == timer[-1]) + 1], timer)
+    assert (truth["timer"][at] == timer).all(), "an archived record the unit never sent"
+    value_ns = truth["value_ns"][at]
+    true_ns = value_ns + np.array([moved.shift(int(v)) for v in value_ns])
+    events = [e for _, e in archive.events(["a"])]
+    spans = [(c["at_ns"], c["at_ns"] + (round(abs(c["slew_ns"]) / c["ppm"] * 1e6)
+                                        if "slew_ns" in c else 0)) for c in changes[1:]]
+    after = value_ns >= spans[0][0]
+    near = np.zeros(len(value_ns), bool)
+    for begin, finish in spans:  # during a change and 2 s after it
+        near |= (value_ns >= begin) & (value_ns < finish + 2 * 10**9)
+    for name, column, p99_ms in (("live", "live_time_ns", 0.5), ("archived", "time_ns", 0.25)):
+        error_ms = np.abs(table[column] - true_ns) / 1e6
+        assert np.percentile(error_ms[after], 99) <= p99_ms, \
+            f"{name} time_ns p99 {np.percentile(error_ms[after], 99):.3f} ms off"
+        assert np.percentile(error_ms[near], 99) <= 1.0, \
+            f"{name} time_ns near the changes p99 {np.percentile(error_ms[near], 99):.3f} ms"
+
+    steps = [e for e in events if e.kind == Event.HOST_CLOCK_STEP]
+    assert [round(e.clock_change_ns / 1e6) for e in steps] == [-1000, 50, -50]
+    assert "leap second" in steps[0].detail and "leap second" not in steps[1].detail
+    slews = [e for e in events if e.kind == Event.HOST_CLOCK_SLEW]
+    assert len(slews) == 2
+    assert abs(slews[0].clock_change_ns - FAST_SLEW[0]) < 0.05 * abs(FAST_SLEW[0])
+    assert abs(slews[1].clock_change_ns - SLOW_SLEW[0]) < 0.2 * abs(SLOW_SLEW[0])
+
+    # the host's sync state: in Info and every Status, warned once at bring-up
+    infos = archive.decoded("gx3/a/info", Info)
+    statuses = archive.decoded("gx3/a/status", Status)
+    assert infos and not infos[-1][1].host_clock.synchronised and infos[-1][1].host_clock.host
+    assert statuses and all(s.host_clock.known and not s.host_clock.synchronised
+                            for _, s in statuses)
+    assert bridge_err.decode().count("host clock is not synchronised") == 1
+
+    # the bridge's raw capture replays to the very samples and clock events it published
+    done = subprocess.run([GX3, "replay", str(capture), "-o", str(tmp_path / "again.mcap")],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    again = read_archive(tmp_path / "again.mcap")
+    live_cols, replay_cols = (by_ticks(a) for a in (archive, again))
+    keep = np.isin(replay_cols["ticks"], live_cols["ticks"])
+    for k in live_cols:
+        np.testing.assert_array_equal(replay_cols[k][keep], live_cols[k], err_msg=k)
+    replayed = [(e.kind, e.clock_change_ns) for _, e in again.events(["a"])
+                if e.kind in (Event.HOST_CLOCK_STEP, Event.HOST_CLOCK_SLEW)]
+    assert replayed == [(e.kind, e.clock_change_ns) for e in events
+                        if e.kind in (Event.HOST_CLOCK_STEP, Event.HOST_CLOCK_SLEW)]
+
+
+def by_ticks(archive: Archive) -> dict[str, np.ndarray]:
+    """Unit a's samples' ticks and times, in the order of their ticks (a leap second puts
+    a second of them twice on the time axis)."""
+    columns = {k: np.concatenate([b.columns[k] for b in archive.samples(["a"])])
+               for k in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")}
+    order = np.argsort(columns["ticks"], kind="stable")
+    return {k: v[order] for k, v in columns.items()}
+
+
+def test_every_event_kind_has_a_severity() -> None:
+    """A bridge prints each event at its level: a kind without one would stop it."""
+    assert set(LEVEL) == set(Event.Kind.values()) - {Event.KIND_UNSPECIFIED}
