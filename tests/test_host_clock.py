@@ -17,13 +17,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript
 from bridge.recorder.export import offline_times, sample_table
+from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.read import Archive, read_archive
+from bridge.recorder.replay import replay
+from bridge.sim.capture import WALL_NS, streaming_config, synthesize
+from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
+from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UartDelivery, UsbDelivery
 from tests.test_bridge_process import GX3, bridge_process, zenoh_config
 from tests.test_bridge_stall import FIVE_HUNDRED_HZ, PERIOD
 from tests.test_record_live import samples_in
@@ -152,3 +159,42 @@ def by_ticks(archive: Archive) -> dict[str, np.ndarray]:
 def test_every_event_kind_has_a_severity() -> None:
     """A bridge prints each event at its level: a kind without one would stop it."""
     assert set(LEVEL) == set(Event.Kind.values()) - {Event.KIND_UNSPECIFIED}
+
+
+CAPTURE_STEPS = ((20 * 10**9, -STEP_NS), (40 * 10**9, STEP_NS))
+
+
+@pytest.mark.parametrize("delivery", [UartDelivery(seed=5), UsbDelivery(seed=6)],
+                         ids=["uart", "usb"])
+def test_a_capture_with_realtime_stamps_only_is_re_anchored_at_each_step(
+        tmp_path: Path, delivery: UartDelivery | UsbDelivery) -> None:
+    """Another program's capture (or an older bridge's) whose host clock was stepped back
+    and forward by 50 ms: every sample is kept, no gap or reset is made up, each step is
+    found and named, and time_ns follows the stepped clock as a live bridge's would."""
+    uart = delivery.transport == "uart"
+    config = streaming_config(UnitConfig(motion=MotionConfig(seed=9), clock_ppm=35.0),
+                              code=0xC2, decimation=10, **({"baud": 115_200} if uart else {}))
+    cap = synthesize(config, delivery, seconds=60.0)
+    shift = np.zeros(len(cap.rx_ns), np.int64)
+    for at, by in CAPTURE_STEPS:
+        shift += np.where(cap.rx_ns - WALL_NS >= at, by, 0)
+    writer = RawCaptureWriter(tmp_path / "raw.mcap", "gx3", "u1")
+    for real, data in zip((cap.rx_ns + shift).tolist(), cap.data, strict=True):
+        writer.write(data, real)  # no raw-clock stamp: as older captures
+    writer.close()
+    replay([tmp_path / "raw.mcap"], tmp_path / "out.mcap")
+    archive = read_archive(tmp_path / "out.mcap")
+    table = sample_table(archive, ["u1"])
+    table = {k: v[np.argsort(table["ticks"], kind="stable")] for k, v in table.items()}
+    events = [e for _, e in archive.events(["u1"])]
+    assert len(table["ticks"]) == len(cap.truth["timer"]), "samples were dropped"
+    assert set(np.diff(table["ticks"]).tolist()) == {625}
+    assert not [e for e in events if e.kind in (Event.GAP, Event.RESET)], events
+    steps = [round(e.clock_change_ns / 1e6) for e in events if e.kind == Event.HOST_CLOCK_STEP]
+    assert steps == [-50, 50]
+    value = cap.truth["value_ns"]
+    true_ns = value + sum(np.where(value - WALL_NS >= at, by, 0) for at, by in CAPTURE_STEPS)
+    error_ms = np.abs(table["time_ns"] - true_ns) / 1e6
+    settled = value - WALL_NS > 5 * 10**9
+    assert np.percentile(error_ms[settled], 99) <= (0.1 if uart else 0.6)
+    assert (error_ms[settled] > 2).sum() <= 2, "more than the sample at each step is off"

@@ -46,6 +46,7 @@ from bridge.recorder.rawcapture import REALTIME_FROM_NS, capture_metadata
 from bridge.recorder.read import Archive, ArchiveReadError, read_archive, summary_counts
 from bridge.timing.links import infer_transport
 from bridge.timing.realtime import ClockChange, RealtimeReads, jumps
+from bridge.timing.steps import find_steps, raw_like, unwrap_timer
 from bridge.timing.stream import Settings, StreamTiming
 
 SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
@@ -86,12 +87,6 @@ class Capture:
     metadata: dict[str, str] = field(default_factory=dict)
     topic: str = ""
     raw_ns: np.ndarray | None = None
-
-    @property
-    def steady_ns(self) -> np.ndarray:
-        """The receive times the unit's clock is fitted against: the raw clock's where the
-        capture has them."""
-        return self.rx_ns if self.raw_ns is None else self.raw_ns
 
 
 def _read_times(archive: Archive, log: np.ndarray, published: np.ndarray
@@ -169,9 +164,13 @@ class UnitReplay:
         self.capture = capture
         self.result = Replayed(capture.unit)
         little_endian = self._little_endian()
+        #: the receive times records are timed by: the raw clock's, or for a capture that
+        #: has realtime stamps only, those with the host clock's steps taken out
+        self.steady = capture.raw_ns if capture.raw_ns is not None else \
+            self._unstepped(little_endian)
         self.settings = self._initial_settings(little_endian, transport)
         self.framer = Framer(_EXPECT, little_endian=little_endian)
-        self.host = RealtimeReads(capture.steady_ns, capture.rx_ns)
+        self.host = RealtimeReads(self.steady, capture.rx_ns)
         self.timing = StreamTiming(self.host)
         self._pending: list[Batch] = []
         self._pending_records = 0
@@ -195,7 +194,7 @@ class UnitReplay:
                             filter_width=FACTORY_FILTER_WIDTH, baud=DEFAULT_BAUD)
         if transport:
             return replace(settings, transport=transport)
-        link = infer_transport(self.capture.steady_ns[:_INFER_READS],
+        link = infer_transport(self.steady[:_INFER_READS],
                                self.capture.data[:_INFER_READS], record, little_endian)
         self.result.inferred.append(link.describe())
         return replace(settings, transport=link.transport, baud=link.baud or DEFAULT_BAUD,
@@ -204,8 +203,25 @@ class UnitReplay:
     def _sniff_batches(self, little_endian: bool) -> list[Batch]:
         framer = Framer(DATA_CODES, little_endian=little_endian)
         reads = self.capture.data[:_SNIFF_READS]
-        return [b for found in frame_reads(framer, self.capture.steady_ns[:len(reads)], reads)
-                for b in found]
+        return [b for found in frame_reads(framer, np.arange(len(reads)), reads) for b in found]
+
+    def _unstepped(self, little_endian: bool) -> np.ndarray:
+        """The capture's realtime receive times with the steps of the host clock that the
+        data records show taken out (``bridge.timing.steps``), epoch by epoch."""
+        framer = Framer(DATA_CODES, little_endian=little_endian)
+        found = [b for group in frame_reads(framer, np.arange(len(self.capture.data)),
+                                            self.capture.data) for b in group]
+        found += framer.flush()
+        if not found:
+            return self.capture.rx_ns
+        timers = np.concatenate([b["timer"] for b in found])
+        reads = np.concatenate([b.rx_ns for b in found])  # the read that completed each
+        ticks, epochs = unwrap_timer(timers)
+        steps: list[tuple[int, int]] = []
+        for lo, hi in itertools.pairwise([*epochs.tolist(), len(ticks)]):
+            steps += [(lo + first, size) for first, size
+                      in find_steps(ticks[lo:hi], self.capture.rx_ns[reads[lo:hi]])]
+        return raw_like(self.capture.rx_ns, reads, steps)
 
     def _little_endian(self) -> bool:
         """The float byte order the capture starts in (a 0xDB reply may switch it)."""
@@ -250,7 +266,7 @@ class UnitReplay:
             self._info(emit, prefix, int(self.capture.rx_ns[0]))
         for change in self.host.changes():
             self._clock_changed(change, emit, prefix)
-        for found in frame_reads(self.framer, self.capture.steady_ns, self.capture.data):
+        for found in frame_reads(self.framer, self.steady, self.capture.data):
             for batch in found:
                 self._batch(batch, emit, prefix)
         for batch in self.framer.flush():
