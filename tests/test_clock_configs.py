@@ -1,0 +1,88 @@
+"""The clock configs under configs/clock run with the real daemons.
+
+chrony: a time server on the server config and a bridge host on the bridge config, on
+loopback, the bridge side measuring its offset from the server without touching this
+host's clock (``-x`` on the server, ``-Q`` on the bridge side). linuxptp: ptp4l reads
+the config to the end and only then finds that loopback has no hardware timestamps.
+
+The daemons come from Debian's chrony and linuxptp packages: on PATH or /usr/sbin, or
+unpacked where GX3_CLOCK_TOOLS points (.ci/run unpacks them there, installing nothing).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.waiting import free_port
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs" / "clock"
+
+
+def tool(name: str) -> str:
+    """A daemon's path; without it the test is skipped, except in CI, where it fails."""
+    tools = os.environ.get("GX3_CLOCK_TOOLS")
+    for where in ([str(Path(tools) / "usr" / "sbin")] if tools else []) + \
+            [os.environ.get("PATH", ""), "/usr/sbin"]:
+        found = shutil.which(name, path=where)
+        if found:
+            return found
+    if os.environ.get("CI"):
+        pytest.fail(f"{name} is missing: .ci/run unpacks Debian's chrony and linuxptp into "
+                    "GX3_CLOCK_TOOLS")
+    pytest.skip(f"{name} is not installed (Debian's chrony / linuxptp)")
+
+
+def local(config: str, tmp: Path, drop: tuple[str, ...], add: list[str],
+          replace: tuple[str, str] | None = None) -> Path:
+    """A shipped chrony config run on loopback from ``tmp``: directives that reach outside
+    (upstream servers, system paths) left out, loopback ones added."""
+    lines = []
+    for line in (CONFIGS / config).read_text().splitlines():
+        if line.split(" ", 1)[0] in drop:
+            continue
+        if replace is not None and line.startswith(replace[0]):
+            line = replace[1] + line[len(replace[0]):]
+        lines.append(line)
+    name = tmp / config
+    name.write_text("\n".join([*lines, *add,
+                               f"pidfile {tmp / config}.pid", f"driftfile {tmp / config}.drift",
+                               "cmdport 0"]) + "\n")
+    return name
+
+
+def test_a_bridge_host_follows_the_fleets_time_server(tmp_path: Path) -> None:
+    chronyd = tool("chronyd")
+    port = free_port()
+    server = local("chrony-server.conf", tmp_path, ("pool", "driftfile"),
+                   [f"port {port}", "bindaddress 127.0.0.1", "allow 127.0.0.1"])
+    bridge = local("chrony-bridge.conf", tmp_path, ("driftfile",), ["port 0"],
+                   ("server router.local", f"server 127.0.0.1 port {port}"))
+    serving = subprocess.Popen([chronyd, "-x", "-d", "-u", "root", "-f", str(server)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        measured = subprocess.run([chronyd, "-Q", "-u", "root", "-f", str(bridge)],
+                                  capture_output=True, text=True, timeout=60, check=False)
+    finally:
+        serving.terminate()
+        said = serving.communicate(timeout=30)[0].decode()
+    assert "Invalid" not in said and "Could not" not in said, said
+    assert measured.returncode == 0, measured.stderr
+    assert "System clock wrong by" in measured.stderr + measured.stdout, measured.stderr
+
+
+def test_ptp4l_takes_the_whole_config(tmp_path: Path) -> None:
+    ptp4l = tool("ptp4l")
+    bad = tmp_path / "bad.conf"
+    bad.write_text("[global]\nno_such_option 1\n")
+    for config, parsed in ((CONFIGS / "ptp4l.conf", True), (bad, False)):
+        done = subprocess.run([ptp4l, "-f", str(config), "-i", "lo", "-m"],
+                              capture_output=True, text=True, timeout=30, check=False)
+        said = done.stdout + done.stderr
+        assert ("failed to parse configuration file" not in said) == parsed, said
+        if parsed:  # it went on to the interface, which has no hardware timestamps
+            assert "timestamping" in said, said
