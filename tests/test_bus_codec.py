@@ -7,6 +7,7 @@ import pytest
 
 from bridge.bus.codec import (
     HEADER,
+    LEGACY_HEADER,
     decode_batch,
     encode_batch,
     encode_records,
@@ -195,3 +196,29 @@ def test_units_agree_reads_the_unit_as_a_protobuf_parser_does() -> None:
     mixed = [*payloads[:4], relabelled, damaged, *payloads[6:]]
     assert units_agree("a", mixed) == [True] * 4 + [False, False] + [True] * (n - 6)
     assert units_agree("b", [relabelled]) == [True]
+
+
+@pytest.mark.parametrize("code", [0xC2, 0xCC, 0xDF], ids=lambda c: f"0x{c:02X}")
+def test_an_older_bridges_samples_decode_in_bulk_with_no_raw_stamp(code: int) -> None:
+    """Samples from bridges that did not stamp reads on the raw clock lack
+    ``rx_mono_raw_ns``: their own bulk layout, read as fast, the stamp 0."""
+    batch = wire_batch(code, 5, code)
+    ticks, time_ns, rx_ns = times(5)
+    old = []
+    for i in range(5):
+        message = reference("u1", batch, i, ticks, time_ns, rx_ns)
+        message.ClearField("rx_mono_raw_ns")
+        old.append(message.SerializeToString())
+    assert {len(p) for p in old} == {layout(code, "u1", LEGACY_HEADER).size}
+    new = encode_batch("u1", batch, ticks, time_ns, rx_ns, rx_ns - 7)
+    want = decode_batch("u1", code, new)
+    np.testing.assert_array_equal(want["rx_mono_raw_ns"], rx_ns - 7)
+    rows = np.frombuffer(b"".join(old), np.uint8).reshape(5, -1)
+    mixed = [old[0], new[1], old[2], new[3], old[4]]
+    for got, raw in ((decode_batch("u1", code, old), [0] * 5),
+                     (decode_batch("u1", code, rows), [0] * 5),
+                     (decode_batch("u1", code, mixed), [0, rx_ns[1] - 7, 0, rx_ns[3] - 7, 0])):
+        np.testing.assert_array_equal(got["rx_mono_raw_ns"], raw)
+        for name, column in want.items():
+            if name != "rx_mono_raw_ns":
+                np.testing.assert_array_equal(got[name], column, err_msg=name)

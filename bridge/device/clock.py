@@ -122,23 +122,25 @@ def use_script(path: Path | None) -> None:
     realtime_ns = time.time_ns if script is None else script.now_ns
 
 
-def stamp() -> tuple[int, int]:
+def stamp(clock: Callable[[int], int] = time.clock_gettime_ns,
+          real: Callable[[], int] = time.time_ns) -> tuple[int, int]:
     """(raw, realtime) ns of this instant, read together: the realtime clock between two
-    raw readings, the raw stamp their middle."""
-    best: tuple[int, int, int] | None = None
-    clock, real = time.clock_gettime_ns, time.time_ns
-    for _ in range(_PAIR_TRIES):
-        before = clock(RAW)
-        now = real()
-        after = clock(RAW)
-        if after - before <= PAIR_NS:
-            best = (0, (before + after) >> 1, now)
-            break
-        if best is None or after - before < best[0]:
-            best = (after - before, (before + after) >> 1, now)
-    assert best is not None
-    _, raw, now = best
-    return raw, now if script is None else now + script.shift(now)
+    raw readings, the raw stamp their middle. (The defaults bind the clocks once: this
+    runs once a read.)"""
+    before = clock(RAW)
+    now = real()
+    after = clock(RAW)
+    if after - before > PAIR_NS:  # preempted between them: the closest of a few more
+        spread, before, now = min(_pair(clock, real) for _ in range(_PAIR_TRIES))
+        after = before + spread
+    return (before + after) >> 1, now if script is None else now + script.shift(now)
+
+
+def _pair(clock: Callable[[int], int], real: Callable[[], int]) -> tuple[int, int, int]:
+    """How far apart two raw readings around a realtime one were, the first, the realtime."""
+    before = clock(RAW)
+    now = real()
+    return clock(RAW) - before, before, now
 
 
 def moved(reals: list[int]) -> list[int]:
