@@ -16,7 +16,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from bridge.bus.codec import record_quantities
-from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.gx3_pb2 import Event, HostClock, Status
 from bridge.protocol import convert
 from bridge.protocol.table import DATA_CODES
 from bridge.viz import layout
@@ -245,6 +245,35 @@ def test_rate_from_status_gives_the_span(tmp_path: Path) -> None:
         log.log_event("u", Event(unit="u", time_ns=DEMO_EPOCH_NS, kind=Event.GAP, count=90))
     text = table(read(path), "/events/u").column("/events/u:TextLog:text").to_pylist()
     assert text == [["00:00:00.000  u GAP (90 records, 1.8 s)"]]
+
+
+def test_host_clock_sync_is_told_when_it_changes(tmp_path: Path) -> None:
+    """The bridge host's clock in the unit's event log: when first seen and whenever it
+    changes (synchronised or not), remembered from one batch of statuses to the next;
+    a status like the last, or one without a host clock (an older bridge), adds nothing."""
+    path = tmp_path / "host.rrd"
+    synced = HostClock(host="robot1", known=True, synchronised=True, state="ok",
+                       estimated_error_ns=250_000, maximum_error_ns=1_500_000)
+    worse = HostClock(host="robot1", known=True, synchronised=True, state="ok",
+                      estimated_error_ns=400_000, maximum_error_ns=1_600_000)
+    adrift = HostClock(host="robot1", known=True, synchronised=False)
+
+    def status(k: int, host_clock: HostClock | None) -> Status:
+        return Status(unit="u", time_ns=DEMO_EPOCH_NS + k * 10**9, host_clock=host_clock)
+
+    with RerunLogger(path) as log:
+        log.log_status("u", [status(0, synced), status(1, worse), status(2, adrift),
+                             status(3, None)])
+        log.log_status("u", status(4, adrift))
+        log.log_status("u", status(5, synced))
+    log_table = table(read(path), "/events/u")
+    texts = [t[0] for t in log_table.column("/events/u:TextLog:text").to_pylist()]
+    assert [t[:27] for t in texts] == ["00:00:00.000  u on robot1: ", "00:00:02.000  u on robot1: ",
+                                       "00:00:05.000  u on robot1: "]
+    assert "synchronised" in texts[0] and "250 µs" in texts[0] and "1,500 µs" in texts[0]
+    assert "not synchronised" in texts[1]
+    assert log_table.column("/events/u:TextLog:level").to_pylist() == [
+        ["INFO"], ["WARN"], ["INFO"]]
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # read while still written

@@ -5,11 +5,14 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+from rich.console import Group
 from rich.live import Live
+from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
@@ -27,6 +30,10 @@ from bridge.cli.common import (
     refused,
     written,
 )
+
+if TYPE_CHECKING:
+    from bridge.bus.gx3_pb2 import HostClock
+    from bridge.recorder.live import HostView
 
 
 def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path) -> Table:
@@ -49,6 +56,52 @@ def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path)
     return table
 
 
+def _ms(ns: float) -> str:
+    """A clock difference: to 10 µs where it is small, in seconds where it is huge."""
+    if abs(ns) < 1e7:
+        return f"{ns / 1e6:.2f} ms"
+    return f"{ns / 1e6:,.0f} ms" if abs(ns) < 1e10 else f"{ns / 1e9:,.0f} s"
+
+
+def _bound(bound_ns: int | None, tolerance_ns: int | None) -> str:
+    """What a host's clock bound says: how far behind the recorder it can be at most, or
+    (red) how far ahead it is at least; yellow beyond the tolerance."""
+    from bridge.recorder.live import ahead
+
+    if bound_ns is None:
+        return "[dim]no samples yet[/]"
+    if ahead(bound_ns):
+        return f"[red]ahead by ≥ {_ms(-bound_ns)}[/]"
+    text = f"{_ms(max(bound_ns, 0))} behind at most"
+    return f"[yellow]{text}[/]" if tolerance_ns is not None and bound_ns > tolerance_ns else text
+
+
+def _sync(state: HostClock | None) -> str:
+    """A host's sync state as its kernel reports it, in a few words."""
+    if state is None or not state.known:
+        return "[dim]unknown[/]"
+    if not state.synchronised:
+        return "[red]not synchronised[/]"
+    return f"synced ±{_ms(state.estimated_error_ns)}"
+
+
+def _hosts_table(hosts: Sequence[HostView], tolerance_ns: int | None, whole: bool) -> Table:
+    """Each bridge host's clock against the recorder's: over the last seconds while
+    recording, over the whole recording at the end. Fits 80 columns."""
+    from bridge.recorder.live import HOST_WINDOW_S
+
+    over = "over the recording" if whole else f"last {HOST_WINDOW_S} s"
+    table = Table(title=f"bridge hosts' clocks against the recorder's ({over})",
+                  title_justify="left", box=None, pad_edge=False)
+    for name, width in (("host", 14), ("units", 12), ("clock", 26), ("sync", 17)):
+        table.add_column(name, max_width=width, no_wrap=True, overflow="ellipsis")
+    for h in hosts:
+        table.add_row(escape(h.host) or "[dim]unnamed[/]", escape(", ".join(h.units)),
+                      _bound(h.whole_ns if whole else h.bound_ns, tolerance_ns),
+                      _sync(h.clock))
+    return table
+
+
 @app.command("record")
 def record(
     output: Annotated[Path | None, typer.Option(
@@ -64,6 +117,16 @@ def record(
                  "(gx3 bridge --publish-raw); gx3 replay takes the archive.")] = False,
     history: Annotated[int, typer.Option(
         min=0, help="Ask each bridge's cache for this many past samples on joining.")] = 0,
+    max_host_offset_ms: Annotated[float | None, typer.Option(
+        metavar="MS",
+        help="Tolerance, in ms (above 0): warn, and archive a HOST_CLOCK_OFFSET event "
+             "for each of its units, when a bridge host's clock may be behind the "
+             "recorder's by more than this, i.e. none of its samples of the last 10 s "
+             "arrived sooner than this after the instant it was stamped with (a network "
+             "that slow is told the same way). Told once, again only after the host was "
+             "back within the tolerance by 0.1 ms. A host provably ahead of the "
+             "recorder by more than 0.1 ms is told whether or not this is given. "
+             "Default: no tolerance.")] = None,
     rrd: Annotated[Path | None, typer.Option(
         metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
                                  "existing one only with --force).")]
@@ -109,17 +172,31 @@ def record(
     messages rejected, samples shed while the disk could not keep up) and a unit
     published by two bridges at once are archived as events of the unit, with count
     and span, and printed as warnings.
+
+    Each bridge host's clock is compared with the recorder's: a sample cannot arrive
+    before the instant it was stamped with, so the least of (arrival - time_ns) is the
+    most the host can be behind, and a negative one proves it ahead. The live view and
+    the summary show it per host with the host's sync state; a host ahead by more than
+    0.1 ms (or behind beyond --max-host-offset-ms) is archived as a HOST_CLOCK_OFFSET
+    event of each of its units, once until it clears. The recorder's host and sync
+    state go into the archive's metadata (gx3.archive), and each host's bound over the
+    whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
     from bridge.bus.keys import BadName, check_prefix
     from bridge.bus.session import SessionError, open_session
+    from bridge.device import clock
     from bridge.recorder.archive import ArchiveError, ArchiveWriter
-    from bridge.recorder.live import Recorder
+    from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
 
     try:
         check_prefix(prefix)
     except BadName as exc:
         raise fail(str(exc)) from None
+    try:
+        host_tolerance_ns(max_host_offset_ms)
+    except ValueError as exc:
+        raise fail(f"--max-host-offset-ms {exc}") from None
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     if rrd is not None:
         if rrd.absolute() == path.absolute():
@@ -133,7 +210,8 @@ def record(
         writer = ArchiveWriter(path, prefix=prefix,
                                split_bytes=None if split_mb is None else int(split_mb * 1e6),
                                split_seconds=None if split_minutes is None
-                               else split_minutes * 60, force=force)
+                               else split_minutes * 60, force=force,
+                               metadata=recorder_metadata(clock.host_sync()))
     except ArchiveError as exc:
         raise fail(str(exc)) from None
 
@@ -180,7 +258,17 @@ def record(
                         on_written=None if logger is None else to_rerun,
                         on_event=lambda unit, event: console.print(
                             f"[yellow]warning:[/] {event.detail}", highlight=False,
-                            soft_wrap=True))
+                            soft_wrap=True), max_host_offset_ms=max_host_offset_ms)
+
+    def view(whole: bool = False) -> Group:
+        """The units' table, and the hosts' once there are any (their clocks over the
+        whole recording when ``whole``)."""
+        hosts = recorder.hosts()
+        return Group(_table(recorder.snapshot(), time.monotonic() - started,
+                            recorder.written, path),
+                     *([_hosts_table(hosts, recorder.max_host_offset_ns, whole)]
+                       if hosts else []))
+
     try:
         with Live(console=console, refresh_per_second=2, transient=True,
                   auto_refresh=False) as live:
@@ -189,8 +277,7 @@ def record(
                     break
                 recorder.run_once(0.25)
                 if table:
-                    live.update(_table(recorder.snapshot(), time.monotonic() - started,
-                                       recorder.written, path), refresh=True)
+                    live.update(view(), refresh=True)
     finally:
         recorder.close()
         if logger is not None:
@@ -203,8 +290,7 @@ def record(
     if recorder.error is not None:
         raise fail(str(recorder.error), 1)
     if table:
-        console.print(_table(recorder.snapshot(), time.monotonic() - started,
-                             recorder.written, path))
+        console.print(view(whole=True))
     if not quiet:
         files = ", ".join(str(p) for p in writer.paths)
         console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")

@@ -671,6 +671,11 @@ class ArchiveWriter:
         self._guard(self._current().writer.flush)
         self._flushed = self._clock()
 
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record into the file being written: what its writer learnt only
+        as the recording went (the ``metadata`` given at start go into every file)."""
+        self._guard(self._current().writer.add_metadata, name, data)
+
     def tick(self) -> None:
         """Flush if the last flush is a second old: call this while messages pause."""
         if self._file is not None and self._clock() - self._flushed >= FLUSH_EVERY_S:

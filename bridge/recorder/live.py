@@ -15,29 +15,42 @@ Nothing is lost unrecorded: samples Zenoh reports missed (LOST), messages that f
 their checks (REJECTED) and samples shed (SHED) go into the archive as events of
 their unit, with their count and span, and to ``on_event``; so does a unit name
 published by two bridges at once (DUPLICATE_UNIT).
+
+Each host a bridge runs on has its clock looked at: a sample's ``time_ns`` is on that
+host's realtime clock, its arrival on the recorder's, and arrival - time_ns =
+(recorder's clock - host's) + latency, latency > 0. So the least of it over a host's
+samples bounds how far behind the recorder the host's clock can be, and a negative
+least proves it ahead by at least that much (a sample arrived before it was taken).
+A host provably ahead by more than the bridges' own timing error, or (with a
+tolerance) possibly behind by more than the tolerance, gets a HOST_CLOCK_OFFSET event
+for each of its units, once when it starts and again only once it has cleared; the
+bound over the whole recording goes into a ``gx3.hosts`` metadata record at close.
+
 Units are discovered by their bridges' liveliness tokens: a unit that appears gets
 its Info queried and archived; one that leaves and comes back simply continues.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from bridge.bus.codec import parse
-from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.bus.integrity import read_raw_time, read_time
 from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
 from bridge.device import clock
-from bridge.recorder.archive import ArchiveError, ArchiveWriter
+from bridge.recorder.archive import ArchiveError, ArchiveWriter, stamps
 from bridge.timing.rate import RateWindow
 
 LEAVES = ("imu", "status", "event")
@@ -59,6 +72,14 @@ _TAKE = 10_000  # messages the receiving thread takes off one channel at a time
 BUFFER_BYTES = 256 << 20
 _OVERHEAD = 64  # bytes a held message costs besides its payload (object, list slots)
 _SHEDDABLE = ("imu", "raw")  # status, events and info are few and always kept
+#: Seconds of arrival over which a host's clock bound is taken: long enough that some
+#: sample meets the least latency, short enough to follow a clock being corrected.
+HOST_WINDOW_S = 10
+#: A host counts as ahead only beyond the bridges' own timing error (~0.06 ms), and a
+#: condition clears only once the bound is back by this much (no event per wobble).
+HOST_MARGIN_NS = 100_000
+HOSTS_METADATA = "gx3.hosts"
+_SECOND_NS = 1_000_000_000
 _REASONS = {"checksum": "payload does not match its CRC-32 (damaged in transit)",
             "key": "names another unit than its key, or is not a message of the key's type"}
 
@@ -102,6 +123,74 @@ def _instant(leaf: str, payload: bytes | None, default_ns: int) -> tuple[int, in
     return sample.time_ns, sample.ticks
 
 
+class _Lags:
+    """The least (arrival - time_ns) of one unit's samples: per second of arrival over the
+    last ``HOST_WINDOW_S`` seconds, and over the whole recording (see the module).
+
+    Samples are gathered and read about once a second of arrivals (their time_ns from
+    their headers in bulk, ``stamps``): a read costs mostly a fixed amount, so a second
+    of a 1 kHz unit costs little more than the 50 samples a pass writes.
+    """
+
+    def __init__(self, unit: str) -> None:
+        self.unit = unit
+        self.least: int | None = None  # over the samples read so far
+        self._seconds: deque[list[int]] = deque(maxlen=HOST_WINDOW_S)  # [second, least]
+        self._payloads: list[bytes] = []
+        self._arrivals: list[np.ndarray] = []
+
+    @property
+    def seen(self) -> bool:
+        """Whether any sample came (read or still gathered)."""
+        return self.least is not None or bool(self._payloads)
+
+    def add(self, payloads: list[bytes], arrival: np.ndarray) -> None:
+        """Samples that arrived at ``arrival`` (the recorder's clock, in arrival order)."""
+        if payloads:
+            self._payloads += payloads
+            self._arrivals.append(arrival)
+            self._read_due(int(arrival[-1]))
+
+    def _read_due(self, now_ns: int) -> None:
+        if self._arrivals and now_ns - int(self._arrivals[0][0]) >= _SECOND_NS:
+            self.read()
+
+    def read(self) -> None:
+        """Fold the samples gathered into the least per second and overall."""
+        if not self._payloads:
+            return
+        payloads, self._payloads = self._payloads, []
+        arrival = np.concatenate(self._arrivals)
+        self._arrivals = []
+        try:
+            _, _, time_ns = stamps(self.unit, payloads)
+        except ValueError:  # not a sample after all (the writer has left it out): none
+            return
+        lag = arrival - time_ns
+        first, last = int(arrival[0]) // _SECOND_NS, int(arrival[-1]) // _SECOND_NS
+        if first == last:
+            seconds = [(first, int(lag.min()))]
+        else:
+            second = arrival // _SECOND_NS
+            starts = np.concatenate(([0], np.flatnonzero(np.diff(second)) + 1))
+            seconds = list(zip(second[starts].tolist(),
+                               np.minimum.reduceat(lag, starts).tolist(), strict=True))
+        for at, least in seconds:
+            if self._seconds and self._seconds[-1][0] == at:
+                self._seconds[-1][1] = min(self._seconds[-1][1], least)
+            else:  # a step back of the recorder's clock is a new second too
+                self._seconds.append([at, least])
+            self.least = least if self.least is None else min(self.least, least)
+
+    def bound(self, now_ns: int) -> int | None:
+        """The least over the seconds of arrival within ``HOST_WINDOW_S`` of ``now_ns``
+        (None: no sample arrived in them); samples gathered for less than a second are
+        not in it yet."""
+        self._read_due(now_ns)
+        since = now_ns // _SECOND_NS - HOST_WINDOW_S
+        return min((least for at, least in self._seconds if at > since), default=None)
+
+
 @dataclass
 class UnitView:
     """What the terminal shows of one unit."""
@@ -115,9 +204,75 @@ class UnitView:
     status: Status | None = None
     joined: int = 1
     meter: RateWindow = field(default_factory=lambda: RateWindow(3.0))
+    #: its bridge host's clock, from the latest Status or Info that carried one, and
+    #: that message's own time
+    host_clock: HostClock | None = None
+    host_clock_ns: int = 0
+    lags: _Lags = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.lags = _Lags(self.name)
 
     def rate(self, now: float) -> float:
         return self.meter.rate(now, self.samples)
+
+    def learn_host(self, message: Status | Info, at_ns: int) -> None:
+        """Keep the host clock ``message`` carries if it is newer than the one known (an
+        Info answered late is older than the Status before it). A unit whose bridge now
+        runs on another host starts its clock bound afresh."""
+        if not message.HasField("host_clock") or at_ns < self.host_clock_ns:
+            return
+        host = message.host_clock.host
+        if self.host_clock is not None and self.host_clock.host not in ("", host):
+            self.lags = _Lags(self.name)
+        self.host_clock, self.host_clock_ns = message.host_clock, at_ns
+
+
+@dataclass(frozen=True)
+class HostView:
+    """The clock of one host that bridges run on, as the recorder sees it.
+
+    ``bound_ns``: the least (arrival on the recorder's clock - time_ns) of its units'
+    samples over the last ``HOST_WINDOW_S`` s, the most its clock can be behind the
+    recorder's (negative: it is ahead by at least that much); ``whole_ns`` the same over
+    the recording so far (samples are read about once a second); None: no sample yet.
+    ``clock``: its latest sync state.
+    ``host`` is empty for a bridge that names no host (an older one): such a unit is a
+    host of its own.
+    """
+
+    host: str
+    units: tuple[str, ...]
+    bound_ns: int | None
+    whole_ns: int | None
+    clock: HostClock | None
+
+    @property
+    def name(self) -> str:
+        """How events and the terminal name it."""
+        return f"host {self.host}" if self.host else f"the unnamed host of {self.units[0]}"
+
+
+def ahead(bound_ns: int | None) -> bool:
+    """Whether a host whose least (arrival - time_ns) is ``bound_ns`` is provably ahead of
+    the recorder by more than the bridges' own timing error."""
+    return bound_ns is not None and bound_ns < -HOST_MARGIN_NS
+
+
+def host_tolerance_ns(ms: float | None) -> int | None:
+    """A host clock tolerance given in ms, in ns (None: none); ValueError unless above 0:
+    every sample arrives some time after it was taken, so 0 would always be exceeded."""
+    if ms is None:
+        return None
+    if not (math.isfinite(ms) and ms > 0):
+        raise ValueError(f"{ms:g}: give a tolerance above 0 ms, such as 5")
+    return round(ms * 1e6)
+
+
+def recorder_metadata(sync: clock.HostSync) -> dict[str, str]:
+    """The recorder's own host and its clock's sync state, for the archive's metadata:
+    every arrival time (publish time) in the archive is on this clock."""
+    return {"recorder_host": sync.host, "recorder_clock": json.dumps(asdict(sync))}
 
 
 class Recorder:
@@ -126,6 +281,9 @@ class Recorder:
     ``queue_size``: messages each Zenoh channel holds until the receiving thread takes
     them; ``buffer_bytes``: memory held for the writer (see the module's notes).
     ``on_event(unit, event)`` hears of each event the recorder itself archives.
+    ``max_host_offset_ms``: how far behind the recorder's clock a bridge host's may be
+    (strictly, how late its samples may arrive) before a HOST_CLOCK_OFFSET event says so
+    (None: no such check; a host ahead of the recorder is always told).
     """
 
     def __init__(self, session: zenoh.Session, writer: ArchiveWriter, prefix: str = "gx3",
@@ -133,7 +291,9 @@ class Recorder:
                  on_unit: Callable[[str, bool], None] | None = None,
                  on_written: Callable[[list[RawMessage]], None] | None = None,
                  queue_size: int = 100_000, buffer_bytes: int = BUFFER_BYTES,
-                 on_event: Callable[[str, Event], None] | None = None) -> None:
+                 on_event: Callable[[str, Event], None] | None = None,
+                 max_host_offset_ms: float | None = None) -> None:
+        self.max_host_offset_ns = host_tolerance_ns(max_host_offset_ms)
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
         self.views: dict[str, UnitView] = {}
         self.error: ArchiveError | None = None
@@ -161,6 +321,8 @@ class Recorder:
         self._shed: dict[str, _Span] = {}
         self._notes: list[tuple[str, Event]] = []
         self._conflicts: set[tuple[str, tuple[str, ...]]] = set()
+        # (host name, condition) -> the units told of it since it started
+        self._told: dict[tuple[str, str], set[str]] = {}
         leaves = (*LEAVES, "raw") if raw else LEAVES
         self._subs: list[Subscription[RawMessage]] = []
         try:
@@ -344,6 +506,7 @@ class Recorder:
                         np.array(published, np.int64) if published else None)
         for key, got in answers.items():
             self._write(key, got.payloads, now, written)
+        notes += self._clock_notes(now)
         notes += [self._lost(loss, after, now) for loss, after in losses]
         notes += [self._unarchived(key, Event.REJECTED, span,
                                    f"{span.count} message(s) rejected: {_REASONS[reason]}")
@@ -394,24 +557,24 @@ class Recorder:
                written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
         """Archive messages of one key, received at ``received`` (host ns: one for all, or
         one each; ``published``: raw reads' raw-clock stamps), and count them in their
-        unit's view."""
+        unit's view (samples also in its clock bound)."""
         if self.error is not None:
             return
+        bulk = True
         try:
             self.writer.write_many(key, payloads, received, published)
         except ArchiveError as exc:
             self.error = exc
             return
         except ValueError:  # not all of ours (nothing written): archive those that are
+            bulk = False
             payloads = self._each(key, payloads, received)
             if not payloads:
                 return
         self.written += len(payloads)
         unit, leaf = self.writer.route(key)  # written: the key is one of ours
-        status = None
-        if leaf == "status":
-            status = Status()
-            status.ParseFromString(payloads[-1])
+        status = Status.FromString(payloads[-1]) if leaf == "status" else None
+        info = Info.FromString(payloads[-1]) if leaf == "info" else None
         with self._lock:
             view = self.views.get(unit)
             if view is None:
@@ -422,11 +585,100 @@ class Recorder:
                 view.samples += len(payloads)
                 view.last_ns = now
                 view.first_ns = view.first_ns or now
+                if bulk:  # (the rare rest have no receive time each: left out)
+                    view.lags.add(payloads, np.broadcast_to(np.asarray(received, np.int64),
+                                                            (len(payloads),)))
             elif status is not None:
                 view.status = status
+                view.learn_host(status, status.time_ns)
+            elif info is not None:
+                view.learn_host(info, info.bring_up_time_ns)
         if written is not None:
             encoding = ENCODINGS.get(leaf, "")
             written.extend(RawMessage(key, payload, encoding) for payload in payloads)
+
+    def hosts(self, now_ns: int | None = None) -> list[HostView]:
+        """One row per bridge host (by name, unnamed ones last): its units and its clock
+        against the recorder's, over the last ``HOST_WINDOW_S`` s before ``now_ns`` (the
+        recorder's clock; default now). Units with neither samples nor a named host are
+        left out (nothing is known of their host)."""
+        now = clock.realtime_ns() if now_ns is None else now_ns
+        with self._lock:
+            groups: dict[tuple[bool, str], list[UnitView]] = {}  # (unnamed, host or unit)
+            for view in sorted(self.views.values(), key=lambda v: v.name):
+                host = view.host_clock.host if view.host_clock is not None else ""
+                if host or view.lags.seen:
+                    groups.setdefault((not host, host or view.name), []).append(view)
+            rows = []
+            for (unnamed, host), views in sorted(groups.items()):
+                bounds = [b for v in views if (b := v.lags.bound(now)) is not None]
+                wholes = [v.lags.least for v in views if v.lags.least is not None]
+                latest = max(views, key=lambda v: v.host_clock_ns)
+                rows.append(HostView("" if unnamed else host, tuple(v.name for v in views),
+                                     min(bounds, default=None), min(wholes, default=None),
+                                     latest.host_clock))
+        return rows
+
+    def _clock_notes(self, now: int) -> list[tuple[str, Event]]:
+        """HOST_CLOCK_OFFSET events, one for each unit of a host whose clock disagrees
+        with the recorder's: provably ahead by more than ``HOST_MARGIN_NS`` (cleared once
+        it is not provably ahead at all), or, with a tolerance, its bound beyond it
+        (cleared once back under it by ``HOST_MARGIN_NS``). Each is told once when it
+        starts (and to a unit that joins the host while it holds), again only after it
+        cleared: a host that stays off fills no archive."""
+        notes = []
+        tolerance = self.max_host_offset_ns
+        for host in self.hosts(now):
+            bound = host.bound_ns
+            if bound is None:
+                continue
+            checks = [("ahead", ahead(bound), bound >= 0)]
+            if tolerance is not None:
+                checks.append(("behind", bound > tolerance,
+                               bound <= tolerance - HOST_MARGIN_NS))
+            for condition, holds, cleared in checks:
+                key = (host.name, condition)
+                if cleared:
+                    self._told.pop(key, None)
+                    continue
+                if not holds:
+                    continue
+                told = self._told.setdefault(key, set())
+                detail = self._offset_detail(host, condition, bound)
+                for unit in host.units:
+                    if unit not in told:
+                        told.add(unit)
+                        notes.append((unit, Event(
+                            unit=unit, time_ns=now, kind=Event.HOST_CLOCK_OFFSET, count=1,
+                            clock_change_ns=bound, detail=detail)))
+        return notes
+
+    def _offset_detail(self, host: HostView, condition: str, bound: int) -> str:
+        """The event's one line: what the bound proves, or allows, and what to look at."""
+        if condition == "ahead":
+            return (f"the clock of {host.name} is ahead of the recorder's by at least "
+                    f"{-bound / 1e6:,.2f} ms: its samples arrived before the instants they "
+                    "were stamped with (check chrony, ntpd or PTP on both hosts)")
+        assert self.max_host_offset_ns is not None
+        return (f"the clock of {host.name} may be behind the recorder's by up to "
+                f"{bound / 1e6:,.2f} ms, or its samples take that long to arrive (tolerance "
+                f"{self.max_host_offset_ns / 1e6:g} ms)")
+
+    @staticmethod
+    def _hosts_metadata(hosts: list[HostView]) -> dict[str, str]:
+        """The ``gx3.hosts`` metadata record: each host's units, the least (arrival -
+        time_ns) over the whole recording, its latest sync state; the recorder's own."""
+        meta = {"note": "least_lag_ns: the least (arrival on the recorder's clock - "
+                        "time_ns) of the host's samples over the recording: the most its "
+                        "clock was behind the recorder's; negative: ahead by at least that",
+                "recorder": json.dumps(asdict(clock.host_sync()))}
+        for host in hosts:
+            meta[f"host/{host.host or host.units[0] + ' (unnamed)'}"] = json.dumps({
+                "units": list(host.units), "least_lag_ns": host.whole_ns,
+                "ahead": ahead(host.whole_ns),
+                "clock": None if host.clock is None else {
+                    f.name: getattr(host.clock, f.name) for f in HostClock.DESCRIPTOR.fields}})
+        return meta
 
     def _each(self, key: str, payloads: list[bytes], received: int | np.ndarray
               ) -> list[bytes]:
@@ -465,7 +717,8 @@ class Recorder:
 
     def close(self) -> None:
         """Stop receiving, write what has arrived (and the losses still open: nothing
-        came after them), and leave the writer to its owner."""
+        came after them) and the hosts' clocks over the recording (``gx3.hosts``, in the
+        file being written), and leave the writer to its owner."""
         self._alive.undeclare()
         self._stop.set()
         self._receiver.join()
@@ -478,3 +731,12 @@ class Recorder:
         self._pass()
         for sub in self._subs:
             sub.close()
+        with self._lock:
+            for view in self.views.values():
+                view.lags.read()  # every sample in the bound over the recording
+        hosts = self.hosts()
+        if self.error is None and hosts:
+            try:
+                self.writer.add_metadata(HOSTS_METADATA, self._hosts_metadata(hosts))
+            except ArchiveError as exc:
+                self.error = exc

@@ -14,7 +14,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from datetime import UTC, datetime
 from types import TracebackType
 from typing import Any
@@ -25,7 +25,8 @@ import rerun as rr
 
 from bridge.bus.codec import record_quantities
 from bridge.bus.events import LEVEL, event_text
-from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.gx3_pb2 import Event, HostClock, Status
+from bridge.device.clock import HostSync
 from bridge.protocol import convert
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.viz import layout
@@ -49,6 +50,15 @@ def _time_of_day(time_ns: int) -> str:
     """HH:MM:SS.mmm, UTC, as the viewer's time panel shows it."""
     when = datetime.fromtimestamp(time_ns // 1_000_000 / 1000, UTC)
     return when.strftime("%H:%M:%S.%f")[:-3]
+
+
+def _host_clock_text(unit: str, state: HostClock) -> tuple[str, str]:
+    """(text, level) of a unit's bridge host clock's sync state, as the events read: a
+    clock nothing disciplines warns (its units' times drift from the rest of the fleet)."""
+    sync = HostSync(**{f.name: getattr(state, f.name) for f in fields(HostSync)})
+    where = f" on {state.host}" if state.host else ""
+    level = "WARN" if state.known and not state.synchronised else "INFO"
+    return f"{unit}{where}: {sync.describe()}", level
 
 
 def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
@@ -143,6 +153,7 @@ class RerunLogger:
         self._first_offset: dict[str, int] = {}
         self._sent: tuple[frozenset[str], tuple[str, ...]] | None = None
         self._rate_hz: dict[str, float] = {}
+        self._host_clock: dict[str, tuple[str, bool, bool]] = {}  # unit: host, known, synced
         self.recording.log(layout.WORLD, rr.ViewCoordinates.FRD, static=True)
         self.recording.log(f"{layout.WORLD}/ned", rr.Arrows3D(
             origins=[layout.NED_ORIGIN_M] * 3, vectors=np.eye(3) * layout.AXIS_LENGTH_M,
@@ -195,7 +206,10 @@ class RerunLogger:
     def log_status(self, unit: str, statuses: Status | Sequence[Status]) -> None:
         """Status messages of one unit: samples/s, dropped total, clock offset (relative
         to the first status with a clock model) and drift. Device time is the clock
-        model's inverse, for statuses that have a model (clock_offset_ns != 0)."""
+        model's inverse, for statuses that have a model (clock_offset_ns != 0). Its
+        bridge host clock's sync state goes into the unit's event log when it is first
+        seen and whenever it changes (synchronised or not, another host), with the
+        kernel's estimated and maximum error at that moment."""
         items = [statuses] if isinstance(statuses, Status) else list(statuses)
         if not items:
             return
@@ -221,6 +235,7 @@ class RerunLogger:
             (path,) = layout.plot_paths(plot, unit)
             self._send_split(path, time_ns, device_ns, modelled, rr.Scalars.columns,
                              scalars=values)
+        self._log_host_clock(unit, items)
         self._send_blueprint()
 
     def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
@@ -235,13 +250,9 @@ class RerunLogger:
         if not items:
             return
         self._unit(unit)
-        time_ns = np.array([e.time_ns for e in items], np.int64)
         rate_hz = self._rate_hz.get(unit, 0.0)
-        texts = np.array([f"{_time_of_day(e.time_ns)}  {event_text(unit, e, rate_hz)}"
-                          for e in items], dtype=str)
-        levels = np.array([LEVEL.get(e.kind, "INFO") for e in items], dtype=str)
-        self.recording.send_columns(layout.event_path(unit), indexes=_indexes(time_ns, None),
-                                    columns=rr.TextLog.columns(text=texts, level=levels))
+        self._send_texts(unit, [(e.time_ns, event_text(unit, e, rate_hz),
+                                 LEVEL.get(e.kind, "INFO")) for e in items])
         self._send_blueprint()
 
     def flush(self) -> None:
@@ -322,6 +333,29 @@ class RerunLogger:
                 vectors = np.asarray(record[name], np.float32) * np.float32(scale)
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
                                  columns=rr.Arrows3D.columns(vectors=vectors))
+
+    def _log_host_clock(self, unit: str, items: Sequence[Status]) -> None:
+        """The statuses where the unit's host clock state changed, as text log entries."""
+        changes = []
+        for status in items:
+            if not status.HasField("host_clock"):
+                continue
+            state = status.host_clock
+            seen = (state.host, state.known, state.synchronised)
+            if self._host_clock.get(unit) != seen:
+                self._host_clock[unit] = seen
+                changes.append((status.time_ns, *_host_clock_text(unit, state)))
+        if changes:
+            self._send_texts(unit, changes)
+
+    def _send_texts(self, unit: str, rows: Sequence[tuple[int, str, str]]) -> None:
+        """(time_ns, text, level) rows into the unit's event log, each text led by its time
+        of day (UTC), on the ``time`` timeline only (see ``log_event``)."""
+        time_ns = np.array([t for t, _, _ in rows], np.int64)
+        texts = np.array([f"{_time_of_day(t)}  {text}" for t, text, _ in rows], dtype=str)
+        levels = np.array([level for _, _, level in rows], dtype=str)
+        self.recording.send_columns(layout.event_path(unit), indexes=_indexes(time_ns, None),
+                                    columns=rr.TextLog.columns(text=texts, level=levels))
 
     def _style(self, plot: str, unit: str, index: int) -> None:
         """Names and colours of a unit's lines in a plot, logged once, static."""
