@@ -265,3 +265,19 @@ def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None
     assert isinstance(said, RuntimeError) and str(said) == "Unsendable: odd bytes at 12"
     plain = ReplayError("u1: no record found")
     assert _sendable(plain) is plain
+
+
+def test_a_raw_read_archived_late_keeps_its_receive_times(tmp_path: Path) -> None:
+    """A recorder writes a read that came later than its reorder window at the log time
+    of the message before it: both its stamps still come back exactly."""
+    with ArchiveWriter(tmp_path / "late.mcap", reorder_s=0.0) as writer:
+        writer.write_many("gx3/u1/raw", [b"a", b"b"], np.array([2_000, 3_000]),
+                          np.array([20, 30]))
+        writer.flush()  # written: what comes now at earlier log times is late
+        writer.write_many("gx3/u1/raw", [b"c"], np.array([1_000]), np.array([40]))
+    (capture,) = captures(tmp_path / "late.mcap")
+    assert capture.data == [b"a", b"b", b"c"]
+    assert capture.rx_ns.tolist() == [2_000, 3_000, 1_000]
+    assert capture.raw_ns is not None and capture.raw_ns.tolist() == [20, 30, 40]
+    assert read_archive(tmp_path / "late.mcap").messages("gx3/u1/raw").log_time.tolist() \
+        == [2_000, 3_000, 3_000]

@@ -29,8 +29,8 @@ Layout (DESIGN.md, "Archives"):
   before it, then is written at the next flush, at least once a second: a killed
   recorder loses at most the last 1.5 s and the file still opens with read.py. A
   message that comes later than that is written at the log time of the last one
-  written (its own time stays in its payload; a raw read's raw-clock stamp in its
-  publish time) and counted (``late``, and a
+  written (its own time stays in its payload; a raw read's in a ``gx3.late_reads``
+  metadata record written with it) and counted (``late``, and a
   ``gx3.order`` metadata record). ``reorder_s=None`` sorts the whole file when it is
   finished (a replay writes unit after unit).
   ``write_many`` takes a batch of one key at once (bridge/recorder/mcap_writer.py lays
@@ -75,7 +75,7 @@ from bridge.recorder.frames import (
     sensor_to_earth,
 )
 from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.rawcapture import RAW_CLOCK, RAW_ENCODING
+from bridge.recorder.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
 
 T = TypeVar("T")
 PROTOBUF = "protobuf"
@@ -404,6 +404,12 @@ class ArchiveWriter:
             sizes = np.cumsum(np.fromiter(map(len, payloads), np.int64, n))
             n = min(n, int(np.searchsorted(sizes, self.chunk_size)) + 1)
         seq = self._sequence.get(topic, 0)
+        if leaf == "raw":  # a read's realtime stamp is its log time: keep a late one's
+            late = np.flatnonzero(f.writer.late_among(log_ns[:n]))
+            if len(late):
+                self._guard(f.writer.add_metadata, LATE_READS, {
+                    "topic": topic, "sequence": ",".join(map(str, (seq + late).tolist())),
+                    "receive_ns": ",".join(map(str, log_ns[late].tolist()))})
         published = receive_ns if publish_ns is None else publish_ns
         self._guard(f.writer.add, cid, seq, log_ns[:n], published[:n], payloads[:n])
         self._sequence[topic] = seq + n
@@ -696,7 +702,7 @@ class ArchiveWriter:
                         "note": "messages that came later than the reorder window are "
                                 "logged at the time of the last message written before "
                                 "them; their own time is in their payload (a raw read's "
-                                "in its publish time)"})
+                                f"in the {LATE_READS} records)"})
                 self._guard(f.writer.finish)
         finally:
             self._file = None

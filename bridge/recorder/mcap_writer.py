@@ -265,6 +265,12 @@ class McapWriter:
         self.stream.write(record)
         self._metadata += 1
 
+    def late_among(self, log_time: np.ndarray) -> np.ndarray:
+        """Which of these log times ``add`` would write later than logged: before the last
+        message already written."""
+        log_time = np.asarray(log_time, np.int64)
+        return log_time < self._end if self._messages else np.zeros(len(log_time), bool)
+
     def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
             publish_time: np.ndarray, payloads: Sequence[bytes]) -> None:
         """Hold messages of ``channel`` (sequence numbers from ``first_sequence``) until
@@ -272,11 +278,10 @@ class McapWriter:
         if not len(payloads):
             return
         log_time = np.asarray(log_time, np.int64)
-        if self._messages:
-            behind = log_time < self._end
-            if behind.any():
-                self.late += int(behind.sum())
-                log_time = np.maximum(log_time, self._end)
+        behind = self.late_among(log_time)
+        if behind.any():
+            self.late += int(behind.sum())
+            log_time = np.maximum(log_time, self._end)
         records, sizes = message_records(channel, first_sequence, log_time,
                                          np.asarray(publish_time, np.int64), payloads)
         self._held.append(_Held(records, np.full(len(sizes), channel, np.uint16), log_time,

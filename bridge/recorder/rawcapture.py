@@ -32,6 +32,11 @@ FLUSH_EVERY_S = 1.0
 RAW_CLOCK = {"publish_time": "CLOCK_MONOTONIC_RAW"}
 #: Publish times from here on are realtime stamps (an older capture's), not raw ones.
 REALTIME_FROM_NS = 10**18
+#: A metadata record of an archive whose raw reads came later than its reorder window:
+#: such a read is written at the log time of the message before it, so the record keeps
+#: its topic, the reads' sequence numbers and their realtime receive times (comma-
+#: separated), which replay puts back.
+LATE_READS = "gx3.late_reads"
 
 
 class CaptureError(OSError):

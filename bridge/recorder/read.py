@@ -240,12 +240,6 @@ class Archive:
 
     # -- messages ------------------------------------------------------------------------
 
-    def log_times(self, topic: str) -> np.ndarray:
-        """The log times of ``topic``'s messages, in the file's order (no payloads read)."""
-        ids = self._ids(topic)
-        return np.concatenate([b.log_time[np.isin(b.channel, ids)] for b in self.blocks]
-                              or [np.zeros(0, np.int64)]).astype(np.int64)
-
     def messages(self, topic: str) -> Messages:
         """Every message of ``topic``, in log-time order."""
         ids = self._ids(topic)

@@ -42,10 +42,16 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
 from bridge.recorder.archive import ArchiveWriter
-from bridge.recorder.rawcapture import REALTIME_FROM_NS, capture_metadata
-from bridge.recorder.read import Archive, ArchiveReadError, read_archive, summary_counts
+from bridge.recorder.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
+from bridge.recorder.read import (
+    Archive,
+    ArchiveReadError,
+    Messages,
+    read_archive,
+    summary_counts,
+)
 from bridge.timing.links import infer_transport
-from bridge.timing.realtime import ClockChange, RealtimeReads, jumps
+from bridge.timing.realtime import ClockChange, RealtimeReads
 from bridge.timing.steps import find_steps, raw_like, unwrap_timer
 from bridge.timing.stream import Settings, StreamTiming
 
@@ -89,30 +95,30 @@ class Capture:
     raw_ns: np.ndarray | None = None
 
 
-def _read_times(archive: Archive, log: np.ndarray, published: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_times(archive: Archive, messages: Messages
+                ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """A raw topic's receive times on the realtime clock and (None: an older capture's) the
-    raw one, from its messages' log and publish times in read order.
+    raw one, in the order the reads were made, and that order.
 
     A publish time of 10^18 or more is an older capture's realtime stamp. Otherwise it is
-    the raw stamp and the log time the realtime one, except where an archive wrote a read
-    that came later than its reorder window at the log time of the message written last:
-    such a log time is another message's to the nanosecond, and the read's realtime stamp
-    is its raw one moved by the offset of the read before it."""
+    the raw stamp and the log time the realtime one, except for a read an archive wrote
+    later than its reorder window, at the log time of the message before it: its own is
+    in the archive's ``gx3.late_reads`` records."""
+    order = np.argsort(messages.sequence, kind="stable")  # the order they were read in
+    log = messages.log_time[order].astype(np.int64)
+    published = messages.publish_time[order].astype(np.int64)
     if len(published) == 0 or (published >= REALTIME_FROM_NS).any():
-        return np.where(published >= REALTIME_FROM_NS, published, log), None
-    offsets = log - published
-    if not jumps(np.diff(offsets), np.diff(published)).any():
-        return log, published  # no step to tell from a late read: the common case
-    raw_topics = set(archive.topics("raw"))
-    others = np.concatenate([archive.log_times(t) for t in archive.topics()
-                             if t not in raw_topics] or [np.zeros(0, np.int64)])
-    late = np.isin(log, others) | np.concatenate([[False], log[1:] == log[:-1]])
-    if late.any() and not late.all():
-        known = np.flatnonzero(~late)
-        before = known[np.maximum(np.searchsorted(known, np.flatnonzero(late)) - 1, 0)]
-        offsets[late] = offsets[before]
-    return published + offsets, published
+        return np.where(published >= REALTIME_FROM_NS, published, log), None, order
+    late: dict[int, int] = {}
+    for m in archive.metadata:
+        if m.name == LATE_READS and m.metadata.get("topic") == messages.topic:
+            late.update(zip(map(int, m.metadata["sequence"].split(",")),
+                            map(int, m.metadata["receive_ns"].split(",")), strict=True))
+    if late:
+        sequence = messages.sequence[order].astype(np.int64)
+        fix = np.flatnonzero(np.isin(sequence, list(late)))
+        log[fix] = [late[int(s)] for s in sequence[fix]]
+    return log, published, order
 
 
 def captures(path: Path, prefix: str = "gx3",
@@ -132,9 +138,7 @@ def captures(path: Path, prefix: str = "gx3",
         if topics is not None and topic not in topics:
             continue
         messages = archive.messages(topic)
-        order = np.argsort(messages.sequence, kind="stable")  # the order they were read in
-        real, raw = _read_times(archive, messages.log_time[order].astype(np.int64),
-                                messages.publish_time[order].astype(np.int64))
+        real, raw, order = _read_times(archive, messages)
         out.append(Capture(messages.unit, real, [messages.payloads[i] for i in order.tolist()],
                            meta.get(messages.unit, {}), topic, raw))
     if not out:
