@@ -512,3 +512,22 @@ def test_scene_frames_every_unit_and_views_hold_eight(tmp_path: Path, count: int
     assert all(len(q) <= 8 for q in listed)
     if count > 8:
         assert {f"/plots/accel/x/{u}" for u in units} <= {e for q in listed for e in q}
+
+
+def test_the_least_lag_of_each_second_of_arrival_is_plotted(tmp_path: Path) -> None:
+    """A host whose samples arrive 2-5 ms after they were taken, then one whose clock runs
+    3 ms ahead: per whole second of arrival, the least arrival - time_ns, in ms; a second
+    is plotted once the next begins, however the arrivals are cut into calls."""
+    path = tmp_path / "lag.rrd"
+    second = 10**9
+    arrival = DEMO_EPOCH_NS + np.arange(0, 4 * second, second // 100)
+    lag = np.where(arrival < DEMO_EPOCH_NS + 2 * second, 2_000_000, -3_000_000) \
+        + (np.arange(len(arrival)) % 7) * 500_000
+    with RerunLogger(path) as log:
+        for part in np.array_split(np.arange(len(arrival)), 9):
+            log.log_arrivals("u", arrival[part], arrival[part] - lag[part])
+    store = read(path)
+    path_ = layout.plot_paths("host_clock", "u")[0]
+    times = ns(table(store, path_).column("time")) - DEMO_EPOCH_NS
+    assert times.tolist() == [0, second, 2 * second]  # the fourth second is not over
+    np.testing.assert_allclose(plot_values(store, "host_clock", "u")[:, 0], [2.0, 2.0, -3.0])

@@ -125,6 +125,7 @@ PLOTS_TABLE: tuple[Plot, ...] = (
     Plot("dropped", "dropped records [total]", ("dropped",)),
     Plot("clock_offset", "clock offset since first status [ms]", ("offset",)),
     Plot("clock_drift", "clock drift [ppm]", ("drift",)),
+    Plot("host_clock", "host clock: least arrival - time_ns [ms] (< 0: ahead)", ("lag",)),
 )
 PLOT = {p.name: p for p in PLOTS_TABLE}
 
@@ -166,7 +167,7 @@ def unit_color(index: int) -> Rgb:
 
 
 #: Plots of the status messages: one line per unit, beside the scene in the fleet tab.
-STATUS_PLOTS = ("samples_per_s", "dropped", "clock_offset", "clock_drift")
+STATUS_PLOTS = ("samples_per_s", "dropped", "clock_offset", "clock_drift", "host_clock")
 
 # The text starts with the event's time of day and its unit: Rerun sizes its own time
 # column to its header, which cuts the time off, and the entity path repeats the unit.

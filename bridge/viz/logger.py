@@ -154,6 +154,7 @@ class RerunLogger:
         self._sent: tuple[frozenset[str], tuple[str, ...]] | None = None
         self._rate_hz: dict[str, float] = {}
         self._host_clock: dict[str, tuple[str, bool, bool]] = {}  # unit: host, known, synced
+        self._lag: dict[str, tuple[int, int]] = {}  # unit: second of arrival, least lag
         self.recording.log(layout.WORLD, rr.ViewCoordinates.FRD, static=True)
         self.recording.log(f"{layout.WORLD}/ned", rr.Arrows3D(
             origins=[layout.NED_ORIGIN_M] * 3, vectors=np.eye(3) * layout.AXIS_LENGTH_M,
@@ -237,6 +238,33 @@ class RerunLogger:
                              scalars=values)
         self._log_host_clock(unit, items)
         self._send_blueprint()
+
+    def log_arrivals(self, unit: str, arrival_ns: npt.ArrayLike, time_ns: npt.ArrayLike) -> None:
+        """When a unit's samples reached this process (``arrival_ns``, its clock; a recorder's
+        receive times for an archive) against when they were taken (``time_ns``, the bridge
+        host's clock), in arrival order: the least arrival - time_ns of each second of
+        arrival is plotted (``host_clock``). The latency in it is never negative, so it is
+        the most the bridge host's clock can be behind this one's, and below zero the host
+        is provably ahead. A second is plotted once the next one begins."""
+        arrival = np.asarray(arrival_ns, np.int64)
+        if not len(arrival):
+            return
+        index = self._unit(unit)
+        lag = arrival - np.asarray(time_ns, np.int64)
+        second = arrival // 1_000_000_000
+        pending = self._lag.get(unit)
+        if pending is not None:
+            second, lag = np.append(pending[0], second), np.append(pending[1], lag)
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(second)) + 1))
+        seconds, least = second[starts], np.minimum.reduceat(lag, starts)
+        self._lag[unit] = (int(seconds[-1]), int(least[-1]))
+        if len(seconds) > 1:
+            self._style("host_clock", unit, index)
+            (path,) = layout.plot_paths("host_clock", unit)
+            done = seconds[:-1] * 1_000_000_000
+            self._send_split(path, done, done, np.zeros(len(done), bool), rr.Scalars.columns,
+                             scalars=least[:-1] / 1e6)
+            self._send_blueprint()
 
     def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
         """Events of one unit as text log entries at the time they happened, the text led by

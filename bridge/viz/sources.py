@@ -12,6 +12,7 @@ import threading
 from collections import defaultdict
 from collections.abc import Callable
 
+import numpy as np
 import zenoh
 from google.protobuf.message import DecodeError
 
@@ -19,6 +20,7 @@ from bridge.bus.codec import decode_batch, peek
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.keys import unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
+from bridge.device import clock
 from bridge.recorder.read import Archive
 from bridge.viz.logger import RerunLogger
 
@@ -29,6 +31,8 @@ def log_archive(archive: Archive, logger: RerunLogger,
     logged = 0
     for block in archive.samples():
         logger.log_samples(block.unit, block.code, block.columns)
+        came = np.argsort(block.receive_ns, kind="stable")  # blocks are in sample-time order
+        logger.log_arrivals(block.unit, block.receive_ns[came], block.columns["time_ns"][came])
         logged += len(block)
         if progress is not None:
             progress(len(block))
@@ -45,9 +49,12 @@ def log_archive(archive: Archive, logger: RerunLogger,
     return logged
 
 
-def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str) -> int:
+def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str,
+                 arrival_ns: int | None = None) -> int:
     """Zenoh messages as they came (any mix of units and kinds): samples decoded in bulk
-    per unit and record type. Returns the samples logged."""
+    per unit and record type; ``arrival_ns``: when they reached this process, which the
+    bridge hosts' clocks are judged against (``RerunLogger.log_arrivals``). Returns the
+    samples logged."""
     samples: dict[tuple[str, int], list[bytes]] = defaultdict(list)
     logged = 0
     for msg in messages:
@@ -70,6 +77,8 @@ def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str) -
         except ValueError:
             continue
         logger.log_samples(unit, code, columns)
+        if arrival_ns is not None:
+            logger.log_arrivals(unit, np.full(len(payloads), arrival_ns), columns["time_ns"])
         logged += len(payloads)
     return logged
 
@@ -101,10 +110,11 @@ class LiveFeed:
             if first is None:
                 self.logger.flush()
                 continue
+            arrival = clock.realtime_ns()
             batch = [first]
             while (more := sub.get(timeout=0)) is not None and len(batch) < 4096:
                 batch.append(more)
-            self.samples += log_messages(self.logger, batch, self.prefix)
+            self.samples += log_messages(self.logger, batch, self.prefix, arrival)
 
     def close(self) -> None:
         self._stop.set()
