@@ -10,6 +10,11 @@
   a host stall): a gap if the timer ran on, a reset if it restarted.
 - ``OfflineClock`` (``bridge.timing.offline``): the recorder's second pass, one
   epoch's (ticks, rx_ns) at once, using records on both sides of each.
+- ``RealtimeTrack`` / ``RealtimeReads`` (``bridge.timing.realtime``): receive times are
+  on the raw monotonic clock, which nothing steps or slews; these put each instant on
+  the host's realtime clock by the offset at that instant, and name its steps and slews
+  (``ClockChange``). ``bridge.timing.steps`` finds steps in captures stamped on the
+  realtime clock only.
 
 What the caller passes: ``period_ticks`` = decimation x 62.5 (None if unknown);
 ``filter_delay_ns`` = (M - 1) x 500,000 for filter width M (0xDB); ``floor_ns`` =
@@ -28,8 +33,10 @@ output bit for bit however it is cut into calls.
 
 from bridge.timing.clock import ClockState, OnlineClock
 from bridge.timing.offline import OfflineClock
+from bridge.timing.realtime import ClockChange, RealtimeReads, RealtimeTrack
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, Unwrapped
 
-__all__ = ["ClockState", "OfflineClock", "OnlineClock", "Timeline", "TimelineBatch",
-           "TimerUnwrapper", "TimingEvent", "Unwrapped"]
+__all__ = ["ClockChange", "ClockState", "OfflineClock", "OnlineClock", "RealtimeReads",
+           "RealtimeTrack", "Timeline", "TimelineBatch", "TimerUnwrapper", "TimingEvent",
+           "Unwrapped"]

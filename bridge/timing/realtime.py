@@ -127,6 +127,8 @@ class _Slews:
         lead = round(abs(first) / fastest)
         return ClockChange("slew", round(total), end_real - lead, end_raw - lead,
                            round(abs(total) / fastest))
+
+
 class RealtimeTrack:
     """Live: each read's offset (realtime less raw) as it comes; instants mapped by them."""
 
