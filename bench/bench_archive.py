@@ -27,7 +27,7 @@ import numpy as np
 from bridge.bus.codec import encode_batch
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.archive import ArchiveWriter
+from bridge.recorder.writer import ArchiveWriter
 
 T0 = 1_763_000_000_000_000_000
 PERIOD_NS = 10_000_000

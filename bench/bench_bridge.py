@@ -49,9 +49,9 @@ import zenoh
 from procstat import cpu_seconds, thread_cpu_seconds
 from zenoh.ext import AdvancedPublisher
 
-from bridge import native
+from bridge import _native as native
 from bridge.bus.codec import layout
-from bridge.loopback import free_port, interrupt
+from bridge.fleet.loopback import free_port, interrupt
 from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -133,7 +133,7 @@ def loop(kind: str, budget_ms: str, port: str, config: str) -> None:
     from bridge.bus.publish import CACHE_SAMPLES, declare_data_publisher
     from bridge.bus.session import open_session
     from bridge.device.port import Port
-    from bridge.pipeline import PUBLISH_RESERVE_S
+    from bridge.unit.pipeline import PUBLISH_RESERVE_S
 
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -22,7 +22,7 @@ from bridge.bus.codec import encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import ImuSample
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 

@@ -15,8 +15,8 @@ import numpy as np
 from bench_archive import PERIOD_NS, T0, unit_batch
 
 from bridge.bus.codec import encode_batch
-from bridge.recorder.archive import ArchiveWriter
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
+from bridge.recorder.writer import ArchiveWriter
 
 
 def main() -> None:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from procstat import CLK_TCK, cpu_seconds, thread_cpu_seconds
 
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator, unit_configs
@@ -145,7 +145,7 @@ def main() -> None:
         produced = sum(len(u.truth) for u in sim.units)
         unwritten = (sum(lost1) - sum(lost0), sum(slot.lost for slot in sim.slots))
         from bridge.bus.gx3_pb2 import Event
-        from bridge.recorder.read import read_archive
+        from bridge.recorder.reader import read_archive
 
         archive = read_archive(out)
         blocks = archive.samples()

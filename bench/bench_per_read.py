@@ -26,10 +26,10 @@ from bridge.bus.codec import encode_batch
 from bridge.bus.integrity import seals
 from bridge.bus.publish import sealed_records
 from bridge.device.session import UnitInfo
-from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
 from bridge.protocol.codec import Records, encode_replies
 from bridge.protocol.framer import Framer
 from bridge.timing.stream import Settings
+from bridge.unit.pipeline import Options, Pipeline, TimedSamples, UnitEvent
 
 CODE = 0xCC
 T0 = 1_763_000_000_000_000_000
@@ -45,7 +45,7 @@ class Encode:
     def info(self, info: UnitInfo) -> None:
         pass
 
-    def samples(self, samples: Samples) -> None:
+    def samples(self, samples: TimedSamples) -> None:
         start = time.thread_time_ns()
         records = samples.records
         if isinstance(records, Records):

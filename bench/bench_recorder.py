@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from procstat import cpu_seconds, peak_rss_mb
 
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 
 CODE = 0xCC
 
@@ -43,7 +43,7 @@ def imu_messages(path: Path) -> int:
 def damaged(path: Path, per_unit: int) -> int:
     """Archived samples that are not as published: each unit's ticks are 0, 62, 124, ...
     once each and every quantity is 0, so a payload mangled in transit shows."""
-    from bridge.recorder.read import read_archive
+    from bridge.recorder.reader import read_archive
 
     bad = 0
     expected = np.arange(per_unit) * 62

@@ -15,7 +15,7 @@ import numpy as np
 from bench_bus import batch_of, per_sample_us
 
 from bridge.bus.session import open_session
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m
 from bridge.ros2.rmw import UnitTopics

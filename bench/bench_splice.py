@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 
 CODE = 0xC2
 STEP = 62  # ticks between samples (1 kHz)
@@ -113,9 +113,9 @@ def receive_recorder(args: argparse.Namespace) -> None:
     import zenoh
 
     from bridge.bus.gx3_pb2 import Event
-    from bridge.recorder.archive import ArchiveWriter
     from bridge.recorder.live import Recorder
-    from bridge.recorder.read import read_archive
+    from bridge.recorder.reader import read_archive
+    from bridge.recorder.writer import ArchiveWriter
 
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(zenoh.Config.from_json5(config(args.endpoint, True, args.wbc_us)))

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
-from bridge.loopback import free_port
+from bridge.fleet.loopback import free_port
 from bridge.recorder.export import offline_times, sample_table
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored

@@ -29,7 +29,7 @@ import numpy as np
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.recorder.replay import frame_reads
-from bridge.sim.capture import USB_BAUD, Capture, streaming_config, synthesize
+from bridge.sim.capture import USB_BAUD, SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
 from bridge.timing.links import infer_transport
@@ -77,7 +77,8 @@ LINKS = {
 }
 
 
-def timed(capture: Capture, settings: Settings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def timed(capture: SyntheticCapture, settings: Settings
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The capture as ``gx3 replay`` times it: live time_ns, offline time_ns, truth."""
     stream = StreamTiming()
     stream.configure(settings, True)

@@ -7,7 +7,7 @@ download (the page is opened in /usr/bin/chromium, WebGL on SwiftShader):
     apt-get install -y chromium && .venv/bin/pip install -e '.[docs]'
     .venv/bin/python docs/web_viewer_shot.py docs/images/web-viewer.png
 
-The recording is a gx3 demo run, as docs/images/viewer.png shows (bridge.viz.snapshot).
+The recording is a gx3 demo run, as docs/images/viewer.png shows (bridge.fleet.snapshot).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from playwright.sync_api import sync_playwright
 
-from bridge.viz.snapshot import demo_picture, free_port, rerun_executable
+from bridge.fleet.snapshot import demo_picture, free_port, rerun_executable
 
 CHROMIUM = "/usr/bin/chromium"
 SIZE = (1600, 1000)

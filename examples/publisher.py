@@ -18,7 +18,8 @@ import numpy as np
 
 from bridge.bus.gx3_pb2 import Info
 from bridge.bus.publish import UnitPublisher
-from bridge.bus.session import SessionError, open_session
+from bridge.bus.session import open_session
+from bridge.exceptions import SessionError
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
 

@@ -17,8 +17,8 @@ from mcap.summary import Summary
 
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Status
-from bridge.recorder.archive import ArchiveWriter
-from bridge.recorder.read import Archive, read_archive
+from bridge.recorder.reader import ArchiveReader, read_archive
+from bridge.recorder.writer import ArchiveWriter
 from tests.test_archive_writer import PERIOD, T0, synthetic_batch
 from tests.test_bridge_process import GX3
 
@@ -58,7 +58,7 @@ def flipped(source: Path, out: Path, offset: int) -> Path:
     return out
 
 
-def imu_count(archive: Archive) -> int:
+def imu_count(archive: ArchiveReader) -> int:
     return sum(len(s) for s in archive.samples())
 
 

@@ -14,10 +14,11 @@ from mcap.stream_reader import StreamReader
 
 from bridge.bus.codec import HEADER, encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
-from bridge.recorder.archive import ArchiveWriter
+from bridge.exceptions import ArchiveReadError
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.read import MAGIC, ArchiveReadError, read_archive
+from bridge.recorder.reader import MAGIC, read_archive
 from bridge.recorder.repair import repair
+from bridge.recorder.writer import ArchiveWriter
 from tests.test_archive_writer import (
     FLEET,
     LATENCY,

@@ -22,12 +22,13 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.exceptions import ArchiveError
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m, euler_to_quaternion
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveError, ArchiveWriter, frame_picks, numbered
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.repair import repair
+from bridge.recorder.writer import ArchiveWriter, frame_picks, numbered
 
 T0 = 1_763_000_000_000_000_000
 PERIOD = 10_000_000  # 100 Hz
@@ -367,7 +368,8 @@ import sys
 import numpy as np
 from pathlib import Path
 from bridge.bus.codec import encode_batch
-from bridge.recorder.archive import ArchiveError, ArchiveWriter
+from bridge.recorder.writer import ArchiveWriter
+from bridge.exceptions import ArchiveError
 from tests.test_archive_writer import T0, synthetic_batch
 batch = synthetic_batch(0xCC, 20000, 1)
 t = T0 + np.arange(20000, dtype=np.int64) * 1_000_000
@@ -534,7 +536,7 @@ def test_write_many_archives_what_write_archives_message_by_message(
 def test_a_write_many_archive_cut_anywhere_reads_and_repairs_up_to_its_last_chunk(
         tmp_path: Path) -> None:
     """A killed recorder leaves the file cut at any byte: every chunk written before the
-    cut is read back (by read.py and by mcap's streaming reader alike) and repaired into
+    cut is read back (by reader.py and by mcap's streaming reader alike) and repaired into
     a finished, indexed archive."""
     path = tmp_path / "whole.mcap"
     write_bulk(path, in_bursts(fleet_feed()[1]), chunk_size=4_000, clock=_never)

@@ -29,7 +29,7 @@ import zenoh
 
 from bridge.bus.gx3_pb2 import Info, Status
 from bridge.bus.subscribe import SampleBatch, subscribe
-from bridge.loopback import interrupt
+from bridge.fleet.loopback import interrupt
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator

@@ -23,15 +23,15 @@ from pathlib import Path
 import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
-from bridge.pipeline import Options, Pipeline
 from bridge.protocol.framer import Framer
 from bridge.recorder.export import offline_times, sample_table
-from bridge.recorder.read import read_archive
-from bridge.service import GAP_LINE_S
+from bridge.recorder.reader import read_archive
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
+from bridge.unit.pipeline import Options, Pipeline
+from bridge.unit.service import GAP_LINE_S
 from tests.test_bridge_process import GX3, bridge_process, zenoh_config
 from tests.test_pipeline import BASE, ListSink
 from tests.test_record_live import recorder, samples_in

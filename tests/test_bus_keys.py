@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import zenoh
 
-from bridge.bus.keys import BadName, UnitKeys, check_unit, fleet, unit_of
+from bridge.bus.keys import UnitKeys, check_unit, fleet, unit_of
+from bridge.exceptions import BadName
 
 
 def test_unit_keys_follow_the_design() -> None:

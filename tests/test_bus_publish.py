@@ -14,9 +14,9 @@ from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
 from bridge.device.session import UnitInfo
-from bridge.pipeline import Options, Pipeline
 from bridge.protocol.table import DATA_CODES
-from bridge.service import EARLY_READS, BusSink
+from bridge.unit.pipeline import Options, Pipeline
+from bridge.unit.service import EARLY_READS, BusSink
 from tests.test_bus_codec import times, wire_batch
 from tests.waiting import wait_for
 

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bridge.bus.session import SessionError, ZenohOptions, open_session
+from bridge.bus.session import ZenohOptions, open_session
+from bridge.exceptions import SessionError
 from tests.waiting import free_port
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -15,7 +15,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import Motion, MotionConfig, tumbling

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bridge.bus.remote import RemoteError, ask_units
+from bridge.bus.remote import ask_units
+from bridge.exceptions import RemoteError
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored

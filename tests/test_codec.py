@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bridge.exceptions import ProtocolError
 from bridge.protocol.codec import (
-    ProtocolError,
     command_length,
     decode_block,
     encode_command,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import psutil
 
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from tests.mcap_order import order_problems
 from tests.test_bridge_process import GX3
 from tests.test_record_live import rerun_rows

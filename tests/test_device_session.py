@@ -14,14 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from bridge.device.port import Port, PortError
-from bridge.device.session import (
-    CommandRejected,
-    PersistRefused,
-    Session,
-    find_baud,
-    pace,
-)
+from bridge.device.port import Port
+from bridge.device.session import Session, find_baud, pace
+from bridge.exceptions import CommandRejected, PersistRefused, PortError
 from bridge.protocol.table import Flag, Mode
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator

@@ -17,7 +17,7 @@ import pytest
 
 from bridge.recorder.describe import flat_names
 from bridge.recorder.export import sample_table
-from bridge.recorder.read import MAGIC, read_archive
+from bridge.recorder.reader import MAGIC, read_archive
 from tests.test_archive_writer import FLEET, LATENCY, PERIOD, T0, Written, write_fleet
 
 HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "live_time_ns", "rx_ns"]

@@ -13,9 +13,9 @@ import pytest
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Info
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.export import align_table, sample_table
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
+from bridge.recorder.writer import ArchiveWriter
 from tests.test_archive_writer import T0, synthetic_batch
 from tests.test_export import gx3
 

@@ -21,9 +21,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bridge.bus.remote import RemoteError, ask_units
-from bridge.bus.session import SessionError, ZenohOptions
+from bridge.bus.remote import ask_units
+from bridge.bus.session import ZenohOptions
 from bridge.bus.subscribe import subscribe
+from bridge.exceptions import RemoteError, SessionError
 from bridge.sim.serve import Simulator
 from tests.test_bridge_process import GX3, SLOW, bridge_process
 from tests.test_bus_session import make_certificates

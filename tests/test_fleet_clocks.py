@@ -39,9 +39,9 @@ from bridge.device import clock
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder import live
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.live import HOST_MARGIN_NS, HOSTS_METADATA, HostView, Recorder
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
+from bridge.recorder.writer import ArchiveWriter
 from tests.test_bridge_process import GX3, zenoh_config
 from tests.test_record_trust import events, sessions
 from tests.waiting import free_port, wait_for

@@ -21,9 +21,9 @@ from bridge.bus.gx3_pb2 import Event, Info
 from bridge.protocol.codec import Batch, encode_reply
 from bridge.protocol.convert import euler_to_m
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveWriter
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import replay
+from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.motion import Motion, MotionConfig
 from tests.mcap_order import order_problems
 from tests.test_archive_writer import rotation

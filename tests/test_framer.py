@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from bridge import native
+from bridge import _native as native
 from bridge.protocol.codec import Batch, encode_reply, plausible
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, REPLIES, SIZES, Field, Flag

@@ -24,7 +24,7 @@ from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript
 from bridge.recorder.export import offline_times, sample_table
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.read import Archive, read_archive
+from bridge.recorder.reader import ArchiveReader, read_archive
 from bridge.recorder.replay import replay
 from bridge.sim.capture import WALL_NS, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
@@ -148,7 +148,7 @@ def test_time_ns_follows_the_host_clock_through_steps_slews_and_a_leap_second(
                         if e.kind in (Event.HOST_CLOCK_STEP, Event.HOST_CLOCK_SLEW)]
 
 
-def by_ticks(archive: Archive) -> dict[str, np.ndarray]:
+def by_ticks(archive: ArchiveReader) -> dict[str, np.ndarray]:
     """Unit a's samples' ticks and times, in the order of their ticks (a leap second puts
     a second of them twice on the time axis)."""
     columns = {k: np.concatenate([b.columns[k] for b in archive.samples(["a"])])

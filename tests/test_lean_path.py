@@ -21,11 +21,11 @@ from bridge.bus.codec import encode_batch
 from bridge.bus.integrity import seals
 from bridge.bus.publish import sealed_records
 from bridge.device.session import UnitInfo
-from bridge.pipeline import Options, Pipeline, Samples, UnitEvent
 from bridge.protocol.codec import Records, checksum, encode_replies
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES
 from bridge.timing.stream import Settings, StreamTiming
+from bridge.unit.pipeline import Options, Pipeline, TimedSamples, UnitEvent
 
 CODE = 0xCC
 SIZE = REPLIES[CODE].length
@@ -49,7 +49,7 @@ class Collect:
     def info(self, info: UnitInfo) -> None:
         pass
 
-    def samples(self, samples: Samples) -> None:
+    def samples(self, samples: TimedSamples) -> None:
         records = samples.records
         if isinstance(records, Records):  # as UnitPublisher.publish_records
             self.lean += len(records)

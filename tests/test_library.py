@@ -139,7 +139,7 @@ def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
         assert datetime.fromisoformat(line["time"]).utcoffset() is not None
         assert line["level"] in ("debug", "info", "warning", "error")
     bring_up = next(line for line in lines if line.get("event") == "bring_up")
-    assert bring_up["logger"] == "bridge.service" and bring_up["level"] == "info"
+    assert bring_up["logger"] == "bridge.unit.service" and bring_up["level"] == "info"
     assert bring_up["message"].startswith("bring_up ") and "PIPE0001" in bring_up["message"]
     assert isinstance(bring_up["time_ns"], int)
     gap = next(line for line in lines if line.get("event") == "gap")
@@ -154,14 +154,14 @@ def test_log_level_and_format_reach_every_line(capfd: pytest.CaptureFixture[str]
 
     try:
         log_to(LogLevel.warning, LogFormat.json)
-        logging.getLogger("bridge.recorder.read").info("an info line")
-        logging.getLogger("bridge.recorder.read").warning("a warning", extra={"count": 3})
+        logging.getLogger("bridge.recorder.reader").info("an info line")
+        logging.getLogger("bridge.recorder.reader").warning("a warning", extra={"count": 3})
         err.print("[bold red]error:[/] a command's own error")
     finally:
         log_to()
     lines = [json.loads(line) for line in capfd.readouterr().err.splitlines()]
     assert [(x["level"], x["logger"], x["message"]) for x in lines] == [
-        ("warning", "bridge.recorder.read", "a warning"),
+        ("warning", "bridge.recorder.reader", "a warning"),
         ("error", "gx3", "a command's own error")]
     assert lines[0]["count"] == 3
 

@@ -9,13 +9,13 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from bridge.device.link import TIMER_RULE, Link, find_link, kernel_name
-from bridge.pipeline import Pipeline
 from bridge.protocol.table import REPLIES
 from bridge.recorder.rawcapture import capture_metadata
-from bridge.service import info_message
 from bridge.sim.serve import Simulator
 from bridge.sim.usb import AdapterDelivery
 from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming
+from bridge.unit.pipeline import Pipeline
+from bridge.unit.service import info_message
 from tests.test_pipeline import BASE, ListSink, running
 from tests.waiting import wait_for
 

@@ -29,11 +29,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge import native
+from bridge import _native as native
 from bridge.bus.codec import encode_records, native_layout
 from bridge.bus.integrity import seals
 from bridge.bus.publish import sealed_records
-from bridge.device.port import Port, PortError
+from bridge.device.port import Port
+from bridge.exceptions import PortError
 from bridge.protocol.codec import Records, checksum, native_checks, plausible
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
@@ -253,12 +254,12 @@ def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path:
     assert built.returncode == 0, built.stderr
     (wheel,) = (tmp_path / "dist").glob("gx3_bridge-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert "bridge/native.py" in names
+    assert "bridge/_native.py" in names
     assert not [n for n in names if n.startswith("bridge/_records") and n.endswith(".so")]
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-index",
                     "--target", str(target), str(wheel)], check=True, timeout=300)
-    probe = ("import bridge, bridge.native as n; from bridge.protocol.framer import Framer; "
+    probe = ("import bridge, bridge._native as n; from bridge.protocol.framer import Framer; "
              "print(bridge.__file__, n.records)")
     # -S and another folder: neither this checkout nor its editable install (a .pth
     # hook), only the wheel and the dependencies beside it

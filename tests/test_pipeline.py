@@ -21,13 +21,13 @@ import pytest
 
 from bridge.device.actions import run_action
 from bridge.device.session import Session, UnitInfo
-from bridge.pipeline import PUBLISH_RESERVE_S, Options, Pipeline, Samples, UnitEvent
 from bridge.protocol.codec import Records
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
+from bridge.unit.pipeline import PUBLISH_RESERVE_S, Options, Pipeline, TimedSamples, UnitEvent
 from tests.waiting import wait_for
 
 STREAMING = Stored(mode_preset=2, continuous_preset=0xC2)
@@ -37,7 +37,7 @@ BASE = UnitConfig(serial="PIPE0001", motion=MotionConfig(seed=5, static=True), s
 @dataclass
 class ListSink:
     infos: list[UnitInfo] = field(default_factory=list)
-    batches: list[Samples] = field(default_factory=list)
+    batches: list[TimedSamples] = field(default_factory=list)
     events: list[UnitEvent] = field(default_factory=list)
     statuses: list[dict[str, Any]] = field(default_factory=list)
     published: list[int] = field(default_factory=list)  # raw-clock time of each samples call
@@ -46,7 +46,7 @@ class ListSink:
     def info(self, info: UnitInfo) -> None:
         self.infos.append(info)
 
-    def samples(self, samples: Samples) -> None:
+    def samples(self, samples: TimedSamples) -> None:
         with self.lock:
             self.batches.append(samples)
             self.published.append(time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW))

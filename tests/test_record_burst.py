@@ -21,8 +21,8 @@ from bridge.bus.session import open_session
 from bridge.bus.subscribe import subscribe
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.live import Recorder
+from bridge.recorder.writer import ArchiveWriter
 from tests.waiting import free_port
 
 CODE = 0xC2

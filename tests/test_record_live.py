@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator, unit_configs
 from bridge.sim.state import Stored
@@ -237,7 +237,7 @@ def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
     from bridge.bus.codec import encode_batch
     from bridge.protocol.codec import Batch
     from bridge.protocol.table import REPLIES
-    from bridge.recorder.archive import ArchiveWriter
+    from bridge.recorder.writer import ArchiveWriter
 
     path = tmp_path / "cut.mcap"
     with ArchiveWriter(path, chunk_size=4096) as writer:

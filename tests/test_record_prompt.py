@@ -16,9 +16,9 @@ import numpy as np
 from bridge.bus.publish import UnitPublisher
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.live import Recorder
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
+from bridge.recorder.writer import ArchiveWriter
 from tests.test_record_burst import CODE, T0, sessions
 from tests.waiting import free_port
 

@@ -26,9 +26,9 @@ from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.live import Recorder
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
+from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.serve import Simulator
 from tests.test_bridge_process import GX3, bridge_process, zenoh_config
 from tests.test_record_live import UNITS, published, recorder, samples_in

@@ -20,10 +20,10 @@ import pytest
 
 from bridge.bus.gx3_pb2 import Event
 from bridge.protocol.codec import encode_reply
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import captures, replay
+from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
@@ -255,7 +255,8 @@ def running_process(process: psutil.Process) -> bool:
 def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None:
     """What a worker sends goes through pickle; an error that does not pickle is sent as
     its words (the queue would drop it, and the replay would end short, saying nothing)."""
-    from bridge.recorder.replay import ReplayError, _sendable
+    from bridge.exceptions import ReplayError
+    from bridge.recorder.replay import _sendable
 
     class Unsendable(Exception):
         def __init__(self, what: str, where: int) -> None:

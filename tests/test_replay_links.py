@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from bridge.bus.gx3_pb2 import Info
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import captures, replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.unit import UnitConfig

@@ -20,7 +20,7 @@ from bridge.protocol.convert import STANDARD_GRAVITY, quaternion_to_m
 from bridge.recorder import ros2_export
 from bridge.recorder.export import sample_table
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.read import read_archive
+from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import replay
 from bridge.recorder.ros2_export import write_ros2
 from bridge.ros2 import messages

@@ -17,7 +17,7 @@ from bridge.protocol.codec import encode_command
 from bridge.protocol.framer import Framer
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
-from bridge.sim.serve import PtyLink, Simulator
+from bridge.sim.serve import PtyEndpoint, Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
@@ -139,7 +139,7 @@ def test_a_pulled_pty_takes_its_name_with_it(tmp_path: Path) -> None:
     """As udev removes a pulled device's link: a host retrying the name while the unit is
     away must not open whichever pty the kernel hands that number next."""
     name = tmp_path / "imu"
-    link = PtyLink(115_200, name)
+    link = PtyEndpoint(115_200, name)
     try:
         before = os.readlink(name)
         link.unplug()

@@ -15,7 +15,7 @@ from bridge.sim.usb import (
     AdapterDelivery,
     AdapterLink,
     HostDelivery,
-    Port,
+    HostDriver,
     UartDelivery,
     UartLink,
     UsbDelivery,
@@ -80,7 +80,7 @@ def test_capture_is_deterministic_and_matches_its_truth() -> None:
 
 
 
-def _stream(link: Port, count: int, byte_s: float, seed: int
+def _stream(link: HostDriver, count: int, byte_s: float, seed: int
             ) -> tuple[np.ndarray, list[int], list[tuple[float, bytes]]]:
     """Push ``count`` bytes as records of random size and spacing, reading as time goes
     on, as a transport does: each byte's arrival (when it finished crossing the line),

@@ -13,13 +13,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bridge.protocol.codec import (
-    ProtocolError,
-    checksum,
-    decode_block,
-    encode_command,
-    encode_reply,
-)
+from bridge.exceptions import ProtocolError
+from bridge.protocol.codec import checksum, decode_block, encode_command, encode_reply
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import (
     COMMANDS,

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
-from bridge.sim.capture import Capture, streaming_config, synthesize
+from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from bridge.timing import OnlineClock, Timeline
@@ -24,7 +24,7 @@ FLOOR_NS = REPLIES[CODE].length * 1_000  # the emulated USB moves 1 MB/s: 1 us a
 
 @cache
 def _capture(ppm: float, wander: float, seconds: float, phase_s: float,
-             timer_start: int = 0) -> Capture:
+             timer_start: int = 0) -> SyntheticCapture:
     config = streaming_config(UnitConfig(clock_ppm=ppm, clock_wander_ppm=wander,
                                          clock_wander_period_s=120.0, clock_seed=3,
                                          timer_start=timer_start), code=CODE)
@@ -33,23 +33,23 @@ def _capture(ppm: float, wander: float, seconds: float, phase_s: float,
     return synthesize(config, usb, seconds)
 
 
-def _delay_ns(capture: Capture) -> int:
+def _delay_ns(capture: SyntheticCapture) -> int:
     return (capture.config.stored.sampling.filter_width - 1) * 500_000
 
 
-def _errors(capture: Capture, time_ns: np.ndarray) -> np.ndarray:
+def _errors(capture: SyntheticCapture, time_ns: np.ndarray) -> np.ndarray:
     """|estimate - the instant the values describe| after the warm-up."""
     truth = capture.truth["time_ns"] - _delay_ns(capture)
     late = truth >= truth[0] + WARM_NS
     return np.asarray(np.abs(time_ns - truth)[late])
 
 
-def _timeline(capture: Capture, frame_ns: int = FRAME_NS) -> Timeline:
+def _timeline(capture: SyntheticCapture, frame_ns: int = FRAME_NS) -> Timeline:
     return Timeline(625, filter_delay_ns=_delay_ns(capture), floor_ns=FLOOR_NS,
                     frame_ns=frame_ns)
 
 
-def _run(capture: Capture, frame_ns: int = FRAME_NS) -> np.ndarray:
+def _run(capture: SyntheticCapture, frame_ns: int = FRAME_NS) -> np.ndarray:
     timer, rx = capture.records()
     out = _timeline(capture, frame_ns).update(timer, rx)
     assert out.valid.all()

@@ -11,7 +11,7 @@ import pytest
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.recorder.replay import frame_reads
-from bridge.sim.capture import USB_BAUD, Capture, streaming_config, synthesize
+from bridge.sim.capture import USB_BAUD, SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
 from bridge.timing.offline import OfflineClock
@@ -34,7 +34,7 @@ def _delivery(transport: str, phase_s: float, latency_s: float, seed: int,
 
 @cache
 def _capture(transport: str, ppm: float, wander: float, phase_s: float, seconds: float,
-             timer_s: float = 0.001, seed: int = 1) -> Capture:
+             timer_s: float = 0.001, seed: int = 1) -> SyntheticCapture:
     baud = USB_BAUD if transport == "usb" else BAUD
     config = streaming_config(UnitConfig(clock_ppm=ppm, clock_wander_ppm=wander,
                                          clock_wander_period_s=200.0, clock_seed=seed),
@@ -42,13 +42,13 @@ def _capture(transport: str, ppm: float, wander: float, phase_s: float, seconds:
     return synthesize(config, _delivery(transport, phase_s, 0.0008, seed, timer_s), seconds)
 
 
-def _settings(capture: Capture) -> Settings:
+def _settings(capture: SyntheticCapture) -> Settings:
     c = capture.config.stored
     return Settings(CODE, c.sampling.decimation, c.sampling.filter_width, c.baud,
                     capture.delivery.transport)
 
 
-def _replayed(capture: Capture) -> tuple[list[Batch], np.ndarray, np.ndarray]:
+def _replayed(capture: SyntheticCapture) -> tuple[list[Batch], np.ndarray, np.ndarray]:
     """The capture as ``gx3 replay`` reads it: batches, their ticks and live instants."""
     stream = StreamTiming()
     stream.configure(_settings(capture), True)
@@ -59,7 +59,7 @@ def _replayed(capture: Capture) -> tuple[list[Batch], np.ndarray, np.ndarray]:
             np.concatenate([t.time_ns for t in timed]))
 
 
-def _offline(capture: Capture, batches: list[Batch], ticks: np.ndarray,
+def _offline(capture: SyntheticCapture, batches: list[Batch], ticks: np.ndarray,
              parts: bool = True) -> np.ndarray:
     s = _settings(capture)
     whole = Batch.concatenate(batches)
@@ -70,7 +70,7 @@ def _offline(capture: Capture, batches: list[Batch], ticks: np.ndarray,
     return clock.smooth(ticks, whole.rx_ns, part_ns, s.part_lead_ns(part_bytes))
 
 
-def _errors(capture: Capture, time_ns: np.ndarray) -> np.ndarray:
+def _errors(capture: SyntheticCapture, time_ns: np.ndarray) -> np.ndarray:
     truth = capture.truth["time_ns"] - _settings(capture).filter_delay_ns
     late = truth >= truth[0] + WARM_NS
     return np.asarray(np.abs(time_ns - truth)[late])

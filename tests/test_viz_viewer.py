@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from bridge.fleet.snapshot import main, record_demo, render
 from bridge.viz.demo import DEMO_EPOCH_NS, write_demo
-from bridge.viz.snapshot import main, record_demo, render
 
 _ICDS = [p for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d") if Path(d).is_dir()
          for p in Path(d).glob("*.json")]

@@ -24,6 +24,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from bridge.exceptions import BadName
+
 PREFIX = "gx3"
 _CHUNK = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 
@@ -35,10 +37,6 @@ ENCODINGS = {
     "raw": "application/octet-stream",
     "command": "text/plain;charset=utf-8",
 }
-
-
-class BadName(ValueError):
-    """A unit name or prefix that cannot be a chunk of a Zenoh key."""
 
 
 def check_unit(name: str) -> str:

@@ -24,7 +24,7 @@ from zenoh.ext import (
     declare_advanced_publisher,
 )
 
-from bridge import native
+from bridge import _native as native
 from bridge.bus.codec import RecordBatch, encode_batch, encode_records, native_layout
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.bus.integrity import seal, seals

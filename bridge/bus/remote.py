@@ -28,17 +28,14 @@ from google.protobuf.json_format import MessageToDict
 from bridge.bus.gx3_pb2 import Info
 from bridge.bus.integrity import intact
 from bridge.bus.keys import PREFIX, unit_of
-from bridge.bus.session import SessionError, ZenohOptions
+from bridge.bus.session import ZenohOptions
+from bridge.exceptions import RemoteError, SessionError
 
 #: How long to wait for answers; capture-bias runs for its sampling time first.
 TIMEOUT_S = 10.0
 #: How long a fresh session waits to discover the target's liveliness token: discovery
 #: takes milliseconds, on a busy machine a second or two.
 DISCOVERY_S = 5.0
-
-
-class RemoteError(RuntimeError):
-    """No bridge could be asked, or none answered; the message says why."""
 
 
 def ask_units(prefix: str, unit: str, action: str, params: dict[str, Any], *,

@@ -18,12 +18,9 @@ from pathlib import Path
 import zenoh
 
 from bridge.bus.linkcheck import why_not
+from bridge.exceptions import SessionError
 
 MODES = ("peer", "client", "router")
-
-
-class SessionError(RuntimeError):
-    """A Zenoh configuration or session that cannot be used; the message says why."""
 
 
 def condense(exc: BaseException) -> str:

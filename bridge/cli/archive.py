@@ -13,15 +13,15 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 from bridge.cli.common import EndOpt, ForceOpt, StartOpt, app, err, fail, parse_code, written
 
 if TYPE_CHECKING:
-    from bridge.recorder.read import Archive
+    from bridge.recorder.reader import ArchiveReader
 
 # The recorder modules (pyarrow, protobuf schemas) load only when these commands run, so
 # every other gx3 command starts as fast as before.
 
 
-def read_with_progress(path: Path) -> Archive:
+def read_with_progress(path: Path) -> ArchiveReader:
     """Read an archive with progress on a terminal; warn once when it was cut short."""
-    from bridge.recorder.read import describe_problem, read_archive
+    from bridge.recorder.reader import describe_problem, read_archive
 
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
@@ -57,8 +57,7 @@ def repair(
     said (time span, messages per topic). Exits 2 when nothing can be recovered. The
     input is never overwritten.
     """
-    from bridge.recorder.archive import ArchiveError
-    from bridge.recorder.read import ArchiveReadError
+    from bridge.exceptions import ArchiveError, ArchiveReadError
     from bridge.recorder.repair import default_output
     from bridge.recorder.repair import repair as repair_archive
 
@@ -141,6 +140,7 @@ def export(
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
     time_ns a table export with the same options gives.
     """
+    from bridge.exceptions import ArchiveReadError
     from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
     from bridge.recorder.export import (
         align_table,
@@ -154,7 +154,6 @@ def export(
         write_table,
     )
     from bridge.recorder.magcal import apply, read_document, with_heading
-    from bridge.recorder.read import ArchiveReadError
     from bridge.recorder.ros2_export import write_ros2
 
     try:

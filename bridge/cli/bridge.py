@@ -153,10 +153,11 @@ def run_bridge(
     timer holds reads back longer than 1 ms, and says what to change.
     """
     log_to(log_level, log_format)
-    from bridge.bus.keys import BadName, check_prefix, check_unit
-    from bridge.pipeline import Options, Pipeline
-    from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
+    from bridge.bus.keys import check_prefix, check_unit
+    from bridge.exceptions import BadName, CaptureError
+    from bridge.recorder.rawcapture import RawCaptureWriter
     from bridge.timing.stream import TRANSPORTS
+    from bridge.unit.pipeline import Options, Pipeline
 
     code = parse_code(record) if record else None
     if code is not None and code not in DATA_CODES:
@@ -187,9 +188,9 @@ def run_bridge(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    from bridge.bus.session import SessionError, open_session
-    from bridge.device.session import UnsupportedUnit
-    from bridge.service import BusSink, NameTaken, claim_name
+    from bridge.bus.session import open_session
+    from bridge.exceptions import NameTaken, SessionError, UnsupportedUnit
+    from bridge.unit.service import BusSink, claim_name
 
     try:
         bus = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
@@ -258,7 +259,8 @@ def run_bridge(
 def _open_capture(writer: list[Any], path: Path, prefix: str, unit: str,
                   metadata: dict[str, str], force: bool) -> None:
     """Open the raw capture once the unit's name is known (its first bring-up)."""
-    from bridge.recorder.rawcapture import CaptureError, RawCaptureWriter
+    from bridge.exceptions import CaptureError
+    from bridge.recorder.rawcapture import RawCaptureWriter
 
     if writer:
         return

@@ -80,10 +80,11 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 @contextmanager
 def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
-    """The temporary file a batch command writes ``path`` through (bridge/outputs.py
+    """The temporary file a batch command writes ``path`` through (bridge/recorder/outputs.py
     ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
     130, and like any failure leave nothing under ``path``."""
-    from bridge.outputs import OutputRefused, staged
+    from bridge.exceptions import OutputRefused
+    from bridge.recorder.outputs import staged
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
@@ -98,8 +99,9 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
 
 
 def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """bridge/outputs.py ``refuse`` for a live output, as a one-line error (exit 2)."""
-    from bridge.outputs import OutputRefused, refuse
+    """bridge/recorder/outputs.py ``refuse`` for a live output, as a one-line error (exit 2)."""
+    from bridge.exceptions import OutputRefused
+    from bridge.recorder.outputs import refuse
 
     try:
         refuse(path, inputs, force)

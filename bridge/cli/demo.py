@@ -63,9 +63,9 @@ def demo(
     with the truth, and says how to open the results.
     """
     from bridge.cli.viz import _display, live_recording
-    from bridge.demo import Demo, DemoError, fleet
-    from bridge.outputs import OutputRefused, free_folder
-    from bridge.recorder.archive import ArchiveError
+    from bridge.exceptions import ArchiveError, DemoError, OutputRefused
+    from bridge.fleet.demo import Demo, fleet
+    from bridge.recorder.outputs import free_folder
 
     if viewer not in (None, "spawn", "serve"):
         raise fail(f"--viewer {viewer!r}: use spawn or serve")

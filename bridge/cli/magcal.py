@@ -51,9 +51,9 @@ def calibrate_mag(
     import numpy as np
 
     from bridge.cli.archive import read_with_progress
+    from bridge.exceptions import ArchiveReadError, CalibrationError
     from bridge.recorder.export import offline_times, parse_time, sample_table
-    from bridge.recorder.magcal import CalibrationError, document, fit
-    from bridge.recorder.read import ArchiveReadError
+    from bridge.recorder.magcal import document, fit
 
     try:
         lo = parse_time(start) if start else None

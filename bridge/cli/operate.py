@@ -24,8 +24,9 @@ from rich.table import Table
 from bridge.cli.common import app, err, fail, parse_code
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import find_link
-from bridge.device.port import Port, PortError
-from bridge.device.session import DeviceError, Session, UnsupportedUnit, find_baud
+from bridge.device.port import Port
+from bridge.device.session import Session, find_baud
+from bridge.exceptions import DeviceError, PortError, UnsupportedUnit
 from bridge.protocol.table import BAUD_RATES
 
 PortOpt = Annotated[str, typer.Option(
@@ -128,7 +129,8 @@ def _run(target: Target, name: str, params: dict[str, Any], yes: bool, as_json: 
 
 
 def _run_remote(target: Target, name: str, params: dict[str, Any], as_json: bool) -> None:
-    from bridge.bus.remote import RemoteError, ask_units
+    from bridge.bus.remote import ask_units
+    from bridge.exceptions import RemoteError
 
     try:
         results = ask_units(target.prefix, target.unit or "*", name, params,

@@ -183,11 +183,12 @@ def record(
     whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
-    from bridge.bus.keys import BadName, check_prefix
-    from bridge.bus.session import SessionError, open_session
+    from bridge.bus.keys import check_prefix
+    from bridge.bus.session import open_session
     from bridge.device import clock
-    from bridge.recorder.archive import ArchiveError, ArchiveWriter
+    from bridge.exceptions import ArchiveError, BadName, SessionError
     from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
+    from bridge.recorder.writer import ArchiveWriter
 
     try:
         check_prefix(prefix)
@@ -328,9 +329,8 @@ def replay_command(
     the unit's line. Units are replayed side by side on the machine's cores; each
     unit's samples are the same as replayed alone.
     """
-    from bridge.recorder.archive import ArchiveError
-    from bridge.recorder.read import ArchiveReadError
-    from bridge.recorder.replay import Replayed, ReplayError, UnusableCapture, replay
+    from bridge.exceptions import ArchiveError, ArchiveReadError, ReplayError, UnusableCapture
+    from bridge.recorder.replay import Replayed, replay
     from bridge.timing.stream import TRANSPORTS
 
     if transport is not None and transport not in TRANSPORTS:

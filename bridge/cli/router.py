@@ -39,7 +39,8 @@ def router(
     Multicast scouting is off: clients name the router.
     """
     log_to(log_level, log_format)
-    from bridge.bus.session import SessionError, open_session
+    from bridge.bus.session import open_session
+    from bridge.exceptions import SessionError
 
     endpoints = listen or ([] if zenoh_config else [DEFAULT_LISTEN])
     try:

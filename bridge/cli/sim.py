@@ -11,6 +11,7 @@ import typer
 from rich.markup import escape
 
 from bridge.cli.common import LogFormat, LogFormatOpt, LogLevel, LogLevelOpt, app, err, fail, log_to
+from bridge.exceptions import OptionError
 
 ID_LENGTH = 16
 MAX_CLOCK_PPM = 10_000.0
@@ -18,13 +19,6 @@ MAX_CLOCK_PPM = 10_000.0
 _STORED_OPTIONS = {"mode_preset": "--mode-preset", "continuous_preset": "--continuous-preset",
                    "sampling.decimation": "--decimation", "sampling.flags": "--flags",
                    "baud": "--baud"}
-
-
-class OptionError(ValueError):
-    """An option the emulator cannot run with: the option's name and what is wrong."""
-
-    def __init__(self, option: str, message: str) -> None:
-        super().__init__(f"{option}: {message}")
 
 
 def parse_tcp(text: str, units: int) -> tuple[str, int]:
@@ -213,10 +207,11 @@ def sim(
     import time
 
     from bridge.device.link import DEFAULT_LATENCY_TIMER_MS
+    from bridge.exceptions import LinkPathError, StateFileError
     from bridge.sim.faults import FaultConfig
     from bridge.sim.motion import MotionConfig, tumbling
-    from bridge.sim.serve import LinkError, Simulator, unit_configs
-    from bridge.sim.state import Sampling, StateFileError, Stored, check_writable, problems
+    from bridge.sim.serve import Simulator, unit_configs
+    from bridge.sim.state import Sampling, Stored, check_writable, problems
     from bridge.sim.unit import UnitConfig
     from bridge.sim.usb import AdapterDelivery, UsbDelivery
 
@@ -294,7 +289,7 @@ def sim(
                               usb=delivery)
     except StateFileError as exc:
         raise fail(f"--state: {exc}") from None
-    except LinkError as exc:
+    except LinkPathError as exc:
         raise fail(f"--link: {exc}") from None
     except OSError as exc:
         raise fail(f"cannot open {'a pty' if pty else tcp}: {exc.strerror or exc}") from None

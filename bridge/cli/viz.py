@@ -64,7 +64,8 @@ def rrd(
     killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
     message that is not what its topic says is left out with a warning.
     """
-    from bridge.recorder.read import ArchiveReadError, describe_problem, read_archive
+    from bridge.exceptions import ArchiveReadError
+    from bridge.recorder.reader import describe_problem, read_archive
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import log_archive
 
@@ -167,7 +168,8 @@ def view(
     viewer, --save FILE.rrd; any combination.
     """
     log_to(log_level, log_format)
-    from bridge.bus.session import SessionError, open_session
+    from bridge.bus.session import open_session
+    from bridge.exceptions import SessionError
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import LiveFeed
 

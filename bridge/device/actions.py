@@ -12,7 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from bridge.device.session import DeviceError, Session, UnitInfo
+from bridge.device.session import Session, UnitInfo
+from bridge.exceptions import DeviceError
 from bridge.protocol.table import STATIONARY_TEST_BITS
 
 Params = dict[str, Any]

@@ -20,22 +20,11 @@ from typing import Any
 
 import serial
 
-from bridge import native
+from bridge import _native as native
 from bridge.device import clock
+from bridge.exceptions import PortError
 
 _READ_SIZE = 1 << 16
-
-
-class PortError(OSError):
-    """The port cannot be used; the message says why and what to do, in one line.
-
-    ``why`` names the cause in a few words (port missing, port busy, ...), so whoever
-    waits for the port can tell one cause from another without parsing the message.
-    """
-
-    def __init__(self, message: str, why: str = "port error") -> None:
-        super().__init__(message)
-        self.why = why
 
 
 def _error(url: str, exc: BaseException) -> PortError:

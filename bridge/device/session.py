@@ -19,7 +19,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bridge.device import clock
-from bridge.device.port import Port, PortError
+from bridge.device.port import Port
+from bridge.exceptions import (
+    CommandRejected,
+    CommandTimeout,
+    DeviceError,
+    PersistRefused,
+    PortError,
+    UnsupportedUnit,
+)
 from bridge.protocol.codec import Batch, Records, encode_command
 from bridge.protocol.convert import wake_time_seconds
 from bridge.protocol.framer import Framer
@@ -41,17 +49,6 @@ _DRAIN_MAX_S = 1.0
 _MAX_SETTLE_S = float(wake_time_seconds(32)) + 0.02  # Equation 1 at the widest filter
 
 
-class DeviceError(Exception):
-    """A unit did not do what was asked; the message says what and what to try.
-    ``why`` names the cause in a few words, as ``PortError.why`` does."""
-
-    why = "unit refused"
-
-
-class UnsupportedUnit(Exception):
-    """The unit is not a 3DM-GX3: retrying cannot help, so this is not a DeviceError."""
-
-
 #: Model-name fragments of the units the protocol's ancestors ran on. Their 32-bit
 #: timer counts 19,660,800 ticks/s (wrapping every 218 s), not 62,500, and their
 #: command set is not the manual's: timed as a GX3, every instant would be wrong.
@@ -67,20 +64,6 @@ def check_model(ids: dict[str, str]) -> None:
             "not a 3DM-GX3: its timer counts 19,660,800 ticks/s, not 62,500, and its "
             "commands differ, so its samples would be mistimed; use a 3DM-GX3 "
             "(-15, -25, -35 or -45)")
-
-
-class CommandTimeout(DeviceError):
-    """No reply within the timeout, after every retry."""
-
-    why = "no answer"
-
-
-class CommandRejected(DeviceError):
-    """The unit answered 21 00 21: it did not accept the confirmation bytes."""
-
-
-class PersistRefused(DeviceError):
-    """The command would write non-volatile memory and the caller did not ask for that."""
 
 
 @dataclass

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bridge.exceptions import ProtocolError
 from bridge.protocol.table import (
     COMMANDS,
     REPLIES,
@@ -24,10 +25,6 @@ from bridge.protocol.table import (
     Field,
     lookup,
 )
-
-
-class ProtocolError(ValueError):
-    """A command or reply that does not fit the protocol; the message says what to change."""
 
 
 def checksum(data: bytes | bytearray | memoryview) -> int:

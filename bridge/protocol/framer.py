@@ -34,7 +34,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from bridge import native
+from bridge import _native as native
 from bridge.protocol.codec import (
     Batch,
     Records,

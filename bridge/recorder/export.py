@@ -44,7 +44,7 @@ from bridge.recorder.describe import (
     flat_names,
     unit_labels,
 )
-from bridge.recorder.read import Archive, Samples
+from bridge.recorder.reader import ArchivedSamples, ArchiveReader
 from bridge.timing.offline import OfflineClock
 from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings
@@ -86,7 +86,7 @@ def parse_time(text: str) -> TimeBound:
                      + delta.microseconds * 1000, relative=False)
 
 
-def _unit_times(unit: str, blocks: Sequence[Samples],
+def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
                 re_estimate: ReEstimate | None) -> list[np.ndarray]:
     """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
     live = [b.columns["time_ns"] for b in blocks]
@@ -105,14 +105,14 @@ def _unit_times(unit: str, blocks: Sequence[Samples],
     return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
 
 
-def last_info(archive: Archive, unit: str) -> Info | None:
+def last_info(archive: ArchiveReader, unit: str) -> Info | None:
     """The last Info a unit's bridge published into the archive."""
     topic = f"{archive_prefix(archive)}/{unit}/info"
     infos = archive.decoded(topic, Info) if topic in archive.topics("info") else []
     return infos[-1][1] if infos else None
 
 
-def unit_settings(archive: Archive, unit: str) -> Settings | None:
+def unit_settings(archive: ArchiveReader, unit: str) -> Settings | None:
     """What decided a unit's timing, from the last Info its bridge published."""
     info = last_info(archive, unit)
     if info is None:
@@ -125,7 +125,7 @@ def unit_settings(archive: Archive, unit: str) -> Settings | None:
                     latency_timer_ms=info.latency_timer_ms or None)
 
 
-def archive_prefix(archive: Archive) -> str:
+def archive_prefix(archive: ArchiveReader) -> str:
     """The key prefix the archive was recorded under."""
     for m in archive.metadata:
         if m.name == "gx3.archive" and "prefix" in m.metadata:
@@ -133,7 +133,7 @@ def archive_prefix(archive: Archive) -> str:
     return "gx3"
 
 
-def offline_times(archive: Archive) -> ReEstimate:
+def offline_times(archive: ArchiveReader) -> ReEstimate:
     """Each unit's sample instants re-estimated over the whole recording (the live
     estimate only had the past), with the settings of the unit's archived Info; units
     without one keep their live times, and so do units behind a USB-serial adapter: the
@@ -166,14 +166,14 @@ def offline_times(archive: Archive) -> ReEstimate:
     return estimate
 
 
-def sample_table(archive: Archive, units: Iterable[str] | None = None,
+def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
                  codes: Iterable[int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None,
                  re_estimate: ReEstimate | None = None) -> dict[str, np.ndarray]:
     """Columns of the export: one row per sample, in time order, with ``start_ns <=
     time_ns < end_ns``."""
     blocks = archive.samples(units, codes)
-    by_unit: dict[str, list[Samples]] = {}
+    by_unit: dict[str, list[ArchivedSamples]] = {}
     for b in blocks:
         by_unit.setdefault(b.unit, []).append(b)
     times = {u: _unit_times(u, bs, re_estimate) for u, bs in by_unit.items()}
@@ -214,13 +214,13 @@ def sample_table(archive: Archive, units: Iterable[str] | None = None,
     return out
 
 
-def _cat(ordered: list[tuple[Samples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
+def _cat(ordered: list[tuple[ArchivedSamples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
     if not ordered:
         return np.zeros(0, dtype)
     return np.concatenate([b.columns[name] for b, _ in ordered]).astype(dtype)
 
 
-def event_table(archive: Archive, units: Iterable[str] | None = None,
+def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
                 start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
     """Every event (gap, reset, rollover, reconnect, ...) per unit with its time; the
     Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame)."""

@@ -50,7 +50,8 @@ from bridge.bus.integrity import read_raw_time, read_time
 from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
 from bridge.device import clock
-from bridge.recorder.archive import ArchiveError, ArchiveWriter, stamps
+from bridge.exceptions import ArchiveError
+from bridge.recorder.writer import ArchiveWriter, stamps
 from bridge.timing.rate import RateWindow
 
 LEAVES = ("imu", "status", "event")

@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from bridge.exceptions import CalibrationError
+
 FloatArray = npt.NDArray[np.float64]
 
 MODEL = "corrected = soft_iron @ (raw - hard_iron)"
@@ -43,10 +45,6 @@ WARN_LOPSIDED = 0.3
 _MIN_PER_BIN = 3
 _AXES = "xyz"
 _PHI = (1.0 + math.sqrt(5.0)) / 2.0
-
-
-class CalibrationError(ValueError):
-    """The readings cannot give a calibration; the message says what motion is missing."""
 
 
 @dataclass(frozen=True)

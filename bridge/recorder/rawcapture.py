@@ -22,8 +22,9 @@ from typing import IO, Any, TypeVar
 from mcap.writer import CompressionType, Writer
 
 from bridge.bus.gx3_pb2 import Info
-from bridge.outputs import OutputRefused, create_locked
+from bridge.exceptions import CaptureError, OutputRefused
 from bridge.protocol.table import Mode
+from bridge.recorder.outputs import create_locked
 
 T = TypeVar("T")
 RAW_ENCODING = "application/octet-stream"
@@ -37,10 +38,6 @@ REALTIME_FROM_NS = 10**18
 #: its topic, the reads' sequence numbers and their realtime receive times (comma-
 #: separated), which replay puts back.
 LATE_READS = "gx3.late_reads"
-
-
-class CaptureError(OSError):
-    """The capture file cannot be written; the message names it and the cause."""
 
 
 def raw_topic(prefix: str, unit: str) -> str:

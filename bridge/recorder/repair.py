@@ -3,7 +3,7 @@
 A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
 half-written chunk at the end; a damaged disk leaves a finished file with a corrupt
 chunk. Tools that seek (``make_reader``, most viewers) refuse both. Repair copies what
-read.py can read (schemas, channels, every message of every intact chunk, metadata,
+reader.py can read (schemas, channels, every message of every intact chunk, metadata,
 attachments) into a new file with chunk index and summary, and says what was lost.
 """
 
@@ -14,8 +14,8 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from bridge.recorder.archive import ArchiveError
-from bridge.recorder.read import Archive, ArchiveReadError, describe_damage, read_archive
+from bridge.exceptions import ArchiveError, ArchiveReadError
+from bridge.recorder.reader import ArchiveReader, describe_damage, read_archive
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def repair(source: Path, output: Path | None = None) -> RepairReport:
                         archive.problem, describe_damage(archive) if archive.damage else "")
 
 
-def _copy(archive: Archive, writer: Writer) -> None:
+def _copy(archive: ArchiveReader, writer: Writer) -> None:
     header = archive.header
     writer.start(header.profile if header else "", header.library if header else "")
     schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data)

@@ -38,28 +38,23 @@ from google.protobuf.message import DecodeError
 
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
+from bridge.exceptions import ArchiveReadError, ReplayError, UnusableCapture
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
-from bridge.recorder.archive import ArchiveWriter
 from bridge.recorder.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
-from bridge.recorder.read import (
-    Archive,
-    ArchiveReadError,
-    Messages,
-    read_archive,
-    summary_counts,
-)
+from bridge.recorder.reader import ArchiveReader, Messages, read_archive, summary_counts
+from bridge.recorder.writer import ArchiveWriter
 from bridge.timing.links import infer_transport
-from bridge.timing.realtime import ClockChange, RealtimeReads
+from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads
 from bridge.timing.steps import find_steps, raw_like, unwrap_timer
 from bridge.timing.stream import Settings, StreamTiming
+from bridge.timing.unwrap import TimingKind
 
 SET_CONTINUOUS, SAMPLING, TIMER = 0xC4, 0xDB, 0xD7
 _EXPECT = frozenset(DATA_CODES | {SET_CONTINUOUS, SAMPLING, TIMER})
-_EVENT_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
-                "glitch": Event.GLITCH}
-_CLOCK_KINDS = {"step": Event.HOST_CLOCK_STEP, "slew": Event.HOST_CLOCK_SLEW}
+_EVENT_KINDS: dict[str, Event.Kind] = {kind: getattr(Event, kind.name) for kind in TimingKind}
+_CLOCK_KINDS = {ChangeKind.STEP: Event.HOST_CLOCK_STEP, ChangeKind.SLEW: Event.HOST_CLOCK_SLEW}
 FACTORY_FILTER_WIDTH = 15
 _SNIFF_READS = 400
 _INFER_READS = 500_000  # minutes of reads: plenty to tell the link by
@@ -72,17 +67,8 @@ _JOIN_S = 5.0  # a killed worker is gone at once; this only bounds a stuck kerne
 Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
 
 
-class ReplayError(ValueError):
-    """A replay that failed while working; the message says why."""
-
-
-class UnusableCapture(ReplayError):
-    """An input that holds nothing to replay (no raw reads, no GX3 records): the user's
-    input is wrong, not the replay."""
-
-
 @dataclass
-class Capture:
+class CapturedReads:
     """One unit's reads from a raw capture, in the order they were made: receive times on
     the realtime clock and (None: an older capture's, with none) on the raw monotonic
     clock, bytes, what its bridge said."""
@@ -95,7 +81,7 @@ class Capture:
     raw_ns: np.ndarray | None = None
 
 
-def _read_times(archive: Archive, messages: Messages
+def _read_times(archive: ArchiveReader, messages: Messages
                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """A raw topic's receive times on the realtime clock and (None: an older capture's) the
     raw one, in the order the reads were made, and that order.
@@ -122,10 +108,10 @@ def _read_times(archive: Archive, messages: Messages
 
 
 def captures(path: Path, prefix: str = "gx3",
-             topics: Collection[str] | None = None) -> list[Capture]:
+             topics: Collection[str] | None = None) -> list[CapturedReads]:
     """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive), or
     those of the raw ``topics`` named."""
-    archive: Archive = read_archive(path)
+    archive: ArchiveReader = read_archive(path)
     meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
             if m.name == "gx3.capture"}
     for topic in archive.topics("info"):  # an archive of reads that came over Zenoh
@@ -139,8 +125,9 @@ def captures(path: Path, prefix: str = "gx3",
             continue
         messages = archive.messages(topic)
         real, raw, order = _read_times(archive, messages)
-        out.append(Capture(messages.unit, real, [messages.payloads[i] for i in order.tolist()],
-                           meta.get(messages.unit, {}), topic, raw))
+        out.append(CapturedReads(messages.unit, real,
+                                 [messages.payloads[i] for i in order.tolist()],
+                                 meta.get(messages.unit, {}), topic, raw))
     if not out:
         raise UnusableCapture(f"{path}: no raw reads in it (topics {prefix}/<unit>/raw); record "
                           "one with gx3 bridge --capture FILE.mcap")
@@ -164,7 +151,7 @@ def _latency_timer_ms(text: str | None) -> int | None:
 class UnitReplay:
     """Frames and times one unit's reads exactly as its live bridge did."""
 
-    def __init__(self, capture: Capture, transport: str | None = None) -> None:
+    def __init__(self, capture: CapturedReads, transport: str | None = None) -> None:
         self.capture = capture
         self.result = Replayed(capture.unit)
         little_endian = self._little_endian()

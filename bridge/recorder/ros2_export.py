@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from bridge.bus.codec import elements
-from bridge.recorder.archive import LIBRARY
 from bridge.recorder.describe import QUANTITY_ORDER, flat_names
 from bridge.recorder.mcap_writer import McapWriter
+from bridge.recorder.writer import LIBRARY
 from bridge.ros2 import messages
 
 PROFILE = "ros2"

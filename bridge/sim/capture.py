@@ -26,7 +26,7 @@ WALL_NS = 1_763_000_000_000_000_000  # where virtual host time 0 sits on the wal
 
 
 @dataclass
-class Capture:
+class SyntheticCapture:
     """Reads (receive time, bytes) and the truth of every record sent, oldest first."""
 
     rx_ns: np.ndarray  # int64, one per read
@@ -64,7 +64,7 @@ def streaming_config(config: UnitConfig, code: int = 0xC2, decimation: int = 10,
 
 
 def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
-               start: float = 0.0) -> Capture:
+               start: float = 0.0) -> SyntheticCapture:
     """Run a unit that streams from power-up at host time ``start`` for ``seconds``.
 
     Each record is handed to the link whole, with the instant each byte finished
@@ -108,6 +108,6 @@ def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
     if len(data) not in (0, size) or unit.records_skipped:
         raise ValueError(f"the unit's records do not fit its line: {size} bytes every "
                          f"{period * 1e3:g} ms at {config.stored.baud} baud")
-    return Capture(
+    return SyntheticCapture(
         rx_ns=np.array([round(t * 1e9) for t, _ in reads], np.int64) + WALL_NS,
         data=[d for _, d in reads], code=code, truth=truth, config=config, delivery=delivery)

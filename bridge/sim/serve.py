@@ -25,9 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.exceptions import LinkPathError
 from bridge.sim.faults import FaultConfig, Faults, reframe
 from bridge.sim.unit import LOOKAHEAD_S, SimUnit, UnitConfig
-from bridge.sim.usb import Port, UsbDelivery, link_for
+from bridge.sim.usb import HostDriver, UsbDelivery, link_for
 
 _log = logging.getLogger(__name__)
 
@@ -39,11 +40,7 @@ _SPEEDS = {getattr(termios, f"B{b}"): b for b in (
 Notify = Callable[[str], None]
 
 
-class LinkError(Exception):
-    """A --link path that cannot be made or would replace something that is not ours."""
-
-
-class Link:
+class Endpoint:
     """One unit's end of a host connection."""
 
     url: str
@@ -72,7 +69,7 @@ class Link:
         raise NotImplementedError
 
 
-class PtyLink(Link):
+class PtyEndpoint(Endpoint):
     """A pseudo-terminal; ``link`` is a stable symlink that names it across unplug/plug.
 
     The symlink only ever replaces a stale one to a pty (an earlier run's); it is
@@ -83,7 +80,7 @@ class PtyLink(Link):
         self.link = link
         self.baud = baud
         if link is not None and (link.exists() or link.is_symlink()) and not _ours(link):
-            raise LinkError(f"{link} exists and is not a link to a pty; remove it or choose "
+            raise LinkPathError(f"{link} exists and is not a link to a pty; remove it or choose "
                             "another path")
         self._open()
 
@@ -105,7 +102,7 @@ class PtyLink(Link):
                 os.replace(tmp, self.link)
             except OSError as exc:
                 self._close_fds()
-                raise LinkError(f"cannot make {self.link}: {exc.strerror or exc}") from None
+                raise LinkPathError(f"cannot make {self.link}: {exc.strerror or exc}") from None
         self.url = str(self.link or self.path)
 
     def selectables(self) -> list[int | socket.socket]:
@@ -159,7 +156,7 @@ def _ours(link: Path) -> bool:
     return link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
 
 
-class TcpLink(Link):
+class TcpEndpoint(Endpoint):
     """A TCP port serving one host at a time: a second client is closed at once."""
 
     def __init__(self, host: str, port: int, notify: Notify = _log.warning) -> None:
@@ -233,7 +230,7 @@ class TcpLink(Link):
 @dataclass
 class _Slot:
     unit: SimUnit
-    link: Link
+    link: Endpoint
     faults: Faults
     held: bytearray
     lost: int = 0
@@ -241,7 +238,7 @@ class _Slot:
     state_reported: bool = False
     pulled_until: float = 0.0  # a cable pulled on request (``Simulator.unplug``)
     power_cycle: bool = False
-    usb: Port | None = None  # USB (own port or an adapter's): bytes reach the host in frames
+    usb: HostDriver | None = None  # USB (own port or an adapter's): bytes reach the host in frames
 
 
 class Simulator:
@@ -268,11 +265,11 @@ class Simulator:
                 if usb is not None and usb.transport == "usb":
                     config = replace(config, usb=True)
                 unit = SimUnit(config, now)
-                link: Link
+                link: Endpoint
                 if transport == "pty":
-                    link = PtyLink(unit.baud, links[i] if links else None)
+                    link = PtyEndpoint(unit.baud, links[i] if links else None)
                 else:
-                    link = TcpLink(host, port + i if port else 0, notify)
+                    link = TcpEndpoint(host, port + i if port else 0, notify)
                 self.slots.append(_Slot(
                     unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
                     usb=None if usb is None else link_for(replace(usb, seed=usb.seed + i), now)))

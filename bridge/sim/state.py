@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from bridge.exceptions import StateFileError
 from bridge.protocol.table import BAUD_RATES, BY_NAME, DATA_CODES, DEFAULT_BAUD, DEFAULT_FLAGS, Mode
 
 # The manual names no factory decimation; 100 Hz is what the vendor's units ship with.
@@ -50,10 +51,6 @@ class Stored:
 
     def word(self, address: int) -> int:
         return dict(self.eeprom).get(address, 0)
-
-
-class StateFileError(ValueError):
-    """A state file that cannot be read back; the message names the file and the fix."""
 
 
 def _sampling_range(name: str) -> tuple[int, int]:

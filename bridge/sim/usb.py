@@ -111,7 +111,7 @@ class _Chunk:
         return self.at(len(self.data) - 1)
 
 
-class Port:
+class HostDriver:
     """The host's side: bytes wait in the driver until the reading thread wakes."""
 
     def __init__(self, config: HostDelivery, start: float) -> None:
@@ -188,7 +188,7 @@ class Port:
         return t
 
 
-class UartLink(Port):
+class UartLink(HostDriver):
     """A serial port: each byte is the driver's as soon as it has crossed the line."""
 
     def __init__(self, config: UartDelivery, start: float = 0.0) -> None:
@@ -202,7 +202,7 @@ class UartLink(Port):
             self._pending.append(chunk)
 
 
-class UsbLink(Port):
+class UsbLink(HostDriver):
     """Native USB: bytes reach the driver at the frame after they finished."""
 
     def __init__(self, config: UsbDelivery, start: float = 0.0) -> None:
@@ -305,7 +305,7 @@ def _line_chunk(data: bytes, finished: float, byte_s: float, after: float) -> _C
     return _Chunk(max(finished - (len(data) - 1) * byte_s, after), byte_s, data)
 
 
-def link_for(delivery: HostDelivery, start: float = 0.0) -> Port:
+def link_for(delivery: HostDelivery, start: float = 0.0) -> HostDriver:
     """The link model a delivery describes."""
     if isinstance(delivery, AdapterDelivery):
         return AdapterLink(delivery, start)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, overload
 
 import numpy as np
@@ -40,6 +41,13 @@ _DAY_NS = 86_400 * _LEAP_NS
 _LEAP_SLACK_NS = 10_000_000
 
 
+class ChangeKind(StrEnum):
+    """How the host's realtime clock was moved."""
+
+    STEP = "step"
+    SLEW = "slew"
+
+
 @dataclass(frozen=True)
 class ClockChange:
     """A step or a fast slew of the host's realtime clock against the raw clock.
@@ -49,7 +57,7 @@ class ClockChange:
     where it began); ``raw_ns`` the same instant on the raw clock; ``span_ns``: a step's
     time between those reads, a slew's duration."""
 
-    kind: str  # "step" or "slew"
+    kind: ChangeKind
     size_ns: int
     real_ns: int
     raw_ns: int
@@ -58,14 +66,14 @@ class ClockChange:
     @property
     def leap(self) -> bool:
         """A step of one second at midnight UTC: a leap second inserted or deleted."""
-        if self.kind != "step" or abs(abs(self.size_ns) - _LEAP_NS) > _LEAP_SLACK_NS:
+        if self.kind != ChangeKind.STEP or abs(abs(self.size_ns) - _LEAP_NS) > _LEAP_SLACK_NS:
             return False
         into_day = self.real_ns % _DAY_NS
         return min(into_day, _DAY_NS - into_day) < 2 * _LEAP_NS
 
     def describe(self) -> str:
         size = f"{self.size_ns / 1e6:+,.3f} ms"
-        if self.kind == "slew":
+        if self.kind == ChangeKind.SLEW:
             ppm = self.size_ns / max(1, self.span_ns) * 1e6
             return (f"the host clock slewed {size} over {self.span_ns / 1e9:,.2f} s "
                     f"({ppm:+,.0f} ppm)")
@@ -125,7 +133,7 @@ class _Slews:
         end_raw, end_real, first, total, fastest = self._run
         self._run = None
         lead = round(abs(first) / fastest)
-        return ClockChange("slew", round(total), end_real - lead, end_raw - lead,
+        return ClockChange(ChangeKind.SLEW, round(total), end_real - lead, end_raw - lead,
                            round(abs(total) / fastest))
 
 
@@ -152,7 +160,7 @@ class RealtimeTrack:
             if off:
                 change = o - off[-1]
                 if jumps(change, r - raw[-1]):
-                    changes.append(ClockChange("step", change, real - (r - raw[-1]) // 2,
+                    changes.append(ClockChange(ChangeKind.STEP, change, real - (r - raw[-1]) // 2,
                                                (r + raw[-1]) // 2, r - raw[-1]))
                     if self._span is not None:
                         self._span = (*self._span[:2], self._span[2] + change)
@@ -246,7 +254,7 @@ class RealtimeReads:
         change, apart = np.diff(off), np.diff(raw)
         jumped = jumps(change, apart)
         at = np.flatnonzero(jumped) + 1
-        steps = [ClockChange("step", int(change[i - 1]),
+        steps = [ClockChange(ChangeKind.STEP, int(change[i - 1]),
                              int(raw[i] + off[i] - apart[i - 1] // 2),
                              int((raw[i] + raw[i - 1]) // 2), int(apart[i - 1]))
                  for i in at.tolist()]

@@ -8,7 +8,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bridge.timing.clock import ClockState, OnlineClock
-from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, Unwrapped
+from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrapped
 
 
 @dataclass
@@ -82,7 +82,7 @@ class Timeline:
                parts: npt.NDArray[np.int64] | None) -> TimelineBatch:
         """Host times of one unwrapped stretch's valid records, the clock restarted at
         each reset in it; ``parts``: the partial reads' times and line times, stacked."""
-        resets = [e.index for e in u.events if e.kind == "reset"]
+        resets = [e.index for e in u.events if e.kind == TimingKind.RESET]
         if not resets and u.all_valid:  # the common case, without index arithmetic
             time_ns = self.clock.update(u.ticks, rx, *(() if parts is None else parts))
             return TimelineBatch(u.ticks, time_ns, u.valid, u.events, u.dropped, intact=True)

@@ -31,6 +31,7 @@ records are cut into calls).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
@@ -54,6 +55,15 @@ _FAST_WINDOW = 8192  # records the bulk path looks at in one go
 _SLOW_RUN = 32  # records taken one by one before the bulk path is tried again
 
 
+class TimingKind(StrEnum):
+    """What a timeline can tell of the unit's timer."""
+
+    ROLLOVER = "rollover"  # the 32-bit timer wrapped; ticks ran on
+    RESET = "reset"  # the timer restarted (0xFE, 0xD7, a power cycle)
+    GAP = "gap"  # records missing: ticks jumped by whole output periods
+    GLITCH = "glitch"  # a corrupt timer that is neither: the record is dropped
+
+
 @dataclass(frozen=True)
 class TimingEvent:
     """Something the timeline did that a user should hear about (``gx3/<unit>/event``).
@@ -64,7 +74,7 @@ class TimingEvent:
     missing (gap), records dropped (glitch, reset) or the rollovers so far.
     """
 
-    kind: str  # "rollover" | "reset" | "gap" | "glitch"
+    kind: TimingKind
     index: int
     ticks: int
     count: int
@@ -218,7 +228,7 @@ class TimerUnwrapper:
         events = []
         for i in np.flatnonzero(np.diff(timers, prepend=ref.timer) < 0).tolist():
             self.rollovers += 1
-            events.append(TimingEvent("rollover", i, int(ticks[i]), self.rollovers))
+            events.append(TimingEvent(TimingKind.ROLLOVER, i, int(ticks[i]), self.rollovers))
         self._ref = _Anchor(int(timers[-1]), int(ticks[-1]),
                             None if rx is None else int(rx[-1]))
         self._last_ticks = int(ticks[-1])
@@ -252,7 +262,7 @@ class TimerUnwrapper:
         events = []
         for i in wrapped:
             self.rollovers += 1
-            events.append(TimingEvent("rollover", i, ticks[i], self.rollovers))
+            events.append(TimingEvent(TimingKind.ROLLOVER, i, ticks[i], self.rollovers))
         self._ref = _Anchor(timers[-1], value, None if rx is None else rx[-1])
         self._last_ticks = value
         return ticks, events
@@ -325,7 +335,7 @@ class TimerUnwrapper:
                 self._ref = _Anchor(t, value, r)
             self._fresh = False
             self.resets += 1
-            out.events.append(TimingEvent("reset", i, value, dropped))
+            out.events.append(TimingEvent(TimingKind.RESET, i, value, dropped))
             return value
         step = self._advance(ref, t, None) if ask and r is not None and ref.rx is not None \
             else None
@@ -377,9 +387,9 @@ class TimerUnwrapper:
         wraps = (ref.timer + d) // TIMER_MODULUS
         for _ in range(wraps):
             self.rollovers += 1
-            out.events.append(TimingEvent("rollover", i, value, self.rollovers))
+            out.events.append(TimingEvent(TimingKind.ROLLOVER, i, value, self.rollovers))
         if missing > 0 and self.period_ticks is not None:
-            out.events.append(TimingEvent("gap", i, value, missing))
+            out.events.append(TimingEvent(TimingKind.GAP, i, value, missing))
             out.dropped += missing
             self.dropped += missing
         self._ref = _Anchor(t, value, r)
@@ -392,7 +402,8 @@ class TimerUnwrapper:
         number = self._candidate[1]
         self._candidate = None
         self.glitches += 1
-        out.events.append(TimingEvent("glitch", number - self._records, self._last_ticks, 1))
+        out.events.append(TimingEvent(TimingKind.GLITCH, number - self._records,
+                                      self._last_ticks, 1))
 
 
 def _joined(parts: list[tuple[int, Unwrapped]]) -> Unwrapped:

@@ -21,11 +21,11 @@ from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.keys import unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.device import clock
-from bridge.recorder.read import Archive
+from bridge.recorder.reader import ArchiveReader
 from bridge.viz.logger import RerunLogger
 
 
-def log_archive(archive: Archive, logger: RerunLogger,
+def log_archive(archive: ArchiveReader, logger: RerunLogger,
                 progress: Callable[[int], None] | None = None) -> int:
     """Every unit's samples, status and events; the samples logged."""
     logged = 0

@@ -27,7 +27,7 @@ Layout (DESIGN.md, "Archives"):
 - Chunked (1 MiB), zstd, indexed, with a summary, in log-time order (chunks never
   overlap). A message waits ``reorder_s`` (0.5 s of receive time) for any logged
   before it, then is written at the next flush, at least once a second: a killed
-  recorder loses at most the last 1.5 s and the file still opens with read.py. A
+  recorder loses at most the last 1.5 s and the file still opens with reader.py. A
   message that comes later than that is written at the log time of the last one
   written (its own time stays in its payload; a raw read's in a ``gx3.late_reads``
   metadata record written with it) and counted (``late``, and a
@@ -62,7 +62,7 @@ from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
 from bridge.device import clock
-from bridge.outputs import OutputRefused, create_locked, refuse_if_written
+from bridge.exceptions import ArchiveError, OutputRefused
 from bridge.protocol.table import DATA_CODES
 from bridge.recorder.eventlog import LOG_CLASS, log_message
 from bridge.recorder.frames import (
@@ -75,6 +75,7 @@ from bridge.recorder.frames import (
     sensor_to_earth,
 )
 from bridge.recorder.mcap_writer import McapWriter
+from bridge.recorder.outputs import create_locked, refuse_if_written
 from bridge.recorder.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
 
 T = TypeVar("T")
@@ -99,10 +100,6 @@ MESSAGES: dict[str, tuple[type[Message], str]] = {
     "event": (Event, "time_ns"),
     "info": (Info, "bring_up_time_ns"),
 }
-
-
-class ArchiveError(OSError):
-    """The archive cannot be written; the message names the file and the cause."""
 
 
 def frame_topic(prefix: str, unit: str) -> str:
@@ -319,7 +316,7 @@ class ArchiveWriter:
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        """Create the next file exclusively and lock it (bridge/outputs.py): an existing
+        """Create the next file exclusively and lock it (bridge/recorder/outputs.py): an existing
         one is never truncated; split parts continue after those already there."""
         if self._splits and not self.paths:
             self._first_part = next_part(self.path)

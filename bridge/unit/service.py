@@ -18,7 +18,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
 from bridge.bus.events import LEVEL
@@ -26,32 +26,34 @@ from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.device import clock
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import Link
-from bridge.device.session import DeviceError, Session, UnitInfo
-from bridge.pipeline import Pipeline, Samples, UnitEvent
+from bridge.device.session import Session, UnitInfo
+from bridge.exceptions import DeviceError, NameTaken
 from bridge.protocol.codec import Records
 from bridge.protocol.table import Mode
 from bridge.recorder.rawcapture import capture_metadata
+from bridge.unit.pipeline import EventKind, Pipeline, TimedSamples, UnitEvent, UnitState
+
+if TYPE_CHECKING:  # Zenoh is imported once a unit is up: the CLI's help stays quick
+    import zenoh
+
+    from bridge.bus.publish import UnitPublisher
+    from bridge.ros2.rmw import UnitTopics
 
 DECLARE_SETTLE_S = 1.0
 NAME_QUERY_S = 3.0  # how long a bridge waits for a running bridge to answer for its name
 GAP_LINE_S = 5.0  # gaps on the terminal: at most one line this often
 EARLY_READS = 10_000  # reads kept from before the first bring-up, for a raw capture
 _log = logging.getLogger(__name__)
-_STATES = {"starting": Status.CONNECTING, "waiting": Status.CONNECTING,
-           "bring-up": Status.BRINGING_UP, "streaming": Status.STREAMING,
-           "polling": Status.STREAMING, "lost": Status.DISCONNECTED,
-           "stopped": Status.STOPPED}
-_KINDS = {"gap": Event.GAP, "reset": Event.RESET, "rollover": Event.ROLLOVER,
-          "glitch": Event.GLITCH, "reconnect": Event.RECONNECT, "disconnect": Event.DISCONNECT,
-          "resync": Event.RESYNC, "bring_up": Event.BRING_UP, "command": Event.COMMAND,
-          "host_clock_step": Event.HOST_CLOCK_STEP, "host_clock_slew": Event.HOST_CLOCK_SLEW}
+_STATES = {UnitState.STARTING: Status.CONNECTING, UnitState.WAITING: Status.CONNECTING,
+           UnitState.BRING_UP: Status.BRINGING_UP, UnitState.STREAMING: Status.STREAMING,
+           UnitState.POLLING: Status.STREAMING, UnitState.LOST: Status.DISCONNECTED,
+           UnitState.STOPPED: Status.STOPPED}
+#: Each kind as Zenoh says it; ``waiting`` is for the log only.
+_KINDS: dict[str, Event.Kind] = {kind: getattr(Event, kind.name) for kind in EventKind
+                                  if kind != EventKind.WAITING}
 
 
-class NameTaken(RuntimeError):
-    """A running bridge holds the unit name; the message says what to do."""
-
-
-def claim_name(session: Any, prefix: str, unit: str) -> None:
+def claim_name(session: zenoh.Session, prefix: str, unit: str) -> None:
     """Raise NameTaken if a running bridge answers for ``unit``'s liveliness token (two
     bridges under one name would mix two units' samples under one key)."""
     from bridge.bus.keys import UnitKeys
@@ -94,7 +96,7 @@ def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str
     sync = status.get("host_sync")
     msg = Status(
         unit=unit, time_ns=clock.realtime_ns(),
-        connected=status["state"] in ("streaming", "polling"),
+        connected=status["state"] in (UnitState.STREAMING, UnitState.POLLING),
         state=_STATES.get(status["state"], Status.STATE_UNSPECIFIED),
         samples_per_s=status["samples_per_s"], port=port,
         **{k: status[k] for k in ("samples", "dropped", "checksum_failures", "implausible",
@@ -152,17 +154,17 @@ class BusSink:
     registered with ``on_unit`` learn the name and the unit's description.
     """
 
-    def __init__(self, session: Any, prefix: str, unit: str | None, port: str,
+    def __init__(self, session: zenoh.Session, prefix: str, unit: str | None, port: str,
                  allow_commands: bool, cache_s: float, quiet: bool = False,
                  raw: bool = False, ros2_domain: int | None = None) -> None:
         self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
         self.raw, self.ros2_domain = raw, ros2_domain
-        self.ros2: Any = None  # the unit's ROS 2 topics, with ros2_domain
+        self.ros2: UnitTopics | None = None  # the unit's ROS 2 topics, with ros2_domain
         # a unit that never comes up (a wrong baud rate) must not fill the memory
         self._early_reads: deque[tuple[bytes, int, int]] = deque(maxlen=EARLY_READS)
         self._read_listeners: list[Callable[[bytes, int, int], None]] = []
-        self.publisher: Any = None
+        self.publisher: UnitPublisher | None = None
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
@@ -225,14 +227,13 @@ class BusSink:
     def _deliver(self, data: bytes, raw_ns: int, real_ns: int) -> None:
         for listener in self._read_listeners:
             listener(data, raw_ns, real_ns)
-        if self.raw:
+        if self.raw and self.publisher is not None:
             self.publisher.publish_raw(data, raw_ns, real_ns)
 
-    def samples(self, samples: Samples) -> None:
+    def samples(self, samples: TimedSamples) -> None:
         if self.publisher is not None:
             if isinstance(samples.records, Records):
-                self.publisher.publish_records(samples.records, samples.tick_values,
-                                               samples.time_values, samples.rx_values)
+                self.publisher.publish_records(samples.records, *samples.lists())
             else:
                 self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns,
                                                samples.rx_ns)
@@ -240,7 +241,7 @@ class BusSink:
                 self.ros2.publish(samples.batch, samples.time_ns)
 
     def event(self, event: UnitEvent) -> None:
-        if not self.quiet or event.kind in ("disconnect", "waiting"):
+        if not self.quiet or event.kind in (EventKind.DISCONNECT, EventKind.WAITING):
             self._lines.event(event)
         # "waiting" (why the unit is not up yet) is for the log; status carries the state
         if self.publisher is not None and self.unit is not None and event.kind in _KINDS:
@@ -302,7 +303,7 @@ class EventLines:
         self._printed: float | None = None  # monotonic time of the last gap line
 
     def event(self, event: UnitEvent) -> None:
-        if event.kind != "gap":
+        if event.kind != EventKind.GAP:
             _print_event(event)
             return
         self._gaps.append(event)
@@ -320,7 +321,7 @@ class EventLines:
             _print_event(gaps[0])
             return
         missing = sum(e.count for e in gaps)
-        _log.log(_level("gap"), f"gap ({missing:,} samples missing in {len(gaps):,} gaps since "
-                  f"{_stamp(gaps[0].time_ns)})", extra={
+        _log.log(_level(EventKind.GAP), f"gap ({missing:,} samples missing in {len(gaps):,} "
+                 f"gaps since {_stamp(gaps[0].time_ns)})", extra={
                       "event": "gap", "count": missing, "gaps": len(gaps),
                       "time_ns": gaps[-1].time_ns})

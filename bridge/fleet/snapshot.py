@@ -5,8 +5,8 @@ rasteriser). The viewer is driven through its control API rather than
 ``--screenshot-to``: that one shoots after a fixed delay, before a recording of a few MB
 has loaded, and with the time cursor wherever playback happens to be.
 
-    python -m bridge.viz.snapshot docs/images/viewer.png    # a gx3 demo run, as in the README
-    python -m bridge.viz.snapshot shot.png --recording gx3-demo/demo.rrd   # one you have
+    python -m bridge.fleet.snapshot docs/images/viewer.png    # a gx3 demo run, as in the README
+    python -m bridge.fleet.snapshot shot.png --recording gx3-demo/demo.rrd   # one you have
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
 from bridge.bus.gx3_pb2 import Event
-from bridge.loopback import free_port
-from bridge.recorder.read import read_archive
+from bridge.fleet.loopback import free_port
+from bridge.recorder.reader import read_archive
 from bridge.viz.layout import TIME
 
 
@@ -143,7 +143,7 @@ def after_reconnect_ns(rrd: Path) -> int | None:
 
 
 def main(argv: list[str]) -> int:
-    return demo_picture(argv, "python -m bridge.viz.snapshot",
+    return demo_picture(argv, "python -m bridge.fleet.snapshot",
                         lambda rrd, png: render(rrd, png, at_ns=after_reconnect_ns(rrd),
                                                 before_end_s=1.0))
 

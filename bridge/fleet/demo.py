@@ -19,7 +19,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
 
-from bridge.loopback import free_port, interrupt
+from bridge.exceptions import DemoError
+from bridge.fleet.loopback import free_port, interrupt
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
@@ -30,10 +31,6 @@ from bridge.sim.unit import UnitConfig
 CLOCK_PPM = (42.0, -27.0, 85.0, -63.0, 12.0, -95.0, 55.0, -8.0)
 ORIENTATION_RECORDS = frozenset({0xC5, 0xC6, 0xC8, 0xCC, 0xCE, 0xCF, 0xD2, 0xDF})
 STARTUP_TIMEOUT_S = 60.0
-
-
-class DemoError(RuntimeError):
-    """The demo cannot run as asked; the message says why."""
 
 
 @dataclass
@@ -150,8 +147,9 @@ class Demo:
 
     def run(self) -> None:
         from bridge.bus.session import open_session
-        from bridge.recorder.archive import ArchiveError, ArchiveWriter
+        from bridge.exceptions import ArchiveError
         from bridge.recorder.live import Recorder
+        from bridge.recorder.writer import ArchiveWriter
         from bridge.viz.logger import RerunLogger
         from bridge.viz.sources import log_messages
 

@@ -32,6 +32,7 @@ from mcap.summary import Summary
 
 from bridge.bus.codec import HEADER, LEGACY_HEADER, decode_batch, layout, parse, peek
 from bridge.bus.gx3_pb2 import Event
+from bridge.exceptions import ArchiveReadError
 
 _log = logging.getLogger(__name__)
 
@@ -45,10 +46,6 @@ _U32 = struct.Struct("<I")
 _MESSAGE = np.dtype([("channel", "<u2"), ("sequence", "<u4"), ("log_time", "<u8"),
                      ("publish_time", "<u8")])
 _OPCODE_MESSAGE = int(Opcode.MESSAGE)
-
-
-class ArchiveReadError(ValueError):
-    """A file that cannot be read as an archive; the message says what it is instead."""
 
 
 @dataclass(frozen=True)
@@ -149,7 +146,7 @@ class Messages:
 
 
 @dataclass
-class Samples:
+class ArchivedSamples:
     """Decoded ImuSamples of one unit and record type, in sample-time order.
 
     ``columns`` are those of bridge.bus.codec.decode_batch (command, timer, ticks,
@@ -167,7 +164,7 @@ class Samples:
 
 
 @dataclass
-class Archive:
+class ArchiveReader:
     """Everything readable in one MCAP file.
 
     ``complete`` is true for a finished file (footer and closing magic present);
@@ -280,7 +277,7 @@ class Archive:
     # -- decoded -------------------------------------------------------------------------
 
     def samples(self, units: Iterable[str] | None = None,
-                codes: Iterable[int] | None = None) -> list[Samples]:
+                codes: Iterable[int] | None = None) -> list[ArchivedSamples]:
         """ImuSamples decoded in bulk, one ``Samples`` per unit and record type.
 
         Each chunk's messages are grouped by unit and command with array operations; a
@@ -303,7 +300,7 @@ class Archive:
                     if wanted_codes is None or code in wanted_codes:
                         groups.setdefault((chosen[k], code), []).append(
                             (block, picked[commands == code]))
-        out: list[Samples] = []
+        out: list[ArchivedSamples] = []
         for (unit, code), parts in sorted(groups.items(), key=lambda g: g[0]):
             topic = self._topic(unit, "imu")
             try:
@@ -324,7 +321,7 @@ class Archive:
                     continue
                 cols = _decode(unit, code, parts)
             order = np.argsort(np.concatenate([b.log_time[p] for b, p in parts]), kind="stable")
-            out.append(Samples(unit, code, {k: v[order] for k, v in cols.items()},
+            out.append(ArchivedSamples(unit, code, {k: v[order] for k, v in cols.items()},
                                np.concatenate([b.publish_time[p] for b, p in parts])[order]))
         return out
 
@@ -487,7 +484,7 @@ def _rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     return rows
 
 
-def _walk(archive: Archive, data: bytes, indexed: np.ndarray | None = None) -> None:
+def _walk(archive: ArchiveReader, data: bytes, indexed: np.ndarray | None = None) -> None:
     """Schemas, channels and message records of a chunk's (or a file's) inner records.
 
     The chunk's message indexes (``indexed``: offsets of message records) let the walk
@@ -526,7 +523,7 @@ def _walk(archive: Archive, data: bytes, indexed: np.ndarray | None = None) -> N
             offsets + 9 + _MESSAGE.itemsize, length - _MESSAGE.itemsize))
 
 
-def _other(archive: Archive, opcode: int, body: bytes) -> None:
+def _other(archive: ArchiveReader, opcode: int, body: bytes) -> None:
     """Records other than messages that an archive keeps."""
     if opcode == Opcode.SCHEMA:
         schema = Schema.read(_read_stream(body))
@@ -542,7 +539,7 @@ def _other(archive: Archive, opcode: int, body: bytes) -> None:
         archive.attachments.append(Attachment.read(_read_stream(body)))
 
 
-def _chunk(archive: Archive, body: bytes, indexes: list[bytes]) -> None:
+def _chunk(archive: ArchiveReader, body: bytes, indexes: list[bytes]) -> None:
     """A chunk, decompressed once; ``indexes`` are the bodies of its message indexes."""
     start, end_time, size, crc, n = _CHUNK_HEAD.unpack_from(body)
     at = _CHUNK_HEAD.size
@@ -632,7 +629,7 @@ def _after(chunks: dict[int, ChunkIndex], chunk: ChunkIndex) -> int:
     return chunk.chunk_start_offset + chunk.chunk_length + chunk.message_index_length
 
 
-def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str,
+def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: str,
             channels: dict[int, Channel]) -> None:
     """Note a chunk skipped: its time span from the chunk index, its messages per topic
     from its message indexes (when those are intact)."""
@@ -651,7 +648,7 @@ def _damage(archive: Archive, stream: IO[bytes], index: ChunkIndex, why: str,
 
 
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
-                 warn: Callable[[str], None] = _log.warning) -> Archive:
+                 warn: Callable[[str], None] = _log.warning) -> ArchiveReader:
     """Read what is readable of an MCAP file; ``progress`` gets the bytes read so far.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
@@ -662,7 +659,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     """
     path = Path(path)
     stream, size = _open(path)
-    archive = Archive(path, size, warn=warn)
+    archive = ArchiveReader(path, size, warn=warn)
     pos = len(MAGIC)
     summary = False
     with stream:
@@ -737,7 +734,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     return archive
 
 
-def describe_damage(archive: Archive) -> str:
+def describe_damage(archive: ArchiveReader) -> str:
     """One line about the corrupt chunks skipped: where, when, and what was lost."""
     lost: Counter[str] = Counter()
     unknown = 0
@@ -759,7 +756,7 @@ def describe_damage(archive: Archive) -> str:
             "; the rest is read")
 
 
-def describe_problem(archive: Archive) -> str:
+def describe_problem(archive: ArchiveReader) -> str:
     """One line about a file that did not read to its end; empty when it did."""
     if archive.complete and not archive.dropped_bytes:
         return ""

@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -23,17 +24,14 @@ import numpy as np
 
 from bridge.device import clock
 from bridge.device.link import SYSFS, Link, find_link
-from bridge.device.port import Port, PortError
-from bridge.device.session import (
-    DeviceError,
-    Session,
-    UnitInfo,
-    find_baud,
-)
+from bridge.device.port import Port
+from bridge.device.session import Session, UnitInfo, find_baud
+from bridge.exceptions import DeviceError, PortError
 from bridge.protocol.codec import Batch, Records
 from bridge.timing.rate import RateWindow
-from bridge.timing.realtime import ClockChange
+from bridge.timing.realtime import ChangeKind, ClockChange
 from bridge.timing.stream import Settings, StreamTiming
+from bridge.timing.unwrap import TimingKind
 
 _RETRY_FIRST_S = 0.2
 _RETRY_MAX_S = 5.0
@@ -72,7 +70,7 @@ class Options:
         return max(0.0, self.max_latency_s - PUBLISH_RESERVE_S)
 
 
-class Samples:
+class TimedSamples:
     """One run of records of one type, with their device and host times.
 
     A live read's record or two come as ``Records`` with plain lists of ticks and
@@ -106,10 +104,48 @@ class Samples:
     def rx_ns(self) -> np.ndarray:
         return np.asarray(self.rx_values, np.int64)
 
+    def lists(self) -> tuple[list[int], list[int], list[int]]:
+        """Ticks, instants and receive times in plain integers (as a live read's come)."""
+        return _plain(self.tick_values), _plain(self.time_values), _plain(self.rx_values)
+
+
+def _plain(values: np.ndarray | list[int]) -> list[int]:
+    return values if isinstance(values, list) else [int(v) for v in values.tolist()]
+
+
+class UnitState(StrEnum):
+    """Where a unit's pipeline is (``Status.state`` says it on Zenoh)."""
+
+    STARTING = "starting"
+    WAITING = "waiting"  # for the unit to answer (not up yet)
+    BRING_UP = "bring-up"
+    STREAMING = "streaming"
+    POLLING = "polling"
+    LOST = "lost"  # the port or the unit went away; retrying
+    STOPPED = "stopped"
+
+
+class EventKind(StrEnum):
+    """What happened to a unit's stream: the timeline's kinds (``TimingKind``) and the
+    pipeline's own; ``Event.Kind`` says each on Zenoh (``waiting`` is for the log only)."""
+
+    ROLLOVER = TimingKind.ROLLOVER.value
+    RESET = TimingKind.RESET.value
+    GAP = TimingKind.GAP.value
+    GLITCH = TimingKind.GLITCH.value
+    RECONNECT = "reconnect"
+    DISCONNECT = "disconnect"
+    RESYNC = "resync"
+    BRING_UP = "bring_up"
+    COMMAND = "command"
+    WAITING = "waiting"
+    HOST_CLOCK_STEP = "host_clock_step"
+    HOST_CLOCK_SLEW = "host_clock_slew"
+
 
 @dataclass
 class UnitEvent:
-    kind: str
+    kind: EventKind
     time_ns: int
     ticks: int = 0
     count: int = 0
@@ -129,7 +165,7 @@ class Counters:
     implausible: int = 0
     bytes_skipped: int = 0
     resyncs: int = 0
-    state: str = "starting"
+    state: UnitState = UnitState.STARTING
     meter: RateWindow = field(default_factory=lambda: RateWindow(5.0))
 
     def rate(self, now: float) -> float:
@@ -139,7 +175,7 @@ class Counters:
 
 class Sink(Protocol):
     def info(self, info: UnitInfo) -> None: ...
-    def samples(self, samples: Samples) -> None: ...
+    def samples(self, samples: TimedSamples) -> None: ...
     def event(self, event: UnitEvent) -> None: ...
     def status(self, status: dict[str, Any]) -> None: ...
 
@@ -194,7 +230,7 @@ class Pipeline:
             self._run(stop)
         except Exception as exc:
             self.error = exc
-            self.counters.state = "stopped"
+            self.counters.state = UnitState.STOPPED
             stop.set()
 
     def _run(self, stop: threading.Event) -> None:
@@ -219,26 +255,26 @@ class Pipeline:
             if lost_at is not None:
                 self.counters.reconnects += 1
                 gap = (clock.raw_ns() - lost_at) / 1e9
-                self._event("reconnect", detail=f"back after {gap:.1f} s")
+                self._event(EventKind.RECONNECT, detail=f"back after {gap:.1f} s")
             lost_at = None
             try:
                 self._stream(session, stop)
             except _Restart:
-                self.counters.state = "bring-up"
+                self.counters.state = UnitState.BRING_UP
             except (PortError, DeviceError) as exc:
                 lost_at = clock.raw_ns()
-                self.counters.state = "lost"
-                self._event("disconnect", detail=str(exc))
+                self.counters.state = UnitState.LOST
+                self._event(EventKind.DISCONNECT, detail=str(exc))
             finally:
                 self._close(session, clean=stop.is_set())
-        self.counters.state = "stopped"
+        self.counters.state = UnitState.STOPPED
 
     def _wait(self, exc: PortError | DeviceError, lost: bool) -> None:
         """Say why the unit is not up once, and again only when the reason changes:
         a retry every few seconds must not flood the log or look like a new fault."""
-        self.counters.state = "lost" if lost else "waiting"
+        self.counters.state = UnitState.LOST if lost else UnitState.WAITING
         if exc.why != self.waiting_for:
-            self._event("waiting", detail=f"{exc}; retrying, with pauses growing to "
+            self._event(EventKind.WAITING, detail=f"{exc}; retrying, with pauses growing to "
                                           f"{_RETRY_MAX_S:g} s")
         self.waiting_for = exc.why
         self.last_failure = str(exc)
@@ -265,7 +301,8 @@ class Pipeline:
                 self.on_read(data, raw, real)
 
     def _clock_changed(self, change: ClockChange) -> None:
-        kind = "host_clock_step" if change.kind == "step" else "host_clock_slew"
+        kind = EventKind.HOST_CLOCK_STEP if change.kind == ChangeKind.STEP \
+            else EventKind.HOST_CLOCK_SLEW
         self.sink.event(UnitEvent(kind, change.real_ns, detail=change.describe(),
                                   clock_change_ns=change.size_ns))
 
@@ -277,7 +314,7 @@ class Pipeline:
 
     def _bring_up(self, session: Session) -> None:
         o = self.options
-        self.counters.state = "bring-up"
+        self.counters.state = UnitState.BRING_UP
         session.quiesce()
         info = session.identify()
         session.apply_sampling(info, o.persist, decimation=o.decimation, flags=o.flags,
@@ -304,11 +341,11 @@ class Pipeline:
             sync = clock.host_sync()
             if sync.known and not sync.synchronised:
                 warnings.append(UNSYNCHRONISED)
-        self._event("bring_up", detail=f"{info.ids.get('model_name', '')} "
+        self._event(EventKind.BRING_UP, detail=f"{info.ids.get('model_name', '')} "
                     f"{info.ids.get('serial', '')} firmware {info.firmware_text}, "
                     f"0x{info.record:02X} at {info.output_hz:g} Hz over {self.link.describe()}"
                     + "".join(f"; {w}" for w in warnings if w))
-        self.counters.state = "streaming" if o.poll_hz is None else "polling"
+        self.counters.state = UnitState.STREAMING if o.poll_hz is None else UnitState.POLLING
         self.came_up = True
 
     def _start_timing(self, info: UnitInfo, discontinuity: bool = False) -> None:
@@ -366,19 +403,19 @@ class Pipeline:
                                           records.part_bytes)
             if few is not None:
                 for ev in few.events:
-                    self._event(ev.kind, ticks=ev.ticks, count=ev.count)
+                    self._event(EventKind(ev.kind), ticks=ev.ticks, count=ev.count)
                 self.counters.samples += len(records)
-                self.sink.samples(Samples(records, few.ticks, few.time_ns, few.rx_ns))
+                self.sink.samples(TimedSamples(records, few.ticks, few.time_ns, few.rx_ns))
                 return
             records = records.batch()
         timed = self.timing.process(records)
         for ev in timed.events:
-            self._event(ev.kind, ticks=int(ev.ticks), count=int(ev.count))
-        self.counters.glitches += sum(ev.kind == "glitch" for ev in timed.events)
+            self._event(EventKind(ev.kind), ticks=int(ev.ticks), count=int(ev.count))
+        self.counters.glitches += sum(ev.kind == TimingKind.GLITCH for ev in timed.events)
         self.counters.dropped += timed.dropped
         if len(timed.batch):
             self.counters.samples += len(timed.batch)
-            self.sink.samples(Samples(timed.batch, timed.ticks, timed.time_ns, timed.rx_ns))
+            self.sink.samples(TimedSamples(timed.batch, timed.ticks, timed.time_ns, timed.rx_ns))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None
@@ -391,10 +428,10 @@ class Pipeline:
                 result = action(session, self.info)
             except (DeviceError, PortError, ValueError) as exc:
                 done.put(exc)
-                self._event("command", detail=f"refused: {exc}")
+                self._event(EventKind.COMMAND, detail=f"refused: {exc}")
                 continue
             done.put(result)
-            self._event("command", detail=f"{effect}: {result}"[:200])
+            self._event(EventKind.COMMAND, detail=f"{effect}: {result}"[:200])
             if effect == "restart":
                 raise _Restart
             if effect in ("reconfigure", "discontinuity"):
@@ -418,7 +455,7 @@ class Pipeline:
             "host_offset_ns": self.timing.host.offset_ns,
         })
 
-    def _event(self, kind: str, ticks: int = 0, count: int = 0, detail: str = "") -> None:
+    def _event(self, kind: EventKind, ticks: int = 0, count: int = 0, detail: str = "") -> None:
         self.sink.event(UnitEvent(kind, clock.realtime_ns(), ticks, count, detail))
 
 

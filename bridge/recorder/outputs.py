@@ -26,9 +26,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
-
-class OutputRefused(Exception):
-    """Writing there would destroy data or cannot start; the message says what to do."""
+from bridge.exceptions import OutputRefused
 
 
 def lock_holder(path: Path) -> int | None:
