@@ -26,7 +26,8 @@ class Core(Protocol):
                  wire: list[bytes], times: tuple[list[int], ...], /
                  ) -> tuple[list[bytes], list[bytes]]:
         """Each wire record's message, with each list of ``times`` at its position in
-        ``at``, and its CRC-32 seal."""
+        ``at``, and its CRC-32 seal.
+        """
 
 
 class Reader(Protocol):
@@ -36,7 +37,8 @@ class Reader(Protocol):
                ) -> tuple[list[bytes], list[int], list[int], bool]:
         """Reads until ``need`` bytes came or ``wait_s`` passed: their bytes, their
         receive times on the raw monotonic and the realtime clock, and whether the other
-        end was gone."""
+        end was gone.
+        """
 
 
 def _load(name: str) -> Any:

@@ -45,7 +45,8 @@ __all__ = [
 
 class Gx3Error(Exception):
     """The base of every error gx3-bridge raises on purpose: its message is one line for
-    a person, saying what was wrong and what to do."""
+    a person, saying what was wrong and what to do.
+    """
 
 
 class PortError(Gx3Error, OSError):
@@ -62,7 +63,8 @@ class PortError(Gx3Error, OSError):
 
 class DeviceError(Gx3Error):
     """A unit did not do what was asked; the message says what and what to try.
-    ``why`` names the cause in a few words, as ``PortError.why`` does."""
+    ``why`` names the cause in a few words, as ``PortError.why`` does.
+    """
 
     why = "unit refused"
 
@@ -131,7 +133,8 @@ class ReplayError(Gx3Error, ValueError):
 
 class UnusableCapture(ReplayError):
     """An input that holds nothing to replay (no raw reads, no GX3 records): the user's
-    input is wrong, not the replay."""
+    input is wrong, not the replay.
+    """
 
 
 class CalibrationError(Gx3Error, ValueError):

@@ -97,7 +97,8 @@ class Layout:
 @functools.cache
 def layout(code: int, unit: str, header: tuple[str, ...] = HEADER) -> Layout:
     """The message layout of record type ``code`` published by ``unit`` (with ``header``:
-    ``LEGACY_HEADER`` for an older bridge's)."""
+    ``LEGACY_HEADER`` for an older bridge's).
+    """
     quantities = tuple(record_quantities(code))
     name = unit.encode()
     parts: list[tuple[Any, ...]] = []
@@ -136,7 +137,8 @@ def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np
     """(message positions, record positions): where each byte of the timer and the
     quantities of a wire record lands in its ImuSample. The message holds every value
     in 4 little-endian bytes; a wire value may be shorter (the upper bytes stay zero,
-    as in the template) and big-endian (its bytes are reversed on the way)."""
+    as in the template) and big-endian (its bytes are reversed on the way).
+    """
     lay = layout(code, unit)
     wire = reply_dtype(code, little_endian)
     dst: list[int] = []
@@ -163,7 +165,8 @@ def native_layout(code: int, unit: str, little_endian: bool
     """``layout`` and ``_byte_map`` as the compiled core reads them
     (``bridge/_records.c``): the message template, the byte moves as little-endian
     uint16 pairs (message position, record position), and where each of ``TIMES``
-    goes."""
+    goes.
+    """
     lay = layout(code, unit)
     dst, src = _byte_map(code, unit, little_endian)
     fields = cast(dict[str, tuple[np.dtype, int]], lay.dtype.fields)
@@ -208,7 +211,8 @@ class _RecordPacker:
     as integers of their wire width and byte order, pack them with the message's tags
     and lengths, little-endian, 4 bytes each. Integers keep every bit (a float would
     lose a NaN's payload), so the bytes are those ``_byte_map`` moves. Both Structs are
-    derived from ``layout`` and ``reply_dtype``: the table stays the one definition."""
+    derived from ``layout`` and ``reply_dtype``: the table stays the one definition.
+    """
 
     def __init__(self, code: int, unit: str, little_endian: bool) -> None:
         lay = layout(code, unit)
@@ -281,7 +285,8 @@ def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[
                    ticks: Iterable[int], time_ns: Iterable[int], rx_ns: Iterable[int],
                    rx_mono_raw_ns: Iterable[int]) -> list[bytes]:
     """``encode_batch`` of wire records held as bytes, one each: a live bridge gets one
-    or two a read, for which array set-up costs more than the work."""
+    or two a read, for which array set-up costs more than the work.
+    """
     pack = _packer(code, unit, little_endian).pack
     return [pack(r, t, s, x, m) for r, t, s, x, m
             in zip(records, ticks, time_ns, rx_ns, rx_mono_raw_ns, strict=True)]
@@ -295,7 +300,8 @@ def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
 
     The constant bytes are compared as one masked integer per message: a recorder that
     hears samples promptly checks a message or two per key at a time, where NumPy's
-    set-up would cost ten times the check itself."""
+    set-up would cost ten times the check itself.
+    """
     out = [False] * len(payloads)
     sizes = set(map(len, payloads))
     code = peek_command(unit, payloads[0]) if len(sizes) == 1 else None
@@ -317,7 +323,8 @@ def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
 
 def peek_command(unit: str, payload: bytes) -> int | None:
     """The record type of an ImuSample of ``unit`` that has that type's bulk layout by
-    its first bytes and length (None: it does not)."""
+    its first bytes and length (None: it does not).
+    """
     name = unit.encode()
     head = _head(name)
     if not payload.startswith(head) or len(payload) < len(head) + 4:
@@ -331,7 +338,8 @@ def peek_command(unit: str, payload: bytes) -> int | None:
 @functools.cache
 def _constants(code: int, unit: str) -> tuple[int, int]:
     """The tags, lengths, unit and command of ``layout(code, unit)`` as a mask over a
-    message read as one big-endian integer, and the bytes they must hold there."""
+    message read as one big-endian integer, and the bytes they must hold there.
+    """
     lay = layout(code, unit)
     const = lay.const_mask
     template = lay.template.view(np.uint8)
@@ -346,7 +354,8 @@ def _head(name: bytes) -> bytes:
 
 def peek(payload: bytes) -> tuple[str, int]:
     """(unit, command) of a serialized ImuSample, read from its first bytes when it has
-    the bulk layout, else by parsing it."""
+    the bulk layout, else by parsing it.
+    """
     if payload[:1] == b"\x0a" and len(payload) > 2 and payload[1] < 0x80:
         end = 2 + payload[1]
         if payload[end : end + 1] == b"\x15" and len(payload) >= end + 5:
@@ -415,7 +424,8 @@ def decode_batch(unit: str, code: int,
 
 def _bulk_rows(lay: Layout, payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
     """Which ``payloads`` have the bulk layout ``lay`` (by length and constant bytes), and
-    those read as one record array."""
+    those read as one record array.
+    """
     size = lay.size
     fits = np.fromiter((len(p) == size for p in payloads), bool, len(payloads))
     raw = np.frombuffer(b"".join(p for p, ok in zip(payloads, fits, strict=True) if ok),

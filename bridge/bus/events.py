@@ -1,5 +1,6 @@
 """How an Event reads to a person: its severity and one line of text, the same in every
-viewer (Rerun's text log, Foxglove's Log panel)."""
+viewer (Rerun's text log, Foxglove's Log panel).
+"""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ _MESSAGES = {Event.LOST, Event.REJECTED, Event.SHED}
 def event_text(unit: str, event: Event, rate_hz: float = 0.0) -> str:
     """One line: unit, kind, how many when more than one or when lost (with the time they
     span: records at a known output rate ``rate_hz``, messages from their first to their
-    last), and the detail."""
+    last), and the detail.
+    """
     text = f"{unit} {Event.Kind.Name(event.kind)}"
     count = event.count
     if event.kind in _RECORDS and count:

@@ -44,7 +44,8 @@ NOT_OF_KEY = "key"
 
 def seal(payload: bytes, rx_ns: int | None = None, raw_ns: int | None = None) -> bytes:
     """The attachment of ``payload``: its CRC-32, then a raw read's receive times (on the
-    realtime clock, then the raw monotonic one)."""
+    realtime clock, then the raw monotonic one).
+    """
     crc = zlib.crc32(payload)
     if rx_ns is None:
         return _CRC.pack(crc)
@@ -72,7 +73,8 @@ def read_time(attachment: bytes | None) -> int | None:
 
 def read_raw_time(attachment: bytes | None) -> int | None:
     """The raw-clock receive time a raw read's attachment carries (None: an older
-    bridge's, with none)."""
+    bridge's, with none).
+    """
     if attachment is None or len(attachment) < _CRC_TIMES.size:
         return None
     return int(_CRC_TIMES.unpack_from(attachment)[2])
@@ -80,7 +82,8 @@ def read_raw_time(attachment: bytes | None) -> int | None:
 
 def agree(unit: str, leaf: str, payloads: Sequence[bytes]) -> list[bool]:
     """Which payloads are messages of ``leaf``'s type that name ``unit``, the unit of
-    their key (a raw read names none; a leaf that is not gx3's is not checked)."""
+    their key (a raw read names none; a leaf that is not gx3's is not checked).
+    """
     if leaf == "imu":
         return units_agree(unit, payloads)
     cls = _TYPED.get(leaf)

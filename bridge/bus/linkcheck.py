@@ -29,7 +29,8 @@ UNREACHABLE = "is the router or peer running and reachable?"
 
 def why_not(endpoint: str, tls: dict[str, Any]) -> str:
     """What stopped a connection to ``endpoint`` (``tcp/HOST:PORT`` or ``tls/HOST:PORT``)
-    with the ``transport/link/tls`` settings ``tls``, and what to do about it."""
+    with the ``transport/link/tls`` settings ``tls``, and what to do about it.
+    """
     proto, _, rest = endpoint.partition("/")
     address = rest.split("?", 1)[0].split("#", 1)[0]
     host, _, port = address.rpartition(":")
@@ -91,7 +92,8 @@ def _tls_problem(sock: socket.socket, host: str, tls: dict[str, Any]) -> str:
 
 def _verdict(link: ssl.SSLSocket, mine: str) -> str:
     """After a TLS 1.3 handshake the server's verdict on the client's certificate is
-    still to come: an alert, or silence while it waits for Zenoh's first message."""
+    still to come: an alert, or silence while it waits for Zenoh's first message.
+    """
     try:
         closed = link.recv(1) == b""
     except ssl.SSLError as exc:

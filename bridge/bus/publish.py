@@ -60,7 +60,8 @@ def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[
     """The ImuSample payloads of a live read's records and their attachments (``seal``):
     in one call of the compiled core where it is built, else ``encode_records`` and
     ``seals``, with the same bytes. ``rx_ns``: the completing reads' realtime stamps (the
-    records' own are the raw clock's)."""
+    records' own are the raw clock's).
+    """
     core = native.records
     if core is None:
         payloads = encode_records(unit, records.code, records.little_endian, records.wire,

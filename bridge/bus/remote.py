@@ -43,7 +43,8 @@ def ask_units(prefix: str, unit: str, action: str, params: dict[str, Any], *,
               timeout: float = TIMEOUT_S,
               discovery: float = DISCOVERY_S) -> list[tuple[str, bool, dict[str, Any]]]:
     """(unit, ok, result or {"error": text}) for every bridge that answered, and an
-    error for every bridge seen alive that did not."""
+    error for every bridge seen alive that did not.
+    """
     if action == "capture_bias":
         timeout += int(params.get("sampling_ms", 10_000)) / 1000
     key = f"{prefix}/{unit}/{'info' if action == 'info' else 'command'}"

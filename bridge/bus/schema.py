@@ -20,7 +20,8 @@ MESSAGE_NAMES = {leaf: f"gx3.v1.{name}" for leaf, name in
 
 def file_descriptor_set(root: FileDescriptor = DESCRIPTOR) -> bytes:
     """A .proto file (default schemas/gx3.proto) and its imports, dependencies first,
-    serialized."""
+    serialized.
+    """
     files = FileDescriptorSet()
     seen: set[str] = set()
 

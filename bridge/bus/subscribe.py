@@ -72,7 +72,8 @@ class SampleBatch:
 @dataclass
 class Arrivals:
     """Checked messages of one key, in the order they came: payloads and attachments
-    (a raw read's attachment holds its receive time), and the Zenoh samples."""
+    (a raw read's attachment holds its receive time), and the Zenoh samples.
+    """
 
     payloads: list[bytes]
     attachments: list[bytes | None]
@@ -93,7 +94,8 @@ def _route(key: str) -> tuple[str, str] | None:
 def check(got: list[zenoh.Sample], on_reject: RejectHandler | None = None
           ) -> dict[str, Arrivals]:
     """The samples that pass their checks, by key (each key's in the order they came);
-    the others are reported to ``on_reject`` per key and reason."""
+    the others are reported to ``on_reject`` per key and reason.
+    """
     groups: dict[str, Arrivals] = {}
     for sample in got:
         key = str(sample.key_expr)
@@ -190,7 +192,8 @@ class Subscription(Generic[T]):
     def take(self, limit: int, timeout: float | None = 0.0) -> list[zenoh.Sample]:
         """Up to ``limit`` samples as they arrived, waiting up to ``timeout`` seconds
         (None: until something arrives or close) for the first; [] after that. Only
-        those that pass their checks are returned (each key's in the order they came)."""
+        those that pass their checks are returned (each key's in the order they came).
+        """
         return [s for group in self._take(limit, timeout).values() for s in group.samples]
 
     def _take(self, limit: int, timeout: float | None) -> dict[str, Arrivals]:
@@ -216,7 +219,8 @@ class Subscription(Generic[T]):
 
     def take_by_key(self, limit: int) -> dict[str, Arrivals]:
         """What has arrived (up to ``limit`` messages, no waiting) and passes its checks,
-        by key, each key's in the order they came."""
+        by key, each key's in the order they came.
+        """
         return self._take(limit, 0.0)
 
     def get(self, timeout: float | None = None) -> T | None:

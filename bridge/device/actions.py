@@ -24,7 +24,8 @@ class Action:
     """``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
     lasting change; ``effect`` what it does to a running stream: "none",
     "reconfigure" (settings changed), "discontinuity" (the timer jumps) or "restart"
-    (the unit comes back as after power-up)."""
+    (the unit comes back as after power-up).
+    """
 
     name: str
     summary: str

@@ -116,7 +116,8 @@ realtime_ns: Callable[[], int] = time.time_ns if script is None else script.now_
 
 def use_script(path: Path | None) -> None:
     """Move this process's realtime clock by the script at ``path`` from now on (None:
-    the host's own clock again); for tests that run a bridge in-process."""
+    the host's own clock again); for tests that run a bridge in-process.
+    """
     global script, realtime_ns
     script = None if path is None else ClockScript(path)
     realtime_ns = time.time_ns if script is None else script.now_ns
@@ -126,7 +127,8 @@ def stamp(clock: Callable[[int], int] = time.clock_gettime_ns,
           real: Callable[[], int] = time.time_ns) -> tuple[int, int]:
     """(raw, realtime) ns of this instant, read together: the realtime clock between two
     raw readings, the raw stamp their middle. (The defaults bind the clocks once: this
-    runs once a read.)"""
+    runs once a read.)
+    """
     before = clock(RAW)
     now = real()
     after = clock(RAW)
@@ -210,7 +212,8 @@ with contextlib.suppress(OSError, AttributeError, TypeError):
 
 def host_sync() -> HostSync:
     """The kernel's sync state of the realtime clock now (adjtimex, reading only), or what
-    the clock script says in its place."""
+    the clock script says in its place.
+    """
     host = socket.gethostname()
     if script is not None and script.sync:
         known = {f.name for f in fields(HostSync)}

@@ -29,7 +29,8 @@ _MAX_LATENCY_TIMER_MS = 255  # the FTDI driver's range is 1-255 ms
 @dataclass(frozen=True)
 class Link:
     """How a unit reaches the host: "uart", "usb" or "usb-serial", and for an adapter
-    its latency timer in ms (None where sysfs does not say)."""
+    its latency timer in ms (None where sysfs does not say).
+    """
 
     transport: str
     latency_timer_ms: int | None = None
@@ -55,7 +56,8 @@ def kernel_name(url: str) -> str:
     """The device's kernel name: the first ttyACM*/ttyUSB* on its chain of symlinks, else
     the name it finally resolves to ("" for a URL such as socket://). A link udev
     removes meanwhile (an unplug) or one it may not read ends the walk where it is:
-    opening the port then says what is wrong."""
+    opening the port then says what is wrong.
+    """
     if "://" in url:
         return ""
     path = Path(url)
@@ -71,7 +73,8 @@ def kernel_name(url: str) -> str:
 
 def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
     """A USB-serial adapter's latency timer as the kernel reports it; None if it does not
-    (no such file, unreadable, or not a timer the kernel allows: 1 to 255 ms)."""
+    (no such file, unreadable, or not a timer the kernel allows: 1 to 255 ms).
+    """
     try:
         text = (sysfs / "bus" / "usb-serial" / "devices" / device / "latency_timer").read_text()
         value = int(text.strip())
@@ -82,7 +85,8 @@ def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
 
 def find_link(url: str, transport: str = "auto", sysfs: Path = SYSFS) -> Link:
     """The link to a unit at ``url``: ``transport`` as given, or with "auto" by device
-    name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart)."""
+    name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart).
+    """
     name = kernel_name(url)
     device = name if _KERNEL_TTY.fullmatch(name) else ""
     if transport == "auto":

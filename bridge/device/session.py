@@ -97,7 +97,8 @@ class UnitInfo:
     @property
     def stream_record(self) -> int:
         """The record a stream of this unit carries: the one chosen, else its continuous
-        preset, else ``DEFAULT_RECORD``."""
+        preset, else ``DEFAULT_RECORD``.
+        """
         return self.record or self.continuous_preset or DEFAULT_RECORD
 
     def line_warning(self) -> str | None:
@@ -142,7 +143,8 @@ def pace(rest: int, piece: float, baud: int) -> float:
     rest's line time when it would come in several pieces (each a wake-up), else 0.
 
     A sleep is a timer wake-up, which costs as much CPU here as a wake-up by the link's
-    bytes (~17 µs on a virtual machine): it pays only where it saves two or more."""
+    bytes (~17 µs on a virtual machine): it pays only where it saves two or more.
+    """
     return _line_time(rest, baud) if rest > 0 and piece * 2 < rest else 0.0
 
 
@@ -174,7 +176,8 @@ class Session:
 
     def _take(self, wait_s: float, need: int = 1) -> tuple[list[bytes], list[int]]:
         """Reads until ``need`` bytes came (``Port.read_until``), handed to ``on_reads``:
-        their bytes and raw-clock receive times, which the framer and the clock model use."""
+        their bytes and raw-clock receive times, which the framer and the clock model use.
+        """
         reads, raws, reals = self.port.read_until(need, wait_s)
         if reads:
             self._last_read = time.monotonic()
@@ -188,7 +191,8 @@ class Session:
 
     def read(self, wait_s: float = 0.05) -> list[Batch]:
         """Data records of the stream that arrived within ``wait_s`` (or while a command
-        waited for its reply)."""
+        waited for its reply).
+        """
         return [r if isinstance(r, Batch) else r.batch() for r in self.read_records(wait_s)]
 
     def read_records(self, wait_s: float = 0.05, hold_s: float = 0.0) -> list[Batch | Records]:
@@ -266,7 +270,8 @@ class Session:
     def transact(self, raw: bytes, code: int, timeout: float = 0.5,
                  retries: int = 0) -> dict[str, Any]:
         """Write ``raw`` and wait for the reply starting with ``code`` (no safety check:
-        for bytes built by hand, e.g. to probe a unit)."""
+        for bytes built by hand, e.g. to probe a unit).
+        """
         self._expect(code, ERROR_CODE)
         try:
             for _ in range(retries + 1):

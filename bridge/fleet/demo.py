@@ -54,7 +54,8 @@ def line_baud(code: int, rate_hz: float) -> int:
 
 def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[DemoUnit]:
     """``count`` units: clock errors of tens of ppm; unit 2 (or the only one) crosses the
-    rollover halfway, the last suffers bit flips and an unplug."""
+    rollover halfway, the last suffers bit flips and an unplug.
+    """
     if code not in DATA_CODES:
         raise DemoError(f"--record-type 0x{code:02X} is not a data record")
     decimation = round(1000 / rate_hz)

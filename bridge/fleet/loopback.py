@@ -1,5 +1,6 @@
 """What the processes one machine runs together need (demo, tests, benchmarks): free
-loopback ports, and a way to stop them that lets each close its files and sessions."""
+loopback ports, and a way to stop them that lets each close its files and sessions.
+"""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ def free_port() -> int:
 def interrupt(procs: Iterable[subprocess.Popen[Any]], timeout: float = 20.0) -> None:
     """Ctrl-C each child that still runs, then wait for all; kill those that have not
     stopped within ``timeout`` seconds of the Ctrl-C (a hung child must not hang its
-    parent)."""
+    parent).
+    """
     procs = list(procs)
     for proc in procs:
         if proc.poll() is None:

@@ -45,7 +45,8 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
     """Open ``rrd`` in a headless viewer, pause the time cursor at ``at_ns`` on the ``time``
     timeline, else ``before_end_s`` seconds before its end, else where the viewer puts it,
     save what it shows to ``png`` and return the viewer's own account of it: recordings,
-    timelines, views and what each view failed to show."""
+    timelines, views and what each view failed to show.
+    """
     port = free_port()
     viewer = subprocess.Popen(
         [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
@@ -102,7 +103,8 @@ AFTER_RECONNECT_S = 1.5
 
 def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DURATION_S) -> Path:
     """Run ``gx3 demo`` (real bridges, Zenoh, recorder) into the new folder ``out``; its
-    Rerun recording."""
+    Rerun recording.
+    """
     gx3 = Path(sys.executable).with_name("gx3")
     command = [str(gx3)] if gx3.exists() else [sys.executable, "-c",
                                                "from bridge.cli import app; app()"]
@@ -115,7 +117,8 @@ def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DUR
 
 def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object]) -> int:
     """The screenshot scripts' main: ``take(recording, png)`` of a gx3 demo recording, a
-    new run's unless one is given."""
+    new run's unless one is given.
+    """
     parser = argparse.ArgumentParser(prog=prog, description="Picture a gx3 demo recording.")
     parser.add_argument("png", type=Path, metavar="OUT.png", help="the picture to write")
     parser.add_argument("--recording", type=Path, metavar="DEMO.rrd",
@@ -134,7 +137,8 @@ def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object
 
 def after_reconnect_ns(rrd: Path) -> int | None:
     """A moment AFTER_RECONNECT_S after the first reconnect in the archive gx3 demo wrote
-    beside ``rrd`` (demo.mcap); None when there is none."""
+    beside ``rrd`` (demo.mcap); None when there is none.
+    """
     archive = rrd.with_suffix(".mcap")
     if not archive.is_file():
         return None

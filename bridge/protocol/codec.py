@@ -178,7 +178,7 @@ def _py(value: Any) -> Any:
 def encode_replies(
     code: int, columns: Mapping[str, Any], n: int = 1, little_endian: bool = False
 ) -> bytes:
-    """n replies of type ``code`` from per-field columns (or scalars broadcast to n)."""
+    """N replies of type ``code`` from per-field columns (or scalars broadcast to n)."""
     spec = REPLIES[code]
     dtype = reply_dtype(code, little_endian)
     recs = np.zeros(n, dtype)
@@ -215,7 +215,8 @@ class Columns(Mapping[str, np.ndarray]):
     """The fields of an (n, length) uint8 block of replies, each decoded to native types
     when first asked for: a live bridge reads only the timer of each record and
     publishes the rest from the wire bytes, and per read NumPy's cost per call is what
-    counts."""
+    counts.
+    """
 
     def __init__(self, code: int, block: np.ndarray, little_endian: bool = False) -> None:
         self._recs = block.reshape(-1).view(reply_dtype(code, little_endian))
@@ -239,7 +240,8 @@ class Columns(Mapping[str, np.ndarray]):
 def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
     """(unpacker, byte offset, field) for each field of a reply that has a domain; adjacent
     fields of one kind and domain share one unpacker (named by the first), so a data
-    record's vectors cost one call per bound rather than one per field."""
+    record's vectors cost one call per bound rather than one per field.
+    """
     checks: list[tuple[str, int, Field]] = []
     offset = 1
     end = 0
@@ -263,7 +265,8 @@ def native_checks(code: int, little_endian: bool) -> bytes:
     """``_domain_checks`` as the compiled core reads them (``bridge/_records.c``): per
     check, as float64s, its offset, value count, value width, whether floats, whether
     little-endian, its bounds (infinite when it has none), and its allowed values
-    after their count."""
+    after their count.
+    """
     out: list[float] = []
     for unpacker, offset, f in _domain_checks(code, little_endian):
         count = len(unpacker.unpack_from(bytes(unpacker.size)))
@@ -300,7 +303,8 @@ def _row_checks(
     code: int, little_endian: bool
 ) -> tuple[list[tuple[int, int, np.ndarray]], list[tuple[int, int, np.dtype[Any], Field]]]:
     """``_domain_checks`` grouped for blocks: adjacent float fields form one run, so a
-    data record costs one conversion and a few comparisons rather than per field."""
+    data record costs one conversion and a few comparisons rather than per field.
+    """
     runs: list[tuple[int, int, list[float]]] = []  # offset, size, bound per element
     ints: list[tuple[int, int, np.dtype[Any], Field]] = []
     for unpacker, offset, f in _domain_checks(code, little_endian):
@@ -367,7 +371,8 @@ class Batch:
 
     def partial(self) -> tuple[np.ndarray, np.ndarray]:
         """Per record, a receive time and how many of its bytes had arrived by then: the
-        latest read that ended inside it, else the read that completed it (all bytes)."""
+        latest read that ended inside it, else the read that completed it (all bytes).
+        """
         if self.part_ns is None or self.part_bytes is None:
             return self.rx_ns, np.full(len(self.rx_ns), REPLIES[self.code].length, np.int64)
         return self.part_ns, self.part_bytes
@@ -375,7 +380,8 @@ class Batch:
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
         """Consecutive batches of one record type and byte order as one (still wire bytes
-        when they all are)."""
+        when they all are).
+        """
         first = batches[0]
         if len(batches) == 1:
             return first
@@ -424,7 +430,8 @@ class Batch:
 class Records:
     """``Batch`` for a live read's record or two: each record's wire bytes and stream
     position, the receive time of the read that completed it, in plain Python. Array
-    set-up costs more than such a read's work; ``batch`` gives the very ``Batch``."""
+    set-up costs more than such a read's work; ``batch`` gives the very ``Batch``.
+    """
 
     code: int
     little_endian: bool

@@ -78,7 +78,8 @@ class FramerStats:
 class _Reads:
     """Receive time of every read with bytes still held, by the stream position it ends at.
 
-    A read received at the same time as the one before it extends that one."""
+    A read received at the same time as the one before it extends that one.
+    """
 
     def __init__(self) -> None:
         self.ends: list[int] = []
@@ -96,7 +97,8 @@ class _Reads:
         """For records of ``length`` bytes at these stream positions: the receive time of
         the read that completed each, and of the latest read before it (if it ended inside
         the record, else the completing read's) with the record's bytes it had brought
-        (else ``length``); None, None when no read ended inside any of them."""
+        (else ``length``); None, None when no read ended inside any of them.
+        """
         if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
             return np.full(len(starts), self.ns[0], np.int64), None, None
         ends = np.array(self.ends, np.int64)
@@ -136,7 +138,8 @@ class _Reads:
 class _Runs:
     """Accepted records gathered into runs of one type and byte order, decoded once per
     run. Each run is a list of chunks: consecutive records' bytes and the stream position
-    of the first."""
+    of the first.
+    """
 
     def __init__(self) -> None:
         self.runs: list[tuple[int, bool, list[tuple[bytes, int]]]] = []
@@ -226,7 +229,8 @@ class Framer:
         are one, or the pieces a record came in while the port read on until it was
         whole: one scan for them all, the records and times that feeding them one by one
         gives. As ``feed_reads``, an empty read is no read and of reads received at one
-        time the last stands for them."""
+        time the last stands for them.
+        """
         if len(reads) == 1:
             return self._take(reads[0], [len(reads[0])], rx_ns, _Runs.records)
         pieces = [(data, rx) for data, rx in zip(reads, rx_ns, strict=True) if data]
@@ -244,7 +248,8 @@ class Framer:
                    rx_ns: np.ndarray) -> list[Batch]:
         """Take many reads at once, their bytes end to end in ``data``: read i ends at
         ``ends[i]`` and was received at ``rx_ns[i]``. Gives the records and times that
-        feeding them one by one gives, with one scan instead of one per read."""
+        feeding them one by one gives, with one scan instead of one per read.
+        """
         ends = np.asarray(ends, np.int64)
         rx_ns = np.asarray(rx_ns, np.int64)
         if ends.shape != rx_ns.shape or ends.ndim != 1:

@@ -116,7 +116,8 @@ def physical_unit(quantity: str) -> str:
 
 def unit_labels(units: Iterable[str]) -> dict[str, str]:
     """Each unit's column prefix in aligned output: lower-case, letters, digits and ``_``,
-    starting with a letter; distinct (``_2``, ``_3``.. where two names would meet)."""
+    starting with a letter; distinct (``_2``, ``_3``.. where two names would meet).
+    """
     labels: dict[str, str] = {}
     for unit in sorted(set(units)):
         base = re.sub(r"[^a-z0-9_]", "_", unit.lower())
@@ -135,7 +136,8 @@ _FLAT = {name: (q, i) for q in QUANTITY_ORDER for i, name in enumerate(flat_name
 
 def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
     """Field metadata of one column: physical unit, frame, description (and for an aligned
-    column, the unit it belongs to)."""
+    column, the unit it belongs to).
+    """
     about: dict[str, str] = {}
     for unit, label in labels.items():
         prefix = label + ALIGNED_SEPARATOR

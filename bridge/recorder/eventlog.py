@@ -21,7 +21,8 @@ _LEVELS = {"INFO": Log.INFO, "WARN": Log.WARNING, "ERROR": Log.ERROR}
 
 def log_message(unit: str, event: Event, time_ns: int, rate_hz: float = 0.0) -> bytes:
     """The serialized Log of ``event`` at ``time_ns`` (its log time in the archive); a gap
-    or reset gives the time its lost records span when the unit's output rate is known."""
+    or reset gives the time its lost records span when the unit's output rate is known.
+    """
     return Log(timestamp=Timestamp(seconds=time_ns // 1_000_000_000,
                                    nanos=time_ns % 1_000_000_000),
                level=_LEVELS[LEVEL.get(event.kind, "INFO")],

@@ -144,7 +144,8 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     against the raw clock and each instant mapped onto the realtime clock as live
     (``bridge.timing.realtime``), by the offsets of the samples' reads (``rx_ns`` less
     ``rx_mono_raw_ns``); between two reads around a step the archive cannot tell which
-    side an instant was on, and takes the side the live estimate took."""
+    side an instant was on, and takes the side the live estimate took.
+    """
     def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
         ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
         settings = unit_settings(archive, unit)
@@ -171,7 +172,8 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
                  end_ns: int | None = None,
                  re_estimate: ReEstimate | None = None) -> dict[str, np.ndarray]:
     """Columns of the export: one row per sample, in time order, with ``start_ns <=
-    time_ns < end_ns``."""
+    time_ns < end_ns``.
+    """
     blocks = archive.samples(units, codes)
     by_unit: dict[str, list[ArchivedSamples]] = {}
     for b in blocks:
@@ -223,7 +225,8 @@ def _cat(ordered: list[tuple[ArchivedSamples, np.ndarray]], name: str, dtype: ty
 def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
                 start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
     """Every event (gap, reset, rollover, reconnect, ...) per unit with its time; the
-    Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame)."""
+    Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame).
+    """
     lo = -(1 << 63) if start_ns is None else start_ns
     hi = (1 << 63) - 1 if end_ns is None else end_ns
     rows = [(u, e) for u, e in archive.events(units) if lo <= e.time_ns < hi]
@@ -260,7 +263,8 @@ def _encoding(kind: pa.DataType) -> str | None:
 
     Clocks and counters step by about a period: as deltas they take a few bits a row,
     where zstd of the plain values leaves six bytes. Noisy floats compress a fifth
-    better, and faster, with their bytes split into streams of like significance."""
+    better, and faster, with their bytes split into streams of like significance.
+    """
     if pa.types.is_timestamp(kind) or (pa.types.is_integer(kind) and kind.bit_width >= 32):
         return "DELTA_BINARY_PACKED"
     if pa.types.is_floating(kind):
@@ -271,7 +275,8 @@ def _encoding(kind: pa.DataType) -> str | None:
 def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None = None) -> None:
     """Write columns as Parquet (zstd) or CSV, chosen by the extension, with a ``time_utc``
     timestamp beside ``time_ns``; in Parquet each column's unit and frame, and ``about``
-    as file metadata."""
+    as file metadata.
+    """
     suffix = check_format(path)
     labels = unit_labels(about.infos) if about else {}
     fields, arrays = [], []
@@ -327,7 +332,8 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str) -> np.ndarray:
     """``values`` (n, k) at sample times ``t`` on ``grid``: linear for vectors, slerp for
-    orientation (m, quaternion, euler); NaN outside the samples and inside gaps."""
+    orientation (m, quaternion, euler); NaN outside the samples and inside gaps.
+    """
     out = np.full((len(grid), values.shape[1]), np.nan)
     if len(t) < 2:
         exact = np.isin(grid, t)
@@ -351,7 +357,8 @@ def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str)
 def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
     """One row per instant of a grid at ``rate_hz`` (on multiples of the period since the
     epoch), one column per unit and quantity column, named ``<unit label>__<column>``
-    (``unit_labels``: a name SQL and pandas take as it is)."""
+    (``unit_labels``: a name SQL and pandas take as it is).
+    """
     if not rate_hz > 0:
         raise ValueError(f"--align {rate_hz}: give a positive rate in Hz, e.g. 100")
     step = round(1e9 / rate_hz)

@@ -106,7 +106,8 @@ def marker_messages(unit: str, time_ns: np.ndarray, prefix: str = PREFIX) -> lis
     """Serialized PointClouds of the unit's axes in its body frame, at ``time_ns``: what
     a viewer draws for it (Rerun makes a 3-D view for points, none for transforms
     alone; Foxglove draws a point cloud where its frame was at its timestamp, so it
-    comes with every frame)."""
+    comes with every frame).
+    """
     shared = PointCloud(frame_id=body_frame(unit, prefix), pose=Pose(orientation=Quaternion(w=1.0)),
                         point_stride=_POINT.itemsize, fields=_POINT_FIELDS,
                         data=_AXES.tobytes())
@@ -126,7 +127,8 @@ _POINT_FIELDS = [PackedElementField(name=name, offset=_POINT.fields[name][1],  #
 
 def _axes() -> np.ndarray:
     """Dots along the body axes from the origin: x (forward) red and 0.24 m, y (right)
-    green and z (down) blue 0.12 m, so a unit's heading and which side is down show."""
+    green and z (down) blue 0.12 m, so a unit's heading and which side is down show.
+    """
     out = np.zeros(1, _POINT)
     out[["red", "green", "blue", "alpha"]] = (255, 255, 255, 255)
     for axis, length in enumerate((0.24, 0.12, 0.12)):

@@ -186,7 +186,8 @@ class _Lags:
     def bound(self, now_ns: int) -> int | None:
         """The least over the seconds of arrival within ``HOST_WINDOW_S`` of ``now_ns``
         (None: no sample arrived in them); samples gathered for less than a second are
-        not in it yet."""
+        not in it yet.
+        """
         self._read_due(now_ns)
         since = now_ns // _SECOND_NS - HOST_WINDOW_S
         return min((least for at, least in self._seconds if at > since), default=None)
@@ -220,7 +221,8 @@ class UnitView:
     def learn_host(self, message: Status | Info, at_ns: int) -> None:
         """Keep the host clock ``message`` carries if it is newer than the one known (an
         Info answered late is older than the Status before it). A unit whose bridge now
-        runs on another host starts its clock bound afresh."""
+        runs on another host starts its clock bound afresh.
+        """
         if not message.HasField("host_clock") or at_ns < self.host_clock_ns:
             return
         host = message.host_clock.host
@@ -256,13 +258,15 @@ class HostView:
 
 def ahead(bound_ns: int | None) -> bool:
     """Whether a host whose least (arrival - time_ns) is ``bound_ns`` is provably ahead of
-    the recorder by more than the bridges' own timing error."""
+    the recorder by more than the bridges' own timing error.
+    """
     return bound_ns is not None and bound_ns < -HOST_MARGIN_NS
 
 
 def host_tolerance_ns(ms: float | None) -> int | None:
     """A host clock tolerance given in ms, in ns (None: none); ValueError unless above 0:
-    every sample arrives some time after it was taken, so 0 would always be exceeded."""
+    every sample arrives some time after it was taken, so 0 would always be exceeded.
+    """
     if ms is None:
         return None
     if not (math.isfinite(ms) and ms > 0):
@@ -272,7 +276,8 @@ def host_tolerance_ns(ms: float | None) -> int | None:
 
 def recorder_metadata(sync: clock.HostSync) -> dict[str, str]:
     """The recorder's own host and its clock's sync state, for the archive's metadata:
-    every arrival time (publish time) in the archive is on this clock."""
+    every arrival time (publish time) in the archive is on this clock.
+    """
     return {"recorder_host": sync.host, "recorder_clock": json.dumps(asdict(sync))}
 
 
@@ -369,7 +374,8 @@ class Recorder:
 
     def _archive_info(self, unit: str) -> None:
         """A unit that appears gets its Info (identity and settings) into the archive; a
-        bridge still bringing its unit up answers "no Info yet", so ask again."""
+        bridge still bringing its unit up answers "no Info yet", so ask again.
+        """
         for _ in range(_INFO_TRIES):
             if self._stop.is_set():
                 return
@@ -405,7 +411,8 @@ class Recorder:
 
     def _hold(self, groups: dict[str, Arrivals]) -> int:
         """Keep checked messages for the writer (caller holds ``_held_lock``); shed imu
-        and raw ones while the held memory is over its cap."""
+        and raw ones while the held memory is over its cap.
+        """
         now = clock.realtime_ns()
         n = 0
         for key, got in groups.items():
@@ -440,7 +447,8 @@ class Recorder:
     def _missed_on(self, index: int) -> Callable[[str, int], None]:
         def missed(key: str, count: int) -> None:
             """Zenoh's thread, before it delivers the first sample after the loss: what
-            came before it is taken first, so the loss has its place among them."""
+            came before it is taken first, so the loss has its place among them.
+            """
             with self._held_lock:
                 self._hold(self._subs[index].take_by_key(1 << 30))
                 loss = _Loss(key, count, clock.realtime_ns(), self._last.get(key))
@@ -475,7 +483,8 @@ class Recorder:
 
     def run_once(self, wait_s: float = 0.2) -> None:
         """Write what arrives during ``wait_s``, taken in bulk every ``_PASS_S`` (or at
-        least once); flush when a second has passed."""
+        least once); flush when a second has passed.
+        """
         deadline = time.monotonic() + wait_s
         while True:
             self._pass()
@@ -490,7 +499,8 @@ class Recorder:
 
     def _pass(self) -> None:
         """Everything held into the archive, one write per key, then the events that
-        account for what was not archived."""
+        account for what was not archived.
+        """
         now = clock.realtime_ns()
         with self._held_lock:
             held, self._held, self._held_bytes = self._held, {}, 0
@@ -529,7 +539,8 @@ class Recorder:
 
     def _lost(self, loss: _Loss, after: bytes | None, now: int) -> tuple[str, Event]:
         """The event of samples missed between ``loss.before`` and ``after`` (None: none
-        came after them); on imu their ticks and times are spread evenly between."""
+        came after them); on imu their ticks and times are spread evenly between.
+        """
         leaf = loss.key.rpartition("/")[2]
         t0, k0 = _instant(leaf, loss.before, loss.missed_ns)
         t1, k1 = _instant(leaf, after, loss.missed_ns)
@@ -558,7 +569,8 @@ class Recorder:
                written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
         """Archive messages of one key, received at ``received`` (host ns: one for all, or
         one each; ``published``: raw reads' raw-clock stamps), and count them in their
-        unit's view (samples also in its clock bound)."""
+        unit's view (samples also in its clock bound).
+        """
         if self.error is not None:
             return
         bulk = True
@@ -602,7 +614,8 @@ class Recorder:
         """One row per bridge host (by name, unnamed ones last): its units and its clock
         against the recorder's, over the last ``HOST_WINDOW_S`` s before ``now_ns`` (the
         recorder's clock; default now). Units with neither samples nor a named host are
-        left out (nothing is known of their host)."""
+        left out (nothing is known of their host).
+        """
         now = clock.realtime_ns() if now_ns is None else now_ns
         with self._lock:
             groups: dict[tuple[bool, str], list[UnitView]] = {}  # (unnamed, host or unit)
@@ -626,7 +639,8 @@ class Recorder:
         it is not provably ahead at all), or, with a tolerance, its bound beyond it
         (cleared once back under it by ``HOST_MARGIN_NS``). Each is told once when it
         starts (and to a unit that joins the host while it holds), again only after it
-        cleared: a host that stays off fills no archive."""
+        cleared: a host that stays off fills no archive.
+        """
         notes = []
         tolerance = self.max_host_offset_ns
         for host in self.hosts(now):
@@ -668,7 +682,8 @@ class Recorder:
     @staticmethod
     def _hosts_metadata(hosts: list[HostView]) -> dict[str, str]:
         """The ``gx3.hosts`` metadata record: each host's units, the least (arrival -
-        time_ns) over the whole recording, its latest sync state; the recorder's own."""
+        time_ns) over the whole recording, its latest sync state; the recorder's own.
+        """
         meta = {"note": "least_lag_ns: the least (arrival on the recorder's clock - "
                         "time_ns) of the host's samples over the recording: the most its "
                         "clock was behind the recorder's; negative: ahead by at least that",
@@ -684,7 +699,8 @@ class Recorder:
     def _each(self, key: str, payloads: list[bytes], received: int | np.ndarray
               ) -> list[bytes]:
         """The payloads that ``write`` takes one by one (a message on a matching key that
-        is not one of ours is not archived)."""
+        is not one of ours is not archived).
+        """
         kept = []
         stamps = np.broadcast_to(np.asarray(received, np.int64), (len(payloads),)).tolist()
         for payload, stamp in zip(payloads, stamps, strict=True):
@@ -719,7 +735,8 @@ class Recorder:
     def close(self) -> None:
         """Stop receiving, write what has arrived (and the losses still open: nothing
         came after them) and the hosts' clocks over the recording (``gx3.hosts``, in the
-        file being written), and leave the writer to its owner."""
+        file being written), and leave the writer to its owner.
+        """
         self._alive.undeclare()
         self._stop.set()
         self._receiver.join()

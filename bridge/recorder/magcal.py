@@ -208,7 +208,8 @@ def _not_an_ellipsoid() -> str:
 
 def _missing(corrected: FloatArray) -> str:
     """Which body axes never had the field along them (else, the side the readings crowd
-    away from), and what to do."""
+    away from), and what to do.
+    """
     directions = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
     names = []
     for i, axis in enumerate(_AXES):
@@ -318,7 +319,8 @@ def apply(table: dict[str, np.ndarray], irons: Sequence[UnitIron]) -> None:
 def tilt_heading(accel: npt.ArrayLike, mag: npt.ArrayLike) -> FloatArray:
     """Heading [rad, -pi..pi, from magnetic north toward east] of the body x axis, from
     the specific force (down is against it when the unit is not accelerating) and the
-    field, both body FRD: the yaw a level compass would show, whatever the tilt."""
+    field, both body FRD: the yaw a level compass would show, whatever the tilt.
+    """
     down = -np.asarray(accel, np.float64)
     east = np.cross(down, np.asarray(mag, np.float64))
     north = np.cross(east, down)
@@ -331,7 +333,8 @@ def with_heading(table: dict[str, np.ndarray], prefixes: Iterable[str] = ("",),
                  units: Iterable[str] = ()) -> dict[str, np.ndarray]:
     """The table with a ``mag_heading`` column beside each yaw (or after mag), per column
     prefix (an aligned table's ``<unit>__``), where the table has accel and mag; with
-    ``units``, rows of other units (whose mag is not corrected) have none."""
+    ``units``, rows of other units (whose mag is not corrected) have none.
+    """
     out = dict(table)
     others = ~np.isin(table["unit"], list(units)) if units else None
     for p in prefixes:

@@ -176,7 +176,8 @@ def _read(fd: int, at: int, size: int) -> bytes:
 @dataclass
 class _Run:
     """Held messages spilled, sorted, to the spill file: records start at ``ends[:-1]``
-    and end at ``ends[1:]``."""
+    and end at ``ends[1:]``.
+    """
 
     channel: np.ndarray
     log_time: np.ndarray
@@ -186,7 +187,8 @@ class _Run:
 
 def _gather(data: np.ndarray, start: np.ndarray, size: np.ndarray) -> bytes:
     """The byte ranges (``start``, ``size``) of ``data`` end to end: the records of each
-    size moved as rows of a window view, one row copy each (there are few sizes)."""
+    size moved as rows of a window view, one row copy each (there are few sizes).
+    """
     total = int(size.sum())
     out = np.empty(total, np.uint8)
     at = np.cumsum(size) - size
@@ -267,14 +269,16 @@ class McapWriter:
 
     def late_among(self, log_time: np.ndarray) -> np.ndarray:
         """Which of these log times ``add`` would write later than logged: before the last
-        message already written."""
+        message already written.
+        """
         log_time = np.asarray(log_time, np.int64)
         return log_time < self._end if self._messages else np.zeros(len(log_time), bool)
 
     def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
             publish_time: np.ndarray, payloads: Sequence[bytes]) -> None:
         """Hold messages of ``channel`` (sequence numbers from ``first_sequence``) until
-        a ``release`` reaches their log time."""
+        a ``release`` reaches their log time.
+        """
         if not len(payloads):
             return
         log_time = np.asarray(log_time, np.int64)
@@ -292,7 +296,8 @@ class McapWriter:
 
     def release(self, upto: int | None = None) -> None:
         """Write the held messages logged at or before ``upto`` (None: all), in log-time
-        order (messages of one time in the order added); chunks close as they fill."""
+        order (messages of one time in the order added); chunks close as they fill.
+        """
         if self._runs:
             self._spill()
             self._merge(upto)
@@ -325,7 +330,8 @@ class McapWriter:
 
     def _spill(self) -> None:
         """Move the held messages, sorted, to a run in a temporary file (memory stays
-        flat while a whole file waits to be sorted)."""
+        flat while a whole file waits to be sorted).
+        """
         if not self._held:
             return
         data, log, start, size, channel = _joined(self._held)
@@ -345,7 +351,8 @@ class McapWriter:
 
     def _merge(self, upto: int | None) -> None:
         """Write the messages of the spilled runs logged up to ``upto``, in log-time order:
-        a slice of time at a time, each run's part of it read in one piece."""
+        a slice of time at a time, each run's part of it read in one piece.
+        """
         logs = np.concatenate([r.log_time[r.at :] for r in self._runs])
         if upto is not None:
             logs = logs[logs <= upto]
@@ -389,7 +396,8 @@ class McapWriter:
     def _close_chunk(self) -> None:
         """Close the chunk in progress (none without messages: its schemas and channels
         wait for the next). It is compressed on a worker thread while the next one
-        fills, and written when that one closes or at the next flush."""
+        fills, and written when that one closes or at the next flush.
+        """
         chunk = self._chunk
         if not chunk.messages:
             return
@@ -436,14 +444,16 @@ class McapWriter:
 
     def flush(self) -> None:
         """Close the chunk in progress and hand what is written to the OS (held messages
-        wait for their ``release``)."""
+        wait for their ``release``).
+        """
         self._close_chunk()
         self._write_closed()
         self.stream.flush()
 
     def close(self) -> None:
         """Stop the compression thread (``finish`` does; call this when not finishing,
-        after a write error). Safe to call twice."""
+        after a write error). Safe to call twice.
+        """
         self._closed = None
         self._runs = []
         if self._spill_fd is not None:
@@ -453,7 +463,8 @@ class McapWriter:
 
     def finish(self) -> None:
         """Write every held message, close the last chunk and write the summary and footer
-        (the stream stays open)."""
+        (the stream stays open).
+        """
         try:
             self.release()
             self._close_chunk()

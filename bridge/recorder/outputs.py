@@ -73,7 +73,8 @@ def refuse_if_written(path: Path) -> None:
 def refuse(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
     """Refuse ``path`` as an output unless writing it destroys nothing the user did not
     give up: its folder must exist; it must not be a folder, one of ``inputs``, or a
-    file another process is writing; an existing file only with ``force``."""
+    file another process is writing; an existing file only with ``force``.
+    """
     folder = path.parent
     if not folder.is_dir():
         raise OutputRefused(f"{path}: the folder {folder} does not exist; create it or "
@@ -108,7 +109,8 @@ def create_locked(path: Path, force: bool = False) -> IO[bytes]:
     """A new file at ``path`` to write, created exclusively and holding an exclusive
     lock until closed. An existing file is refused (replaced with ``force`` unless
     another process writes it). Other OS errors (no permission, full disk) raise as
-    OSError."""
+    OSError.
+    """
     if force:
         refuse(path, force=True)
         path.unlink(missing_ok=True)
@@ -128,7 +130,8 @@ def create_locked(path: Path, force: bool = False) -> IO[bytes]:
 
 def temporary(path: Path) -> Path:
     """The hidden name ``staged`` writes ``path`` under: same folder (the rename stays on
-    one file system) and same suffix (writers that pick a format by it still do)."""
+    one file system) and same suffix (writers that pick a format by it still do).
+    """
     return path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
 
 
@@ -136,7 +139,8 @@ def temporary(path: Path) -> Path:
 def staged(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
     """The temporary file to write the batch output ``path`` into: refused at once as
     ``refuse`` says; renamed to ``path`` when the block ends, removed if it raises
-    (Ctrl-C included)."""
+    (Ctrl-C included).
+    """
     refuse(path, inputs, force)
     temp = temporary(path)
     try:
@@ -148,7 +152,8 @@ def staged(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iter
 
 def _commit(temp: Path, path: Path, force: bool) -> None:
     """Put ``temp`` in place of ``path``; without ``force``, never over a file that
-    appeared meanwhile (a hard link fails if the name exists; rename would not)."""
+    appeared meanwhile (a hard link fails if the name exists; rename would not).
+    """
     if force:
         os.replace(temp, path)
         return
@@ -167,7 +172,8 @@ def _commit(temp: Path, path: Path, force: bool) -> None:
 def free_folder(path: Path, force: bool = False, next_free: bool = False) -> Path:
     """A folder for a run's results that holds no earlier run's: ``path`` if it is
     missing or empty, or with ``force``; else, with ``next_free``, the first missing or
-    empty one of path-2, path-3, ...; else refused."""
+    empty one of path-2, path-3, ...; else refused.
+    """
     def empty(folder: Path) -> bool:
         return not folder.exists() or (folder.is_dir() and not any(folder.iterdir()))
 

@@ -47,7 +47,8 @@ def raw_topic(prefix: str, unit: str) -> str:
 def capture_metadata(info: Info) -> dict[str, str]:
     """What a capture's reads need to be timed as live (``gx3.capture`` metadata), from
     the unit's Info: a bridge writes it into its --capture file, and ``gx3 replay``
-    takes it from an archive's Info where raw reads came over Zenoh."""
+    takes it from an archive's Info where raw reads came over Zenoh.
+    """
     return {"unit": info.unit, "port": info.port, "baud": str(info.baud),
             "record": f"0x{info.command:02X}", "firmware": info.firmware_text,
             "flags": str(info.flags), "filter_width": str(info.filter_width),
@@ -91,7 +92,8 @@ class RawCaptureWriter:
 
     def write(self, data: bytes, real_ns: int, raw_ns: int | None = None) -> None:
         """One read's bytes, stamped with its receive times on the realtime and (where
-        known) the raw monotonic clock."""
+        known) the raw monotonic clock.
+        """
         self._guard(self._writer.add_message, self._channel, real_ns, data,
                     real_ns if raw_ns is None else raw_ns, self._sequence)
         self._sequence += 1

@@ -87,7 +87,8 @@ class _Block:
 
     def commands(self, picked: np.ndarray, unit: str) -> np.ndarray:
         """Command bytes of the ImuSamples at indexes ``picked``: read at their fixed place
-        in the bulk layout (tags checked), parsed for messages in any other layout."""
+        in the bulk layout (tags checked), parsed for messages in any other layout.
+        """
         n = len(unit.encode())
         start, length = self.start[picked], self.length[picked]
         buf = np.frombuffer(self.data, np.uint8)
@@ -115,7 +116,8 @@ class _Block:
 
     def rows(self, picked: np.ndarray, width: int) -> np.ndarray:
         """(len(picked), width) bytes of the payloads at indexes ``picked``, all ``width``
-        long: straight out of the chunk, no bytes object each."""
+        long: straight out of the chunk, no bytes object each.
+        """
         return _rows(np.frombuffer(self.data, np.uint8), self.start[picked], width)
 
 
@@ -190,7 +192,8 @@ class ArchiveReader:
 
     def skip(self, topic: str, count: int, why: str) -> None:
         """Leave out ``count`` bad messages of ``topic`` and say so (once per topic and
-        reason)."""
+        reason).
+        """
         if count:
             if not self.skipped[f"{topic}: {why}"]:
                 self.warn(f"{self.path}: {topic}: skipped {count} message(s) {why}")
@@ -331,7 +334,8 @@ class ArchiveReader:
 
     def decoded(self, topic: str, cls: type[M]) -> list[tuple[int, M]]:
         """(log time, message) of every message of ``topic`` that parses as ``cls`` and
-        names the topic's unit; the others are left out and counted."""
+        names the topic's unit; the others are left out and counted.
+        """
         msgs = self.messages(topic)
         out: list[tuple[int, M]] = []
         bad = 0
@@ -380,7 +384,8 @@ def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
             ) -> dict[str, np.ndarray]:
     """decode_batch of the messages ``parts`` pick out of their chunks: rows read straight
     out of the chunks when all have the size of one bulk layout (an older bridge's too),
-    else a bytes object each."""
+    else a bytes object each.
+    """
     found: np.ndarray | list[bytes] | None = None
     for header in (HEADER, LEGACY_HEADER):
         size = layout(code, unit, header).size
@@ -394,7 +399,8 @@ def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
 
 def _decodable(unit: str, code: int, block: _Block, picked: np.ndarray) -> np.ndarray:
     """Which of the messages at ``picked`` decode as ``unit``'s samples of ``code``: the
-    bulk layout's fixed bytes checked at once, any other message parsed on its own."""
+    bulk layout's fixed bytes checked at once, any other message parsed on its own.
+    """
     lay = layout(code, unit)
     ok = np.zeros(len(picked), bool)
     sized = np.flatnonzero(block.length[picked] == lay.size)
@@ -421,7 +427,8 @@ def _read_stream(body: bytes) -> ReadDataStream:
 def summary_counts(path: Path, kind: str) -> dict[str, int] | None:
     """Messages per topic of one kind (the topic's last chunk), from the summary at the
     end of a finished file: no chunk is read. None when the file has no usable summary
-    (cut short, or not MCAP: ``read_archive`` says which)."""
+    (cut short, or not MCAP: ``read_archive`` says which).
+    """
     try:
         with path.open("rb") as stream:
             summary = make_reader(stream).get_summary()
@@ -462,7 +469,8 @@ def _step(data: bytes, off: int, messages: list[int], others: list[tuple[int, in
 
 def _indexed_runs(buf: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(first, end) of each run of back-to-back message records at ``offsets`` (sorted,
-    unique); none when one is anything but a whole message record in the chunk."""
+    unique); none when one is anything but a whole message record in the chunk.
+    """
     none = np.zeros(0, np.int64), np.zeros(0, np.int64)
     if not len(offsets) or offsets[0] < 0 or offsets[-1] + 9 + _MESSAGE.itemsize > len(buf):
         return none
@@ -478,7 +486,8 @@ def _indexed_runs(buf: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.
 
 def _rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     """(len(starts), width) bytes of ``buf`` from each start: one row copy each (through a
-    view of every window of ``width`` bytes, made without sliding_window_view's checks)."""
+    view of every window of ``width`` bytes, made without sliding_window_view's checks).
+    """
     windows = np.ndarray((max(len(buf) - width + 1, 0), width), np.uint8, buf, strides=(1, 1))
     rows: np.ndarray = windows[starts]
     return rows
@@ -592,7 +601,8 @@ def _open(path: Path) -> tuple[IO[bytes], int]:
 
 def _message_indexes(stream: IO[bytes], pos: int, size: int) -> list[bytes]:
     """Bodies of the whole message index records that follow a chunk (the stream is left
-    after them)."""
+    after them).
+    """
     out: list[bytes] = []
     while True:
         head = stream.read(9)
@@ -632,7 +642,8 @@ def _after(chunks: dict[int, ChunkIndex], chunk: ChunkIndex) -> int:
 def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: str,
             channels: dict[int, Channel]) -> None:
     """Note a chunk skipped: its time span from the chunk index, its messages per topic
-    from its message indexes (when those are intact)."""
+    from its message indexes (when those are intact).
+    """
     lost: dict[str, int] | None = {}
     for cid, offset in index.message_index_offsets.items():
         stream.seek(offset)

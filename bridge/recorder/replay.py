@@ -71,7 +71,8 @@ Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
 class CapturedReads:
     """One unit's reads from a raw capture, in the order they were made: receive times on
     the realtime clock and (None: an older capture's, with none) on the raw monotonic
-    clock, bytes, what its bridge said."""
+    clock, bytes, what its bridge said.
+    """
 
     unit: str
     rx_ns: np.ndarray
@@ -89,7 +90,8 @@ def _read_times(archive: ArchiveReader, messages: Messages
     A publish time of 10^18 or more is an older capture's realtime stamp. Otherwise it is
     the raw stamp and the log time the realtime one, except for a read an archive wrote
     later than its reorder window, at the log time of the message before it: its own is
-    in the archive's ``gx3.late_reads`` records."""
+    in the archive's ``gx3.late_reads`` records.
+    """
     order = np.argsort(messages.sequence, kind="stable")  # the order they were read in
     log = messages.log_time[order].astype(np.int64)
     published = messages.publish_time[order].astype(np.int64)
@@ -110,7 +112,8 @@ def _read_times(archive: ArchiveReader, messages: Messages
 def captures(path: Path, prefix: str = "gx3",
              topics: Collection[str] | None = None) -> list[CapturedReads]:
     """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive), or
-    those of the raw ``topics`` named."""
+    those of the raw ``topics`` named.
+    """
     archive: ArchiveReader = read_archive(path)
     meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
             if m.name == "gx3.capture"}
@@ -169,7 +172,8 @@ class UnitReplay:
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self, little_endian: bool, transport: str | None) -> Settings:
         """From the capture's metadata, or else its bytes and receive times; a
-        ``transport`` given overrides the link either gives."""
+        ``transport`` given overrides the link either gives.
+        """
         meta = self.capture.metadata
         if {"record", "decimation", "filter_width", "baud"} <= meta.keys():
             return Settings(record=int(meta["record"], 0), decimation=int(meta["decimation"]),
@@ -198,7 +202,8 @@ class UnitReplay:
 
     def _unstepped(self, little_endian: bool) -> np.ndarray:
         """The capture's realtime receive times with the steps of the host clock that the
-        data records show taken out (``bridge.timing.steps``), epoch by epoch."""
+        data records show taken out (``bridge.timing.steps``), epoch by epoch.
+        """
         framer = Framer(DATA_CODES, little_endian=little_endian)
         found = [b for group in frame_reads(framer, np.arange(len(self.capture.data)),
                                             self.capture.data) for b in group]
@@ -243,7 +248,8 @@ class UnitReplay:
     # --- replay --------------------------------------------------------------------------
     def _info(self, emit: Emit, prefix: str, at_ns: int) -> None:
         """The unit's Info, as its bridge published it, so the archive is complete (and
-        the offline time estimate knows the settings)."""
+        the offline time estimate knows the settings).
+        """
         s, meta = self.settings, self.capture.metadata
         info = Info(unit=self.capture.unit, port=meta.get("port", ""), baud=s.baud,
                     command=s.record, decimation=s.decimation, filter_width=s.filter_width,
@@ -268,7 +274,8 @@ class UnitReplay:
 
     def _flush(self, emit: Emit, prefix: str) -> None:
         """Time and archive the records gathered since the last settings change in one
-        go: the timing gives the same results however records are grouped."""
+        go: the timing gives the same results however records are grouped.
+        """
         pending, self._pending, self._pending_records = self._pending, [], 0
         if pending:
             self._samples(Batch.concatenate(pending), emit, prefix)
@@ -326,7 +333,8 @@ class UnitReplay:
 
 def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterator[list[Batch]]:
     """The framer's records from ``reads`` (received at ``rx_ns``), a megabyte of reads at
-    a time: the same records and times as read by read, for a fraction of the cost."""
+    a time: the same records and times as read by read, for a fraction of the cost.
+    """
     sizes = np.fromiter(map(len, reads), np.int64, len(reads))
     ends = np.cumsum(sizes)
     cuts = np.searchsorted(ends, np.arange(_FEED_BYTES, int(ends[-1]) if len(ends) else 0,
@@ -405,7 +413,8 @@ def _tasks(paths: list[Path], jobs: int) -> list[_Task]:
 def _archive(out: Path, prefix: str) -> Iterator[ArchiveWriter]:
     """The replay's archive, sorted whole: finished when the replay is, abandoned
     unfinished when it fails or is interrupted (the caller throws the file away), so
-    Ctrl-C is not held up by finishing a file nobody keeps."""
+    Ctrl-C is not held up by finishing a file nobody keeps.
+    """
     writer = ArchiveWriter(out, prefix=prefix, reorder_s=None)
     try:
         yield writer
@@ -418,7 +427,8 @@ def _archive(out: Path, prefix: str) -> Iterator[ArchiveWriter]:
 def _unit_tasks(paths: list[Path]) -> list[_Task]:
     """A task per unit (raw topic) of each file, counted from its summary (or, for a file
     cut short, from its chunks); a file with none is a task of its own (its worker says
-    what is wrong with it)."""
+    what is wrong with it).
+    """
     tasks = []
     for i, path in enumerate(paths):
         counts = summary_counts(path, "raw")
@@ -437,7 +447,8 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        jobs: int, transport: str | None) -> list[Replayed]:
     """``replay`` with the tasks shared out by weight among ``jobs`` processes, started
     before the archive writer's thread is (a process with threads forks badly). A
-    bounded queue brings their messages here, so memory stays flat."""
+    bounded queue brings their messages here, so memory stays flat.
+    """
     shares: list[list[_Task]] = [[] for _ in range(jobs)]
     loads = [0] * jobs
     for task in sorted(tasks, key=lambda t: -t.weight):
@@ -494,7 +505,8 @@ def _worker(tasks: list[_Task], prefix: str,
             transport: str | None) -> None:
     """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
     its raw topic, the order it has replayed alone. Ctrl-C is the caller's to handle (it
-    ends the workers and removes its output), and its SIGTERM ends a worker at once."""
+    ends the workers and removes its output), and its SIGTERM ends a worker at once.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
@@ -528,7 +540,8 @@ def _sendable(exc: Exception) -> Exception:
 
 def _end_when_orphaned(parent: int) -> None:
     """A worker whose caller is gone (killed) ends: nobody will read what it sends, and
-    it would wait on the full queue for ever."""
+    it would wait on the full queue for ever.
+    """
     while os.getppid() == parent:
         time.sleep(1.0)
     os._exit(1)

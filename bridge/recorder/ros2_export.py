@@ -50,7 +50,8 @@ class Ros2Written:
 
 def quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
     """The export's flat columns of ``rows`` back as quantities, (n, elements) each
-    (``m`` as (n, 9)), NaN where a record lacks one."""
+    (``m`` as (n, 9)), NaN where a record lacks one.
+    """
     out = {}
     for q in QUANTITY_ORDER:
         names = flat_names(q, elements(q))

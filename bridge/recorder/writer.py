@@ -119,7 +119,8 @@ def numbered(path: Path, index: int) -> Path:
 def next_part(path: Path) -> int:
     """The index after the highest part of the recording ``path`` already there: a
     restarted recorder adds parts, never replaces one. Refused while another process
-    writes that last part (one writer per recording)."""
+    writes that last part (one writer per recording).
+    """
     pattern = re.compile(rf"{re.escape(path.stem)}_(\d{{4,}}){re.escape(path.suffix)}")
     found = [int(m[1]) for p in path.parent.glob(f"{glob.escape(path.stem)}_*")
              if (m := pattern.fullmatch(p.name))]
@@ -156,7 +157,8 @@ _RELEASE_CHUNKS = 4
 
 def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
     """(unit, command, time_ns) of a serialized ImuSample: from its fixed header when it
-    has the bulk layout (a few hundred ns), else by parsing it."""
+    has the bulk layout (a few hundred ns), else by parsing it.
+    """
     head = _header(unit)
     if len(payload) >= head.size:
         t0, n, name, t1, command, t2, _, t3, _, t4, time_ns = head.unpack_from(payload)
@@ -168,7 +170,8 @@ def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
 
 def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray, np.ndarray]:
     """``stamp`` of many ImuSamples: units, commands, times. Many payloads of one length
-    whose headers all name ``unit`` are read as one array; any others one by one."""
+    whose headers all name ``unit`` are read as one array; any others one by one.
+    """
     head = _header_dtype(unit)
     name = unit.encode()
     size = len(payloads[0]) if payloads else 0
@@ -203,7 +206,8 @@ def frame_picks(times: np.ndarray, due: int | None,
     20 Hz instead of 25). A tick with no sample of its own is skipped; time going back
     more than two periods (a reset) starts the grid again. Times that never go back (the
     usual case) let it jump from frame to frame, each sample's successor found for all
-    at once."""
+    at once.
+    """
     if not period:
         return list(range(len(times))), due
     if len(times) and (len(times) < 2 or bool((np.diff(times) >= 0).all())):
@@ -317,7 +321,8 @@ class ArchiveWriter:
 
     def _open(self) -> None:
         """Create the next file exclusively and lock it (bridge/recorder/outputs.py): an existing
-        one is never truncated; split parts continue after those already there."""
+        one is never truncated; split parts continue after those already there.
+        """
         if self._splits and not self.paths:
             self._first_part = next_part(self.path)
         index = self._first_part + len(self.paths)
@@ -393,7 +398,8 @@ class ArchiveWriter:
         """Hand messages of one topic to the file's writer; returns how many were taken
         (all, unless the file splits by size: then about a chunk's worth, so the caller
         can look at the file's size). Their publish times are ``publish_ns``, by default
-        their receive times."""
+        their receive times.
+        """
         f = self._current()
         cid = f.channels.get(topic) or self._register(topic, unit, leaf)
         n = len(payloads)
@@ -482,7 +488,8 @@ class ArchiveWriter:
         """Messages of one key, received at ``receive_ns`` (host ns: one for all, or one
         per payload): the archive ``write`` gives message by message, in bulk.
         ``publish_ns``: raw reads' raw-clock stamps, their publish times (rawcapture.py);
-        by default the receive times are."""
+        by default the receive times are.
+        """
         if self._broken is not None:
             raise self._broken
         self._drain()
@@ -548,7 +555,8 @@ class ArchiveWriter:
     def _add_all(self, topic: str, leaf: str, log_ns: np.ndarray,
                  payloads: Sequence[bytes], rx: np.ndarray, unit: str = "") -> None:
         """``_add`` until every message is taken (a file split by size takes a chunk's
-        worth at a time)."""
+        worth at a time).
+        """
         done = 0
         while done < len(payloads):
             done += self._add(topic, unit, leaf, log_ns[done:], payloads[done:], rx[done:])
@@ -564,7 +572,8 @@ class ArchiveWriter:
     def _queue_frames(self, unit: str, units: list[str], codes: np.ndarray,
                       log_ns: np.ndarray, payloads: Sequence[bytes], rx: np.ndarray) -> None:
         """Keep the samples that become FrameTransforms (records without attitude get
-        none): at most one a period per unit."""
+        none): at most one a period per unit.
+        """
         code_list = codes.tolist()
         kinds = set(code_list)
         if not any(map(_framed, kinds)):
@@ -638,7 +647,8 @@ class ArchiveWriter:
 
     def _maybe_split(self, rx: int) -> None:
         """Start the next file before a message received at ``rx`` if this one is full or
-        old; a file's age counts from the receive time of its first message."""
+        old; a file's age counts from the receive time of its first message.
+        """
         f = self._current()
         if f.opened_ns is None:
             f.opened_ns = rx
@@ -667,7 +677,8 @@ class ArchiveWriter:
 
     def flush(self) -> None:
         """Write what the reorder window lets go, close the open chunk and hand it all to
-        the OS (a crash keeps it)."""
+        the OS (a crash keeps it).
+        """
         self._drain()
         self._write_frames()
         self._release()
@@ -676,7 +687,8 @@ class ArchiveWriter:
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """A metadata record into the file being written: what its writer learnt only
-        as the recording went (the ``metadata`` given at start go into every file)."""
+        as the recording went (the ``metadata`` given at start go into every file).
+        """
         self._guard(self._current().writer.add_metadata, name, data)
 
     def tick(self) -> None:
@@ -712,7 +724,8 @@ class ArchiveWriter:
 
     def abandon(self) -> None:
         """Stop without finishing the file: for an output that is thrown away (a batch
-        command that failed or was interrupted), where finishing is only a wait."""
+        command that failed or was interrupted), where finishing is only a wait.
+        """
         if self._file is not None:
             f, self._file = self._file, None
             f.writer.close()

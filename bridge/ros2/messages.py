@@ -64,7 +64,8 @@ def _typestore() -> Typestore:
 
 def message_definition(msgtype: str) -> str:
     """The ``ros2msg`` text rosbag2 embeds as an MCAP schema: the message, then each
-    type it uses after a line of ``=`` and ``MSG: <type>``."""
+    type it uses after a line of ``=`` and ``MSG: <type>``.
+    """
     return _typestore().generate_msgdef(msgtype, ros_version=2)[0]
 
 
@@ -78,7 +79,8 @@ _NOT_ROS = re.compile(r"[^A-Za-z0-9_]+")
 
 def ros_token(name: str) -> str:
     """A unit name or key prefix as one ROS name token (letters, digits, single '_',
-    not starting with a digit): ``imu-1`` -> ``imu_1``, ``6234.1`` -> ``u6234_1``."""
+    not starting with a digit): ``imu-1`` -> ``imu_1``, ``6234.1`` -> ``u6234_1``.
+    """
     token = _NOT_ROS.sub("_", name).strip("_")
     token = re.sub("_+", "_", token) or "unit"
     return f"u{token}" if token[0].isdigit() else token
@@ -91,7 +93,8 @@ def ros_topic(prefix: str, unit: str, leaf: str) -> str:
 
 def frame_id(unit: str, prefix: str = "gx3") -> str:
     """A unit's body frame: ``gx3_<unit>``, prefixed so it cannot collide with another
-    system's frames (a key prefix with slashes keeps them as underscores)."""
+    system's frames (a key prefix with slashes keeps them as underscores).
+    """
     return f"{prefix.replace('/', '_')}_{unit}"
 
 
@@ -103,7 +106,8 @@ def body_flu(frd: npt.ArrayLike) -> np.ndarray:
 
 def earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     """(n, 3, 3) M (earth NED -> sensor FRD) of n records, each from m, the quaternion or
-    the Euler angles, whichever it holds first in that order; NaN where it holds none."""
+    the Euler angles, whichever it holds first in that order; NaN where it holds none.
+    """
     as_m: dict[str, Callable[[np.ndarray], np.ndarray]] = {
         "m": lambda v: v.reshape(n, 3, 3), "quaternion": quaternion_to_m, "euler": euler_to_m}
     out = np.full((n, 3, 3), np.nan)
@@ -129,7 +133,8 @@ def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
 def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
           width: int) -> tuple[np.ndarray, np.ndarray]:
     """(n, width) float64 values, each row from the first of ``names`` that it holds
-    (finite), and which rows hold one; zeros where none."""
+    (finite), and which rows hold one; zeros where none.
+    """
     values, present = np.zeros((n, width)), np.zeros(n, bool)
     for name in names:
         if name in columns:
@@ -142,7 +147,8 @@ def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
 
 def _stamp_layout(frame: str, doubles: int) -> np.dtype:
     """The CDR layout of a message that starts with a std_msgs/Header of ``frame`` and
-    continues with ``doubles`` float64 (aligned to 8 from the end of the encapsulation)."""
+    continues with ``doubles`` float64 (aligned to 8 from the end of the encapsulation).
+    """
     name = frame.encode() + b"\x00"
     body = 12 + len(name)
     first = -(-body // 8) * 8
@@ -214,14 +220,16 @@ def has_mag(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
 def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
                   columns: Mapping[str, np.ndarray]) -> list[bytes]:
     """CDR ``sensor_msgs/msg/Imu`` of each record, stamped ``time_ns`` (int ns since
-    1970), in ``frame``; see :func:`imu_doubles` for ``columns``."""
+    1970), in ``frame``; see :func:`imu_doubles` for ``columns``.
+    """
     n = len(np.asarray(time_ns).reshape(-1))
     return _messages(time_ns, frame, imu_doubles(columns, n))
 
 
 def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
     """One record's CDR ``sensor_msgs/msg/Imu``; ``columns`` hold one value each
-    (``accel`` of shape (3,), ``m`` (3, 3), ...)."""
+    (``accel`` of shape (3,), ``m`` (3, 3), ...).
+    """
     one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
     return imu_cdr_batch([time_ns], frame, one)[0]
 
@@ -230,7 +238,8 @@ def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
                   columns: Mapping[str, np.ndarray]) -> list[bytes]:
     """CDR ``sensor_msgs/msg/MagneticField`` of each record (``mag``, or else
     ``stab_mag``, in gauss): the field in tesla in the body FLU frame, covariance 0
-    (unknown). Give only records that carry a field (:func:`has_mag`)."""
+    (unknown). Give only records that carry a field (:func:`has_mag`).
+    """
     t = np.asarray(time_ns, np.int64).reshape(-1)
     field, present = _rows(columns, MAGNETOMETER, len(t), 3)
     if not present.all():

@@ -95,14 +95,16 @@ def mangle(name: str) -> str:
 
 def dds_type(msgtype: str) -> str:
     """The type name in keys and tokens: ``sensor_msgs/msg/Imu`` ->
-    ``sensor_msgs::msg::dds_::Imu_`` (as CDR names it in DDS)."""
+    ``sensor_msgs::msg::dds_::Imu_`` (as CDR names it in DDS).
+    """
     package, kind, name = msgtype.split("/")
     return f"{package}::{kind}::dds_::{name}_"
 
 
 def topic_key(domain: int, topic: str, type_name: str, type_hash: str) -> str:
     """The key a topic's samples travel on, e.g. ``0/chatter/std_msgs::msg::dds_::String_/
-    RIHS01_df66…``."""
+    RIHS01_df66…``.
+    """
     return f"{domain}/{topic.strip('/')}/{type_name}/{type_hash}"
 
 
@@ -180,7 +182,8 @@ class Ros2Publisher:
 
     def put_all(self, payloads: Iterable[bytes]) -> None:
         """Publish CDR messages, each with the next sequence number; the source
-        timestamp is the publication time, as rmw_zenoh's."""
+        timestamp is the publication time, as rmw_zenoh's.
+        """
         put, source_gid = self._pub.put, self.gid
         sequence, now = self.sequence, clock.realtime_ns()
         for payload in payloads:
@@ -230,7 +233,8 @@ class UnitTopics:
     """One unit on ROS 2: a node ``<prefix>_bridge_<unit>`` publishing ``sensor_msgs/Imu``
     on ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
     ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
-    ROS 2 export uses."""
+    ROS 2 export uses.
+    """
 
     def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str) -> None:
         self.frame = frame_id(unit, prefix)

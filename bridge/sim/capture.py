@@ -38,7 +38,8 @@ class SyntheticCapture:
 
     def records(self) -> tuple[np.ndarray, np.ndarray]:
         """Every record's timer and the receive time of the read that completed it,
-        as the framer finds them in the reads: what the bridge feeds the timeline."""
+        as the framer finds them in the reads: what the bridge feeds the timeline.
+        """
         framer = Framer(expect=[self.code])
         timers, rx = [], []
         for rx_ns, data in zip(self.rx_ns.tolist(), self.data, strict=True):
@@ -53,7 +54,8 @@ def streaming_config(config: UnitConfig, code: int = 0xC2, decimation: int = 10,
                      filter_width: int | None = None, baud: int = USB_BAUD) -> UnitConfig:
     """``config`` with a stored preset that streams ``code`` from power-up, its line
     paced at ``baud``: USB speed by default, a serial port's rate behind a UART or a
-    USB-serial adapter."""
+    USB-serial adapter.
+    """
     s = config.stored
     sampling = replace(s.sampling, decimation=decimation,
                        filter_width=s.sampling.filter_width if filter_width is None

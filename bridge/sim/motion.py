@@ -65,7 +65,8 @@ class MotionConfig:
 def tumbling(config: MotionConfig) -> MotionConfig:
     """``config`` turned through every orientation: roll and yaw keep turning (at
     incommensurate rates) while pitch swings to its +/-55 degrees, the motion a
-    magnetometer iron calibration needs."""
+    magnetometer iron calibration needs.
+    """
     return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
 

@@ -133,7 +133,8 @@ class PtyEndpoint(Endpoint):
 
     def unplug(self) -> None:
         """The pty goes and so does the stable name, as udev removes a pulled device's
-        link: a host retrying the name must not reach the next pty given that number."""
+        link: a host retrying the name must not reach the next pty given that number.
+        """
         self.close()
 
     def plug(self) -> None:
@@ -328,7 +329,8 @@ class Simulator:
 
     def _plan_one(self, now: float) -> None:
         """Compute ahead for the unit closest to running dry, one per tick, so that
-        sixteen units never stall the line together."""
+        sixteen units never stall the line together.
+        """
         slot = min(self.slots, key=lambda s: s.unit.planned_until)
         if slot.unit.planned_until < now + LOOKAHEAD_S / 2:
             slot.unit.plan(now)
@@ -347,7 +349,8 @@ class Simulator:
 
     def unplug(self, index: int, seconds: float, power_cycle: bool = False) -> None:
         """Pull unit ``index``'s cable for ``seconds``, as a test or a demo does on purpose;
-        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug."""
+        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug.
+        """
         slot = self.slots[index]
         slot.power_cycle = power_cycle
         slot.pulled_until = time.monotonic() + seconds

@@ -136,7 +136,8 @@ def _parse(raw: Any, default: Stored) -> Stored:
 
 def check_writable(path: Path) -> None:
     """Fail at start, not on the first write to non-volatile memory, if ``path`` cannot be
-    saved: its folder must be creatable and writable, and it must not be a folder."""
+    saved: its folder must be creatable and writable, and it must not be a folder.
+    """
     try:
         if path.is_dir():
             raise IsADirectoryError(21, "is a directory")

@@ -134,7 +134,8 @@ class TruthLog:
 
     def _store(self) -> None:
         """The waiting rows into the columns (caller holds the lock); only the last
-        ``capacity`` of them can be kept."""
+        ``capacity`` of them can be kept.
+        """
         rows = self._rows[-self._capacity :]
         at = (self._written + len(self._rows) - len(rows) + np.arange(len(rows))) \
             % self._capacity
@@ -177,7 +178,8 @@ class _Segment:
 
 def _monotonic_to_wall_ns() -> int:
     """Wall clock minus monotonic clock, from readings taken together (not from a
-    ``now`` captured earlier, which would put every ground-truth time late)."""
+    ``now`` captured earlier, which would put every ground-truth time late).
+    """
     return time.time_ns() - time.monotonic_ns()
 
 
@@ -445,7 +447,8 @@ class SimUnit:
     def _sample(self, device: np.ndarray, period: float, names: list[str]
                 ) -> dict[str, np.ndarray]:
         """The motion as the unit's filters see it at the end of cycles at ``device``: at
-        least the quantities ``names`` and the quaternion (the truth, always computed)."""
+        least the quantities ``names`` and the quaternion (the truth, always computed).
+        """
         if not self.config.filter_model:
             return self.motion.sample(device, period, only=names)
         delay, mag_delay = self.filter_delays()

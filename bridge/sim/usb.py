@@ -128,7 +128,8 @@ class HostDriver:
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
         """Bytes the unit sent back to back, one every ``byte_s``, the last finished by
-        host time ``finished``."""
+        host time ``finished``.
+        """
         raise NotImplementedError
 
     def _advance(self, now: float) -> None:
@@ -160,7 +161,8 @@ class HostDriver:
 
     def _os_latency(self) -> float:
         """The next read's OS latency. Drawn a block at a time (the same numbers as one
-        at a time), since a UART capture makes a read every few bytes."""
+        at a time), since a UART capture makes a read every few bytes.
+        """
         mean = self.config.os_latency_mean_s
         if not mean:
             return 0.0
@@ -301,7 +303,8 @@ class AdapterLink(UsbLink):
 
 def _line_chunk(data: bytes, finished: float, byte_s: float, after: float) -> _Chunk:
     """Bytes that crossed a serial line back to back, never before the line's last byte
-    (a live transport learns of bytes late, in runs)."""
+    (a live transport learns of bytes late, in runs).
+    """
     return _Chunk(max(finished - (len(data) - 1) * byte_s, after), byte_s, data)
 
 

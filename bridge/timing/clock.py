@@ -82,7 +82,8 @@ _SCALAR_RUN = 16  # records; shorter runs are cheaper in plain integers than in 
 class ClockState:
     """The model for status: host minus nominal device time at the latest record, the
     device clock's rate error against the host's (ppm; positive: the unit's clock runs
-    fast), the median latency above the fit, points used."""
+    fast), the median latency above the fit, points used.
+    """
 
     offset_ns: int
     drift_ppm: float
@@ -103,7 +104,8 @@ class _Line:
 
     def at_one(self, ticks: int) -> int:
         """``at`` of one record in plain numbers: the same float64 operations and
-        round-half-to-even, so the same result without NumPy's cost per call."""
+        round-half-to-even, so the same result without NumPy's cost per call.
+        """
         return self.y_ref + round(self.rate * float(ticks - self.x_ref) - self.bias)
 
     def ticks_at(self, host: int) -> int:
@@ -193,7 +195,8 @@ class OnlineClock:
 
     def horizon(self, rx_ns: int) -> int | None:
         """The most ticks a record received at ``rx_ns`` can carry by the model (it was
-        sampled at least the transport's floor earlier); None before the first fit."""
+        sampled at least the transport's floor earlier); None before the first fit.
+        """
         line = self._line
         return None if line is None else line.ticks_at(rx_ns - self.floor_ns)
 
@@ -204,7 +207,8 @@ class OnlineClock:
         ``rx_ns``: the instant their values describe, filter delay taken out.
         ``part_ns``, ``part_lead_ns``: per record, an earlier read that ended inside it
         and the line time of the bytes it held (the completing read and the floor where
-        there is none)."""
+        there is none).
+        """
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64)
         if x.shape != y.shape:
@@ -222,7 +226,8 @@ class OnlineClock:
                    parts: tuple[list[int], list[int]] | None = None) -> list[int]:
         """``update`` of a few records in plain integers (a live bridge gets one or two a
         read): the same instants without NumPy's fixed cost per call. ``parts``: the
-        partial reads' receive times and line times, as ``update``'s."""
+        partial reads' receive times and line times, as ``update``'s.
+        """
         if len(ticks) != len(rx_ns):
             raise ValueError(f"ticks and rx_ns differ in length: {len(ticks)} vs {len(rx_ns)}")
         out = self._instants(ticks, rx_ns, None, parts)
@@ -240,7 +245,8 @@ class OnlineClock:
     def _instants(self, xs: list[int], ys: list[int], x: np.ndarray | None,
                   parts: tuple[list[int], list[int]] | None) -> list[int]:
         """The line's instants at ``xs``, refitting at the ticks-determined points; long
-        runs on one line in NumPy (``x``: ``xs`` as an array, if the caller has it)."""
+        runs on one line in NumPy (``x``: ``xs`` as an array, if the caller has it).
+        """
         floor, delay = self.floor_ns, self.filter_delay_ns
         if parts is not None and not self.frame_ns:  # no frames: the least bound at once
             ys = [min(r, p - lead + floor) for r, p, lead in zip(ys, *parts, strict=True)]
@@ -278,7 +284,8 @@ class OnlineClock:
         """Instants that only move forward: a refit may lower the line by more than a
         sample period (late points early on, then prompt ones), and a subscriber must
         never see a later sample stamped before an earlier one. Such records get the
-        least later instant (1 ns on) until the line has caught up."""
+        least later instant (1 ns on) until the line has caught up.
+        """
         if not len(out):
             return out
         last = self._last_ns
@@ -346,7 +353,8 @@ class OnlineClock:
         """``best_centre`` at the newest record over the last quarter, half or whole
         of the window. Once a fit has pinned the rate, slopes are only searched as
         far from it as a crystal's temperature drift can take it since: with a
-        single frame crossing in view, the points alone would allow far more."""
+        single frame crossing in view, the points alone would allow far more.
+        """
         now = int(self._x[-1])
         starts = np.searchsorted(x, [now - self._window // part for part in (4, 2, 1)]).tolist()
         ppm = _MAX_PPM
@@ -383,7 +391,8 @@ class OnlineClock:
         the partial reads' bounds where they are less. The window's older points keep
         their snapped times while the grid's phase and ``parts`` stay put (the window
         lost its first ``dropped`` points since the last fit); when either changes,
-        every bucket minimum is found anew."""
+        every bucket minimum is found anew.
+        """
         self._grid *= _GRID_DECAY
         self._grid += grid_histogram(new_y, self.frame_ns)
         phase = grid_phase(self._grid, self.frame_ns)
@@ -410,7 +419,8 @@ class OnlineClock:
     def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``bucket_minima`` of the window, each bucket's found at the first fit after it
         was complete and kept (with that fit's rate) while it stays in the window: the
-        window is minutes long, a fit adds a second."""
+        window is minutes long, a fit adds a second.
+        """
         x = self._x
         first, newest = int(x[0]) // _BUCKET_TICKS, int(x[-1]) // _BUCKET_TICKS
         if self._lows_to is None:
@@ -431,7 +441,8 @@ def pinned_by_bytes(gain: np.ndarray) -> bool:
     bytes that read did not hold, 0 where none did) for the lower envelope of the points
     to be the line. Behind a USB-serial adapter whose packets happen to end with records
     (a 16 ms latency timer, records that divide its packet) the frames alone carry the
-    time, as on native USB."""
+    time, as on native USB.
+    """
     return bool(len(gain)) and float(np.count_nonzero(gain)) >= _PARTIAL_SHARE * len(gain)
 
 
@@ -456,7 +467,8 @@ def grid_phase(histogram: np.ndarray, frame: int) -> int:
     """Where in the frame the boundary lies, from the receive times folded onto it: the
     edge the times lie least far after. Their total distance after bin edge e is
     sum(h c) - e sum(h) + frame (the times in bins before e); the first term is the
-    same for every edge and left out."""
+    same for every edge and left out.
+    """
     h = np.asarray(histogram, np.float64)
     cost = frame * (np.cumsum(h) - h) - float(h.sum()) * _GRID_BIN_NS * np.arange(len(h))
     return int(np.argmin(cost)) * _GRID_BIN_NS + _GRID_BIN_NS // 2 - _GRID_MARGIN_NS
@@ -484,7 +496,8 @@ def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray
 
 def bucket_lows(x: np.ndarray, y: np.ndarray, rate: float) -> np.ndarray:
     """Index of the point least above a line of slope ``rate`` in each quarter second of
-    ticks (the first, on a tie), for every stretch ``x`` touches, in order."""
+    ticks (the first, on a tie), for every stretch ``x`` touches, in order.
+    """
     v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
     buckets = x // _BUCKET_TICKS
     starts = np.concatenate(([0], np.flatnonzero(buckets[1:] != buckets[:-1]) + 1))
@@ -501,7 +514,8 @@ def best_centre(x: np.ndarray, y: np.ndarray, at: int, frame: int, prior: float,
     pins the line at ``at``, else the one that pins it best: a unit whose phase
     sweeps the frame is pinned by a short span, which wander bends least; a unit
     that beats slowly needs a long one. Slopes are searched within ``ppm`` of
-    ``prior``."""
+    ``prior``.
+    """
     best: tuple[int, int, float, float, float] | None = None
     for lo, hi in spans:
         found = polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
@@ -549,7 +563,8 @@ def polygon_centre(x: np.ndarray, y: np.ndarray, now: int, frame: int, prior: fl
 
 class _Band:
     """The spread of ``dy - r dx`` over the points, a convex function of the slope r,
-    and the linear piece of it at each r (its value and slope there)."""
+    and the linear piece of it at each r (its value and slope there).
+    """
 
     def __init__(self, dx: np.ndarray, dy: np.ndarray) -> None:
         self.dx, self.dy = dx, dy
@@ -568,7 +583,8 @@ class _Band:
 
     def narrowest(self, lo: float, hi: float) -> float:
         """The r in [lo, hi] where the spread is least: where the lines of the pieces on
-        either side of it cross, unless a piece there is higher."""
+        either side of it cross, unless a piece there is higher.
+        """
         w_lo, s_lo = self.width(lo)
         w_hi, s_hi = self.width(hi)
         if s_lo >= 0:
@@ -591,7 +607,8 @@ class _Band:
     def reach(self, inside: float, outside: float, level: float) -> float:
         """Between ``inside`` (spread <= level) and ``outside``, the r where the spread
         reaches ``level`` (``outside`` if it never does). From the outside each piece's
-        line lies under the convex spread, so following it never overshoots."""
+        line lies under the convex spread, so following it never overshoots.
+        """
         r = outside
         w, s = self.width(r)
         for _ in range(_MAX_STEPS):
@@ -622,7 +639,8 @@ def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
     """The slope of the highest line under every point, judged at dx = 0: the lower
     hull's edge over dx = 0, clamped to ``_MAX_PPM`` around ``prior``. The search starts
     a few ppm around ``prior`` (a refit's rate is close to the last one) and widens
-    until the answer is inside."""
+    until the answer is inside.
+    """
     if not len(dx):
         return prior
     ppm = _START_PPM

@@ -74,7 +74,8 @@ def crowding(phase_ns: np.ndarray) -> float:
     """How sharply times crowd just after one phase of a 1 ms cycle: the most reads in
     0.1 ms after any phase less those in the 0.1 ms before it, as a fraction of all
     (0 for times spread evenly; about 0.11 for a frame read after an exponential OS
-    latency of 0.8 ms mean, 0.28 at 0.3 ms)."""
+    latency of 0.8 ms mean, 0.28 at 0.3 ms).
+    """
     if not len(phase_ns):
         return 0.0
     bins = USB_FRAME_NS // _BIN_NS
@@ -150,7 +151,8 @@ def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
                mid_record: np.ndarray) -> float | None:
     """How much later a record split by a read is completed per byte still to come (ns):
     a serial line's byte time behind an adapter, next to nothing on the unit's own USB
-    port (the rest of the record is there at the next frame). None: too few to tell."""
+    port (the rest of the record is there at the next frame). None: too few to tell.
+    """
     inside = mid_record < len(completions)
     wait = completions[mid_record[inside]] - mid_at[inside]
     left = left[inside]
@@ -195,7 +197,8 @@ def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
 def _unit_fit(ticks: np.ndarray, completions: np.ndarray) -> tuple[float, np.ndarray]:
     """A line through the records' ticks and receive times, stalls left out: host
     seconds per second of the unit's clock, and each receive time against it (ns),
-    which is what reads follow on a serial line."""
+    which is what reads follow on a serial line.
+    """
     x = ticks / TICKS_PER_SECOND
     y = (completions - completions[0]) / 1e9
     keep = np.ones(len(x), bool)

@@ -74,7 +74,8 @@ class OfflineClock:
                part_ns: npt.ArrayLike | None = None,
                part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
         """Sample instants (host ns) of valid records of one epoch, increasing ticks;
-        ``part_ns``, ``part_lead_ns`` as ``OnlineClock.update``'s."""
+        ``part_ns``, ``part_lead_ns`` as ``OnlineClock.update``'s.
+        """
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64) - self.floor_ns
         if x.shape != y.shape:
@@ -139,7 +140,8 @@ class OfflineClock:
         """The line's value at ticks ``at`` less ``y[0]`` (in float64 the absolute value
         would be rounded to 256 ns) from the window around it that pins it best, and
         the extent of the lines the staircase allows there (inf: the envelope's);
-        ``half``: half the envelope's window, where no staircase does."""
+        ``half``: half the envelope's window, where no staircase does.
+        """
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
         if len(bx):
             spans = [(int(np.searchsorted(bx, at - h)), int(np.searchsorted(bx, at + h)))
@@ -157,7 +159,8 @@ class OfflineClock:
 
     def _line_window(self, rate: float) -> float:
         """Seconds of envelope: the shortest on a UART; behind frames, long enough for the
-        unit's phase to sweep ``_SWEEP`` of a frame at its rate against the host's."""
+        unit's phase to sweep ``_SWEEP`` of a frame at its rate against the host's.
+        """
         if not self.frame_ns:
             return _LINE_S[0]
         ppm = abs(NS_PER_TICK / rate - 1.0) * 1e6
@@ -167,7 +170,8 @@ class OfflineClock:
     def _envelope(self, x: np.ndarray, y: np.ndarray, base: int, at: int, middle: int,
                   rate: float, staircase: bool) -> float:
         """The lower envelope's value at ``at`` less ``base``, its slope judged at
-        ``middle``, less half of the frame uncovered."""
+        ``middle``, less half of the frame uncovered.
+        """
         dx, dy = (x - middle).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate
         residual = dy - slope * dx

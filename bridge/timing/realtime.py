@@ -55,7 +55,8 @@ class ClockChange:
     ``size_ns``: how far the realtime clock moved (positive: forward); ``real_ns``: when,
     on the realtime clock (a step: just after it, between the reads around it; a slew:
     where it began); ``raw_ns`` the same instant on the raw clock; ``span_ns``: a step's
-    time between those reads, a slew's duration."""
+    time between those reads, a slew's duration.
+    """
 
     kind: ChangeKind
     size_ns: int
@@ -88,7 +89,8 @@ def jumps(change: int, apart: int) -> bool: ...
 def jumps(change: np.ndarray, apart: np.ndarray) -> np.ndarray: ...
 def jumps(change: Any, apart: Any) -> Any:
     """Whether an offset ``change`` between reads ``apart`` ns apart is a step (no slew is
-    that fast); for numbers and for arrays alike."""
+    that fast); for numbers and for arrays alike.
+    """
     size = abs(change)
     return (size > STEP_MIN_NS) & (size > MAX_SLEW * apart)
 
@@ -105,7 +107,8 @@ class _Slews:
     more than ``SLEW_PPM`` from the usual one is slewed; a run of them is one slew, named
     when it ends, its rate the fastest span's (a slew rarely fills its first and last
     spans) and its start where the first span's share of it would begin at that rate.
-    The usual rate (the disciplined frequency) follows the other spans."""
+    The usual rate (the disciplined frequency) follows the other spans.
+    """
 
     def __init__(self) -> None:
         self.baseline: float | None = None  # ns of offset per ns of raw clock
@@ -115,7 +118,8 @@ class _Slews:
 
     def span(self, raw0: int, raw1: int, real1: int, moved: int) -> ClockChange | None:
         """One span of reads from ``raw0`` to ``raw1`` (realtime ``real1``) over which the
-        offset moved by ``moved`` besides any steps."""
+        offset moved by ``moved`` besides any steps.
+        """
         length = raw1 - raw0
         rate = moved / length
         if self.baseline is None:
@@ -181,7 +185,8 @@ class RealtimeTrack:
     def map(self, instants: list[int], until: list[int]) -> list[int]:
         """Raw-clock ``instants`` on the realtime clock, each by the reads up to the one at
         its ``until`` (the read that completed its record; for that read's own stamp, its
-        own realtime stamp)."""
+        own realtime stamp).
+        """
         raw, off = self._raw, self._off
         if not raw:  # no read heard: the instants are the caller's own clock's
             return list(instants)
@@ -207,7 +212,8 @@ class RealtimeTrack:
 
 class RealtimeReads:
     """A capture's reads at once: ``map_array`` as ``RealtimeTrack.map`` gives live, and the
-    changes ``RealtimeTrack.add`` names, in arrays."""
+    changes ``RealtimeTrack.add`` names, in arrays.
+    """
 
     def __init__(self, raw: npt.ArrayLike, real: npt.ArrayLike) -> None:
         self.raw = np.asarray(raw, np.int64)
@@ -218,7 +224,8 @@ class RealtimeReads:
         """``RealtimeTrack.map`` of many instants at once; ``sides``: per instant, an
         offset it is known to be near, which decides its side of a step between the reads
         around it (an archive's samples keep only their completing reads: the live
-        estimate, which had every read, took the side)."""
+        estimate, which had every read, took the side).
+        """
         raw, off = self.raw, self.off
         t = np.asarray(instants, np.int64)
         if not len(raw):

@@ -35,7 +35,8 @@ _BREAK_TICKS = 600 * TICKS_PER_SECOND  # a timer jump longer than this starts an
 def unwrap_timer(timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """32-bit timers as increasing ticks, and where each stretch of one epoch begins (a
     timer that went back, or jumped ten minutes: a reset). Rough, for finding steps:
-    the unwrapper proper times the records."""
+    the unwrapper proper times the records.
+    """
     step = np.mod(np.diff(np.asarray(timer, np.int64)), 1 << 32)
     breaks = np.flatnonzero(step > _BREAK_TICKS) + 1
     step[step > _BREAK_TICKS] = 0
@@ -44,7 +45,8 @@ def unwrap_timer(timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def find_steps(ticks: np.ndarray, rx_ns: np.ndarray) -> list[tuple[int, int]]:
     """Each step of the clock that stamped ``rx_ns``: (the first record on the new clock,
-    its size in ns), for records of one epoch in the order they were read."""
+    its size in ns), for records of one epoch in the order they were read.
+    """
     ticks = np.asarray(ticks, np.int64)
     y = np.asarray(rx_ns, np.int64) - ticks * NS_PER_TICK
     steps: list[tuple[int, int]] = []
@@ -86,7 +88,8 @@ def _lows(y: np.ndarray, starts: np.ndarray) -> np.ndarray:
 
 class _Line:
     """The envelope expected from the settled half seconds before: their line where there
-    are several (the unit's drift), else the last one's level."""
+    are several (the unit's drift), else the last one's level.
+    """
 
     def __init__(self, good: list[tuple[int, int]]) -> None:
         self.tick, self.level, self.slope = (good[-1][0], float(good[-1][1]), 0.0) if good \
@@ -107,7 +110,8 @@ def raw_like(real_ns: np.ndarray, completing: np.ndarray,
     """Receive times of every read with the steps taken out: each from the read that
     completed the first record on the new clock (``completing``: each record's read).
     A read between that one and the read before it (part of that record) goes with
-    whichever side keeps the reads in order."""
+    whichever side keeps the reads in order.
+    """
     real = np.asarray(real_ns, np.int64)
     moved = np.zeros(len(real), np.int64)
     for first, size in steps:

@@ -48,7 +48,8 @@ class Settings:
     @property
     def frame_ns(self) -> int:
         """The host's USB frame where one carries the bytes (own port or adapter); 0 on a
-        plain UART."""
+        plain UART.
+        """
         return 0 if self.transport == "uart" else USB_FRAME_NS
 
     @property
@@ -60,7 +61,8 @@ class Settings:
     def floor_ns(self) -> int:
         """The least time a record takes to reach the host: its line time on a serial
         line (a UART, or one behind a USB-serial adapter); on the unit's own USB port
-        (the baud setting has no effect there) its transfer at full speed's payload rate."""
+        (the baud setting has no effect there) its transfer at full speed's payload rate.
+        """
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
         return round(REPLIES[self.record].length * 10 / self.baud * 1e9)
@@ -73,18 +75,21 @@ class Settings:
     @property
     def by_bytes(self) -> bool:
         """Whether reads that end inside records time them (a serial line's bytes); on
-        the unit's own USB port the frames alone do."""
+        the unit's own USB port the frames alone do.
+        """
         return self.transport != "usb"
 
     @property
     def byte_ns(self) -> float:
         """One byte's time on the link: 10 bits at the baud rate on a serial line (a UART
-        or the line into a USB-serial adapter), full speed's payload rate on USB."""
+        or the line into a USB-serial adapter), full speed's payload rate on USB.
+        """
         return USB_BYTE_NS if self.transport == "usb" else 10e9 / self.baud
 
     def part_lead_ns(self, part_bytes: np.ndarray) -> np.ndarray:
         """The line time of a record's first ``part_bytes`` bytes: the floor less the time
-        of the bytes still to come (so exactly the floor for a whole record)."""
+        of the bytes still to come (so exactly the floor for a whole record).
+        """
         missing = REPLIES[self.record].length - np.asarray(part_bytes, np.int64)
         return self.floor_ns - np.round(missing * self.byte_ns).astype(np.int64)
 
@@ -92,7 +97,8 @@ class Settings:
 @dataclass
 class Timed:
     """One batch's valid records with their ticks, sample instants and receive times on
-    the realtime clock (the batch's ``rx_ns`` are the raw clock's), and what happened."""
+    the realtime clock (the batch's ``rx_ns`` are the raw clock's), and what happened.
+    """
 
     batch: Batch
     ticks: np.ndarray
@@ -115,7 +121,8 @@ class TimedFew:
 
 class StreamTiming:
     """One timeline for a unit's whole life: ticks keep increasing across reconnects
-    (a gap or a reset is for the unwrapper to find); settings changes update it."""
+    (a gap or a reset is for the unwrapper to find); settings changes update it.
+    """
 
     def __init__(self, host: RealtimeTrack | RealtimeReads | None = None) -> None:
         #: each read's realtime offset: live, fed by ``hear``; a capture's, all at once
@@ -132,7 +139,8 @@ class StreamTiming:
 
     def configure(self, settings: Settings, restarted: bool) -> None:
         """Apply ``settings``; ``restarted``: the stream began anew here (bring-up, a
-        timer set or reset), so the next record may be off the old output lattice."""
+        timer set or reset), so the next record may be off the old output lattice.
+        """
         if settings.transport not in TRANSPORTS:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
         period = settings.period_ticks
@@ -148,13 +156,15 @@ class StreamTiming:
 
     def hear(self, raws: list[int], reals: list[int]) -> list[ClockChange]:
         """The next reads' stamps on both clocks, before their records are processed: the
-        host clock's steps and slews they show."""
+        host clock's steps and slews they show.
+        """
         assert isinstance(self.host, RealtimeTrack), "a capture's reads come all at once"
         return self.host.add(raws, reals)
 
     def process(self, batch: Batch) -> Timed:
         """Ticks and host times of a batch's records; corrupt timers are dropped. A
-        record's partial read, where the framer saw one, bounds its instant too."""
+        record's partial read, where the framer saw one, bounds its instant too.
+        """
         assert self.timeline is not None and self.settings is not None, "configure() first"
         if batch.part_ns is None or batch.part_bytes is None or self._parts is None:
             timed = self.timeline.update(batch["timer"], batch.rx_ns)
@@ -174,7 +184,8 @@ class StreamTiming:
                     ) -> TimedFew | None:
         """``process`` of a live read's record or two in plain integers, when every one is
         intact and one period after the last. None: nothing changed, ``process`` them.
-        ``part_ns``, ``part_bytes``: the batch's partial reads, if it has them."""
+        ``part_ns``, ``part_bytes``: the batch's partial reads, if it has them.
+        """
         assert self.timeline is not None and self.settings is not None, "configure() first"
         if part_ns is None or part_bytes is None or self._parts is None:
             run = self.timeline.update_few(timers, rx_ns)

@@ -27,7 +27,8 @@ class Timeline:
     """Feeds each batch's timers through the unwrapper and its valid records through
     the clock, restarting the clock at each reset (the tick base moved). A jump the
     receive times cannot back (a backlog read after a host stall) is judged by the
-    clock as fed every record before it."""
+    clock as fed every record before it.
+    """
 
     def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
                  floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None,
@@ -47,7 +48,8 @@ class Timeline:
                part_ns: npt.ArrayLike | None = None,
                part_lead_ns: npt.ArrayLike | None = None) -> TimelineBatch:
         """``part_ns``, ``part_lead_ns``: the records' partial reads, for the clock (see
-        ``OnlineClock.update``)."""
+        ``OnlineClock.update``).
+        """
         rx = np.asarray(rx_ns, np.int64)
         parts = None if part_ns is None or part_lead_ns is None else \
             np.stack([np.asarray(part_ns, np.int64), np.asarray(part_lead_ns, np.int64)])
@@ -71,7 +73,8 @@ class Timeline:
         """``update`` of a few records in plain integers, when the unwrapper takes them
         as they are (each one period after the last): ticks, instants and rollovers.
         None: nothing changed, ask ``update``. ``parts``: the partial reads' receive
-        times and line times."""
+        times and line times.
+        """
         run = self.unwrapper.update_few(timers, rx_ns)
         if run is None:
             return None
@@ -81,7 +84,8 @@ class Timeline:
     def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64],
                parts: npt.NDArray[np.int64] | None) -> TimelineBatch:
         """Host times of one unwrapped stretch's valid records, the clock restarted at
-        each reset in it; ``parts``: the partial reads' times and line times, stacked."""
+        each reset in it; ``parts``: the partial reads' times and line times, stacked.
+        """
         resets = [e.index for e in u.events if e.kind == TimingKind.RESET]
         if not resets and u.all_valid:  # the common case, without index arithmetic
             time_ns = self.clock.update(u.ticks, rx, *(() if parts is None else parts))

@@ -137,7 +137,8 @@ class TimerUnwrapper:
     def judge(self, horizon: int | None) -> None:
         """The clock model's answer for the record an ``update`` stopped before: the most
         ticks a record received when it was can carry (None: the model has no line yet,
-        so the jump is doubted as any other)."""
+        so the jump is doubted as any other).
+        """
         self._horizon = (horizon,)
 
     # --- classification ----------------------------------------------------------------
@@ -189,7 +190,8 @@ class TimerUnwrapper:
                    rx_ns: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
         """``update`` of a few records in plain integers (a live bridge gets one or two a
         read), when each is one period after the last: their ticks and rollovers. None
-        when they are not, or the state is not plain: nothing changed, ask ``update``."""
+        when they are not, or the state is not plain: nothing changed, ask ``update``.
+        """
         ref = self._ref
         if (ref is None or self._candidate is not None or self._fresh or not timers
                 or len(timers) > _SCALAR_BATCH):
@@ -201,7 +203,8 @@ class TimerUnwrapper:
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
         """The common case in one go: the leading records each exactly one period after
-        the last (None when not even the first is)."""
+        the last (None when not even the first is).
+        """
         ref = self._ref
         if ref is None or self._candidate is not None or self._fresh or not len(timers):
             return None
@@ -239,7 +242,8 @@ class TimerUnwrapper:
                      rx: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
         """``_fast`` for a few records, in plain integers: the same rules without NumPy's
         fixed cost per call. Their ticks and rollovers; None (nothing changed) unless
-        every one is one period after the last."""
+        every one is one period after the last.
+        """
         period, slack = self.period_ticks, HOST_SLACK_NS // NS_PER_TICK
         prev_t, prev_rx, value = ref.timer, ref.rx, ref.ticks
         ticks: list[int] = []
@@ -270,7 +274,8 @@ class TimerUnwrapper:
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None, ask: bool) -> Unwrapped:
         """Record by record, at least ``_SLOW_RUN`` of them and on until the state is
         plain again (an anchor, nothing in doubt), so the bulk path can take over; or
-        up to a record that waits for the clock model."""
+        up to a record that waits for the clock model.
+        """
         n = len(timers)
         ticks = np.full(n, -1, np.int64)
         valid = np.zeros(n, bool)
@@ -380,7 +385,8 @@ class TimerUnwrapper:
     def _accept(self, ref: _Anchor, t: int, r: int | None, step: tuple[int, int], i: int,
                 out: Unwrapped, held: int = 0) -> int:
         """Take a record ``step`` after ``ref``; ``held`` records in between arrived
-        corrupt (they are glitches, not missing samples)."""
+        corrupt (they are glitches, not missing samples).
+        """
         d, periods = step
         missing = periods - 1 - held
         value = ref.ticks + d

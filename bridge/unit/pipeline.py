@@ -127,7 +127,8 @@ class UnitState(StrEnum):
 
 class EventKind(StrEnum):
     """What happened to a unit's stream: the timeline's kinds (``TimingKind``) and the
-    pipeline's own; ``Event.Kind`` says each on Zenoh (``waiting`` is for the log only)."""
+    pipeline's own; ``Event.Kind`` says each on Zenoh (``waiting`` is for the log only).
+    """
 
     ROLLOVER = TimingKind.ROLLOVER.value
     RESET = TimingKind.RESET.value
@@ -185,7 +186,8 @@ Action = Callable[[Session, UnitInfo], dict[str, Any]]
 
 class Pipeline:
     """Run one unit until ``stop`` is set. ``submit`` queues operator actions that run
-    between reads, on the port's own thread."""
+    between reads, on the port's own thread.
+    """
 
     def __init__(self, options: Options, sink: Sink,
                  on_read: Callable[[bytes, int, int], None] | None = None) -> None:
@@ -225,7 +227,8 @@ class Pipeline:
     # --- lifecycle -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> None:
         """Keep the unit streaming until ``stop``; an unexpected error is kept in
-        ``error`` (and ends the run) so the process can report it and exit."""
+        ``error`` (and ends the run) so the process can report it and exit.
+        """
         try:
             self._run(stop)
         except Exception as exc:
@@ -271,7 +274,8 @@ class Pipeline:
 
     def _wait(self, exc: PortError | DeviceError, lost: bool) -> None:
         """Say why the unit is not up once, and again only when the reason changes:
-        a retry every few seconds must not flood the log or look like a new fault."""
+        a retry every few seconds must not flood the log or look like a new fault.
+        """
         self.counters.state = UnitState.LOST if lost else UnitState.WAITING
         if exc.why != self.waiting_for:
             self._event(EventKind.WAITING, detail=f"{exc}; retrying, with pauses growing to "
@@ -293,7 +297,8 @@ class Pipeline:
 
     def _heard(self, reads: list[bytes], raws: list[int], reals: list[int]) -> None:
         """Every read, before its records: the host clock's offset at it (its steps and
-        slews said as events), then ``on_read`` (a raw capture)."""
+        slews said as events), then ``on_read`` (a raw capture).
+        """
         for change in self.timing.hear(raws, reals):
             self._clock_changed(change)
         if self.on_read is not None:
@@ -359,7 +364,8 @@ class Pipeline:
     @property
     def transport(self) -> str:
         """The link to the unit: "uart", "usb" (its own USB port, /dev/ttyACM*) or
-        "usb-serial" (an adapter, /dev/ttyUSB*)."""
+        "usb-serial" (an adapter, /dev/ttyUSB*).
+        """
         return self.link.transport
 
     def _stream(self, session: Session, stop: threading.Event) -> None:
@@ -397,7 +403,8 @@ class Pipeline:
         """Time one read's records of the stream and hand them to the sink. A live read's
         record or two go through in plain integers while they are intact and one period
         apart; anything else (a gap, a glitch, a reset, a backlog) through the batch
-        path, with the same ticks, times and events either way."""
+        path, with the same ticks, times and events either way.
+        """
         if isinstance(records, Records):
             few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,
                                           records.part_bytes)

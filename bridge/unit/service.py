@@ -55,7 +55,8 @@ _KINDS: dict[str, Event.Kind] = {kind: getattr(Event, kind.name) for kind in Eve
 
 def claim_name(session: zenoh.Session, prefix: str, unit: str) -> None:
     """Raise NameTaken if a running bridge answers for ``unit``'s liveliness token (two
-    bridges under one name would mix two units' samples under one key)."""
+    bridges under one name would mix two units' samples under one key).
+    """
     from bridge.bus.keys import UnitKeys
 
     key = UnitKeys(unit, prefix).alive
@@ -124,7 +125,8 @@ def event_message(unit: str, event: UnitEvent) -> Event:
 def command_handler(pipeline: Pipeline) -> Callable[[str], str]:
     """What the unit's command queryable answers (only on a bridge started with
     --allow-commands): a JSON request ``{"action": NAME, "params": {...}, "confirm":
-    bool}`` in, the JSON result out; a ValueError becomes the query's error reply."""
+    bool}`` in, the JSON result out; a ValueError becomes the query's error reply.
+    """
     def handle(text: str) -> str:
         try:
             request = json.loads(text or "{}")
@@ -211,12 +213,14 @@ class BusSink:
 
     def on_read(self, listener: Callable[[bytes, int, int], None]) -> None:
         """``listener(data, raw_ns, real_ns)`` hears every read from the port with its
-        receive times on the raw monotonic and the realtime clock (a raw capture)."""
+        receive times on the raw monotonic and the realtime clock (a raw capture).
+        """
         self._read_listeners.append(listener)
 
     def read(self, data: bytes, raw_ns: int, real_ns: int) -> None:
         """A read from the port: to the read listeners, and published raw with ``raw``.
-        The reads of the first bring-up wait for the unit's name (and publisher)."""
+        The reads of the first bring-up wait for the unit's name (and publisher).
+        """
         if not (self.raw or self._read_listeners):
             return
         if self.publisher is None:
@@ -296,7 +300,8 @@ def _print_event(event: UnitEvent) -> None:
 class EventLines:
     """Events on the terminal, a line each, but gaps summed into a line every
     ``GAP_LINE_S`` at most: a line too slow for the output rate gaps at every other
-    record. (On the bus and in archives each gap stays an event of its own.)"""
+    record. (On the bus and in archives each gap stays an event of its own.)
+    """
 
     def __init__(self) -> None:
         self._gaps: list[UnitEvent] = []
@@ -311,7 +316,8 @@ class EventLines:
 
     def flush(self, now: float | None) -> None:
         """Print the gaps held back once ``GAP_LINE_S`` has passed since the last gap
-        line (``now`` None: at once)."""
+        line (``now`` None: at once).
+        """
         gaps = self._gaps
         if not gaps or (now is not None and self._printed is not None
                         and now - self._printed < GAP_LINE_S):

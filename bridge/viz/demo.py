@@ -26,7 +26,8 @@ def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float
                  start_s: float = 0.0, drift_ppm: float = 0.0) -> dict[str, np.ndarray]:
     """``seconds`` of one unit's ``code`` records from ``start_s`` of device time on, as
     decode_batch returns them; time_ns is device time divided by 1 + drift_ppm * 1e-6 (a
-    unit whose clock runs fast by drift_ppm), as in the Status clock model."""
+    unit whose clock runs fast by drift_ppm), as in the Status clock model.
+    """
     n = round(seconds * rate_hz)
     ticks = round(start_s * TICKS_PER_SECOND) + np.arange(n, dtype=np.int64) * round(
         TICKS_PER_SECOND / rate_hz)
@@ -49,7 +50,8 @@ DEMO_FLEET = (("imu0", 0xCC, 1, 12.0), ("imu1", 0xCC, 2, -8.0), ("imu2", 0xC8, 3
 def _statuses(unit: str, code: int, seed: int, drift: float, rate_hz: float,
               device_s: np.ndarray, kept: np.ndarray) -> list[Status]:
     """One status a second, as a bridge would publish: counts from the records kept, a
-    clock model that settles on the unit's drift."""
+    clock model that settles on the unit's drift.
+    """
     rng = np.random.default_rng(seed)
     out = []
     for s in range(1, int(device_s[-1]) + 1):
@@ -67,7 +69,8 @@ def _statuses(unit: str, code: int, seed: int, drift: float, rate_hz: float,
 def write_demo(path: str | os.PathLike[str], seconds: float = 30.0, rate_hz: float = 100.0,
                gap_s: tuple[float, float] = (12.0, 12.5)) -> None:
     """A recording of DEMO_FLEET: samples, status, bring-up events, and a gap in imu1 (its
-    records from gap_s[0] to gap_s[1] are missing, and a GAP event says so)."""
+    records from gap_s[0] to gap_s[1] are missing, and a GAP event says so).
+    """
     with RerunLogger(path, [unit for unit, *_ in DEMO_FLEET], recording_id="demo") as log:
         for unit, code, seed, drift in DEMO_FLEET:
             cols = demo_columns(unit, code, seed, seconds, rate_hz, drift_ppm=drift)

@@ -71,7 +71,8 @@ GRID_COLUMNS = 4
 
 def _hue_color(hue: float, light: float) -> Rgb:
     """An RGB of the given hue (0..1), saturated, at ``light`` (0..1): legible on the
-    viewer's dark background."""
+    viewer's dark background.
+    """
     r, g, b = colorsys.hls_to_rgb(hue % 1.0, light, 0.85)
     return round(r * 255), round(g * 255), round(b * 255)
 
@@ -147,7 +148,8 @@ def line_origin(plot: str, label: str) -> str:
 
 def plot_paths(plot: str, unit: str) -> list[str]:
     """One entity per line of a unit's plot, in the order of its labels: a view per line
-    (accel x of every unit) then holds only the series it shows."""
+    (accel x of every unit) then holds only the series it shows.
+    """
     return [f"{line_origin(plot, label)}/{entity_part(unit)}" for label in PLOT[plot].labels]
 
 
@@ -157,7 +159,8 @@ def event_path(unit: str) -> str:
 
 def unit_position(index: int) -> npt.NDArray[np.float32]:
     """Where the index-th unit sits: rows of GRID_COLUMNS along east, each row south of the
-    one before, so the units never overlap and a fleet of 16 is a square."""
+    one before, so the units never overlap and a fleet of 16 is a square.
+    """
     row, column = divmod(index, GRID_COLUMNS)
     return np.array([-row * UNIT_SPACING_M, column * UNIT_SPACING_M, 0.0], np.float32)
 
@@ -180,7 +183,8 @@ _EVENT_COLUMNS = rrb.archetypes.TextLogColumns(
 
 def eye(units: int) -> rrb.EyeControls3D:
     """A camera south of the grid of units and above it, looking north at its middle, so
-    east is to the right and every unit is in the picture."""
+    east is to the right and every unit is in the picture.
+    """
     count = max(units, 1)
     first, last = unit_position(0), unit_position(count - 1)
     rows, columns = -last[0] / UNIT_SPACING_M + 1, min(count, GRID_COLUMNS)
@@ -205,7 +209,8 @@ def _line_views(plot: Plot, group: Sequence[str] | None,
                 ranges: list[rrb.VisibleTimeRange] | None) -> list[rrb.TimeSeriesView]:
     """One view per line of ``plot`` (x, y, z...), each with that line of every unit, or
     of the units of ``group``: the units' colours tell them apart, and every one has its
-    entry in the legend."""
+    entry in the legend.
+    """
     views = []
     for label in plot.labels:
         origin = line_origin(plot.name, label)

@@ -38,7 +38,8 @@ NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
 
 def _indexes(time_ns: npt.ArrayLike, device_ns: npt.ArrayLike | None) -> list[rr.TimeColumn]:
     """The timelines of rows: nanoseconds as datetime64/timedelta64, which Rerun takes as
-    such (plain numbers would be read as seconds)."""
+    such (plain numbers would be read as seconds).
+    """
     cols = [rr.TimeColumn(TIME, timestamp=np.asarray(time_ns, np.int64).astype("datetime64[ns]"))]
     if device_ns is not None:
         cols.append(rr.TimeColumn(
@@ -54,7 +55,8 @@ def _time_of_day(time_ns: int) -> str:
 
 def _host_clock_text(unit: str, state: HostClock) -> tuple[str, str]:
     """(text, level) of a unit's bridge host clock's sync state, as the events read: a
-    clock nothing disciplines warns (its units' times drift from the rest of the fleet)."""
+    clock nothing disciplines warns (its units' times drift from the rest of the fleet).
+    """
     sync = HostSync(**{f.name: getattr(state, f.name) for f in fields(HostSync)})
     where = f" on {state.host}" if state.host else ""
     level = "WARN" if state.known and not state.synchronised else "INFO"
@@ -63,7 +65,8 @@ def _host_clock_text(unit: str, state: HostClock) -> tuple[str, str]:
 
 def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
     """(n, 4) x, y, z, w quaternions of the rotation M^T, from whichever attitude the record
-    holds (M, else Q, else Euler angles); None for records without one."""
+    holds (M, else Q, else Euler angles); None for records without one.
+    """
     if "m" in columns:
         q = convert.m_to_quaternion(columns["m"])
     elif "quaternion" in columns:
@@ -210,7 +213,8 @@ class RerunLogger:
         model's inverse, for statuses that have a model (clock_offset_ns != 0). Its
         bridge host clock's sync state goes into the unit's event log when it is first
         seen and whenever it changes (synchronised or not, another host), with the
-        kernel's estimated and maximum error at that moment."""
+        kernel's estimated and maximum error at that moment.
+        """
         items = [statuses] if isinstance(statuses, Status) else list(statuses)
         if not items:
             return
@@ -245,7 +249,8 @@ class RerunLogger:
         host's clock), in arrival order: the least arrival - time_ns of each second of
         arrival is plotted (``host_clock``). The latency in it is never negative, so it is
         the most the bridge host's clock can be behind this one's, and below zero the host
-        is provably ahead. A second is plotted once the next one begins."""
+        is provably ahead. A second is plotted once the next one begins.
+        """
         arrival = np.asarray(arrival_ns, np.int64)
         if not len(arrival):
             return
@@ -273,7 +278,8 @@ class RerunLogger:
 
         Events are on the ``time`` timeline only: Rerun 0.41's text log view shows some rows
         with another row's level when the rows of one entity lie on different sets of
-        timelines (events with device ticks on both, those without on ``time`` only)."""
+        timelines (events with device ticks on both, those without on ``time`` only).
+        """
         items = [events] if isinstance(events, Event) else list(events)
         if not items:
             return
@@ -378,7 +384,8 @@ class RerunLogger:
 
     def _send_texts(self, unit: str, rows: Sequence[tuple[int, str, str]]) -> None:
         """(time_ns, text, level) rows into the unit's event log, each text led by its time
-        of day (UTC), on the ``time`` timeline only (see ``log_event``)."""
+        of day (UTC), on the ``time`` timeline only (see ``log_event``).
+        """
         time_ns = np.array([t for t, _, _ in rows], np.int64)
         texts = np.array([f"{_time_of_day(t)}  {text}" for t, text, _ in rows], dtype=str)
         levels = np.array([level for _, _, level in rows], dtype=str)
@@ -399,7 +406,8 @@ class RerunLogger:
 
     def _send_blueprint(self) -> None:
         """Send the blueprint when the plots or the number of units changed since it was
-        last sent; one sender at a time, so the last one sent is the newest."""
+        last sent; one sender at a time, so the last one sent is the newest.
+        """
         with self._blueprint_lock:
             with self._lock:
                 sent = (frozenset(self._plots), tuple(self._units))
@@ -413,7 +421,8 @@ class RerunLogger:
                     has_device: np.ndarray, columns: Callable[..., Any],
                     **values: np.ndarray) -> None:
         """``columns(**values)`` of rows with a device time on both timelines, of the
-        others on ``time`` only."""
+        others on ``time`` only.
+        """
         for rows, dev in ((has_device, device_ns), (~has_device, None)):
             if rows.any():
                 self.recording.send_columns(

@@ -54,7 +54,8 @@ def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str,
     """Zenoh messages as they came (any mix of units and kinds): samples decoded in bulk
     per unit and record type; ``arrival_ns``: when they reached this process, which the
     bridge hosts' clocks are judged against (``RerunLogger.log_arrivals``). Returns the
-    samples logged."""
+    samples logged.
+    """
     samples: dict[tuple[str, int], list[bytes]] = defaultdict(list)
     logged = 0
     for msg in messages:
