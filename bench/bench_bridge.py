@@ -51,7 +51,7 @@ from zenoh.ext import AdvancedPublisher
 
 from bridge import _native as native
 from bridge.bus.codec import layout
-from bridge.fleet.loopback import free_port, interrupt
+from bridge.fleet.loopback import free_port, interrupt, loopback_config
 from bridge.protocol.table import REPLIES, Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -361,9 +361,7 @@ def main() -> None:
     rows: list[Row] = []
     with tempfile.TemporaryDirectory() as tmp, Simulator([unit], "pty") as sim:
         port = sim.endpoints[0]
-        cfg = Path(tmp, "bridge.json5")
-        cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
-                                   "scouting": scouting}))
+        cfg = loopback_config(Path(tmp, "bridge.json5"), listen=[endpoint])
         client = zenoh.Config.from_json5(json.dumps({
             "mode": "peer", "connect": {"endpoints": [endpoint]}, "scouting": scouting}))
         binary = compile_c(Path(tmp))

@@ -25,7 +25,6 @@ Prints one table:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import subprocess
@@ -38,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from procstat import CLK_TCK, cpu_seconds, thread_cpu_seconds
 
-from bridge.fleet.loopback import free_port
+from bridge.fleet.loopback import free_port, loopback_config
 from bridge.protocol.table import Flag
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator, unit_configs
@@ -98,16 +97,12 @@ def main() -> None:
         mode_preset=2, continuous_preset=code, baud=921_600,
         sampling=Sampling(decimation=decimation, flags=flags)))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     budget = [] if args.max_latency_ms is None else ["--max-latency-ms",
                                                       f"{args.max_latency_ms:g}"]
     with tempfile.TemporaryDirectory() as tmp, \
             Simulator(unit_configs(args.units, base), "pty") as sim:
-        rec_cfg, br_cfg = Path(tmp, "rec.json5"), Path(tmp, "bridge.json5")
-        rec_cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
-                                       "scouting": scouting}))
-        br_cfg.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
-                                      "scouting": scouting}))
+        rec_cfg = loopback_config(Path(tmp, "rec.json5"), listen=[endpoint])
+        br_cfg = loopback_config(Path(tmp, "bridge.json5"), connect=[endpoint])
         out = Path(tmp, "fleet.mcap")
         recorder = subprocess.Popen([gx3, "record", "-o", str(out), "--zenoh-config",
                                      str(rec_cfg), "--quiet", "--history", "100000"])

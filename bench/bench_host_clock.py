@@ -32,9 +32,9 @@ import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
 from bridge.device.clock import SCRIPT_ENV, ClockScript
-from bridge.fleet.loopback import free_port
-from bridge.recorder.export import offline_times, sample_table
+from bridge.fleet.loopback import free_port, loopback_config
 from bridge.recorder.reader import read_archive
+from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
@@ -71,13 +71,9 @@ def main() -> None:
     step, slow = round(args.step_ms * 1e6), round(args.slow_ms * 1e6)
     settle = round(args.settle * 1e9)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp, Simulator([unit], "pty") as sim:
-        rec_cfg, br_cfg = Path(tmp, "rec.json5"), Path(tmp, "bridge.json5")
-        rec_cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
-                                       "scouting": scouting}))
-        br_cfg.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
-                                      "scouting": scouting}))
+        rec_cfg = loopback_config(Path(tmp, "rec.json5"), listen=[endpoint])
+        br_cfg = loopback_config(Path(tmp, "bridge.json5"), connect=[endpoint])
         out, script = Path(tmp, "clock.mcap"), Path(tmp, "clock.json")
         start = time.time_ns()
         first = start + 10 * 10**9

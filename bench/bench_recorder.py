@@ -12,7 +12,6 @@ archived but not as published (each is checked).
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import subprocess
 import sys
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from procstat import cpu_seconds, peak_rss_mb
 
-from bridge.fleet.loopback import free_port
+from bridge.fleet.loopback import free_port, loopback_config
 
 CODE = 0xCC
 
@@ -108,13 +107,9 @@ def main() -> None:
         return
     gx3 = str(Path(sys.executable).parent / "gx3")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp:
-        rec_cfg, pub_cfg = Path(tmp, "rec.json5"), Path(tmp, "pub.json5")
-        rec_cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
-                                       "scouting": scouting}))
-        pub_cfg.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
-                                       "scouting": scouting}))
+        rec_cfg = loopback_config(Path(tmp, "rec.json5"), listen=[endpoint])
+        pub_cfg = loopback_config(Path(tmp, "pub.json5"), connect=[endpoint])
         out = Path(tmp, "load.mcap")
         recorder = subprocess.Popen([gx3, "record", "-o", str(out), "--zenoh-config",
                                      str(rec_cfg), "--quiet"])

@@ -14,7 +14,6 @@ over the whole recording).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import subprocess
@@ -26,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
-from bridge.fleet.loopback import free_port
-from bridge.recorder.export import offline_times, sample_table
+from bridge.fleet.loopback import free_port, loopback_config
 from bridge.recorder.reader import read_archive
+from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
@@ -50,13 +49,9 @@ def main() -> None:
                                     baud=921_600,
                                     sampling=Sampling(decimation=round(1000 / args.rate))))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    scouting = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
     with tempfile.TemporaryDirectory() as tmp, Simulator([unit], "pty") as sim:
-        rec_cfg, br_cfg = Path(tmp, "rec.json5"), Path(tmp, "bridge.json5")
-        rec_cfg.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]},
-                                       "scouting": scouting}))
-        br_cfg.write_text(json.dumps({"mode": "peer", "connect": {"endpoints": [endpoint]},
-                                      "scouting": scouting}))
+        rec_cfg = loopback_config(Path(tmp, "rec.json5"), listen=[endpoint])
+        br_cfg = loopback_config(Path(tmp, "bridge.json5"), connect=[endpoint])
         out = Path(tmp, "stall.mcap")
         recorder = subprocess.Popen([gx3, "record", "-o", str(out), "--zenoh-config",
                                      str(rec_cfg), "--quiet", "--history", "100000"])

@@ -1,8 +1,8 @@
-"""Run every benchmark and print the README's performance table (Markdown).
+"""Run every benchmark and print the performance table of docs/guides/performance.md (Markdown).
 
 Each benchmark runs as its own process, one after another, so they do not compete
 for the machine; the table gives each one's command and the lines it reported.
-``--quick`` runs shorter versions (for trying the runner, not for the README).
+``--quick`` runs shorter versions (for trying the runner, not for the documentation).
 
     python bench/run_all.py > /tmp/bench.md
 """

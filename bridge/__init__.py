@@ -5,6 +5,13 @@ use so that the protocol layer never pulls in Zenoh. ``SCHEMAS_DIR`` holds the
 installed ``gx3.proto`` (and ``replies.json``), for code generators in other
 languages; ``__version__`` is the installed distribution's version. Library code logs
 through ``logging`` (loggers under ``bridge``) and prints nothing.
+
+The subpackages, in the order the data flows: ``protocol`` (the bytes: command table,
+codec, framer), ``device`` (a unit over a port), ``timing`` (the unit's timer to host
+time), ``unit`` (one unit from bytes to the bus), ``bus`` (Zenoh), ``recorder``
+(archives), ``viz`` (Rerun), ``ros2``; ``sim`` is the emulator, ``fleet`` a fleet on one
+machine, and every error raised on purpose is in ``bridge.exceptions``. How they fit
+together: docs/design/architecture.md.
 """
 
 from __future__ import annotations

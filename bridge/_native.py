@@ -1,6 +1,7 @@
-"""The compiled core of a live read, or None where it is not built: the per-record byte
-work (``bridge/_records.c``) and reading a port until a record is whole
-(``bridge/_gather.c``).
+"""The compiled core of a live read, or None where it is not built.
+
+Two modules: the per-record byte work (``bridge/_records.c``, ``records``) and reading
+a port until a record is whole (``bridge/_gather.c``, ``reader``).
 
 Both are built with the package when a C compiler and Python's headers are at hand,
 and skipped otherwise: every caller then runs its pure-Python path, which gives the
@@ -25,8 +26,9 @@ class Core(Protocol):
     def messages(self, template: bytes, moves: bytes, at: tuple[int, ...],
                  wire: list[bytes], times: tuple[list[int], ...], /
                  ) -> tuple[list[bytes], list[bytes]]:
-        """Each wire record's message, with each list of ``times`` at its position in
-        ``at``, and its CRC-32 seal.
+        """Each wire record's message and its CRC-32 seal.
+
+        Each list of ``times`` goes at its position in ``at``.
         """
 
 
@@ -35,9 +37,10 @@ class Reader(Protocol):
 
     def gather(self, fd: int, need: int, wait_s: float, /
                ) -> tuple[list[bytes], list[int], list[int], bool]:
-        """Reads until ``need`` bytes came or ``wait_s`` passed: their bytes, their
-        receive times on the raw monotonic and the realtime clock, and whether the other
-        end was gone.
+        """Reads until ``need`` bytes came or ``wait_s`` passed.
+
+        Returns their bytes, their receive times on the raw monotonic and the realtime
+        clock, and whether the other end was gone.
         """
 
 

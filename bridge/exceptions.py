@@ -44,8 +44,9 @@ __all__ = [
 
 
 class Gx3Error(Exception):
-    """The base of every error gx3-bridge raises on purpose: its message is one line for
-    a person, saying what was wrong and what to do.
+    """The base of every error gx3-bridge raises on purpose.
+
+    Its message is one line for a person, saying what was wrong and what to do.
     """
 
 
@@ -63,6 +64,7 @@ class PortError(Gx3Error, OSError):
 
 class DeviceError(Gx3Error):
     """A unit did not do what was asked; the message says what and what to try.
+
     ``why`` names the cause in a few words, as ``PortError.why`` does.
     """
 
@@ -132,8 +134,9 @@ class ReplayError(Gx3Error, ValueError):
 
 
 class UnusableCapture(ReplayError):
-    """An input that holds nothing to replay (no raw reads, no GX3 records): the user's
-    input is wrong, not the replay.
+    """An input that holds nothing to replay (no raw reads, no GX3 records).
+
+    The user's input is wrong, not the replay.
     """
 
 
@@ -151,6 +154,9 @@ class EmulatorError(Gx3Error):
 
 class OptionError(EmulatorError, ValueError):
     """An option the emulator cannot run with: the option's name and what is wrong."""
+
+    def __init__(self, option: str, message: str) -> None:
+        super().__init__(f"{option}: {message}")
 
 
 class StateFileError(EmulatorError, ValueError):

@@ -23,7 +23,7 @@ import sys, time
 import numpy as np
 from pathlib import Path
 from bridge.bus.codec import encode_batch
-from tests.test_archive_writer import synthetic_batch
+from tests.helpers.records import synthetic_batch
 batch = synthetic_batch(0xCC, 100, 1)
 from bridge.recorder.writer import ArchiveWriter
 writer = ArchiveWriter(Path(sys.argv[1]))
@@ -82,7 +82,7 @@ def test_what_is_on_disk_lags_the_last_message_by_at_most_the_bound(tmp_path: Pa
     """Two units at 100 Hz on a virtual clock, the file read as a kill would leave it after
     every write: it holds every message received REORDER_S + FLUSH_EVERY_S before the
     last one, and in the order of their log times."""
-    from tests.test_archive_writer import T0, synthetic_batch
+    from tests.helpers.records import T0, synthetic_batch
 
     path = tmp_path / "a.mcap"
     now = [0.0]

@@ -19,8 +19,9 @@ from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Status
 from bridge.recorder.reader import ArchiveReader, read_archive
 from bridge.recorder.writer import ArchiveWriter
-from tests.test_archive_writer import PERIOD, T0, synthetic_batch
-from tests.test_bridge_process import GX3
+from tests.helpers.archives import PERIOD
+from tests.helpers.processes import GX3
+from tests.helpers.records import T0, synthetic_batch
 
 UNITS = ("u1", "u2")
 SAMPLES = 3_000  # per unit, 100 Hz: 30 s

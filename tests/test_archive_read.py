@@ -19,14 +19,8 @@ from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import MAGIC, read_archive
 from bridge.recorder.repair import repair
 from bridge.recorder.writer import ArchiveWriter
-from tests.test_archive_writer import (
-    FLEET,
-    LATENCY,
-    PERIOD,
-    T0,
-    synthetic_batch,
-    write_fleet,
-)
+from tests.helpers.archives import FLEET, LATENCY, PERIOD, write_fleet
+from tests.helpers.records import T0, synthetic_batch
 
 
 def record_ends(data: bytes) -> list[int]:

@@ -9,7 +9,6 @@ import signal
 import struct
 import subprocess
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,99 +20,15 @@ from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 
 from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.bus.gx3_pb2 import ImuSample, Info, Status
 from bridge.exceptions import ArchiveError
-from bridge.protocol.codec import Batch
-from bridge.protocol.convert import euler_to_m, euler_to_quaternion
-from bridge.protocol.table import REPLIES
+from bridge.protocol.convert import euler_to_m
 from bridge.recorder.reader import read_archive
 from bridge.recorder.repair import repair
 from bridge.recorder.writer import ArchiveWriter, frame_picks, numbered
-
-T0 = 1_763_000_000_000_000_000
-PERIOD = 10_000_000  # 100 Hz
-LATENCY = 3_000_000
-
-
-def synthetic_batch(code: int, n: int, seed: int, euler: np.ndarray | None = None) -> Batch:
-    """n records of ``code`` with random values; attitude fields follow ``euler`` if given."""
-    rng = np.random.default_rng(seed)
-    columns: dict[str, np.ndarray] = {}
-    for f in REPLIES[code].fields:
-        if f.name == "timer":
-            columns["timer"] = (np.arange(n, dtype=np.uint32) * 625 + seed).astype(np.uint32)
-        elif f.kind == "u16":
-            columns[f.name] = rng.integers(0, 4096, (n, *f.shape)).astype(np.uint16)
-        else:
-            columns[f.name] = rng.normal(0, 1, (n, *f.shape)).astype(np.float32)
-    if euler is not None:
-        attitude = {"m": euler_to_m(euler), "quaternion": euler_to_quaternion(euler),
-                    "euler": euler}
-        for name, values in attitude.items():
-            if name in columns:
-                columns[name] = values.astype(np.float32)
-    return Batch(code, columns, np.arange(n), np.zeros(n, np.int64), False)
-
-
-@dataclass
-class Written:
-    """What a test wrote: per topic (log time, receive time, payload), and the batches."""
-
-    messages: dict[str, list[tuple[int, int, bytes]]] = field(default_factory=dict)
-    batches: dict[str, Batch] = field(default_factory=dict)
-    times: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def add(self, topic: str, log_ns: int, rx: int, payload: bytes) -> None:
-        self.messages.setdefault(topic, []).append((log_ns, rx, payload))
-
-
-#: unit -> (record type, samples, first sample index): u2 appears mid-run, u3 has no attitude
-FLEET = {"u1": (0xCC, 300, 0), "u2": (0xDF, 200, 60), "u3": (0xC2, 150, 10)}
-
-
-Feed = list[tuple[int, str, bytes, int]]  # (receive ns, key, payload, log ns)
-
-
-def fleet_feed() -> tuple[Written, Feed]:
-    """Three units at 100 Hz, with status each second, events, info and one raw read, in
-    the order they are received."""
-    written = Written()
-    feed: Feed = []
-    for k, (unit, (code, n, first)) in enumerate(FLEET.items()):
-        euler = np.stack([np.linspace(0, 1, n), np.linspace(0, -0.5, n),
-                          np.linspace(-3, 3, n)], axis=1)
-        batch = synthetic_batch(code, n, k + 1, euler)
-        time_ns = T0 + (first + np.arange(n, dtype=np.int64)) * PERIOD + k * 1000
-        rx = time_ns + LATENCY
-        payloads = encode_batch(unit, batch, np.arange(n, dtype=np.int64) * 625, time_ns, rx)
-        written.batches[unit] = batch
-        written.times[unit] = time_ns
-        for p, t, r in zip(payloads, time_ns.tolist(), (rx + 500).tolist(), strict=True):
-            feed.append((r, f"gx3/{unit}/imu", p, t))
-        for s in range(0, n, 100):
-            t = int(time_ns[s])
-            status = Status(unit=unit, time_ns=t, samples=s, connected=True).SerializeToString()
-            feed.append((t + 1, f"gx3/{unit}/status", status, t))
-        gap = Event(unit=unit, time_ns=int(time_ns[n // 2]), ticks=625 * (n // 2),
-                    kind=Event.GAP, count=3, detail="3 records missing")
-        feed.append((int(time_ns[n // 2]) + 2, f"gx3/{unit}/event", gap.SerializeToString(),
-                     int(time_ns[n // 2])))
-        info = Info(unit=unit, model_name="3DM-GX3-25", bring_up_time_ns=int(time_ns[0]) - 5)
-        feed.append((int(time_ns[0]) - 4, f"gx3/{unit}/info", info.SerializeToString(),
-                     int(time_ns[0]) - 5))
-    feed.append((T0 + 7, "gx3/u1/raw", b"\xcc\x00\x01raw bytes", T0 + 7))
-    feed.sort(key=lambda f: f[0])
-    for receive_ns, key, payload, log_ns in feed:
-        written.add(key, log_ns, receive_ns, payload)
-    return written, feed
-
-
-def write_fleet(path: Path, **options: object) -> Written:
-    written, feed = fleet_feed()
-    with ArchiveWriter(path, **options) as writer:  # type: ignore[arg-type]
-        for receive_ns, key, payload, _ in feed:
-            writer.write(key, payload, receive_ns)
-    return written
+from tests.helpers.archives import FLEET, LATENCY, PERIOD, Feed, fleet_feed, write_fleet
+from tests.helpers.records import T0, synthetic_batch
+from tests.helpers.rotations import rotation
 
 
 def in_bursts(feed: Feed) -> Feed:
@@ -127,15 +42,6 @@ def write_bulk(path: Path, feed: Feed, **options: object) -> None:
         for key, run in itertools.groupby(feed, key=lambda f: f[1]):
             burst = list(run)
             writer.write_many(key, [f[2] for f in burst], np.array([f[0] for f in burst]))
-
-
-def rotation(xyzw: np.ndarray) -> np.ndarray:
-    """Hamilton rotation matrix of an x, y, z, w quaternion (textbook formula)."""
-    x, y, z, w = xyzw / np.linalg.norm(xyzw)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def test_data_channels_hold_the_zenoh_bytes_logged_at_sample_time(tmp_path: Path) -> None:
@@ -370,7 +276,7 @@ from pathlib import Path
 from bridge.bus.codec import encode_batch
 from bridge.recorder.writer import ArchiveWriter
 from bridge.exceptions import ArchiveError
-from tests.test_archive_writer import T0, synthetic_batch
+from tests.helpers.records import T0, synthetic_batch
 batch = synthetic_batch(0xCC, 20000, 1)
 t = T0 + np.arange(20000, dtype=np.int64) * 1_000_000
 payloads = encode_batch("u1", batch, np.arange(20000), t, t)
@@ -673,7 +579,7 @@ def test_the_file_is_in_log_time_order_with_no_overlapping_chunks(tmp_path: Path
     as a recorder does, in small chunks: log time never goes back in file order, chunks
     never overlap, nothing comes later than the reorder window (on main 40 % of the
     messages came out of order). Profile and library as the registry asks."""
-    from tests.mcap_order import header, order_problems
+    from tests.helpers.mcap_order import header, order_problems
 
     written, feed = fleet_feed()
     path = tmp_path / "a.mcap"
@@ -698,7 +604,7 @@ def test_a_message_later_than_the_reorder_window_keeps_the_order_and_is_counted(
     """An Info whose bring-up was long ago (as a recorder gets it when it finds a unit
     already running): logged at the last time written, counted in ``late`` and the
     ``gx3.order`` metadata; its own time stays in its payload."""
-    from tests.mcap_order import order_problems
+    from tests.helpers.mcap_order import order_problems
 
     path = tmp_path / "a.mcap"
     now = [0.0]

@@ -13,13 +13,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
 import subprocess
-import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,63 +25,10 @@ import zenoh
 
 from bridge.bus.gx3_pb2 import Info, Status
 from bridge.bus.subscribe import SampleBatch, subscribe
-from bridge.fleet.loopback import interrupt
-from bridge.protocol.table import Flag
-from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
-from bridge.sim.state import Sampling, Stored
-from bridge.sim.unit import UnitConfig
-from tests.waiting import free_port, wait_for
-
-
-def _gx3() -> str:
-    """The installed console script: next to this interpreter, else on PATH."""
-    found = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
-    assert found, "the gx3 console script is not installed"
-    return found
-
-
-GX3 = _gx3()
-FAST = UnitConfig(
-    serial="FAST0001", motion=MotionConfig(seed=11),
-    stored=Stored(mode_preset=2, continuous_preset=0xC2, baud=921_600,
-                  sampling=Sampling(decimation=1, flags=int(Flag.CONING_SCULLING))))
-SLOW = replace(FAST, serial="SLOW0001",
-               stored=Stored(mode_preset=2, continuous_preset=0xC8))
-
-
-def zenoh_config(path: Path, listen: list[str] | None = None,
-                 connect: list[str] | None = None) -> Path:
-    """A peer on loopback with multicast scouting off, as every test session is."""
-    path.write_text(json.dumps({
-        "mode": "peer", "listen": {"endpoints": listen or []},
-        "connect": {"endpoints": connect or []},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}}))
-    return path
-
-
-@contextmanager
-def bridge_process(port: str, cfg: Path, *args: str, env: dict[str, str] | None = None
-                   ) -> Iterator[subprocess.Popen[bytes]]:
-    assert GX3, "the gx3 console script is not installed next to this interpreter"
-    proc = subprocess.Popen([GX3, "bridge", "--port", port, "--zenoh-config", str(cfg),
-                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=None if env is None else {**os.environ, **env})
-    try:
-        yield proc
-    finally:
-        interrupt([proc])
-        for stream in (proc.stdout, proc.stderr):
-            if stream is not None:
-                stream.close()
-
-
-@pytest.fixture
-def network(tmp_path: Path) -> tuple[Path, Path]:
-    """A config for the bridge (listening) and one for the test's sessions (connecting)."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    return (zenoh_config(tmp_path / "bridge.json5", listen=[endpoint]),
-            zenoh_config(tmp_path / "client.json5", connect=[endpoint]))
+from tests.helpers.processes import GX3, Stderr, bridge_process
+from tests.helpers.units import FAST, SLOW
+from tests.helpers.waiting import wait_for
 
 
 @pytest.mark.parametrize(("budget_ms", "pure"), [(None, False), (5, False), (None, True)],
@@ -239,26 +182,6 @@ def test_sigint_stops_continuous_mode_and_capture_holds_every_read(
     data = b"".join(d for _, d in reads)
     assert data.count(bytes((0xC8,))) >= 150, "the capture lacks the streamed records"
     assert all(b[0] <= a[0] for a, b in zip(reads[1:], reads, strict=False))
-
-
-class Stderr:
-    """What a child has written to its stderr pipe so far, read without blocking."""
-
-    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
-        assert proc.stderr is not None
-        self.fd = proc.stderr.fileno()
-        os.set_blocking(self.fd, False)
-        self.text = ""
-
-    def read(self) -> str:
-        with contextlib.suppress(BlockingIOError):
-            while chunk := os.read(self.fd, 1 << 16):
-                self.text += chunk.decode()
-        return self.text
-
-    def waiting(self) -> list[str]:
-        """The bridge's lines saying why the unit is not up."""
-        return [line for line in self.read().splitlines() if " waiting " in line]
 
 
 def test_a_missing_port_is_said_once_and_given_up_with_exit_1(

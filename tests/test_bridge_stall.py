@@ -24,24 +24,21 @@ import numpy as np
 
 from bridge.bus.gx3_pb2 import Event
 from bridge.protocol.framer import Framer
-from bridge.recorder.export import offline_times, sample_table
 from bridge.recorder.reader import read_archive
+from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
-from bridge.sim.state import Sampling, Stored
+from bridge.sim.state import Stored
 from bridge.sim.unit import UnitConfig
 from bridge.unit.pipeline import Options, Pipeline
 from bridge.unit.service import GAP_LINE_S
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.test_pipeline import BASE, ListSink
-from tests.test_record_live import recorder, samples_in
-from tests.waiting import free_port, wait_for
+from tests.helpers.archives import samples_in
+from tests.helpers.pipeline import ListSink
+from tests.helpers.processes import GX3, bridge_process, recorder
+from tests.helpers.units import FIVE_HUNDRED_HZ, STATIC_UNIT
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
-FIVE_HUNDRED_HZ = UnitConfig(
-    serial="STALL001", motion=MotionConfig(seed=7), clock_ppm=40.0,
-    stored=Stored(mode_preset=2, continuous_preset=0xCC, baud=921_600,
-                  sampling=Sampling(decimation=2)))
-PERIOD = 125  # ticks at 500 Hz
 SLOW_LINE = UnitConfig(serial="SLOWLINE", motion=MotionConfig(seed=8),
                        stored=Stored(mode_preset=2, continuous_preset=0xCC))
 
@@ -169,7 +166,7 @@ def test_a_host_stall_after_a_read_with_no_whole_record_is_not_a_silent_unit() -
             stalled.set()
             time.sleep(1.5)
 
-    with Simulator([BASE], "pty") as sim:
+    with Simulator([STATIC_UNIT], "pty") as sim:
         pipeline = Pipeline(Options(url=sim.endpoints[0]), sink, on_read=on_read)
         stop = threading.Event()
         worker = threading.Thread(target=pipeline.run, args=(stop,))

@@ -17,36 +17,12 @@ from bridge.bus.codec import (
     units_agree,
 )
 from bridge.bus.gx3_pb2 import ImuSample
-from bridge.protocol.codec import Batch, decode_block, encode_replies
+from bridge.protocol.codec import Batch, encode_replies
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, REPLIES
+from tests.helpers.records import wire_batch, wire_times
 
 CODES = sorted(DATA_CODES)
-
-
-def wire_batch(code: int, n: int, seed: int) -> Batch:
-    """n records of ``code`` as the framer hands them out, through the wire codec."""
-    rng = np.random.default_rng(seed)
-    columns: dict[str, np.ndarray] = {}
-    for f in REPLIES[code].fields:
-        if f.kind == "f32":
-            values = rng.normal(0, 3, (n, *f.shape)).astype(np.float32)
-            values.reshape(n, -1)[0, 0] = np.nan  # idle units send NaN
-            columns[f.name] = values
-        elif f.name == "timer":
-            columns[f.name] = np.array([0, 2**32 - 1, *range(1, n - 1)], np.uint32)
-        else:
-            columns[f.name] = rng.integers(0, 4096, (n, *f.shape)).astype(np.uint16)
-    raw = encode_replies(code, columns, n)
-    block = np.frombuffer(raw, np.uint8).reshape(n, -1)
-    offsets = np.arange(n) * REPLIES[code].length
-    return Batch(code, decode_block(code, block), offsets, np.zeros(n, np.int64), False)
-
-
-def times(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    ticks = np.array([0, -1, 2**40, *range(n - 3)], np.int64)
-    time_ns = 1_763_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 1_000_000
-    return ticks, time_ns, time_ns + 2_500_000
 
 
 def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.ndarray,
@@ -62,7 +38,7 @@ def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.nd
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
 def test_bulk_encoding_is_byte_identical_to_protobuf(code: int) -> None:
     batch = wire_batch(code, 6, code)
-    ticks, time_ns, rx_ns = times(6)
+    ticks, time_ns, rx_ns = wire_times(6)
     mono = rx_ns - 1_700_000_000_000_000_000
     encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono)
     assert len(encoded) == 6
@@ -86,7 +62,7 @@ def test_records_off_the_wire_encode_from_their_bytes_as_from_their_columns(
     assert framed.block is not None
     decoded = Batch(code, {k: np.array(v) for k, v in framed.columns.items()}, framed.offsets,
                     framed.rx_ns, little_endian)
-    ticks, time_ns, rx_ns = times(7)
+    ticks, time_ns, rx_ns = wire_times(7)
     from_bytes = encode_batch("u-9", framed, ticks, time_ns, rx_ns)
     assert from_bytes == encode_batch("u-9", decoded, ticks, time_ns, rx_ns)
     assert from_bytes[3] == reference("u-9", decoded, 3, ticks, time_ns, rx_ns).SerializeToString()
@@ -120,7 +96,7 @@ def test_one_record_at_a_time_encodes_to_the_bulk_bytes(code: int, little_endian
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
 def test_round_trip_through_protobuf_gives_the_columns_back(code: int) -> None:
     batch = wire_batch(code, 5, code + 1)
-    ticks, time_ns, rx_ns = times(5)
+    ticks, time_ns, rx_ns = wire_times(5)
     encoded = encode_batch("u1", batch, ticks, time_ns, rx_ns)
     parsed = [ImuSample.FromString(p) for p in encoded]
     assert [m.command for m in parsed] == [code] * 5
@@ -143,7 +119,7 @@ def test_every_message_of_one_record_type_has_one_length(code: int) -> None:
     lengths = set()
     for seed in range(3):
         batch = wire_batch(code, 4, seed)
-        ticks, time_ns, rx_ns = times(4)
+        ticks, time_ns, rx_ns = wire_times(4)
         lengths |= {len(p) for p in encode_batch("imu0", batch, ticks * seed, time_ns * seed,
                                                  rx_ns)}
         zeros = Batch(code, {k: np.zeros_like(v) for k, v in batch.columns.items()},
@@ -157,7 +133,7 @@ def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
     """A producer that writes fields in another order (here: quantities first) is still read."""
     code = 0xC8
     batch = wire_batch(code, 3, 7)
-    ticks, time_ns, rx_ns = times(3)
+    ticks, time_ns, rx_ns = wire_times(3)
     ours = encode_batch("imu0", batch, ticks, time_ns, rx_ns)
     theirs = []
     for i in range(3):
@@ -175,7 +151,7 @@ def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
 
 
 def test_a_sample_of_another_unit_or_garbage_is_a_clear_error() -> None:
-    payload = encode_batch("imu0", wire_batch(0xC2, 3, 0), *times(3))[0]
+    payload = encode_batch("imu0", wire_batch(0xC2, 3, 0), *wire_times(3))[0]
     with pytest.raises(ValueError, match="is from 'imu0' 0xC2, not 'imu1' 0xC2"):
         decode_batch("imu1", 0xC2, [payload])
     with pytest.raises(ValueError, match=r"not a gx3.v1.ImuSample \(3 bytes\)"):
@@ -203,7 +179,7 @@ def test_an_older_bridges_samples_decode_in_bulk_with_no_raw_stamp(code: int) ->
     """Samples from bridges that did not stamp reads on the raw clock lack
     ``rx_mono_raw_ns``: their own bulk layout, read as fast, the stamp 0."""
     batch = wire_batch(code, 5, code)
-    ticks, time_ns, rx_ns = times(5)
+    ticks, time_ns, rx_ns = wire_times(5)
     old = []
     for i in range(5):
         message = reference("u1", batch, i, ticks, time_ns, rx_ns)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -12,19 +11,12 @@ import zenoh
 import bridge
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.publish import UnitPublisher
-from bridge.bus.session import open_session
 from bridge.device.session import UnitInfo
 from bridge.protocol.table import DATA_CODES
 from bridge.unit.pipeline import Options, Pipeline
 from bridge.unit.service import EARLY_READS, BusSink
-from tests.test_bus_codec import times, wire_batch
-from tests.waiting import wait_for
-
-
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    with open_session(listen=["tcp/127.0.0.1:0"], multicast_scouting=False) as s:
-        yield s
+from tests.helpers.records import wire_batch, wire_times
+from tests.helpers.waiting import wait_for
 
 
 def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Session) -> None:
@@ -33,7 +25,7 @@ def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Sess
             UnitPublisher(session, "imu0") as pub:
         for code in sorted(DATA_CODES):
             batch = wire_batch(code, 4, code)
-            ticks, time_ns, rx_ns = times(4)
+            ticks, time_ns, rx_ns = wire_times(4)
             assert pub.publish_samples(batch, ticks, time_ns, rx_ns) == 4
             got: list[np.ndarray] = []
             while sum(len(g) for g in got) < 4:
@@ -96,7 +88,7 @@ def test_bad_arguments_are_one_line_errors() -> None:
 def test_a_late_subscriber_gets_the_history_it_asks_for(session: zenoh.Session) -> None:
     with UnitPublisher(session, "imu0", cache_samples=30) as pub:
         batch = wire_batch(0xC2, 50, 3)
-        _, time_ns, rx_ns = times(50)
+        _, time_ns, rx_ns = wire_times(50)
         pub.publish_samples(batch, np.arange(50), time_ns, rx_ns)
         with bridge.subscribe("gx3/*/imu", session=session, history=20) as late:
             got = [late.get(timeout=10) for _ in range(20)]

@@ -30,8 +30,8 @@ from bridge.bus.integrity import seal
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.routes import PublisherKeys
 from bridge.bus.session import ZenohOptions, open_session
-from tests.test_record_trust import payloads
-from tests.waiting import free_port, wait_for
+from tests.helpers.records import indexed_payloads
+from tests.helpers.waiting import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -330,7 +330,7 @@ def test_example_subscriber_decodes_from_the_schema_alone(
 
     def forge() -> None:
         """A damaged sample now and then: unit imu0's, its CRC not its payload's."""
-        good = payloads("imu0", 0, 1)[0]
+        good = indexed_payloads("imu0", 0, 1)[0]
         bad = good[:-4] + b"\x00\x00\x80\x7f"
         with open_session(connect=[endpoint], multicast_scouting=False) as s:
             while not forging.wait(0.1):
@@ -366,8 +366,8 @@ def test_an_app_gets_only_intact_samples_of_their_key(endpoint: str) -> None:
             open_session(connect=[endpoint], multicast_scouting=False) as b, \
             bridge.subscribe("gx3/*/imu", session=a, output="samples",
                              on_reject=lambda *r: rejects.append(r)) as sub:
-        good = payloads("u", 0, 4)
-        forged = payloads("v", 9, 1)[0]
+        good = indexed_payloads("u", 0, 4)
+        forged = indexed_payloads("v", 9, 1)[0]
         pub = b.declare_publisher("gx3/u/imu")
         # the stub says bool; it is a MatchingStatus (stack-facts)
         wait_for(lambda: bool(cast(Any, pub.matching_status).matching), what="the subscriber")

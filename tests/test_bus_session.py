@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import subprocess
 import threading
 from pathlib import Path
 
@@ -14,7 +13,8 @@ import zenoh
 
 from bridge.bus.session import ZenohOptions, open_session
 from bridge.exceptions import SessionError
-from tests.waiting import free_port
+from tests.helpers.waiting import free_port
+from tests.helpers.zenoh import make_certificates
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -55,21 +55,6 @@ def test_fleet_clients_reach_each_other_through_the_router() -> None:
             open_session(client, connect=[ep]) as recorder_side:
         assert [str(z) for z in bridge_side.info.routers_zid()] == [str(router.zid())]
         exchange(bridge_side, recorder_side)
-
-
-def make_certificates(tmp: Path) -> None:
-    """A CA, another CA, and a router certificate for localhost: the commands of
-    configs/tls/router.json5."""
-    def run(*args: str) -> None:
-        subprocess.run(["openssl", *args], cwd=tmp, check=True, capture_output=True)
-    for ca in ("ca", "other-ca"):
-        run("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-            "-days", "30", "-subj", f"/CN={ca}", "-keyout", f"{ca}.key", "-out", f"{ca}.pem")
-    run("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes",
-        "-subj", "/CN=localhost", "-addext", "subjectAltName=DNS:localhost",
-        "-keyout", "router.key", "-out", "router.csr")
-    run("x509", "-req", "-in", "router.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
-        "-CAcreateserial", "-days", "30", "-copy_extensions", "copy", "-out", "router.pem")
 
 
 def with_certificates(path: Path, tmp: Path, endpoint: str, ca: str = "ca.pem") -> zenoh.Config:

@@ -7,20 +7,18 @@ import math
 import os
 import re
 import select
-import shutil
 import signal
 import struct
 import subprocess
-import sys
 from pathlib import Path
 from typing import IO, Any
 
 import pytest
 
 from bridge.protocol.table import COMMANDS
+from tests.helpers.processes import GX3
 
 ROOT = Path(__file__).resolve().parents[1]
-GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
 
 
 def gx3(*args: str, stdin: bytes = b"", columns: int = 80) -> subprocess.CompletedProcess[bytes]:

@@ -22,11 +22,11 @@ from bridge.sim.motion import Motion, MotionConfig, tumbling
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.test_export import gx3
-from tests.test_record_live import UNITS, rerun_rows_so_far
-from tests.test_viz_logger import blueprint_views, plot_values
-from tests.waiting import free_port, wait_for
+from tests.helpers.processes import GX3, bridge_process, gx3
+from tests.helpers.rrd import blueprint_views, plot_values, rerun_rows_so_far
+from tests.helpers.units import TWO_UNITS
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)
 HARD = (0.12, -0.3, 0.05)
@@ -254,7 +254,7 @@ def test_view_shows_a_live_units_mag_corrected(tmp_path: Path) -> None:
                                str(view_cfg), "--mag-cal", str(cal)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        with Simulator(UNITS[:1], "pty") as sim, \
+        with Simulator(TWO_UNITS[:1], "pty") as sim, \
                 bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
             wait_for(lambda: rerun_rows_so_far(rrd, "/plots/mag/z/a") >= 100)
         viewer.send_signal(signal.SIGINT)

@@ -19,8 +19,8 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
-from tests.test_bridge_process import GX3, bridge_process
-from tests.waiting import free_port, wait_for
+from tests.helpers.processes import GX3, bridge_process
+from tests.helpers.waiting import free_port, wait_for
 
 UNIT = UnitConfig(serial="OPER0001", motion=MotionConfig(seed=5),
                   stored=Stored(mode_preset=1, baud=115_200, sampling=Sampling(decimation=10)))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.waiting import free_port
+from tests.helpers.waiting import free_port
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs" / "clock"
 

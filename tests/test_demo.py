@@ -9,9 +9,9 @@ from pathlib import Path
 import psutil
 
 from bridge.recorder.reader import read_archive
-from tests.mcap_order import order_problems
-from tests.test_bridge_process import GX3
-from tests.test_record_live import rerun_rows
+from tests.helpers.mcap_order import order_problems
+from tests.helpers.processes import GX3
+from tests.helpers.rrd import rerun_rows
 
 
 def test_demo_runs_the_fleet_and_reports_the_fault(tmp_path: Path) -> None:

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
+from tests.helpers.processes import GX3
 
 
 def test_spawning_a_viewer_without_a_display_is_a_one_line_error(tmp_path: Path) -> None:

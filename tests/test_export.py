@@ -4,9 +4,7 @@ values; filters; events; one-line errors for bad input."""
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
-import sys
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -16,21 +14,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from bridge.recorder.describe import flat_names
-from bridge.recorder.export import sample_table
 from bridge.recorder.reader import MAGIC, read_archive
-from tests.test_archive_writer import FLEET, LATENCY, PERIOD, T0, Written, write_fleet
+from bridge.recorder.tables import sample_table
+from tests.helpers.archives import FLEET, LATENCY, PERIOD, Written, write_fleet
+from tests.helpers.processes import GX3, gx3
+from tests.helpers.records import T0
 
 HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "live_time_ns", "rx_ns"]
 ROWS = sum(n for _, n, _ in FLEET.values())
-
-
-GX3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or shutil.which("gx3")
-
-
-def gx3(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    assert GX3, "the gx3 console script is not installed next to this interpreter"
-    return subprocess.run([GX3, *map(str, args)], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "COLUMNS": "200"})
 
 
 @pytest.fixture(scope="module")

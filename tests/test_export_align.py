@@ -10,40 +10,12 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Info
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.export import align_table, sample_table
 from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
-from tests.test_archive_writer import T0, synthetic_batch
-from tests.test_export import gx3
-
-YAW_RATE = 0.5  # rad/s
-ACCEL_RATE = 0.25  # g/s
-
-
-def write_two_units(path: Path, names: tuple[str, str] = ("u1", "u2"),
-                    infos: dict[str, Info] | None = None) -> None:
-    """u1 at 100 Hz from T0 + 3 ms; u2 at 40 Hz from T0 + 11 ms, with 0.3 s missing; the
-    Info in ``infos`` archived first."""
-    with ArchiveWriter(path) as writer:
-        for unit, info in (infos or {}).items():
-            writer.write(f"gx3/{unit}/info", info.SerializeToString(), T0)
-        for unit, period, offset, gap in ((names[0], 10_000_000, 3_000_000, None),
-                                          (names[1], 25_000_000, 11_000_000, (40, 52))):
-            n = 2_000_000_000 // period
-            keep = np.ones(n, bool)
-            if gap:
-                keep[gap[0] : gap[1]] = False
-            t = T0 + offset + np.arange(n, dtype=np.int64) * period
-            s = (t - T0) / 1e9
-            euler = np.stack([np.zeros(n), np.zeros(n), -1.0 + YAW_RATE * s], axis=1)
-            batch = synthetic_batch(0xC8, n, 1, euler)
-            batch.columns["accel"][:, 0] = ACCEL_RATE * s
-            payloads = encode_batch(unit, batch, np.arange(n), t, t)
-            for i in np.flatnonzero(keep).tolist():
-                writer.write(f"gx3/{unit}/imu", payloads[i], int(t[i]))
+from bridge.recorder.tables import align_table, sample_table
+from tests.helpers.archives import ACCEL_RATE, YAW_RATE, write_two_units
+from tests.helpers.processes import gx3
+from tests.helpers.records import T0
 
 
 def test_aligned_rows_interpolate_vectors_and_attitude_and_leave_gaps_empty(

@@ -21,8 +21,8 @@ import pytest
 
 from bridge.bus.gx3_pb2 import Info
 from bridge.recorder.describe import SCHEMA_VERSION, column_metadata, unit_labels
-from tests.test_export import GX3
-from tests.test_export_align import write_two_units
+from tests.helpers.archives import write_two_units
+from tests.helpers.processes import GX3
 
 UNITS = ("IMU-1", "imu2")  # a name that is no identifier, and one that is
 INFO = Info(unit="IMU-1", serial="6225.01234", firmware=1127, firmware_text="1.1.27",

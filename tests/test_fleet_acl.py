@@ -26,9 +26,10 @@ from bridge.bus.session import ZenohOptions
 from bridge.bus.subscribe import subscribe
 from bridge.exceptions import RemoteError, SessionError
 from bridge.sim.serve import Simulator
-from tests.test_bridge_process import GX3, SLOW, bridge_process
-from tests.test_bus_session import make_certificates
-from tests.waiting import free_port, wait_for
+from tests.helpers.processes import GX3, bridge_process
+from tests.helpers.units import SLOW
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import make_certificates
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs" / "tls"
 ROLES = ("gx3-bridge", "gx3-operator", "gx3-recorder")

@@ -42,9 +42,10 @@ from bridge.recorder import live
 from bridge.recorder.live import HOST_MARGIN_NS, HOSTS_METADATA, HostView, Recorder
 from bridge.recorder.reader import read_archive
 from bridge.recorder.writer import ArchiveWriter
-from tests.test_bridge_process import GX3, zenoh_config
-from tests.test_record_trust import events, sessions
-from tests.waiting import free_port, wait_for
+from tests.helpers.archives import archived_events
+from tests.helpers.processes import GX3
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import peer_sessions, zenoh_config
 
 CODE = 0xC2
 MS = 1_000_000
@@ -99,7 +100,7 @@ class Fleet:
     def __init__(self, out: Path, units: dict[str, Unit], **options: Any) -> None:
         self.out, self.units = out, units
         self.heard: list[tuple[str, Event]] = []
-        self._rec_session, self._pub_session = sessions(2)
+        self._rec_session, self._pub_session = peer_sessions(2)
         self.writer = ArchiveWriter(out)
         self.recorder = Recorder(self._rec_session, self.writer,
                                  on_event=lambda unit, e: self.heard.append((unit, e)),
@@ -151,7 +152,7 @@ def hosts_record(path: Path) -> dict[str, Any]:
 
 
 def offsets(path: Path, unit: str) -> list[Event]:
-    return events(path, unit, Event.HOST_CLOCK_OFFSET)
+    return archived_events(path, unit, Event.HOST_CLOCK_OFFSET)
 
 
 def test_a_host_ahead_is_told_once_per_unit_and_an_honest_host_never(tmp_path: Path) -> None:

@@ -21,9 +21,11 @@ import numpy as np
 import pytest
 
 from bridge.sim.serve import Simulator
-from tests.test_bridge_process import GX3, zenoh_config
-from tests.test_record_live import UNITS, published, samples_in
-from tests.waiting import wait_for
+from tests.helpers.archives import samples_in
+from tests.helpers.processes import GX3, published
+from tests.helpers.units import TWO_UNITS
+from tests.helpers.waiting import wait_for
+from tests.helpers.zenoh import zenoh_config
 
 pytestmark = pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("ip") is None,
@@ -82,7 +84,7 @@ def test_fleet_across_namespaces_through_a_router_survives_a_pulled_link(
                       "--quiet", "--history", "10000"),
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
             procs.append(recorder)
-            with Simulator(UNITS, "pty") as sim:
+            with Simulator(TWO_UNITS, "pty") as sim:
                 bridges = [subprocess.Popen(
                     in_ns(bridges_ns, "bridge", "--port", port, "--unit", name,
                           "--zenoh-config", str(client)),

@@ -25,11 +25,11 @@ from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import replay
 from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.motion import Motion, MotionConfig
-from tests.mcap_order import order_problems
-from tests.test_archive_writer import rotation
-from tests.test_replay import write_capture
+from tests.helpers.archives import write_capture
+from tests.helpers.mcap_order import order_problems
+from tests.helpers.records import T0
+from tests.helpers.rotations import rotation
 
-T0 = 1_763_000_000_000_000_000
 PERIOD_S = 0.01
 #: NED vectors in ENU: north is y, east is x, down is -z.
 NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])

@@ -508,8 +508,8 @@ def test_false_records_from_random_bytes() -> None:
     in 65,536 windows: blind, about 9 checksum matches per 10 MB; one expected code, 0.6.
     The plausibility check must refuse nearly all of them: a few floats in range pass
     about half the time each, so false records stay below one per 10 MB on average
-    (README: measured over 200 MB). Figures here for this seed: blind 0 false records of
-    6 checksum matches; with 0xC2 expected, 0 of 0. A bound of 2 leaves room for a
+    (docs/guides/performance.md: measured over 200 MB). Figures here for this seed: blind 0
+    false records of 6 checksum matches; with 0xC2 expected, 0 of 0. A bound of 2 leaves room for a
     harmless change of scan order, and fails if the domain check stops working (9)."""
     data = np.random.default_rng(2024).integers(0, 256, 10_000_000, dtype=np.uint8).tobytes()
     blind = Framer()

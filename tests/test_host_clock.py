@@ -22,19 +22,20 @@ import pytest
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript
-from bridge.recorder.export import offline_times, sample_table
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import ArchiveReader, read_archive
 from bridge.recorder.replay import replay
+from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.capture import WALL_NS, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery, UsbDelivery
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.test_bridge_stall import FIVE_HUNDRED_HZ, PERIOD
-from tests.test_record_live import samples_in
-from tests.waiting import free_port, wait_for
+from tests.helpers.archives import samples_in
+from tests.helpers.processes import GX3, bridge_process
+from tests.helpers.units import FIVE_HUNDRED_HZ, FIVE_HUNDRED_HZ_PERIOD
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
 DAY_NS = 86_400 * 10**9
 STEP_NS = 50_000_000
@@ -97,7 +98,7 @@ def test_time_ns_follows_the_host_clock_through_steps_slews_and_a_leap_second(
     table = sample_table(archive, ["a"], re_estimate=offline_times(archive))
     table = {k: v[np.argsort(table["ticks"], kind="stable")] for k, v in table.items()}
     ticks, timer = table["ticks"], table["timer"]
-    assert set(np.diff(ticks).tolist()) == {PERIOD}, "a sample was lost or repeated"
+    assert set(np.diff(ticks).tolist()) == {FIVE_HUNDRED_HZ_PERIOD}, "a sample was lost or repeated"
     at = np.searchsorted(truth["timer"][: np.argmax(truth["timer"] == timer[-1]) + 1], timer)
     assert (truth["timer"][at] == timer).all(), "an archived record the unit never sent"
     value_ns = truth["value_ns"][at]

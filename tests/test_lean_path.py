@@ -26,12 +26,12 @@ from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES
 from bridge.timing.stream import Settings, StreamTiming
 from bridge.unit.pipeline import Options, Pipeline, TimedSamples, UnitEvent
+from tests.helpers.records import T0
 
 CODE = 0xCC
 SIZE = REPLIES[CODE].length
 BAUD = 921_600
 BYTE_NS = 10 * 1_000_000_000 // BAUD
-T0 = 1_763_000_000_000_000_000
 N = 3000
 
 

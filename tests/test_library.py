@@ -26,9 +26,10 @@ from packaging.version import Version
 import bridge
 from bridge.sim.faults import FaultConfig
 from bridge.sim.serve import Simulator
-from tests.test_bridge_process import Stderr, bridge_process, zenoh_config
-from tests.test_pipeline import BASE
-from tests.waiting import free_port, wait_for
+from tests.helpers.processes import Stderr, bridge_process
+from tests.helpers.units import STATIC_UNIT
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -123,7 +124,7 @@ def test_library_modules_log_instead_of_printing() -> None:
 
 def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
     cfg = zenoh_config(tmp_path / "bridge.json5", listen=[f"tcp/127.0.0.1:{free_port()}"])
-    with Simulator([BASE], "pty", faults=FaultConfig(drop_rate=0.002)) as sim, \
+    with Simulator([STATIC_UNIT], "pty", faults=FaultConfig(drop_rate=0.002)) as sim, \
             bridge_process(sim.endpoints[0], cfg, "--unit", "lib1",
                            "--log-format", "json") as proc:
         stderr = Stderr(proc)

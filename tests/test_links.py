@@ -16,8 +16,9 @@ from bridge.sim.usb import AdapterDelivery
 from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming
 from bridge.unit.pipeline import Pipeline
 from bridge.unit.service import info_message
-from tests.test_pipeline import BASE, ListSink, running
-from tests.waiting import wait_for
+from tests.helpers.pipeline import ListSink, running
+from tests.helpers.units import STATIC_UNIT
+from tests.helpers.waiting import wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -106,7 +107,7 @@ def _adapter_unit(tmp_path: Path, timer_ms: int) -> Iterator[tuple[Simulator, Pi
     the adapter's sysfs entry; the pipeline on it with transport auto."""
     sysfs = _sysfs(tmp_path / "sys", "ttyUSB5", f"{timer_ms}\n")
     delivery = AdapterDelivery(latency_timer_s=timer_ms / 1000, stall_every_s=0.0, seed=2)
-    with running(BASE, tmp_path / "ttyUSB5", delivery, sysfs=sysfs) as unit:
+    with running(STATIC_UNIT, tmp_path / "ttyUSB5", delivery, sysfs=sysfs) as unit:
         yield unit
 
 

@@ -17,8 +17,8 @@ from mcap.records import Chunk, Footer, MessageIndex
 from mcap.stream_reader import get_chunk_data_stream
 
 from bridge.recorder.mcap_writer import MAGIC, McapWriter
+from tests.helpers.records import T0
 
-T0 = 1_763_000_000_000_000_000
 Written = list[tuple[int, int, int, int, bytes]]  # channel, sequence, log, publish, data
 
 

@@ -38,7 +38,7 @@ from bridge.exceptions import PortError
 from bridge.protocol.codec import Records, checksum, native_checks, plausible
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES, REPLIES, Flag
-from tests.waiting import wait_for
+from tests.helpers.waiting import wait_for
 
 CODES = sorted(DATA_CODES)
 CORE = native.records

@@ -26,10 +26,11 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.test_record_live import UNITS, recorder, samples_in
-from tests.test_replay import write_capture
-from tests.waiting import free_port, wait_for
+from tests.helpers.archives import samples_in, write_capture
+from tests.helpers.processes import GX3, bridge_process, recorder
+from tests.helpers.units import TWO_UNITS
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
 
 def files_in(folder: Path) -> dict[str, bytes]:
@@ -101,7 +102,7 @@ def fleet(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
     join_cfg = zenoh_config(tmp_path / "join.json5", connect=[endpoint])
     out = tmp_path / "out"
     out.mkdir()
-    with Simulator(UNITS[:1], "pty") as sim, \
+    with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], join_cfg, "--unit", "a"):
         yield rec_cfg, join_cfg, out
 

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,79 +20,19 @@ import pytest
 from bridge.device.actions import run_action
 from bridge.device.session import Session, UnitInfo
 from bridge.protocol.codec import Records
-from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored
-from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import UsbDelivery
-from bridge.unit.pipeline import PUBLISH_RESERVE_S, Options, Pipeline, TimedSamples, UnitEvent
-from tests.waiting import wait_for
-
-STREAMING = Stored(mode_preset=2, continuous_preset=0xC2)
-BASE = UnitConfig(serial="PIPE0001", motion=MotionConfig(seed=5, static=True), stored=STREAMING)
-
-
-@dataclass
-class ListSink:
-    infos: list[UnitInfo] = field(default_factory=list)
-    batches: list[TimedSamples] = field(default_factory=list)
-    events: list[UnitEvent] = field(default_factory=list)
-    statuses: list[dict[str, Any]] = field(default_factory=list)
-    published: list[int] = field(default_factory=list)  # raw-clock time of each samples call
-    lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def info(self, info: UnitInfo) -> None:
-        self.infos.append(info)
-
-    def samples(self, samples: TimedSamples) -> None:
-        with self.lock:
-            self.batches.append(samples)
-            self.published.append(time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW))
-
-    def event(self, event: UnitEvent) -> None:
-        self.events.append(event)
-
-    def status(self, status: dict[str, Any]) -> None:
-        self.statuses.append(status)
-
-    def column(self, name: str) -> np.ndarray:
-        with self.lock:
-            parts = [getattr(s, name) if name in ("ticks", "time_ns", "rx_ns") else
-                     s.batch.rx_ns if name == "rx_mono_raw_ns" else s.batch[name]
-                     for s in self.batches]
-        return np.concatenate(parts) if parts else np.zeros(0)
-
-    def kinds(self) -> list[str]:
-        return [e.kind for e in self.events]
-
-
-@contextmanager
-def running(config: UnitConfig, link: Path | None = None, usb: UsbDelivery | None = None,
-            transport: str = "pty", **options: Any
-            ) -> Iterator[tuple[Simulator, Pipeline, ListSink]]:
-    """The pipeline on an emulated unit; ``link`` is a stable name that survives unplugs
-    (the kernel may give a replugged pty another number, as udev rules prevent for real);
-    ``usb`` how the unit's bytes reach the host; ``transport`` "pty" or "tcp" (a serial
-    server, ``socket://``)."""
-    with Simulator([config], transport, links=[link] if link else None, usb=usb) as sim:
-        sink = ListSink()
-        pipeline = Pipeline(Options(url=sim.endpoints[0], **options), sink)
-        stop = threading.Event()
-        worker = threading.Thread(target=pipeline.run, args=(stop,))
-        worker.start()
-        try:
-            yield sim, pipeline, sink
-        finally:
-            stop.set()
-            worker.join(timeout=30)
-            assert not worker.is_alive(), "the pipeline did not stop"
+from bridge.unit.pipeline import PUBLISH_RESERVE_S, Options, Pipeline
+from tests.helpers.pipeline import ListSink, running
+from tests.helpers.units import STATIC_UNIT
+from tests.helpers.waiting import wait_for
 
 
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
 def test_every_record_once_with_increasing_ticks(transport: str) -> None:
     """Over a tty and over a serial server's socket, each read by the port on until a
     record is whole."""
-    with running(BASE, transport=transport) as (sim, _, sink):
+    with running(STATIC_UNIT, transport=transport) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 150)
     ticks = sink.column("ticks")
     assert (np.diff(ticks) == 625).all(), "a record was lost, doubled or out of order"
@@ -116,7 +54,7 @@ def held_s(sink: ListSink) -> np.ndarray:
 
 def test_by_default_each_read_goes_out_at_once_on_the_per_read_path() -> None:
     assert Options(url="/dev/ttyS0").max_latency_s == PUBLISH_RESERVE_S
-    with running(BASE) as (_, _, sink):
+    with running(STATIC_UNIT) as (_, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 250)
     with sink.lock:
         sizes = np.array([len(s.records) for s in sink.batches])
@@ -130,7 +68,7 @@ def test_by_default_each_read_goes_out_at_once_on_the_per_read_path() -> None:
 
 def test_a_latency_budget_gathers_reads_keeps_every_sample_and_holds_none_past_it() -> None:
     budget_s = 0.1
-    with running(BASE, max_latency_s=budget_s) as (_, _, sink):
+    with running(STATIC_UNIT, max_latency_s=budget_s) as (_, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 300)
     ticks = sink.column("ticks")
     assert (np.diff(ticks) == 625).all(), "a record was lost, doubled or out of order"
@@ -144,7 +82,7 @@ def test_a_latency_budget_gathers_reads_keeps_every_sample_and_holds_none_past_i
 
 
 def test_ticks_keep_increasing_across_the_rollover() -> None:
-    config = replace(BASE, timer_start=(1 << 32) - 62_500)  # rolls over after ~1 s
+    config = replace(STATIC_UNIT, timer_start=(1 << 32) - 62_500)  # rolls over after ~1 s
     with running(config) as (_, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 250)
     ticks, timers = sink.column("ticks"), sink.column("timer")
@@ -154,7 +92,7 @@ def test_ticks_keep_increasing_across_the_rollover() -> None:
 
 
 def test_time_is_on_the_host_clock_and_monotonic() -> None:
-    with running(BASE) as (_, _, sink):
+    with running(STATIC_UNIT) as (_, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 200)
     t = sink.column("time_ns")
     assert (np.diff(t) > 0).all()
@@ -162,7 +100,7 @@ def test_time_is_on_the_host_clock_and_monotonic() -> None:
 
 
 def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
-    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
+    with running(STATIC_UNIT, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.5)
         wait_for(lambda: "reconnect" in sink.kinds())
@@ -178,7 +116,7 @@ def test_unplugged_unit_is_reported_and_resumes(tmp_path: Path) -> None:
 
 
 def test_power_cycled_unit_is_a_reset(tmp_path: Path) -> None:
-    with running(BASE, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
+    with running(STATIC_UNIT, tmp_path / "imu", silence_s=0.5) as (sim, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 50)
         sim.unplug(0, 1.0, power_cycle=True)
         wait_for(lambda: "reconnect" in sink.kinds())
@@ -189,7 +127,7 @@ def test_power_cycled_unit_is_a_reset(tmp_path: Path) -> None:
 
 
 def test_operator_action_while_streaming() -> None:
-    with running(BASE) as (sim, pipeline, sink):
+    with running(STATIC_UNIT) as (sim, pipeline, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 20)
 
         def info(session: Session, unit: UnitInfo) -> dict[str, Any]:
@@ -208,7 +146,7 @@ def test_operator_action_while_streaming() -> None:
 
 @pytest.mark.parametrize("poll_hz", [50.0])
 def test_polling_at_a_fixed_rate(poll_hz: float) -> None:
-    config = replace(BASE, stored=Stored())
+    config = replace(STATIC_UNIT, stored=Stored())
     with running(config, poll_hz=poll_hz, record=0xC2) as (_, _, sink):
         wait_for(lambda: len(sink.column("ticks")) >= 40)
     ticks = sink.column("ticks")
@@ -222,7 +160,7 @@ def test_time_on_a_usb_unit_is_the_instant_the_values_describe() -> None:
     time_ns must land on the instant the values describe, not on their arrival."""
     from bridge.sim.usb import UsbDelivery
 
-    with Simulator([BASE], "pty", usb=UsbDelivery(stall_every_s=2.0, seed=3)) as sim:
+    with Simulator([STATIC_UNIT], "pty", usb=UsbDelivery(stall_every_s=2.0, seed=3)) as sim:
         sink = ListSink()
         pipeline = Pipeline(Options(url=sim.endpoints[0], transport="usb"), sink)
         stop = threading.Event()

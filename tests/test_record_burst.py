@@ -12,24 +12,21 @@ import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
 from mcap.reader import make_reader
 
 from bridge.bus.codec import parse
 from bridge.bus.publish import UnitPublisher
-from bridge.bus.session import open_session
 from bridge.bus.subscribe import subscribe
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
 from bridge.recorder.writer import ArchiveWriter
-from tests.waiting import free_port
+from tests.helpers.records import CODE, T0
+from tests.helpers.zenoh import peer_sessions
 
-CODE = 0xC2
 UNITS = 40
 PER_UNIT = 500
 BURST = 50
-T0 = 1_763_000_000_000_000_000
 
 
 def burst(pubs: list[UnitPublisher]) -> None:
@@ -45,15 +42,9 @@ def burst(pubs: list[UnitPublisher]) -> None:
             pub.publish_samples(batch, ticks, times)
 
 
-def sessions(port: int) -> tuple[zenoh.Session, zenoh.Session]:
-    endpoint = f"tcp/127.0.0.1:{port}"
-    listener = open_session(listen=[endpoint], mode="peer", multicast_scouting=False)
-    return listener, open_session(connect=[endpoint], mode="peer", multicast_scouting=False)
-
-
 def test_a_burst_on_many_keys_is_archived_completely_and_in_order(tmp_path: Path) -> None:
     out = tmp_path / "burst.mcap"
-    rec_session, pub_session = sessions(free_port())
+    rec_session, pub_session = peer_sessions(2)
     writer = ArchiveWriter(out)
     recorder = Recorder(rec_session, writer, queue_size=300)
     pubs = [UnitPublisher(pub_session, f"u{i:02d}") for i in range(UNITS)]
@@ -91,7 +82,7 @@ def test_a_burst_on_many_keys_is_archived_completely_and_in_order(tmp_path: Path
 
 def test_closing_a_subscription_that_holds_zenoh_back(tmp_path: Path) -> None:
     """A full channel (nobody reading) must not keep close from returning."""
-    rec_session, pub_session = sessions(free_port())
+    rec_session, pub_session = peer_sessions(2)
     try:
         sub = subscribe("gx3/*/imu", output="raw", session=rec_session, queue_size=10)
         pub = UnitPublisher(pub_session, "u")

@@ -9,76 +9,23 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import subprocess
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bridge.recorder.reader import read_archive
-from bridge.sim.motion import MotionConfig
-from bridge.sim.serve import Simulator, unit_configs
-from bridge.sim.state import Stored
-from bridge.sim.unit import UnitConfig
-from tests.mcap_order import order_problems
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.waiting import free_port, wait_for
-
-UNITS = unit_configs(2, UnitConfig(serial="REC", motion=MotionConfig(seed=21),
-                                   stored=Stored(mode_preset=2, continuous_preset=0xCC)),
-                     clock_ppm=[80.0, -60.0])
-
-
-def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
-                             "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-
-
-def rerun_rows(path: Path, entity: str) -> int:
-    """Rows logged at ``entity`` on the ``time`` timeline, read with Rerun's own reader."""
-    from rerun.chunk import RrdReader
-
-    with warnings.catch_warnings():  # files still being written have no footer yet
-        warnings.filterwarnings("ignore", message="RRD file has no footer")
-        return sum(c.num_rows for c in RrdReader(path).stream()
-                   if c.entity_path == entity and "time" in c.timeline_names)
-
-
-def rerun_rows_so_far(path: Path, entity: str) -> int:
-    """``rerun_rows`` of a file another process is writing, 0 while Rerun's reader cannot
-    read it yet (a frame cut at the end: RuntimeError; no recording in it yet, only its
-    blueprint: ValueError); the finished file is checked in full."""
-    try:
-        return rerun_rows(path, entity) if path.exists() else 0
-    except (RuntimeError, ValueError):
-        return 0
-
-
-def published(stderr: bytes, unit: str) -> int:
-    """The samples a bridge says it published, from its closing summary line."""
-    found = re.search(rf"^{unit}: (\d+) samples", stderr.decode(), re.M)
-    assert found, stderr.decode()
-    return int(found.group(1))
-
-
-def sample_columns(path: Path, unit: str) -> dict[str, np.ndarray]:
-    """A unit's samples in an archive, in tick order: what replay must reproduce."""
-    blocks = read_archive(path).samples([unit])
-    out = {k: np.concatenate([b.columns[k] for b in blocks])
-           for k in ("ticks", "time_ns", "rx_ns", "accel", "m")}
-    order = np.argsort(out["ticks"], kind="stable")
-    return {k: v[order] for k, v in out.items()}
-
-
-def samples_in(path: Path, unit: str) -> int:
-    """Samples of ``unit`` in an archive being written (flushed every second)."""
-    if not path.exists() or not path.stat().st_size:  # created, its header not yet written
-        return 0
-    return sum(len(b) for b in read_archive(path).samples([unit]))
+from bridge.sim.serve import Simulator
+from tests.helpers.archives import sample_columns, samples_in
+from tests.helpers.mcap_order import order_problems
+from tests.helpers.processes import GX3, bridge_process, published, recorder
+from tests.helpers.rrd import rerun_rows, rerun_rows_so_far
+from tests.helpers.units import TWO_UNITS
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import zenoh_config
 
 
 def test_every_published_sample_is_archived(tmp_path: Path) -> None:
@@ -88,7 +35,7 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
     out = tmp_path / "fleet.mcap"
     rrd = tmp_path / "fleet.rrd"
     proc = recorder(out, rec_cfg, "--history", "10000", "--rrd", str(rrd))
-    with Simulator(UNITS, "pty") as sim, \
+    with Simulator(TWO_UNITS, "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a") as a, \
             bridge_process(sim.endpoints[1], bridge_cfg, "--unit", "b") as b:
         wait_for(lambda: min(samples_in(out, "a"), samples_in(out, "b")) >= 200)
@@ -126,7 +73,7 @@ def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
     out = tmp_path / "killed.mcap"
     proc = recorder(out, rec_cfg)
-    with Simulator(UNITS[:1], "pty") as sim, \
+    with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
         wait_for(lambda: samples_in(out, "a") >= 200)
         time.sleep(1.5)
@@ -165,7 +112,7 @@ def test_replay_of_the_raw_reads_gives_the_live_samples(tmp_path: Path, through:
     else:
         rec_args, bridge_args, source = ["--history", "10000"], ["--capture", str(capture)], capture
     proc = recorder(live, rec_cfg, *rec_args)
-    with Simulator(UNITS[:1], "pty") as sim, \
+    with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", *bridge_args) as bridge:
         wait_for(lambda: samples_in(live, "a") >= 300)
         bridge.send_signal(signal.SIGINT)
@@ -191,7 +138,7 @@ def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
     rrd = tmp_path / "live.rrd"
     viewer = subprocess.Popen([GX3, "view", "--save", str(rrd), "--zenoh-config",
                                str(view_cfg)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    with Simulator(UNITS[:1], "pty") as sim, \
+    with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
         wait_for(lambda: rerun_rows_so_far(rrd, "/plots/accel/x/a") >= 100)
     viewer.send_signal(signal.SIGINT)
@@ -220,7 +167,7 @@ def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
         assert router.stdout is not None and router.stdout.readline().strip() == b"READY"
         out = tmp_path / "routed.mcap"
         proc = recorder(out, client)
-        with Simulator(UNITS[:1], "pty") as sim, \
+        with Simulator(TWO_UNITS[:1], "pty") as sim, \
                 bridge_process(sim.endpoints[0], client, "--unit", "a"):
             wait_for(lambda: samples_in(out, "a") >= 100)
         proc.send_signal(signal.SIGINT)

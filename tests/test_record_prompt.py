@@ -19,8 +19,8 @@ from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
 from bridge.recorder.reader import read_archive
 from bridge.recorder.writer import ArchiveWriter
-from tests.test_record_burst import CODE, T0, sessions
-from tests.waiting import free_port
+from tests.helpers.records import CODE, T0
+from tests.helpers.zenoh import peer_sessions
 
 SAMPLES = 400
 
@@ -38,7 +38,7 @@ def steady(pub: UnitPublisher) -> None:
 
 def test_samples_flowing_are_taken_within_milliseconds(tmp_path: Path) -> None:
     out = tmp_path / "steady.mcap"
-    rec_session, pub_session = sessions(free_port())
+    rec_session, pub_session = peer_sessions(2)
     writer = ArchiveWriter(out)
     recorder = Recorder(rec_session, writer)
     pub = UnitPublisher(pub_session, "u")

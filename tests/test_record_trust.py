@@ -17,44 +17,21 @@ import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
-from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.bus.integrity import seal
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
-from bridge.protocol.codec import Batch
-from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
 from bridge.recorder.reader import read_archive
 from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.serve import Simulator
-from tests.test_bridge_process import GX3, bridge_process, zenoh_config
-from tests.test_record_live import UNITS, published, recorder, samples_in
-from tests.waiting import free_port, wait_for
-
-CODE = 0xC2
-T0 = 1_763_000_000_000_000_000
-
-
-def batch(start: int, n: int) -> tuple[Batch, np.ndarray, np.ndarray]:
-    """``n`` records from index ``start``: ticks 625 apart (100 Hz), values = index."""
-    index = np.arange(start, start + n, dtype=np.int64)
-    columns = {f.name: np.repeat(index.astype(np.float32), int(np.prod(f.shape))).reshape(
-        n, *f.shape) for f in REPLIES[CODE].fields}
-    columns["timer"] = (index * 625).astype(np.uint32)
-    times = T0 + index * 10_000_000
-    return Batch(CODE, columns, index, times, False), index * 625, times
-
-
-def payloads(unit: str, start: int, n: int) -> list[bytes]:
-    records, ticks, times = batch(start, n)
-    return encode_batch(unit, records, ticks, times, times)
-
-
-def events(path: Path, unit: str, kind: int) -> list[Event]:
-    return [e for _, e in read_archive(path).events([unit]) if e.kind == kind]
+from tests.helpers.archives import archived_events, samples_in
+from tests.helpers.processes import GX3, bridge_process, published, recorder
+from tests.helpers.records import CODE, indexed_batch, indexed_payloads
+from tests.helpers.units import TWO_UNITS
+from tests.helpers.waiting import free_port, wait_for
+from tests.helpers.zenoh import peer_sessions, zenoh_config
 
 
 def archived_ticks(path: Path, unit: str) -> np.ndarray:
@@ -76,18 +53,18 @@ def test_forged_and_damaged_samples_are_rejected_and_accounted_for(tmp_path: Pat
             pub.set_info(Info(command=CODE))
             wait_for(lambda: out.exists() and "gx3/a/info" in read_archive(out).topics(),
                      what="the recorder to see unit a")
-            records, ticks, times = batch(0, 10)
+            records, ticks, times = indexed_batch(0, 10)
             pub.publish_samples(records, ticks, times)
-            forged = payloads("b", 10, 1)[0]  # unit b's sample, a's key, a valid CRC
-            damaged = bytearray(payloads("a", 11, 1)[0])
+            forged = indexed_payloads("b", 10, 1)[0]  # unit b's sample, a's key, a valid CRC
+            damaged = bytearray(indexed_payloads("a", 11, 1)[0])
             damaged[-8:] = b"\xbf\x25\x07\xbd\x01\x09/a"  # the next batch's header
             s.put("gx3/a/imu", forged, attachment=seal(forged))
-            s.put("gx3/a/imu", bytes(damaged), attachment=seal(payloads("a", 11, 1)[0]))
-            s.put("gx3/a/imu", payloads("a", 12, 1)[0])  # no attachment, no CRC
-            records, ticks, times = batch(13, 10)
+            s.put("gx3/a/imu", bytes(damaged), attachment=seal(indexed_payloads("a", 11, 1)[0]))
+            s.put("gx3/a/imu", indexed_payloads("a", 12, 1)[0])  # no attachment, no CRC
+            records, ticks, times = indexed_batch(13, 10)
             pub.publish_samples(records, ticks, times)
             wait_for(lambda: samples_in(out, "a") == 20, what="the genuine samples")
-            wait_for(lambda: sum(e.count for e in events(out, "a", Event.REJECTED)) == 3,
+            wait_for(lambda: sum(e.count for e in archived_events(out, "a", Event.REJECTED)) == 3,
                      what="the rejections in the archive")
     finally:
         proc.send_signal(signal.SIGINT)
@@ -95,7 +72,7 @@ def test_forged_and_damaged_samples_are_rejected_and_accounted_for(tmp_path: Pat
     assert proc.returncode == 0, stderr.decode()
     np.testing.assert_array_equal(archived_ticks(out, "a"),
                                   np.r_[np.arange(10), np.arange(13, 23)] * 625)
-    rejected = events(out, "a", Event.REJECTED)
+    rejected = archived_events(out, "a", Event.REJECTED)
     by_reason = {"checksum": 0, "key": 0}
     for e in rejected:
         by_reason["checksum" if "CRC" in e.detail else "key"] += e.count
@@ -129,7 +106,7 @@ def test_a_router_outage_leaves_a_loss_event_equal_to_what_is_missing(
     first = router()
     proc = recorder(out, client)
     try:
-        with Simulator(UNITS[:1], "pty") as sim, \
+        with Simulator(TWO_UNITS[:1], "pty") as sim, \
                 bridge_process(sim.endpoints[0], client, "--unit", "a", "--cache", "0.5") \
                 as bridge:
             wait_for(lambda: samples_in(out, "a") >= 100, what="samples before the outage")
@@ -152,7 +129,7 @@ def test_a_router_outage_leaves_a_loss_event_equal_to_what_is_missing(
     ticks = archived_ticks(out, "a")
     holes = np.diff(ticks) // 625 - 1
     missing = int(holes.sum())
-    lost = events(out, "a", Event.LOST)
+    lost = archived_events(out, "a", Event.LOST)
     imu = [e for e in lost if e.leaf == "imu"]
     assert missing > 100, "the outage lost nothing: the test proves nothing"
     assert sum(e.count for e in imu) == missing
@@ -168,7 +145,7 @@ def test_a_second_bridge_under_a_held_name_is_refused(tmp_path: Path) -> None:
     first_cfg = zenoh_config(tmp_path / "first.json5", listen=[endpoint])
     second_cfg = zenoh_config(tmp_path / "second.json5", connect=[endpoint])
 
-    with Simulator(UNITS, "pty") as sim, \
+    with Simulator(TWO_UNITS, "pty") as sim, \
             bridge_process(sim.endpoints[0], first_cfg, "--unit", "imu1"):
         with open_session(second_cfg) as watcher:
             wait_for(lambda: any(r.ok is not None for r in watcher.liveliness().get(
@@ -181,17 +158,9 @@ def test_a_second_bridge_under_a_held_name_is_refused(tmp_path: Path) -> None:
     assert len(lines) == 1 and "imu1" in lines[0] and "--unit" in lines[0], done.stderr
 
 
-def sessions(n: int) -> list[zenoh.Session]:
-    """A listening session and ``n`` - 1 connected to it, on loopback."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    return [open_session(listen=[endpoint], mode="peer", multicast_scouting=False)] + [
-        open_session(connect=[endpoint], mode="peer", multicast_scouting=False)
-        for _ in range(n - 1)]
-
-
 def test_one_unit_from_two_publishers_is_flagged(tmp_path: Path) -> None:
     out = tmp_path / "twice.mcap"
-    rec_session, one, two = sessions(3)
+    rec_session, one, two = peer_sessions(3)
     warnings: list[str] = []
     writer = ArchiveWriter(out)
     rec = Recorder(rec_session, writer, on_event=lambda unit, e: warnings.append(e.detail))
@@ -206,7 +175,7 @@ def test_one_unit_from_two_publishers_is_flagged(tmp_path: Path) -> None:
         writer.close()
         for s in (one, two, rec_session):
             s.close()
-    flagged = events(out, "a", Event.DUPLICATE_UNIT)
+    flagged = archived_events(out, "a", Event.DUPLICATE_UNIT)
     assert len(flagged) == 1 and flagged[0].count == 2
     assert str(one.zid()) in flagged[0].detail and str(two.zid()) in flagged[0].detail
     assert len(warnings) == 1
@@ -217,7 +186,7 @@ def test_a_stalled_writer_sheds_into_the_archive_not_onto_zenoh(tmp_path: Path) 
     wait on the recorder) into a capped buffer; what overflows it is shed, and the
     archive holds an event with exactly the samples that are not in it."""
     out = tmp_path / "shed.mcap"
-    rec_session, pub_session = sessions(2)
+    rec_session, pub_session = peer_sessions(2)
     writer = ArchiveWriter(out)
     n = 5000
     rec = Recorder(rec_session, writer, queue_size=100, buffer_bytes=100_000)
@@ -226,7 +195,7 @@ def test_a_stalled_writer_sheds_into_the_archive_not_onto_zenoh(tmp_path: Path) 
             wait_for(lambda: bool(rec.snapshot()), what="unit a")
             rec.run_once(0.05)
             publishing = threading.Thread(target=lambda: [
-                pub.publish_samples(*batch(start, 50)) for start in range(0, n, 50)])
+                pub.publish_samples(*indexed_batch(start, 50)) for start in range(0, n, 50)])
             publishing.start()
             # the writer is held still: nobody calls run_once until all has come
             publishing.join(60)
@@ -239,7 +208,7 @@ def test_a_stalled_writer_sheds_into_the_archive_not_onto_zenoh(tmp_path: Path) 
         pub_session.close()
         rec_session.close()
     ticks = archived_ticks(out, "a")
-    shed = [e for e in events(out, "a", Event.SHED) if e.leaf == "imu"]
+    shed = [e for e in archived_events(out, "a", Event.SHED) if e.leaf == "imu"]
     assert shed, "nothing was shed: the buffer cap did not bite"
     assert len(ticks) + sum(e.count for e in shed) == n
     kept = set((ticks // 625).tolist())

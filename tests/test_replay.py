@@ -29,18 +29,9 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from tests.mcap_order import order_problems
-from tests.test_bridge_process import GX3
-from tests.test_record_live import sample_columns
-
-
-def write_capture(path: Path, reads: list[tuple[int, bytes]],
-                  metadata: dict[str, str] | None = None) -> Path:
-    writer = RawCaptureWriter(path, "gx3", "u1", metadata)
-    for rx, data in reads:
-        writer.write(data, rx)
-    writer.close()
-    return path
+from tests.helpers.archives import sample_columns, write_capture
+from tests.helpers.mcap_order import order_problems
+from tests.helpers.processes import GX3
 
 
 @pytest.mark.parametrize("little_endian", [False, True])

@@ -16,10 +16,10 @@ from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
 from bridge.timing.links import infer_transport
-from tests.test_bridge_process import GX3, zenoh_config
-from tests.test_replay import write_capture
-from tests.test_sim_cli import Sim, run_sim  # noqa: F401 (the fixture, for pytest)
-from tests.waiting import free_port
+from tests.helpers.archives import write_capture
+from tests.helpers.processes import GX3, Sim
+from tests.helpers.waiting import free_port
+from tests.helpers.zenoh import zenoh_config
 
 LINKS: dict[str, tuple[HostDelivery, int, str, int]] = {
     "usb": (UsbDelivery(frame_phase_s=0.0006, seed=3), 10_000_000, "usb", 0),
@@ -76,7 +76,7 @@ def test_gx3_replay_says_what_it_inferred_and_transport_overrides_it(tmp_path: P
 
 @pytest.mark.parametrize("timer_ms", [1, 16])
 def test_a_real_capture_behind_an_emulated_adapter_is_told_as_one(
-        run_sim: Callable[..., Sim], tmp_path: Path, timer_ms: int) -> None:  # noqa: F811
+        run_sim: Callable[..., Sim], tmp_path: Path, timer_ms: int) -> None:
     """`gx3 sim --usb-serial` read by `gx3 bridge --capture` on its pty: the bridge's
     metadata says uart (a pty is no ttyUSB), the receive times say adapter."""
     sim = run_sim("--pty", "--usb-serial", "--latency-timer", str(timer_ms),

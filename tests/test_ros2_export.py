@@ -18,19 +18,19 @@ from rosbags.typesys import get_typestore
 
 from bridge.protocol.convert import STANDARD_GRAVITY, quaternion_to_m
 from bridge.recorder import ros2_export
-from bridge.recorder.export import sample_table
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
 from bridge.recorder.replay import replay
 from bridge.recorder.ros2_export import write_ros2
+from bridge.recorder.tables import sample_table
 from bridge.ros2 import messages
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from tests.mcap_order import header, order_problems
-from tests.test_archive_writer import rotation
-from tests.test_export import gx3
+from tests.helpers.mcap_order import header, order_problems
+from tests.helpers.processes import gx3
+from tests.helpers.rotations import rotation
 
 #: unit -> record type: u0 has M and a magnetometer, u1 no attitude, u2 Euler angles only
 #: with its rate (no accel).

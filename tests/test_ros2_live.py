@@ -49,8 +49,8 @@ from bridge.ros2.rmw import (
     topic_key,
 )
 from bridge.ros2.xxh3 import xxh3_128, xxh3_128_bytes
-from tests.test_bridge_process import GX3, bridge_process
-from tests.waiting import free_port, wait_for
+from tests.helpers.processes import GX3, bridge_process
+from tests.helpers.waiting import free_port, wait_for
 
 # Examples quoted from the design doc.
 STRING_TYPE = "std_msgs::msg::dds_::String_"

@@ -38,7 +38,7 @@ def test_zenoh_configs_open_a_real_session(path: Path) -> None:
         assert str(session.zid())
 
 
-# --- the fleet install: configs/install.sh, the systemd units, the README's steps -------
+# --- the fleet install: configs/install.sh, the systemd units, the fleet guide's steps -------
 
 CONFIGS = ROOT / "configs"
 INSTALL = CONFIGS / "install.sh"
@@ -171,14 +171,14 @@ def test_every_variable_the_units_document_is_used() -> None:
 
 
 def _fleet_section() -> str:
-    readme = (ROOT / "README.md").read_text()
-    return readme.split("## Running a real fleet")[1].split("\n## ")[0]
+    guide = (ROOT / "docs/guides/fleet.md").read_text()
+    return guide.split("## Running a real fleet")[1].split("\n## ")[0]
 
 
-def test_the_readme_fleet_steps_match_the_files(tmp_path: Path) -> None:
+def test_the_fleet_guide_steps_match_the_files(tmp_path: Path) -> None:
     section = _fleet_section()
     for path in set(re.findall(r"configs/[\w./@*-]+\w", section)):
-        assert list(ROOT.glob(path)), f"README names {path}, which is not in the checkout"
+        assert list(ROOT.glob(path)), f"the fleet guide names {path}, which is not in the checkout"
     root = _system(tmp_path / "root")
     assert _install(root, "--no-venv").returncode == 0
     for path in set(re.findall(r"(/(?:etc|var/lib|opt)/gx3[\w./-]*|/etc/udev/[\w./-]+)",
@@ -187,7 +187,7 @@ def test_the_readme_fleet_steps_match_the_files(tmp_path: Path) -> None:
             continue  # the operator's own files
         if path.startswith("/opt/gx3"):
             continue  # the venv (the pip step)
-        assert (root / path.lstrip("/")).exists(), f"README names {path}; not installed"
+        assert (root / path.lstrip("/")).exists(), f"the fleet guide names {path}; not installed"
     for name in re.findall(r"systemctl enable --now ([\w@ -]+)", section)[0].split():
         template = re.sub(r"@.*", "@", name)
         assert (root / "etc/systemd/system" / f"{template}.service").exists(), name

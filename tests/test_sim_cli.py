@@ -10,13 +10,11 @@ import itertools
 import os
 import re
 import select
-import shutil
 import signal
 import struct
 import subprocess
-import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +25,7 @@ import typer.main
 from typer.testing import CliRunner
 
 from bridge.cli import app
+from tests.helpers.processes import GX3, Sim
 
 WRAP = 1 << 32
 C2_LENGTH = 31
@@ -42,16 +41,6 @@ DOCUMENTED_OPTIONS = (
     "--no-filter-model", "--disconnect-power-cycles", "--hard-iron", "--soft-iron", "--tumble",
     "--usb", "--usb-serial", "--latency-timer",
 )
-
-
-def gx3() -> str:
-    """The installed console script: next to this interpreter, else on PATH."""
-    beside = Path(sys.executable).parent / "gx3"
-    if beside.exists():
-        return str(beside)
-    found = shutil.which("gx3")
-    assert found, "the gx3 console script is not installed"
-    return found
 
 
 def checksum(data: bytes) -> bytes:
@@ -105,57 +94,6 @@ def stream_records(data: bytes, code: int, length: int) -> list[bytes]:
 
 def timer_of(record: bytes) -> int:
     return int(struct.unpack_from(">I", record, len(record) - 6)[0])
-
-
-class Sim:
-    """One running `gx3 sim` process."""
-
-    def __init__(self, proc: subprocess.Popen[bytes]) -> None:
-        self.proc = proc
-
-    def endpoints(self, n: int, timeout: float = 15.0) -> list[str]:
-        """The first ``n`` lines of stdout, which name the endpoints."""
-        assert self.proc.stdout is not None and self.proc.stderr is not None
-        fd = self.proc.stdout.fileno()
-        deadline = time.monotonic() + timeout
-        out = b""
-        while out.count(b"\n") < n:
-            left = deadline - time.monotonic()
-            assert left > 0, f"gx3 sim printed only {out!r}"
-            ready, _, _ = select.select([fd], [], [], left)
-            if ready:
-                chunk = os.read(fd, 4096)
-                assert chunk, f"gx3 sim exited early: {self.proc.stderr.read().decode()}"
-                out += chunk
-        return out.decode().splitlines()[:n]
-
-    def stop(self, sig: signal.Signals = signal.SIGTERM) -> tuple[int, str]:
-        """Signal the process; its exit code and everything it wrote on stderr."""
-        assert self.proc.stderr is not None
-        self.proc.send_signal(sig)
-        code = self.proc.wait(timeout=10)
-        return code, self.proc.stderr.read().decode()
-
-
-@pytest.fixture
-def run_sim() -> Iterator[Callable[..., Sim]]:
-    """Start `gx3 sim` with arguments; every process started is killed and reaped after."""
-    started: list[subprocess.Popen[bytes]] = []
-
-    def start(*args: str) -> Sim:
-        proc = subprocess.Popen([gx3(), "sim", *args], stdin=subprocess.DEVNULL,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        started.append(proc)
-        return Sim(proc)
-
-    yield start
-    for proc in started:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=10)
-        for pipe in (proc.stdout, proc.stderr):
-            if pipe is not None:
-                pipe.close()
 
 
 def test_tcp_units_are_distinct_devices(run_sim: Callable[..., Sim]) -> None:
@@ -290,7 +228,7 @@ def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path:
     ("--tcp", "127.0.0.1:0", "--flags", "0x1FFFF"),
 ], ids=["both-transports", "no-transport", "flags"])
 def test_bad_arguments_fail_with_one_line(args: tuple[str, ...]) -> None:
-    done = subprocess.run([gx3(), "sim", *args], stdin=subprocess.DEVNULL,
+    done = subprocess.run([GX3, "sim", *args], stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=15)
     assert done.returncode != 0
     assert done.stdout == ""
@@ -305,7 +243,7 @@ def test_help_mentions_every_option() -> None:
     assert isinstance(group, typer.core.TyperGroup)
     command = group.commands["sim"]
     declared = {opt for param in command.params for opt in param.opts if opt.startswith("--")}
-    done = subprocess.run([gx3(), "sim", "--help"], stdin=subprocess.DEVNULL,
+    done = subprocess.run([GX3, "sim", "--help"], stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=15,
                           env={**os.environ, "COLUMNS": "80"})
     assert done.returncode == 0, done.stderr

@@ -2,68 +2,36 @@
 
 from __future__ import annotations
 
-from functools import cache
 from itertools import pairwise
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
-from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
-from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import UsbDelivery
+from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.sim.capture import synthesize
 from bridge.timing import OnlineClock, Timeline
 from bridge.timing.clock import _lower_hull, support_slope
-
-FRAME_NS = 1_000_000
-WARM_NS = 30_000_000_000
-CODE = 0xC2
-FLOOR_NS = REPLIES[CODE].length * 1_000  # the emulated USB moves 1 MB/s: 1 us a byte
-
-
-@cache
-def _capture(ppm: float, wander: float, seconds: float, phase_s: float,
-             timer_start: int = 0) -> SyntheticCapture:
-    config = streaming_config(UnitConfig(clock_ppm=ppm, clock_wander_ppm=wander,
-                                         clock_wander_period_s=120.0, clock_seed=3,
-                                         timer_start=timer_start), code=CODE)
-    usb = UsbDelivery(frame_phase_s=phase_s, os_latency_mean_s=0.0003, stall_every_s=8.0,
-                      seed=int(ppm * 10) % 97)
-    return synthesize(config, usb, seconds)
-
-
-def _delay_ns(capture: SyntheticCapture) -> int:
-    return (capture.config.stored.sampling.filter_width - 1) * 500_000
-
-
-def _errors(capture: SyntheticCapture, time_ns: np.ndarray) -> np.ndarray:
-    """|estimate - the instant the values describe| after the warm-up."""
-    truth = capture.truth["time_ns"] - _delay_ns(capture)
-    late = truth >= truth[0] + WARM_NS
-    return np.asarray(np.abs(time_ns - truth)[late])
-
-
-def _timeline(capture: SyntheticCapture, frame_ns: int = FRAME_NS) -> Timeline:
-    return Timeline(625, filter_delay_ns=_delay_ns(capture), floor_ns=FLOOR_NS,
-                    frame_ns=frame_ns)
-
-
-def _run(capture: SyntheticCapture, frame_ns: int = FRAME_NS) -> np.ndarray:
-    timer, rx = capture.records()
-    out = _timeline(capture, frame_ns).update(timer, rx)
-    assert out.valid.all()
-    return out.time_ns
+from tests.helpers.timing import (
+    FLOOR_NS,
+    FRAME_NS,
+    WARM_NS,
+    filter_delay_ns,
+    late_errors,
+    make_timeline,
+    online_times,
+    usb_capture,
+)
 
 
 def test_fast_unit_with_wander_and_a_rollover() -> None:
-    capture = _capture(80.0, 3.0, 90.0, 0.00041, timer_start=(1 << 32) - 45 * TICKS_PER_SECOND)
+    capture = usb_capture(80.0, 3.0, 90.0, 0.00041, timer_start=(1 << 32) - 45 * TICKS_PER_SECOND)
     timer, rx = capture.records()
-    timeline = _timeline(capture)
+    timeline = make_timeline(capture)
     out = timeline.update(timer, rx)
     assert [e.kind for e in out.events] == ["rollover"]
-    err = _errors(capture, out.time_ns)
-    naive = _errors(capture, rx - _delay_ns(capture))
+    err = late_errors(capture, out.time_ns)
+    naive = late_errors(capture, rx - filter_delay_ns(capture))
     assert np.percentile(err, 99) < 100_000, np.percentile(err, 99)
     assert np.percentile(naive, 99) > 1_000_000  # the host stamp alone is far off
     state = timeline.state
@@ -73,8 +41,8 @@ def test_fast_unit_with_wander_and_a_rollover() -> None:
 
 
 def test_slow_unit() -> None:
-    capture = _capture(-60.0, 0.0, 90.0, 0.00077)
-    assert np.percentile(_errors(capture, _run(capture)), 99) < 100_000
+    capture = usb_capture(-60.0, 0.0, 90.0, 0.00077)
+    assert np.percentile(late_errors(capture, online_times(capture)), 99) < 100_000
 
 
 def test_beating_unit_stays_within_half_a_frame_where_the_envelope_does_not() -> None:
@@ -83,16 +51,16 @@ def test_beating_unit_stays_within_half_a_frame_where_the_envelope_does_not() ->
     # the phase crosses a frame boundary nothing tells where in its frame a sample
     # fell, so half a frame (plus the grid's few microseconds) is the bound; the
     # crossing, here after ~100 s, pins it down.
-    capture = _capture(1.0, 0.0, 150.0, 0.00093)
-    ours = _errors(capture, _run(capture))
-    envelope = _errors(capture, _run(capture, frame_ns=0))
+    capture = usb_capture(1.0, 0.0, 150.0, 0.00093)
+    ours = late_errors(capture, online_times(capture))
+    envelope = late_errors(capture, online_times(capture, frame_ns=0))
     assert np.percentile(ours, 99) < FRAME_NS / 2 + 25_000, np.percentile(ours, 99)
     assert np.percentile(ours[-3000:], 99) < 250_000, np.percentile(ours[-3000:], 99)
     assert np.percentile(envelope, 99) > 700_000, np.percentile(envelope, 99)
 
 
 def test_filter_delay_is_taken_out_exactly() -> None:
-    capture = _capture(-60.0, 0.0, 90.0, 0.00077)
+    capture = usb_capture(-60.0, 0.0, 90.0, 0.00077)
     timer, rx = capture.records()
     plain = Timeline(625, floor_ns=FLOOR_NS, frame_ns=FRAME_NS).update(timer, rx).time_ns
     m15 = Timeline(625, filter_delay_ns=7_000_000, floor_ns=FLOOR_NS,
@@ -105,14 +73,14 @@ def test_filter_delay_is_taken_out_exactly() -> None:
 
 
 def test_replay_is_bit_for_bit() -> None:
-    a = _capture(80.0, 3.0, 40.0, 0.00041, timer_start=(1 << 32) - 20 * TICKS_PER_SECOND)
+    a = usb_capture(80.0, 3.0, 40.0, 0.00041, timer_start=(1 << 32) - 20 * TICKS_PER_SECOND)
     b = synthesize(a.config, a.delivery, 40.0)
     assert np.array_equal(a.rx_ns, b.rx_ns) and a.data == b.data
-    assert np.array_equal(_run(a), _run(b))
+    assert np.array_equal(online_times(a), online_times(b))
 
 
 def _split_input() -> tuple[np.ndarray, np.ndarray]:
-    capture = _capture(-60.0, 0.0, 90.0, 0.00077)
+    capture = usb_capture(-60.0, 0.0, 90.0, 0.00077)
     timer, rx = capture.records()
     timer, rx = timer[:2200].copy(), rx[:2200]
     timer[700] ^= np.uint32(1 << 20)  # a corrupt timer
@@ -136,7 +104,7 @@ def test_output_does_not_depend_on_how_records_are_split(cuts: list[int]) -> Non
 
 
 def test_reset_restarts_the_model_and_keeps_the_rate() -> None:
-    capture = _capture(-60.0, 0.0, 90.0, 0.00077)
+    capture = usb_capture(-60.0, 0.0, 90.0, 0.00077)
     timer, rx = capture.records()
     clock = OnlineClock(floor_ns=FLOOR_NS, frame_ns=FRAME_NS)
     clock.update(timer[:5000].astype(np.int64), rx[:5000])

@@ -11,17 +11,24 @@ from bridge.sim.usb import UsbDelivery
 from bridge.timing import TimerUnwrapper
 from bridge.timing.offline import OfflineClock
 from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming
-from tests.test_timing_clock import FLOOR_NS, FRAME_NS, _capture, _delay_ns, _errors, _run
+from tests.helpers.timing import (
+    FLOOR_NS,
+    FRAME_NS,
+    filter_delay_ns,
+    late_errors,
+    online_times,
+    usb_capture,
+)
 
 
 def _smooth(ppm: float, seconds: float, phase_s: float) -> tuple[np.ndarray, np.ndarray]:
-    capture = _capture(ppm, 0.0, seconds, phase_s)
+    capture = usb_capture(ppm, 0.0, seconds, phase_s)
     timer, rx = capture.records()
     ticks = TimerUnwrapper(625).update(timer, rx).ticks
-    clock = OfflineClock(_delay_ns(capture), FLOOR_NS, FRAME_NS)
+    clock = OfflineClock(filter_delay_ns(capture), FLOOR_NS, FRAME_NS)
     out = clock.smooth(ticks, rx)
     assert np.array_equal(out, clock.smooth(ticks, rx))
-    return _errors(capture, out), _errors(capture, _run(capture))
+    return late_errors(capture, out), late_errors(capture, online_times(capture))
 
 
 def test_offline_beats_online_on_a_beating_unit() -> None:
@@ -74,5 +81,5 @@ def test_a_unit_slower_than_the_frame_clock_keeps_its_rate() -> None:
     capture = synthesize(config, UsbDelivery(frame_phase_s=0.00055, seed=4), seconds=300.0)
     timer, rx = capture.records()
     ticks = TimerUnwrapper(625).update(timer, rx).ticks
-    out = OfflineClock(_delay_ns(capture), FLOOR_NS, FRAME_NS).smooth(ticks, rx)
-    assert np.percentile(_errors(capture, out), 99) < 250_000
+    out = OfflineClock(filter_delay_ns(capture), FLOOR_NS, FRAME_NS).smooth(ticks, rx)
+    assert np.percentile(late_errors(capture, out), 99) < 250_000

@@ -22,6 +22,7 @@ from bridge.protocol.table import DATA_CODES
 from bridge.viz import layout
 from bridge.viz.demo import DEMO_EPOCH_NS, demo_columns
 from bridge.viz.logger import RerunLogger
+from tests.helpers.rrd import blueprint_views, plot_values, table
 
 UNITS = {"imu0": (0xCC, 1), "imu1": (0xC8, 2), "imu2": (0xDF, 3)}
 RATE_HZ = 100.0
@@ -33,36 +34,9 @@ def read(path: Path) -> Any:
     return RrdReader(path).stream().collect()
 
 
-def table(store: Any, entity: str, index: str | None = "time") -> pa.Table:
-    return store.reader(index=index, contents=entity).to_arrow_table()
-
-
 def ns(column: pa.ChunkedArray) -> np.ndarray:
     """A timestamp or duration column as int64 nanoseconds."""
     return np.array(column.cast(pa.int64()).to_pylist(), np.int64)
-
-
-def plot_values(store: Any, plot: str, unit: str) -> np.ndarray:
-    """(rows, lines) of a unit's plot: one entity per line."""
-    return np.column_stack([np.array(table(store, path).column(f"{path}:Scalars:scalars")
-                                     .to_pylist())[:, 0] for path in layout.plot_paths(plot, unit)])
-
-
-def blueprint_views(path: Path) -> list[set[tuple[str, str]]]:
-    """(view class, origin) of every view, one set per blueprint in the file."""
-    reader = RrdReader(path)
-    out = []
-    for entry in reader.blueprints():
-        views = set()
-        for chunk in reader.stream(store=entry):
-            batch = chunk.to_record_batch()
-            names = batch.schema.names
-            if "ViewBlueprint:space_origin" in names:
-                kind = batch.column("ViewBlueprint:class_identifier").to_pylist()[0][0]
-                origin = batch.column("ViewBlueprint:space_origin").to_pylist()[0][0]
-                views.add((kind, origin))
-        out.append(views)
-    return out
 
 
 @pytest.fixture(scope="module")

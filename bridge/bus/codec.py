@@ -52,7 +52,17 @@ class RecordBatch(Protocol):
 
 
 def record_quantities(code: int) -> tuple[str, ...]:
-    """The quantities a data record of ``code`` holds, in wire order."""
+    """The quantities a data record holds, in wire order.
+
+    Args:
+        code: The data record (0xC2, 0xCC, ...).
+
+    Returns:
+        Their names (``accel``, ``ang_rate``, ...), the timer left out.
+
+    Raises:
+        ValueError: ``code`` is not a data record.
+    """
     if code not in DATA_CODES:
         raise ValueError(f"0x{code:02X} is not a data record; data records are "
                          + ", ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
@@ -91,13 +101,15 @@ class Layout:
 
     @property
     def size(self) -> int:
+        """Bytes of one message."""
         return int(self.dtype.itemsize)
 
 
 @functools.cache
 def layout(code: int, unit: str, header: tuple[str, ...] = HEADER) -> Layout:
-    """The message layout of record type ``code`` published by ``unit`` (with ``header``:
-    ``LEGACY_HEADER`` for an older bridge's).
+    """The message layout of record type ``code`` published by ``unit``.
+
+    ``header``: ``LEGACY_HEADER`` for an older bridge's.
     """
     quantities = tuple(record_quantities(code))
     name = unit.encode()
@@ -134,10 +146,11 @@ def layout(code: int, unit: str, header: tuple[str, ...] = HEADER) -> Layout:
 
 @functools.cache
 def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np.ndarray]:
-    """(message positions, record positions): where each byte of the timer and the
-    quantities of a wire record lands in its ImuSample. The message holds every value
-    in 4 little-endian bytes; a wire value may be shorter (the upper bytes stay zero,
-    as in the template) and big-endian (its bytes are reversed on the way).
+    """Where each byte of the timer and the quantities of a wire record lands in its ImuSample.
+
+    Returned as (message positions, record positions). The message holds every value in
+    4 little-endian bytes; a wire value may be shorter (the upper bytes stay zero, as in
+    the template) and big-endian (its bytes are reversed on the way).
     """
     lay = layout(code, unit)
     wire = reply_dtype(code, little_endian)
@@ -162,10 +175,10 @@ TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")
 @functools.cache
 def native_layout(code: int, unit: str, little_endian: bool
                   ) -> tuple[bytes, bytes, tuple[int, ...]]:
-    """``layout`` and ``_byte_map`` as the compiled core reads them
-    (``bridge/_records.c``): the message template, the byte moves as little-endian
-    uint16 pairs (message position, record position), and where each of ``TIMES``
-    goes.
+    """``layout`` and ``_byte_map`` as the compiled core reads them (``bridge/_records.c``).
+
+    The message template, the byte moves as little-endian uint16 pairs (message position,
+    record position), and where each of ``TIMES`` goes.
     """
     lay = layout(code, unit)
     dst, src = _byte_map(code, unit, little_endian)
@@ -179,11 +192,21 @@ def native_layout(code: int, unit: str, little_endian: bool
 
 def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
                  rx_ns: np.ndarray, rx_mono_raw_ns: np.ndarray | None = None) -> list[bytes]:
-    """One serialized ImuSample per record of ``batch``: what protobuf would produce
-    (``rx_mono_raw_ns`` None: not known, 0).
+    """One serialized ImuSample per record of ``batch``: what protobuf would produce.
 
     Records that came off the wire are moved byte by byte from their wire bytes, with
     no decoding: a live bridge encodes a record or two per read.
+
+    Args:
+        unit: The unit's name.
+        batch: The records (a ``bridge.protocol.Batch``).
+        ticks: Each record's unwrapped ticks.
+        time_ns: Each record's sample instant (realtime ns).
+        rx_ns: The realtime receive time of the read that completed each.
+        rx_mono_raw_ns: The same on the raw monotonic clock; None: not known, 0.
+
+    Returns:
+        The messages, in record order.
     """
     if not len(batch):
         return []
@@ -207,11 +230,13 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
 
 
 class _RecordPacker:
-    """``encode_batch`` of one wire record in plain Python: unpack its timer and quantities
-    as integers of their wire width and byte order, pack them with the message's tags
-    and lengths, little-endian, 4 bytes each. Integers keep every bit (a float would
-    lose a NaN's payload), so the bytes are those ``_byte_map`` moves. Both Structs are
-    derived from ``layout`` and ``reply_dtype``: the table stays the one definition.
+    """``encode_batch`` of one wire record in plain Python.
+
+    Unpack its timer and quantities as integers of their wire width and byte order, pack
+    them with the message's tags and lengths, little-endian, 4 bytes each. Integers keep
+    every bit (a float would lose a NaN's payload), so the bytes are those ``_byte_map``
+    moves. Both Structs are derived from ``layout`` and ``reply_dtype``: the table stays
+    the one definition.
     """
 
     def __init__(self, code: int, unit: str, little_endian: bool) -> None:
@@ -284,8 +309,10 @@ _packer = functools.cache(_RecordPacker)
 def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[bytes],
                    ticks: Iterable[int], time_ns: Iterable[int], rx_ns: Iterable[int],
                    rx_mono_raw_ns: Iterable[int]) -> list[bytes]:
-    """``encode_batch`` of wire records held as bytes, one each: a live bridge gets one
-    or two a read, for which array set-up costs more than the work.
+    """``encode_batch`` of wire records held as bytes, one each.
+
+    A live bridge gets one or two a read, for which array set-up costs more than the
+    work.
     """
     pack = _packer(code, unit, little_endian).pack
     return [pack(r, t, s, x, m) for r, t, s, x, m
@@ -293,10 +320,11 @@ def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[
 
 
 def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
-    """Which serialized ImuSamples name ``unit`` as every protobuf parser reads them
-    (a repeated ``unit`` field counts as its last value): a message in the bulk layout of
-    its record type by its constant bytes, any other by parsing it; bytes that are not an
-    ImuSample name no unit.
+    """Which serialized ImuSamples name ``unit`` as every protobuf parser reads them.
+
+    A repeated ``unit`` field counts as its last value. A message in the bulk layout of
+    its record type is judged by its constant bytes, any other by parsing it; bytes that
+    are not an ImuSample name no unit.
 
     The constant bytes are compared as one masked integer per message: a recorder that
     hears samples promptly checks a message or two per key at a time, where NumPy's
@@ -304,7 +332,7 @@ def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
     """
     out = [False] * len(payloads)
     sizes = set(map(len, payloads))
-    code = peek_command(unit, payloads[0]) if len(sizes) == 1 else None
+    code = _peek_command(unit, payloads[0]) if len(sizes) == 1 else None
     if code is not None:
         mask, want = _constants(code, unit)
         from_bytes = int.from_bytes
@@ -321,9 +349,10 @@ def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
     return out
 
 
-def peek_command(unit: str, payload: bytes) -> int | None:
-    """The record type of an ImuSample of ``unit`` that has that type's bulk layout by
-    its first bytes and length (None: it does not).
+def _peek_command(unit: str, payload: bytes) -> int | None:
+    """The record type of an ImuSample of ``unit`` in that type's bulk layout.
+
+    Judged by its first bytes and length; None: it is not in one.
     """
     name = unit.encode()
     head = _head(name)
@@ -337,8 +366,10 @@ def peek_command(unit: str, payload: bytes) -> int | None:
 
 @functools.cache
 def _constants(code: int, unit: str) -> tuple[int, int]:
-    """The tags, lengths, unit and command of ``layout(code, unit)`` as a mask over a
-    message read as one big-endian integer, and the bytes they must hold there.
+    """The constant bytes of ``layout(code, unit)`` as integers.
+
+    The tags, lengths, unit and command as a mask over a message read as one big-endian
+    integer, and the bytes they must hold there.
     """
     lay = layout(code, unit)
     const = lay.const_mask
@@ -353,8 +384,18 @@ def _head(name: bytes) -> bytes:
 
 
 def peek(payload: bytes) -> tuple[str, int]:
-    """(unit, command) of a serialized ImuSample, read from its first bytes when it has
-    the bulk layout, else by parsing it.
+    """The unit and record type of a serialized ImuSample, without decoding its values.
+
+    Read from its first bytes when it has the bulk layout, else by parsing it.
+
+    Args:
+        payload: The message.
+
+    Returns:
+        (unit, command).
+
+    Raises:
+        ValueError: The bytes are not an ImuSample.
     """
     if payload[:1] == b"\x0a" and len(payload) > 2 and payload[1] < 0x80:
         end = 2 + payload[1]
@@ -365,7 +406,17 @@ def peek(payload: bytes) -> tuple[str, int]:
 
 
 def parse(payload: bytes) -> ImuSample:
-    """One ImuSample, with a one-line error for bytes that are not one."""
+    """One ImuSample.
+
+    Args:
+        payload: The serialized message.
+
+    Returns:
+        The message.
+
+    Raises:
+        ValueError: The bytes are not an ImuSample; the message says so in one line.
+    """
     try:
         return ImuSample.FromString(payload)
     except DecodeError as exc:
@@ -374,14 +425,24 @@ def parse(payload: bytes) -> ImuSample:
 
 def decode_batch(unit: str, code: int,
                  payloads: Sequence[bytes] | np.ndarray) -> dict[str, np.ndarray]:
-    """Columns (header and quantities, shaped as in the command table) of serialized
-    ImuSamples of one unit and record type.
+    """Columns of serialized ImuSamples of one unit and record type.
 
     Messages in the bulk layout (or an older bridge's, without ``rx_mono_raw_ns``) are
     read as one array; any other valid encoding of the same message (another
-    producer's field order, say) is parsed one by one. ``payloads`` may also be an
-    (n, layout size) uint8 array, one message per row (read straight out of a buffer,
-    without a bytes object each).
+    producer's field order, say) is parsed one by one.
+
+    Args:
+        unit: The unit the messages name.
+        code: Their record type.
+        payloads: The messages; or an (n, layout size) uint8 array, one message per row
+            (read straight out of a buffer, without a bytes object each).
+
+    Returns:
+        The header (``HEADER``) and each quantity by name, shaped as in the command table
+        (``m`` is (n, 3, 3)).
+
+    Raises:
+        ValueError: A message is not an ImuSample, or is of another unit or type.
     """
     lay = layout(code, unit)
     n = len(payloads)
@@ -423,8 +484,9 @@ def decode_batch(unit: str, code: int,
 
 
 def _bulk_rows(lay: Layout, payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
-    """Which ``payloads`` have the bulk layout ``lay`` (by length and constant bytes), and
-    those read as one record array.
+    """Which ``payloads`` have the bulk layout ``lay``, and those read as one record array.
+
+    The layout is judged by length and constant bytes.
     """
     size = lay.size
     fits = np.fromiter((len(p) == size for p in payloads), bool, len(payloads))

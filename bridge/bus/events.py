@@ -1,5 +1,6 @@
-"""How an Event reads to a person: its severity and one line of text, the same in every
-viewer (Rerun's text log, Foxglove's Log panel).
+"""How an Event reads to a person: its severity and one line of text.
+
+The same in every viewer (Rerun's text log, Foxglove's Log panel) and in the log.
 """
 
 from __future__ import annotations
@@ -33,9 +34,17 @@ _MESSAGES = {Event.LOST, Event.REJECTED, Event.SHED}
 
 
 def event_text(unit: str, event: Event, rate_hz: float = 0.0) -> str:
-    """One line: unit, kind, how many when more than one or when lost (with the time they
-    span: records at a known output rate ``rate_hz``, messages from their first to their
-    last), and the detail.
+    """One line for people about an event.
+
+    Args:
+        unit: The unit's name.
+        event: The event.
+        rate_hz: The unit's output rate, where known: records lost are then given the
+            time they span too.
+
+    Returns:
+        Unit, kind, how many when more than one or when lost (with the time they span:
+        records at ``rate_hz``, messages from their first to their last), and the detail.
     """
     text = f"{unit} {Event.Kind.Name(event.kind)}"
     count = event.count

@@ -1,5 +1,6 @@
-"""What a message must show before it is archived or handed to an app: an intact
-payload (its CRC-32 travels in the put's attachment) that agrees with its key.
+"""What a message must show before it is archived or handed to an app.
+
+An intact payload (its CRC-32 travels in the put's attachment) that agrees with its key.
 
 Zenoh 1.10 can splice wire bytes into a payload when a BLOCK put outlives
 ``wait_before_close``, and some such payloads still parse; a checksum computed by the
@@ -43,8 +44,15 @@ NOT_OF_KEY = "key"
 
 
 def seal(payload: bytes, rx_ns: int | None = None, raw_ns: int | None = None) -> bytes:
-    """The attachment of ``payload``: its CRC-32, then a raw read's receive times (on the
-    realtime clock, then the raw monotonic one).
+    """The attachment of a payload: its CRC-32, then a raw read's receive times.
+
+    Args:
+        payload: The message's bytes.
+        rx_ns: A raw read's receive time on the realtime clock; None: not a raw read.
+        raw_ns: The same instant on the raw monotonic clock (None: left out).
+
+    Returns:
+        The attachment's bytes (layout above).
     """
     crc = zlib.crc32(payload)
     if rx_ns is None:
@@ -59,21 +67,41 @@ def seals(payloads: Sequence[bytes]) -> list[bytes]:
 
 
 def intact(payload: bytes, attachment: bytes | None) -> bool:
-    """Whether ``attachment`` holds the CRC-32 of ``payload`` (no attachment: not intact)."""
+    """Whether ``attachment`` holds the CRC-32 of ``payload``.
+
+    Args:
+        payload: The message's bytes.
+        attachment: Its attachment, if it had one.
+
+    Returns:
+        True if the checksums agree; no attachment is not intact.
+    """
     return (attachment is not None and len(attachment) >= 4
             and _CRC.unpack_from(attachment)[0] == zlib.crc32(payload))
 
 
 def read_time(attachment: bytes | None) -> int | None:
-    """The receive time a raw read's attachment carries (None: it carries none)."""
+    """The receive time a raw read's attachment carries.
+
+    Args:
+        attachment: The attachment, if the message had one.
+
+    Returns:
+        Realtime ns since the Unix epoch; None: it carries none.
+    """
     if attachment is None or len(attachment) < _CRC_TIME.size:
         return None
     return int(_CRC_TIME.unpack_from(attachment)[1])
 
 
 def read_raw_time(attachment: bytes | None) -> int | None:
-    """The raw-clock receive time a raw read's attachment carries (None: an older
-    bridge's, with none).
+    """The raw-clock receive time a raw read's attachment carries.
+
+    Args:
+        attachment: The attachment, if the message had one.
+
+    Returns:
+        ``CLOCK_MONOTONIC_RAW`` ns; None: an older bridge's, with none.
     """
     if attachment is None or len(attachment) < _CRC_TIMES.size:
         return None
@@ -81,8 +109,9 @@ def read_raw_time(attachment: bytes | None) -> int | None:
 
 
 def agree(unit: str, leaf: str, payloads: Sequence[bytes]) -> list[bool]:
-    """Which payloads are messages of ``leaf``'s type that name ``unit``, the unit of
-    their key (a raw read names none; a leaf that is not gx3's is not checked).
+    """Which payloads are messages of ``leaf``'s type that name ``unit``, the unit of their key.
+
+    A raw read names none; a leaf that is not gx3's is not checked.
     """
     if leaf == "imu":
         return units_agree(unit, payloads)

@@ -28,8 +28,14 @@ UNREACHABLE = "is the router or peer running and reachable?"
 
 
 def why_not(endpoint: str, tls: dict[str, Any]) -> str:
-    """What stopped a connection to ``endpoint`` (``tcp/HOST:PORT`` or ``tls/HOST:PORT``)
-    with the ``transport/link/tls`` settings ``tls``, and what to do about it.
+    """What stopped a connection to an endpoint, and what to do about it.
+
+    Args:
+        endpoint: ``tcp/HOST:PORT`` or ``tls/HOST:PORT``, as Zenoh's configuration has it.
+        tls: The configuration's ``transport/link/tls`` settings.
+
+    Returns:
+        One line for people.
     """
     proto, _, rest = endpoint.partition("/")
     address = rest.split("?", 1)[0].split("#", 1)[0]
@@ -91,8 +97,10 @@ def _tls_problem(sock: socket.socket, host: str, tls: dict[str, Any]) -> str:
 
 
 def _verdict(link: ssl.SSLSocket, mine: str) -> str:
-    """After a TLS 1.3 handshake the server's verdict on the client's certificate is
-    still to come: an alert, or silence while it waits for Zenoh's first message.
+    """The server's verdict on the client's certificate, after a TLS 1.3 handshake.
+
+    It is still to come after the handshake: an alert, or silence while it waits for
+    Zenoh's first message.
     """
     try:
         closed = link.recv(1) == b""

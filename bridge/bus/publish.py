@@ -44,7 +44,21 @@ CommandHandler = Callable[[str], str]
 
 def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
                            cache: int, heartbeat_s: float = HEARTBEAT_S) -> AdvancedPublisher:
-    """A data key's publisher, as every bridge declares it (also measured by the bench)."""
+    """A data key's publisher, as every bridge declares it (also measured by the bench).
+
+    BLOCK congestion control, RELIABLE, a cache of ``cache`` samples, heartbeats for
+    miss detection, and publisher detection.
+
+    Args:
+        session: The session to declare it on.
+        key: The key.
+        encoding: The payloads' encoding (``ENCODINGS``).
+        cache: Samples the cache holds for subscribers that recover.
+        heartbeat_s: Seconds between heartbeats.
+
+    Returns:
+        The publisher; the caller undeclares it.
+    """
     return declare_advanced_publisher(
         session, key, encoding=encoding,
         congestion_control=zenoh.CongestionControl.BLOCK,
@@ -57,10 +71,20 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
 
 def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int],
                    rx_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
-    """The ImuSample payloads of a live read's records and their attachments (``seal``):
-    in one call of the compiled core where it is built, else ``encode_records`` and
-    ``seals``, with the same bytes. ``rx_ns``: the completing reads' realtime stamps (the
-    records' own are the raw clock's).
+    """The ImuSample payloads of a live read's records and their attachments (``seal``).
+
+    In one call of the compiled core where it is built, else ``encode_records`` and
+    ``seals``, with the same bytes.
+
+    Args:
+        unit: The unit's name.
+        records: The records; their own ``rx_ns`` are the raw clock's.
+        ticks: Each record's unwrapped ticks.
+        time_ns: Each record's sample instant.
+        rx_ns: The completing reads' realtime stamps.
+
+    Returns:
+        The payloads and their attachments.
     """
     core = native.records
     if core is None:
@@ -72,10 +96,26 @@ def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[
 
 
 class UnitPublisher:
-    """The imu, status and event publishers, info and command queryables and the
-    liveliness token of one unit, declared together and undeclared together.
+    """Everything one unit puts on Zenoh, declared together and undeclared together.
 
-    The session stays the caller's; use as a context manager or call ``close``.
+    The imu, status and event publishers (and raw, if asked), the info and command
+    queryables and the liveliness token. The session stays the caller's; use as a
+    context manager or call ``close``. ``published`` counts the samples put.
+
+    Args:
+        session: The session to declare them on.
+        unit: The unit's name.
+        prefix: The keys' prefix.
+        cache_samples: Samples the imu cache holds for subscribers that recover.
+        heartbeat_s: Seconds between the publishers' heartbeats.
+        on_command: Answers operator commands (JSON text in, one line out; raising
+            ValueError answers with that error).
+        allow_commands: Whether ``on_command`` is asked at all; without, every command
+            is refused with what to do.
+        raw: Declare the raw publisher (``publish_raw``).
+
+    Raises:
+        BadName: The unit name or the prefix cannot be used in a key.
     """
 
     def __init__(self, session: zenoh.Session, unit: str, *, prefix: str = PREFIX,
@@ -112,12 +152,18 @@ class UnitPublisher:
 
     def publish_samples(self, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
                         rx_ns: np.ndarray | None = None) -> int:
-        """One ImuSample per record of ``batch``.
+        """One ImuSample per record of ``batch``, each sealed with its CRC-32.
 
-        ``ticks`` (unwrapped timer) and ``time_ns`` (host-clock estimate with the
-        filter delay taken out) are per record, from the timing model. ``rx_ns``: the
-        completing reads' realtime stamps, ``batch.rx_ns`` then their raw-clock ones (a
-        live bridge's); None: ``batch.rx_ns`` are realtime stamps, with no raw ones.
+        Args:
+            batch: The records.
+            ticks: Each record's unwrapped timer, from the timing model.
+            time_ns: Each record's host-clock instant, filter delay taken out.
+            rx_ns: The completing reads' realtime stamps, ``batch.rx_ns`` then being
+                their raw-clock ones (a live bridge's); None: ``batch.rx_ns`` are
+                realtime stamps, with no raw ones.
+
+        Returns:
+            Samples put.
         """
         if rx_ns is None:
             return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns))
@@ -126,7 +172,17 @@ class UnitPublisher:
 
     def publish_records(self, records: Records, ticks: list[int], time_ns: list[int],
                         rx_ns: list[int]) -> int:
-        """``publish_samples`` of a live read's record or two, from their wire bytes."""
+        """``publish_samples`` of a live read's record or two, from their wire bytes.
+
+        Args:
+            records: The records; their ``rx_ns`` are the raw clock's.
+            ticks: Each record's unwrapped timer.
+            time_ns: Each record's host-clock instant.
+            rx_ns: The completing reads' realtime stamps.
+
+        Returns:
+            Samples put.
+        """
         return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns))
 
     def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
@@ -138,21 +194,53 @@ class UnitPublisher:
         return len(payloads)
 
     def publish_status(self, status: Status) -> None:
+        """Put a Status, sealed; its ``unit`` is set to this unit's if empty.
+
+        Args:
+            status: The message.
+
+        Raises:
+            ValueError: It names another unit.
+        """
         payload = self._own(status).SerializeToString()
         self._status.put(payload, attachment=seal(payload))
 
     def publish_event(self, event: Event) -> None:
+        """Put an Event, sealed; its ``unit`` is set to this unit's if empty.
+
+        Args:
+            event: The message.
+
+        Raises:
+            ValueError: It names another unit.
+        """
         payload = self._own(event).SerializeToString()
         self._event.put(payload, attachment=seal(payload))
 
     def publish_raw(self, data: bytes, raw_ns: int, real_ns: int) -> None:
-        """The bytes of one read, its checksum and host receive times attached."""
+        """Put the bytes of one read, its checksum and host receive times attached.
+
+        Args:
+            data: The read's bytes.
+            raw_ns: Its receive time on the raw monotonic clock.
+            real_ns: The same instant on the realtime clock.
+
+        Raises:
+            ValueError: The publisher was declared without ``raw=True``.
+        """
         if self._raw is None:
             raise ValueError("this UnitPublisher was declared without raw=True")
         self._raw.put(data, attachment=seal(data, real_ns, raw_ns))
 
     def set_info(self, info: Info) -> None:
-        """What the info queryable answers from now on."""
+        """What the info queryable answers from now on.
+
+        Args:
+            info: The message; its ``unit`` is set to this unit's if empty.
+
+        Raises:
+            ValueError: It names another unit.
+        """
         self._info = self._own(info).SerializeToString()
 
     def _own(self, message: Any) -> Any:

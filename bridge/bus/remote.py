@@ -42,8 +42,26 @@ def ask_units(prefix: str, unit: str, action: str, params: dict[str, Any], *,
               zenoh_config: str | Path | None = None, connect: Sequence[str] = (),
               timeout: float = TIMEOUT_S,
               discovery: float = DISCOVERY_S) -> list[tuple[str, bool, dict[str, Any]]]:
-    """(unit, ok, result or {"error": text}) for every bridge that answered, and an
-    error for every bridge seen alive that did not.
+    """Ask running bridges to run an operator action on their units.
+
+    Args:
+        prefix: The keys' prefix.
+        unit: A unit's name, or a key expression chunk for several (``*``).
+        action: An action of ``bridge.device.ACTIONS``; ``info`` asks the info queryable,
+            which needs no permission to act.
+        params: The action's parameters.
+        zenoh_config: A Zenoh configuration file.
+        connect: Endpoints to connect to, over the file's.
+        timeout: Seconds to wait for answers (capture-bias adds its sampling time).
+        discovery: Seconds to wait for the target's liveliness token.
+
+    Returns:
+        (unit, ok, result or {"error": text}) for every bridge that answered, and an
+        error for every bridge seen alive that did not, sorted by unit.
+
+    Raises:
+        RemoteError: No session could be opened, no bridge is running for the key, or
+            none answered; the message says what to check.
     """
     if action == "capture_bias":
         timeout += int(params.get("sampling_ms", 10_000)) / 1000

@@ -1,13 +1,9 @@
 """Keep Zenoh's per-sample routing cheap on a session that receives from many units.
 
-An advanced publisher declares its liveliness token and cache queryable *under* its
-key (``gx3/u1/imu/@adv/pub/...``). On the receiving session that puts a node for
-``gx3/u1/imu`` in Zenoh's key tree that has no routing context of its own, and Zenoh
-(1.10) then searches the whole tree, every token and queryable of every unit, once
-per sample. Measured on 100 units at 1 kHz: ~14 us of Zenoh's receive threads per
-sample, more than one core, and the publishers back up. A key declared on the
-session (``declare_keyexpr``) gets that context, its route is cached, and the cost
-falls to ~1.5 us a sample (``bench/bench_recorder.py``).
+Zenoh (1.10) routes a sample on a key that is not declared on the receiving session by
+searching every token and queryable of every unit: ~14 us a sample at 100 units, more
+than a core at 1 kHz. A key declared on the session (``declare_keyexpr``) has its route
+cached: ~1.5 us (``bench/bench_recorder.py``). Why: docs/design/architecture.md.
 
 ``PublisherKeys`` watches the publishers' tokens under a key expression and declares
 each publisher's key as it appears, before its first sample arrives. The tokens also
@@ -29,11 +25,17 @@ ADVANCED_PUBLISHER = "/@adv/pub/"
 
 
 class PublisherKeys:
-    """Declare on ``session`` the key of every advanced publisher matching ``key``,
-    for as long as this object is open (``close`` undeclares them).
+    """Declare on a session the key of every advanced publisher matching a key expression.
 
-    ``on_conflict(key, sessions)`` hears when a publisher appears on a key that a
-    publisher of another session still holds (the Zenoh ids of both, sorted).
+    The keys stay declared for as long as this object is open (``close`` undeclares
+    them).
+
+    Args:
+        session: The receiving session.
+        key: The key expression the publishers put on (``gx3/*/imu``).
+        on_conflict: ``on_conflict(key, sessions)`` hears when a publisher appears on a
+            key that a publisher of another session still holds (the Zenoh ids of both,
+            sorted).
     """
 
     def __init__(self, session: zenoh.Session, key: str,
@@ -50,11 +52,20 @@ class PublisherKeys:
 
     @property
     def keys(self) -> list[str]:
+        """The keys declared so far, sorted."""
         with self._lock:
             return sorted(self._declared)
 
     def key_of(self, zid: str, eid: int) -> str | None:
-        """The key the publisher ``eid`` of session ``zid`` puts on (None: not seen)."""
+        """The key a publisher puts on.
+
+        Args:
+            zid: The Zenoh id of its session.
+            eid: Its entity id in that session.
+
+        Returns:
+            The key, or None if its token was not seen.
+        """
         with self._lock:
             return self._keys.get((zid, eid))
 

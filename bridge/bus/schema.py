@@ -19,8 +19,13 @@ MESSAGE_NAMES = {leaf: f"gx3.v1.{name}" for leaf, name in
 
 
 def file_descriptor_set(root: FileDescriptor = DESCRIPTOR) -> bytes:
-    """A .proto file (default schemas/gx3.proto) and its imports, dependencies first,
-    serialized.
+    """A .proto file and its imports, dependencies first, as one FileDescriptorSet.
+
+    Args:
+        root: The file; default schemas/gx3.proto.
+
+    Returns:
+        The serialized FileDescriptorSet, as MCAP's protobuf profile stores it.
     """
     files = FileDescriptorSet()
     seen: set[str] = set()

@@ -24,7 +24,15 @@ MODES = ("peer", "client", "router")
 
 
 def condense(exc: BaseException) -> str:
-    """The actionable part of a Zenoh error, on one line."""
+    """The actionable part of a Zenoh error, on one line.
+
+    Args:
+        exc: Zenoh's error.
+
+    Returns:
+        Its message without Rust source locations or parser state, at most 400
+        characters.
+    """
     text = re.sub(r"\s*at /\S+?\.rs:\d+\.?", "", str(exc))
     msg = re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)
     where = re.search(r"line: (\d+), column: (\d+)", text)
@@ -41,7 +49,12 @@ def condense(exc: BaseException) -> str:
 
 @dataclass(frozen=True)
 class ZenohOptions:
-    """Where a session's configuration comes from: a file, then flags over it."""
+    """Where a session's configuration comes from: a file, then flags over it.
+
+    ``config_file`` is a JSON5 Zenoh configuration (None: Zenoh's defaults); ``connect``,
+    ``listen``, ``mode`` and ``multicast_scouting`` override it, as ``--connect``,
+    ``--listen`` and ``--mode`` do.
+    """
 
     config_file: str | Path | None = None
     connect: Sequence[str] = field(default=())
@@ -50,7 +63,15 @@ class ZenohOptions:
     multicast_scouting: bool | None = None
 
     def config(self) -> zenoh.Config:
-        """The zenoh.Config these options describe, or a SessionError saying what is wrong."""
+        """The zenoh.Config these options describe.
+
+        Returns:
+            The configuration.
+
+        Raises:
+            SessionError: The file is missing or invalid, or a flag's value is; the
+                message says what is wrong.
+        """
         if self.config_file is not None:
             path = Path(self.config_file)
             if not path.is_file():
@@ -79,17 +100,25 @@ class ZenohOptions:
         return config
 
     def open(self) -> zenoh.Session:
-        """A session, or a SessionError naming what failed (endpoint, router, TLS)."""
+        """Open a session with these options.
+
+        Returns:
+            The session; the caller closes it.
+
+        Raises:
+            SessionError: It could not be opened; the message names what failed (the
+                configuration, an endpoint, the router, TLS).
+        """
         config = self.config()
         try:
             return zenoh.open(config)
         except zenoh.ZError as exc:
             if "Unable to connect" in str(exc):
-                raise SessionError(f"zenoh session: {unreachable(config)}") from None
+                raise SessionError(f"zenoh session: {_unreachable(config)}") from None
             raise SessionError(f"zenoh session: {condense(exc)}") from None
 
 
-def unreachable(config: zenoh.Config) -> str:
+def _unreachable(config: zenoh.Config) -> str:
     """Why none of ``config``'s connect endpoints opened, endpoint by endpoint."""
     endpoints = json.loads(config.get_json("connect/endpoints"))
     if isinstance(endpoints, dict):  # endpoints per mode
@@ -104,5 +133,19 @@ def unreachable(config: zenoh.Config) -> str:
 def open_session(config_file: str | Path | None = None, *, connect: Sequence[str] = (),
                  listen: Sequence[str] = (), mode: str | None = None,
                  multicast_scouting: bool | None = None) -> zenoh.Session:
-    """Open a session from ``--zenoh-config FILE`` and the ``--connect/--listen/--mode`` flags."""
+    """Open a session from ``--zenoh-config FILE`` and the ``--connect/--listen/--mode`` flags.
+
+    Args:
+        config_file: A JSON5 Zenoh configuration; None: Zenoh's defaults.
+        connect: Endpoints to connect to, over the file's.
+        listen: Endpoints to listen on, over the file's.
+        mode: "peer", "client" or "router", over the file's.
+        multicast_scouting: Turn multicast scouting on or off, over the file's.
+
+    Returns:
+        The session; the caller closes it.
+
+    Raises:
+        SessionError: It could not be opened; the message names what failed.
+    """
     return ZenohOptions(config_file, connect, listen, mode, multicast_scouting).open()

@@ -55,7 +55,8 @@ class SampleBatch:
     """Consecutive samples of one unit and record type, as columns.
 
     ``columns`` holds each quantity (shaped as in the command table, e.g. m is
-    (n, 3, 3)) and command, timer, ticks, time_ns, rx_ns.
+    (n, 3, 3)) and command, timer, ticks, time_ns, rx_ns, rx_mono_raw_ns.
+    ``batch["accel"]`` is ``batch.columns["accel"]``; ``len(batch)`` the sample count.
     """
 
     unit: str
@@ -71,8 +72,10 @@ class SampleBatch:
 
 @dataclass
 class Arrivals:
-    """Checked messages of one key, in the order they came: payloads and attachments
-    (a raw read's attachment holds its receive time), and the Zenoh samples.
+    """Checked messages of one key, in the order they came.
+
+    Their payloads and attachments (a raw read's attachment holds its receive time), and
+    the Zenoh samples.
     """
 
     payloads: list[bytes]
@@ -93,8 +96,15 @@ def _route(key: str) -> tuple[str, str] | None:
 
 def check(got: list[zenoh.Sample], on_reject: RejectHandler | None = None
           ) -> dict[str, Arrivals]:
-    """The samples that pass their checks, by key (each key's in the order they came);
-    the others are reported to ``on_reject`` per key and reason.
+    """The samples that pass their checks, by key.
+
+    Args:
+        got: Samples as they arrived.
+        on_reject: Hears ``(key, reason, count)`` of the others, per key and reason
+            (``BAD_CHECKSUM``, ``NOT_OF_KEY``).
+
+    Returns:
+        Each key's messages that passed, in the order they came; keys with none left out.
     """
     groups: dict[str, Arrivals] = {}
     for sample in got:
@@ -131,7 +141,22 @@ class Subscription(Generic[T]):
 
     Iteration blocks until something arrives; with ``idle_timeout`` it ends after
     that many seconds of silence. ``close`` (or leaving the ``with``) undeclares
-    the subscriber and closes the session if this subscription opened it.
+    the subscriber and closes the session if this subscription opened it. ``misses``,
+    ``rejected`` and ``received`` count what could not be recovered, what failed its
+    checks and what arrived. ``subscribe`` makes one.
+
+    Args:
+        session: The session to declare the subscriber on.
+        key: The key expression.
+        convert: Turns checked arrivals into the items iterated.
+        own_session: Close ``session`` with the subscription.
+        history: Past samples to ask each publisher's cache for.
+        max_batch: Most messages taken out of the channel at once.
+        queue_size: The channel's capacity, in samples.
+        idle_timeout: Seconds of silence that end iteration; None: never.
+        on_miss: As ``subscribe``'s.
+        on_reject: As ``subscribe``'s.
+        on_conflict: As ``subscribe``'s.
     """
 
     def __init__(self, session: zenoh.Session, key: str,
@@ -190,9 +215,16 @@ class Subscription(Generic[T]):
             self._on_reject(key, reason, n)
 
     def take(self, limit: int, timeout: float | None = 0.0) -> list[zenoh.Sample]:
-        """Up to ``limit`` samples as they arrived, waiting up to ``timeout`` seconds
-        (None: until something arrives or close) for the first; [] after that. Only
-        those that pass their checks are returned (each key's in the order they came).
+        """Up to ``limit`` samples as they arrived.
+
+        Args:
+            limit: The most samples taken.
+            timeout: Seconds to wait for the first (None: until something arrives or
+                the subscription closes).
+
+        Returns:
+            Those that pass their checks, each key's in the order they came; [] after
+            the timeout or once closed.
         """
         return [s for group in self._take(limit, timeout).values() for s in group.samples]
 
@@ -218,13 +250,26 @@ class Subscription(Generic[T]):
         return got
 
     def take_by_key(self, limit: int) -> dict[str, Arrivals]:
-        """What has arrived (up to ``limit`` messages, no waiting) and passes its checks,
-        by key, each key's in the order they came.
+        """What has arrived and passes its checks, by key, without waiting.
+
+        Args:
+            limit: The most messages taken.
+
+        Returns:
+            Each key's messages, in the order they came.
         """
         return self._take(limit, 0.0)
 
     def get(self, timeout: float | None = None) -> T | None:
-        """The next item, or None after ``timeout`` seconds (or once closed)."""
+        """The next item.
+
+        Args:
+            timeout: Seconds to wait (None: until something arrives or the subscription
+                closes).
+
+        Returns:
+            The item, or None after the timeout or once closed.
+        """
         if not self._pending:
             self._pending = self._convert(self._take(self._max_batch, timeout))
             self._pending.reverse()
@@ -327,20 +372,41 @@ def subscribe(key: str = fleet("imu", PREFIX), *, output: str = "samples",
               on_conflict: Callable[[str, list[str]], None] | None = None,
               idle_timeout: float | None = None, max_batch: int = 1000,
               queue_size: int = 100_000) -> Subscription[Any]:
-    """Subscribe to ``key`` (default every unit's samples, ``gx3/*/imu``).
+    """Subscribe to a key expression: samples, NumPy batches or raw messages.
 
-    ``output``: "samples" yields gx3.v1.ImuSample messages, "batches" yields a
-    SampleBatch per unit and record type of what arrived together, "raw" yields
-    RawMessage (key, payload bytes, encoding) for any key. Pass a ``session``, or
-    let the subscription open (and close) its own from ``zenoh_config`` and the
-    connect/listen/mode/multicast_scouting flags. ``history`` asks each publisher's cache for that
-    many past samples; ``on_miss(source, n)`` hears of samples that could not be
-    recovered (``source``: the key they were published on, where known; ``misses``
-    keeps the total), called by Zenoh's thread before the first sample after them is
-    delivered. ``on_reject(key, reason, n)`` hears of messages that failed their
-    checks ("checksum" or "key"; ``rejected`` keeps the total); ``on_conflict(key,
-    sessions)`` of two sessions publishing on one key (two bridges under one name).
     Items of one key come in the order they were published.
+
+    Args:
+        key: The key expression; default every unit's samples, ``gx3/*/imu``.
+        output: "samples" yields gx3.v1.ImuSample messages, "batches" a SampleBatch per
+            unit and record type of what arrived together, "raw" a RawMessage (key,
+            payload bytes, encoding) for any key.
+        session: A session to use; None: the subscription opens (and closes) its own
+            from ``zenoh_config`` and the flags below.
+        zenoh_config: A JSON5 Zenoh configuration file.
+        connect: Endpoints to connect to, over the file's.
+        listen: Endpoints to listen on, over the file's.
+        mode: "peer", "client" or "router", over the file's.
+        multicast_scouting: Turn multicast scouting on or off, over the file's.
+        history: Past samples to ask each publisher's cache for.
+        on_miss: ``on_miss(source, n)`` hears of samples that could not be recovered
+            (``source``: the key they were published on, where known; ``misses`` keeps
+            the total), called by Zenoh's thread before the first sample after them is
+            delivered.
+        on_reject: ``on_reject(key, reason, n)`` hears of messages that failed their
+            checks ("checksum" or "key"; ``rejected`` keeps the total).
+        on_conflict: ``on_conflict(key, sessions)`` hears of two sessions publishing on
+            one key (two bridges under one name).
+        idle_timeout: Seconds of silence that end iteration; None: never.
+        max_batch: Most messages taken out of Zenoh's channel at once.
+        queue_size: The channel's capacity, in samples.
+
+    Returns:
+        The subscription, a context-managed iterator.
+
+    Raises:
+        ValueError: An unknown ``output`` or an invalid key expression.
+        SessionError: The subscription's own session could not be opened.
     """
     converters: dict[str, Callable[[dict[str, Arrivals]], list[Any]]] = {
         "samples": _samples, "batches": _batches, "raw": _raw}

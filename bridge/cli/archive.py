@@ -10,7 +10,17 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
-from bridge.cli.common import EndOpt, ForceOpt, StartOpt, app, err, fail, parse_code, written
+from bridge.cli.common import (
+    FAILED,
+    EndOpt,
+    ForceOpt,
+    StartOpt,
+    app,
+    err,
+    fail,
+    failing,
+    written,
+)
 
 if TYPE_CHECKING:
     from bridge.recorder.reader import ArchiveReader
@@ -21,26 +31,25 @@ if TYPE_CHECKING:
 
 def read_with_progress(path: Path) -> ArchiveReader:
     """Read an archive with progress on a terminal; warn once when it was cut short."""
-    from bridge.recorder.reader import describe_problem, read_archive
+    from bridge.recorder.export import read_samples_archive
 
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
                         transient=True, disable=not err.is_terminal)
+    problems: list[str] = []
     with progress:
         task = progress.add_task("read", total=size)
-        archive = read_archive(path, lambda done: progress.update(task, completed=done))
-    if not archive.message_count:
-        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
-                         "; is it an archive written by gx3?")
-    problem = describe_problem(archive)
-    if problem:
-        err.print(f"[yellow]warning:[/] {problem}; `gx3 repair` makes a finished copy")
+        archive = read_samples_archive(path, lambda done: progress.update(task, completed=done),
+                                       problems.append)
+    for problem in problems:
+        err.print(f"[yellow]warning:[/] {problem}")
     return archive
 
 
 @app.command()
 def repair(
     file: Annotated[Path, typer.Argument(
+        metavar="FILE.mcap",
         help="Archive whose recorder did not finish it, or with a damaged chunk.")],
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", help="Repaired archive (default: FILE.repaired.mcap); it appears "
@@ -57,24 +66,20 @@ def repair(
     said (time span, messages per topic). Exits 2 when nothing can be recovered. The
     input is never overwritten.
     """
-    from bridge.exceptions import ArchiveError, ArchiveReadError
+    from bridge.exceptions import ArchiveError
     from bridge.recorder.repair import default_output
     from bridge.recorder.repair import repair as repair_archive
 
     output = default_output(file) if output is None else output
-    with written(output, [file], force) as temp:
-        try:
-            report = repair_archive(file, temp)
-        except ArchiveReadError as exc:
-            raise fail(str(exc)) from None
-        except ArchiveError as exc:
-            raise fail(str(exc).replace(str(temp), str(output)), 1) from None
+    with written(output, [file], force) as temp, failing(ArchiveError, temp=temp, path=output):
+        report = repair_archive(file, temp)
     typer.echo(replace(report, output=output).text())
 
 
 @app.command()
 def export(
-    archive: Annotated[Path, typer.Argument(help="Archive (.mcap) written by gx3.")],
+    archive: Annotated[Path, typer.Argument(metavar="ARCHIVE.mcap",
+                                            help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, or a "
                                                ".mcap ROS 2 bag (--format ros2); it appears "
@@ -140,100 +145,23 @@ def export(
     0 is -1 for a quantity the record lacks. header.stamp and the log time are the
     time_ns a table export with the same options gives.
     """
-    from bridge.exceptions import ArchiveReadError
-    from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
-    from bridge.recorder.export import (
-        align_table,
-        archive_prefix,
-        check_format,
-        event_table,
-        last_info,
-        offline_times,
-        parse_time,
-        sample_table,
-        write_table,
-    )
-    from bridge.recorder.magcal import apply, read_document, with_heading
-    from bridge.recorder.ros2_export import write_ros2
+    from bridge.recorder.export import Export
 
-    try:
-        irons = [read_document(path) for path in mag_cal or ()]
-        ros2 = _wants_ros2(output, output_format)
-        if ros2 and align is not None:
-            raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
-                             "own time (leave out --align or --format ros2)")
-        if not ros2:
-            check_format(output)
-        if events is not None:
-            check_format(events)
-            if events.absolute() == output.absolute():
-                raise ValueError(f"--events {events} is the table's own file; give it "
-                                 "another name")
-        codes = [parse_code(c) for c in record_type] if record_type else None
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except (ValueError, typer.BadParameter) as exc:
+    try:  # the request is checked before anything is read or written
+        job = Export(archive, output, output_format=output_format, units=unit,
+                     types=record_type, start=start, end=end, align_hz=align, events=events,
+                     mag_cal=mag_cal or ())
+    except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
         table_file = outputs.enter_context(written(output, [archive], force))
         events_file = (None if events is None
                        else outputs.enter_context(written(events, [archive], force)))
         try:
-            data = read_with_progress(archive)
-            first = data.first_sample_ns() or 0
-            lo_ns = lo.resolve(first) if lo else None
-            hi_ns = hi.resolve(first) if hi else None
-            table = sample_table(data, unit, codes, lo_ns, hi_ns, offline_times(data))
-            rows = len(table["time_ns"])
-            if not rows:
-                raise ValueError(f"{archive}: no samples match (units: "
-                                 f"{', '.join(data.units()) or 'none'}); check --unit, "
-                                 "--type, --start and --end")
-            names = sorted(set(table["unit"].tolist()))
-            n_units = len(names)
-            apply(table, irons)
-            about = About(archive, {u: last_info(data, u) for u in names}, {
-                "units": unit, "types": codes, "start": start, "end": end, "start_ns": lo_ns,
-                "end_ns": hi_ns, "align_hz": align, "time_ns": "re-estimated"},
-                {iron.unit: iron.content for iron in irons})
-            if ros2:
-                bag = write_ros2(table, table_file, archive_prefix(data))
-                msg = (f"wrote {bag.imu} Imu and {bag.mag} MagneticField messages of {rows} "
-                       f"samples of {n_units} units to {output}")
-            elif align is not None:
-                table = align_table(table, align)
-                if irons:
-                    labels = unit_labels(names)
-                    table = with_heading(table, [labels[i.unit] + ALIGNED_SEPARATOR
-                                                 for i in irons])
-                msg = (f"wrote {len(table['time_ns'])} instants at {align:g} Hz of {rows} "
-                       f"samples of {n_units} units to {output}")
-            else:
-                table = with_heading(table, units=[i.unit for i in irons]) if irons else table
-                msg = f"wrote {rows} samples of {n_units} units to {output}"
-            if not ros2:
-                write_table(table, table_file, about)
-            if events_file is not None:
-                ev = event_table(data, unit, lo_ns, hi_ns)
-                write_table(ev, events_file, about)
-                msg += f"; {len(ev['time_ns'])} events to {events}"
-        except (ArchiveReadError, ValueError) as exc:
+            done = job.write(read_with_progress(archive), table_file, events_file)
+        except ValueError as exc:  # the archive or the samples cannot give what was asked
             raise fail(str(exc)) from None
         except OSError as exc:
             raise fail(f"cannot write the export ({exc.strerror or exc}); check the space "
-                       "and permissions where it goes", 1) from None
-    err.print(msg)
-
-
-def _wants_ros2(output: Path, given: str | None) -> bool:
-    """Whether --format (or else the output's extension) asks for a ROS 2 bag."""
-    suffix = output.suffix.lower()
-    if given is None:
-        return suffix == ".mcap"
-    if given.lower() not in ("parquet", "csv", "ros2"):
-        raise ValueError(f"--format {given}: give parquet, csv or ros2")
-    wanted = ".mcap" if given.lower() == "ros2" else f".{given.lower()}"
-    if suffix != wanted:
-        raise ValueError(f"--format {given} writes a {wanted} file; name the output "
-                         f"{output.with_suffix(wanted).name}")
-    return wanted == ".mcap"
+                       "and permissions where it goes", FAILED) from None
+    err.print(done.text())

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import signal
 import threading
-import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from bridge.cli.common import (
+    FAILED,
     ForceOpt,
     LogFormat,
     LogFormatOpt,
@@ -154,10 +154,8 @@ def run_bridge(
     """
     log_to(log_level, log_format)
     from bridge.bus.keys import check_prefix, check_unit
-    from bridge.exceptions import BadName, CaptureError
-    from bridge.recorder.rawcapture import RawCaptureWriter
     from bridge.timing.stream import TRANSPORTS
-    from bridge.unit.pipeline import Options, Pipeline
+    from bridge.unit.pipeline import Options
 
     code = parse_code(record) if record else None
     if code is not None and code not in DATA_CODES:
@@ -169,12 +167,9 @@ def run_bridge(
         raise fail("--ros2-domain is the domain of the --ros2 topics: add --ros2")
     if transport not in ("auto", *TRANSPORTS):
         raise fail(f"--transport {transport!r}: use auto, " + ", ".join(TRANSPORTS))
-    try:
-        check_prefix(prefix)
-        if unit is not None:
-            check_unit(unit)
-    except BadName as exc:
-        raise fail(str(exc)) from None
+    check_prefix(prefix)
+    if unit is not None:
+        check_unit(unit)
     if capture is not None:
         refused(capture, force=force)
     options = Options(url=port, baud=parse_baud(baud), record=code, decimation=decimation,
@@ -188,83 +183,24 @@ def run_bridge(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    from bridge.bus.session import open_session
-    from bridge.exceptions import NameTaken, SessionError, UnsupportedUnit
-    from bridge.unit.service import BusSink, claim_name
+    from bridge.bus.session import ZenohOptions
+    from bridge.unit.run import UnitBridge
 
-    try:
-        bus = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
-    except SessionError as exc:
-        raise fail(str(exc)) from None
-    if unit is not None:
-        try:
-            claim_name(bus, prefix, unit)
-        except NameTaken as exc:
-            bus.close()
-            raise fail(str(exc)) from None
-    writer: list[RawCaptureWriter] = []
-
-    def write_capture(data: bytes, raw_ns: int, real_ns: int) -> None:
-        if not writer or writer[0].stopped:
-            return
-        try:
-            writer[0].write(data, real_ns, raw_ns)
-        except CaptureError as exc:
-            err.print(f"[yellow]capture stopped:[/] {exc}")
-            writer[0].stopped = True
-
-    with bus:
-        sink = BusSink(bus, prefix, unit, port, allow_commands, cache, quiet=quiet,
-                       raw=publish_raw, ros2_domain=(ros2_domain or 0) if ros2 else None)
-        pipeline = Pipeline(options, sink, on_read=sink.read)
-        sink.attach(pipeline)
-        if capture is not None:
-            sink.on_unit(lambda name, meta: _open_capture(writer, capture, prefix, name, meta,
-                                                         force))
-            sink.on_read(write_capture)
-        worker = threading.Thread(target=pipeline.run, args=(stop,), name="gx3-pipeline")
-        worker.start()
-        started = time.monotonic()
-        gave_up = False
-        try:
-            while worker.is_alive() and not stop.is_set():
-                elapsed = time.monotonic() - started
-                if duration is not None and elapsed >= duration:
-                    stop.set()
-                if give_up_after is not None and elapsed >= give_up_after \
-                        and pipeline.last_failure and not pipeline.came_up:
-                    gave_up = True
-                    stop.set()
-                stop.wait(0.2)
-        finally:
-            stop.set()
-            worker.join()
-            sink.close()
-            for w in writer:
-                w.close()
-    if isinstance(pipeline.error, (NameTaken, UnsupportedUnit)):
-        raise fail(str(pipeline.error))
-    if pipeline.error is not None:
-        raise fail(f"the bridge stopped on an internal error: {type(pipeline.error).__name__}: "
-                   f"{pipeline.error}", 1)
-    if not pipeline.came_up:
-        why = pipeline.last_failure or "stopped before the first try ended"
-        if gave_up:
+    bridge = UnitBridge(
+        options, prefix, unit, ZenohOptions(zenoh_config, connect or [], listen or [], mode),
+        allow_commands, cache, quiet=quiet, publish_raw=publish_raw,
+        ros2_domain=(ros2_domain or 0) if ros2 else None, capture=capture, force=force,
+        on_capture_error=lambda exc: err.print(f"[red]error:[/] {exc}"),
+        on_capture_stopped=lambda exc: err.print(f"[yellow]capture stopped:[/] {exc}"))
+    outcome = bridge.run(stop, duration, give_up_after)
+    if outcome.internal_error is not None:
+        error = outcome.internal_error
+        raise fail(f"the bridge stopped on an internal error: {type(error).__name__}: {error}",
+                   FAILED)
+    if not outcome.came_up:
+        why = outcome.last_failure or "stopped before the first try ended"
+        if outcome.gave_up:
             why += f" (gave up after {give_up_after:g} s)"
-        raise fail(f"no unit came up on {port}; the last try: {why}", 1)
+        raise fail(f"no unit came up on {port}; the last try: {why}", FAILED)
     if not quiet:
-        err.print(sink.summary())
-
-
-def _open_capture(writer: list[Any], path: Path, prefix: str, unit: str,
-                  metadata: dict[str, str], force: bool) -> None:
-    """Open the raw capture once the unit's name is known (its first bring-up)."""
-    from bridge.exceptions import CaptureError
-    from bridge.recorder.rawcapture import RawCaptureWriter
-
-    if writer:
-        return
-    try:
-        writer.append(RawCaptureWriter(path, prefix, unit, metadata, force))
-    except CaptureError as exc:
-        err.print(f"[red]error:[/] {exc}")
+        err.print(outcome.summary)

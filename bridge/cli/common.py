@@ -3,6 +3,7 @@ the safe writing of outputs."""
 
 from __future__ import annotations
 
+import inspect
 import io
 import logging
 import signal
@@ -17,35 +18,66 @@ from typing import Annotated, Any
 
 import orjson
 import typer
-import typer.rich_utils
 from rich.console import Console
 from rich.markup import escape
 from rich.text import Text
-from typer.core import TyperOption
+from typer.core import TyperGroup, TyperOption
 
 from bridge import __version__
+from bridge.exceptions import Gx3Error
 from bridge.protocol.table import REPLIES
 
-_type_of_option = TyperOption.display_type_rich
+REFUSED = 2  #: the exit status of a command refused before its work began (options, inputs)
+FAILED = 1  #: the exit status of a command whose work failed once begun
 
 
-def _flag_shows_no_type(self: TyperOption, ctx: Any) -> str | None:
-    """Typer labels on/off flags ``<bool>`` in help, as if they took a value: show none."""
-    return None if self.is_flag else _type_of_option(self, ctx)
+def _paragraphs_wrapped(help_text: str | None) -> str | None:
+    """A docstring's paragraphs after its first, each on one line: Typer keeps their line
+    breaks (the first's it joins itself), so on an 80-column terminal each source line
+    would wrap again half-way. The terminal wraps them instead."""
+    if not help_text:
+        return help_text
+    first, *rest = inspect.cleandoc(help_text).split("\n\n")
+    return "\n\n".join([first, *(p.replace("\n", " ") for p in rest)])
 
 
-TyperOption.display_type_rich = _flag_shows_no_type  # type: ignore[method-assign]
+def _flags_untyped(command: Any, ctx: Any) -> None:
+    """Typer labels an on/off flag ``<bool>`` in help, as if it took a value: show none."""
+    for param in [*command.params, command.get_help_option(ctx)]:
+        if isinstance(param, TyperOption) and param.is_flag and param.metavar is None:
+            param.metavar = ""
 
 
-def _wrapped_paragraphs(paragraphs: list[str], markup_mode: Any) -> str:
-    """Typer keeps a docstring's line breaks after its first paragraph, so on an
-    80-column terminal each source line wraps again half-way: let the terminal wrap."""
-    return "\n\n".join(p.replace("\n", " ") for p in paragraphs)
+class _Commands(TyperGroup):
+    """The `gx3` group: help laid out for a terminal, and every ``Gx3Error`` a command
+    raises (whatever one raises on purpose) said in one line, exit 2 (``REFUSED``).
 
+    A command whose work had begun when it failed says so itself, inside ``failing``."""
 
-typer.rich_utils._fix_linebreaks = _wrapped_paragraphs
+    def __init__(self, **attrs: Any) -> None:
+        super().__init__(**attrs)
+        for command in [self, *self.commands.values()]:
+            command.help = _paragraphs_wrapped(command.help)
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        command = super().get_command(ctx, cmd_name)
+        if command is not None:
+            _flags_untyped(command, ctx)
+        return command
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        _flags_untyped(self, ctx)
+        super().format_help(ctx, formatter)
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except Gx3Error as exc:
+            raise fail(str(exc)) from None
+
 
 app = typer.Typer(
+    cls=_Commands,
     name="gx3",
     help="MicroStrain 3DM-GX3 inertial sensors on Zenoh, in MCAP archives and in the "
          "Rerun viewer: bridge each unit, record the fleet, view it live, operate units, "
@@ -57,10 +89,29 @@ app = typer.Typer(
 err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
-def fail(message: str, code: int = 2) -> typer.Exit:
+def fail(message: str, code: int = REFUSED) -> typer.Exit:
     """Print a one-line error for a person and return the exit to raise."""
     err.print(f"[bold red]error:[/] {escape(message)}")
     return typer.Exit(code)
+
+
+@contextmanager
+def failing(*errors: type[Exception], unless: tuple[type[Exception], ...] = (),
+            temp: Path | None = None, path: Path | None = None) -> Iterator[None]:
+    """Inside, the command's work has begun: these errors end it with exit 1 (``FAILED``),
+    where the same errors before it began are a refusal, exit 2 (a disk that fills while
+    an archive is written, against an archive refused at the start). Errors of
+    ``unless`` stay refusals; a message that names ``temp`` names ``path`` instead (a
+    batch output's temporary file)."""
+    try:
+        yield
+    except unless:
+        raise
+    except errors as exc:
+        message = str(exc)
+        if temp is not None and path is not None:
+            message = message.replace(str(temp), str(path))
+        raise fail(message, FAILED) from None
 
 
 StartOpt = Annotated[str | None, typer.Option(
@@ -83,15 +134,12 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
     """The temporary file a batch command writes ``path`` through (bridge/recorder/outputs.py
     ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
     130, and like any failure leave nothing under ``path``."""
-    from bridge.exceptions import OutputRefused
     from bridge.recorder.outputs import staged
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with staged(path, inputs, force) as temp:
             yield temp
-    except OutputRefused as exc:
-        raise fail(str(exc)) from None
     except KeyboardInterrupt:
         raise fail(f"interrupted; {path} was not written", 130) from None
     finally:
@@ -99,14 +147,10 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
 
 
 def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """bridge/recorder/outputs.py ``refuse`` for a live output, as a one-line error (exit 2)."""
-    from bridge.exceptions import OutputRefused
+    """bridge/recorder/outputs.py ``refuse`` for a live output (OutputRefused: exit 2)."""
     from bridge.recorder.outputs import refuse
 
-    try:
-        refuse(path, inputs, force)
-    except OutputRefused as exc:
-        raise fail(str(exc)) from None
+    refuse(path, inputs, force)
 
 
 def parse_code(text: str | None) -> int:

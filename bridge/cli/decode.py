@@ -37,7 +37,7 @@ def _open_input(path: str) -> BinaryIO:
 @app.command()
 def decode(
     file: Annotated[str, typer.Argument(
-        help="File of raw bytes as read off the line; - for stdin.")],
+        metavar="FILE", help="File of raw bytes as read off the line; - for stdin.")],
     little_endian: Annotated[bool, typer.Option(
         "--little-endian", help="Floats start little-endian (0xDB flag bit 4 set); 0xDB "
         "replies in the capture switch the order from there on.")] = False,

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bridge.cli.common import app, fail, parse_code
+from bridge.cli.common import app, fail, failing, parse_code
 from bridge.cli.record import _table
 
 
@@ -63,7 +63,7 @@ def demo(
     with the truth, and says how to open the results.
     """
     from bridge.cli.viz import _display, live_recording
-    from bridge.exceptions import ArchiveError, DemoError, OutputRefused
+    from bridge.exceptions import DemoError
     from bridge.fleet.demo import Demo, fleet
     from bridge.recorder.outputs import free_folder
 
@@ -72,11 +72,8 @@ def demo(
     if viewer == "spawn" and not _display():
         raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
                    "use --viewer serve for a remote or web viewer, or leave --viewer out")
-    try:
-        members = fleet(units, parse_code(record_type), rate, duration)
-        output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
-    except (DemoError, OutputRefused) as exc:
-        raise fail(str(exc)) from None
+    members = fleet(units, parse_code(record_type), rate, duration)
+    output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
 
@@ -91,13 +88,9 @@ def demo(
     signal.signal(signal.SIGINT, lambda *_: run.stop.set())
     signal.signal(signal.SIGTERM, lambda *_: run.stop.set())
     started = time.monotonic()
-    try:
-        with live:
-            run.run()
-    except ArchiveError as exc:  # refused before it started: another demo writes there
-        raise fail(str(exc)) from None
-    except DemoError as exc:
-        raise fail(str(exc), 1) from None
+    # an ArchiveError is a refusal (another demo writes there): exit 2, as any Gx3Error
+    with failing(DemoError), live:
+        run.run()
     console.print(_summary(run.summary()))
     console.print(f"done in {time.monotonic() - started:,.0f} s; results in {output}/. "
                   "Open them with:", highlight=False)

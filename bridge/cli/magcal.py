@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from bridge.cli.common import EndOpt, ForceOpt, StartOpt, app, err, fail, written
+from bridge.cli.common import FAILED, EndOpt, ForceOpt, StartOpt, app, err, fail, written
 
 
 @app.command("calibrate-mag")
@@ -51,9 +51,9 @@ def calibrate_mag(
     import numpy as np
 
     from bridge.cli.archive import read_with_progress
-    from bridge.exceptions import ArchiveReadError, CalibrationError
-    from bridge.recorder.export import offline_times, parse_time, sample_table
+    from bridge.exceptions import CalibrationError
     from bridge.recorder.magcal import document, fit
+    from bridge.recorder.tables import offline_times, parse_time, sample_table
 
     try:
         lo = parse_time(start) if start else None
@@ -96,11 +96,11 @@ def calibrate_mag(
                 write_fit(drawing, raw, cal, name, _summary(content))
         except CalibrationError as exc:
             raise fail(f"unit {name}: cannot calibrate: {exc}") from None
-        except (ArchiveReadError, ValueError) as exc:
+        except ValueError as exc:  # an ArchiveReadError too: what cannot be read, exit 2
             raise fail(str(exc)) from None
         except OSError as exc:
             raise fail(f"cannot write {output} ({exc.strerror or exc}); check the space and "
-                       "permissions where it goes", 1) from None
+                       "permissions where it goes", FAILED) from None
     for warning in cal.warnings:
         err.print(f"[yellow]warning:[/] unit {name}: {warning}")
     err.print(f"wrote {output}: unit {name}, {cal.readings} readings, hard iron "

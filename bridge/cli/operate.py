@@ -14,6 +14,7 @@ import inspect
 import json
 import sys
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar, cast, get_type_hints
 
@@ -21,12 +22,12 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from bridge.cli.common import app, err, fail, parse_code
+from bridge.cli.common import app, err, fail, failing, parse_code
 from bridge.device.actions import ACTIONS, run_action
 from bridge.device.link import find_link
 from bridge.device.port import Port
 from bridge.device.session import Session, find_baud
-from bridge.exceptions import DeviceError, PortError, UnsupportedUnit
+from bridge.exceptions import DeviceError, PortError
 from bridge.protocol.table import BAUD_RATES
 
 PortOpt = Annotated[str, typer.Option(
@@ -132,11 +133,9 @@ def _run_remote(target: Target, name: str, params: dict[str, Any], as_json: bool
     from bridge.bus.remote import ask_units
     from bridge.exceptions import RemoteError
 
-    try:
+    with failing(RemoteError):
         results = ask_units(target.prefix, target.unit or "*", name, params,
                             zenoh_config=target.zenoh_config, connect=target.connect or [])
-    except RemoteError as exc:
-        raise fail(str(exc), 1) from None
     failed = False
     for unit, ok, result in results:
         if not as_json:
@@ -153,22 +152,13 @@ def _run_remote(target: Target, name: str, params: dict[str, Any], as_json: bool
 def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
                as_json: bool) -> None:
     baud = parse_baud(baud_text)
-    try:
-        port = find_baud(port_url, 115_200)[0] if baud is None else Port.open(port_url, baud)
-    except (PortError, DeviceError) as exc:
-        raise fail(str(exc)) from None
-    try:
+    port = find_baud(port_url, 115_200)[0] if baud is None else Port.open(port_url, baud)
+    with closing(port), failing(PortError, DeviceError):  # opened: the unit let us down
         session = Session(port)
         session.paced = find_link(port_url).transport != "usb"  # a serial line's pace
         session.quiesce()
         info = session.identify()
         result = run_action(name, session, info, params, confirmed=True)
-    except UnsupportedUnit as exc:
-        raise fail(str(exc)) from None
-    except (PortError, DeviceError) as exc:
-        raise fail(str(exc), 1) from None
-    finally:
-        port.close()
     show(result, as_json)
 
 

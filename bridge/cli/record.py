@@ -18,6 +18,7 @@ from rich.table import Table
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
+    FAILED,
     ForceOpt,
     LogFormat,
     LogFormatOpt,
@@ -26,8 +27,8 @@ from bridge.cli.common import (
     app,
     err,
     fail,
+    failing,
     log_to,
-    refused,
     written,
 )
 
@@ -184,117 +185,55 @@ def record(
     """
     log_to(log_level, log_format)
     from bridge.bus.keys import check_prefix
-    from bridge.bus.session import open_session
-    from bridge.device import clock
-    from bridge.exceptions import ArchiveError, BadName, SessionError
-    from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
-    from bridge.recorder.writer import ArchiveWriter
+    from bridge.bus.session import ZenohOptions
+    from bridge.recorder.live import host_tolerance_ns
+    from bridge.recorder.recording import Recording
 
-    try:
-        check_prefix(prefix)
-    except BadName as exc:
-        raise fail(str(exc)) from None
+    check_prefix(prefix)
     try:
         host_tolerance_ns(max_host_offset_ms)
     except ValueError as exc:
         raise fail(f"--max-host-offset-ms {exc}") from None
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
-    if rrd is not None:
-        if rrd.absolute() == path.absolute():
-            raise fail(f"--rrd {rrd} is the archive's own file; give the recording "
-                       "another name")
-        refused(rrd, force=force)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:  # first: a file refused (exists, being written) is said at once
-        writer = ArchiveWriter(path, prefix=prefix,
-                               split_bytes=None if split_mb is None else int(split_mb * 1e6),
-                               split_seconds=None if split_minutes is None
-                               else split_minutes * 60, force=force,
-                               metadata=recorder_metadata(clock.host_sync()))
-    except ArchiveError as exc:
-        raise fail(str(exc)) from None
-
-    def discard() -> None:
-        """Nothing recorded yet: leave no empty archive behind."""
-        writer.close()
-        for part in writer.paths:
-            part.unlink(missing_ok=True)
-
-    try:
-        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
-                               mode=mode)
-    except SessionError as exc:
-        discard()
-        raise fail(str(exc)) from None
-    console = err
     table = not quiet and log_format is LogFormat.text  # the live table is for people
 
     def announce(unit: str, joined: bool) -> None:
-        if quiet:
-            return
-        console.print(f"[dim]{time.strftime('%H:%M:%S')}[/] {unit} "
+        if not quiet:
+            err.print(f"[dim]{time.strftime('%H:%M:%S')}[/] {unit} "
                       + ("[green]joined[/]" if joined else "[red]left[/]"))
 
-    logger = None
-    if rrd is not None:
-        from bridge.viz.logger import RerunLogger
-        from bridge.viz.sources import log_messages
-
-        try:
-            # long recordings: bigger chunks, and no in-memory index of every chunk
-            logger = RerunLogger(rrd, recording_id=path.stem, latency_s=2.0, write_footer=False)
-        except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
-            discard()
-            session.close()
-            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-            raise fail(f"--rrd {rrd}: cannot write ({why})") from None
-        sink = logger
-
-        def to_rerun(messages: list[Any]) -> None:
-            log_messages(sink, messages, prefix)
-    started = time.monotonic()
-    recorder = Recorder(session, writer, prefix, units, raw, history, on_unit=announce,
-                        on_written=None if logger is None else to_rerun,
-                        on_event=lambda unit, event: console.print(
-                            f"[yellow]warning:[/] {event.detail}", highlight=False,
-                            soft_wrap=True), max_host_offset_ms=max_host_offset_ms)
+    recording = Recording(
+        path, ZenohOptions(zenoh_config, connect or [], listen or [], mode), prefix=prefix,
+        units=units, raw=raw, history=history, max_host_offset_ms=max_host_offset_ms,
+        split_bytes=None if split_mb is None else int(split_mb * 1e6),
+        split_seconds=None if split_minutes is None else split_minutes * 60, force=force,
+        rrd=rrd, on_unit=announce, on_event=lambda unit, event: err.print(
+            f"[yellow]warning:[/] {event.detail}", highlight=False, soft_wrap=True))
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     def view(whole: bool = False) -> Group:
         """The units' table, and the hosts' once there are any (their clocks over the
         whole recording when ``whole``)."""
+        recorder = recording.recorder
         hosts = recorder.hosts()
-        return Group(_table(recorder.snapshot(), time.monotonic() - started,
-                            recorder.written, path),
+        return Group(_table(recorder.snapshot(), recording.elapsed_s, recorder.written, path),
                      *([_hosts_table(hosts, recorder.max_host_offset_ns, whole)]
                        if hosts else []))
 
-    try:
-        with Live(console=console, refresh_per_second=2, transient=True,
-                  auto_refresh=False) as live:
-            while not stop.is_set() and recorder.error is None:
-                if duration is not None and time.monotonic() - started >= duration:
-                    break
-                recorder.run_once(0.25)
-                if table:
-                    live.update(view(), refresh=True)
-    finally:
-        recorder.close()
-        if logger is not None:
-            logger.close()
-        try:
-            writer.close()
-        except ArchiveError as exc:
-            recorder.error = recorder.error or exc
-        session.close()
-    if recorder.error is not None:
-        raise fail(str(recorder.error), 1)
+    with recording, Live(console=err, refresh_per_second=2, transient=True,
+                         auto_refresh=False) as live:
+        recording.run(stop, duration,
+                      every=(lambda: live.update(view(), refresh=True)) if table else None)
+    if recording.error is not None:
+        raise fail(str(recording.error), FAILED)
     if table:
-        console.print(view(whole=True))
+        err.print(view(whole=True))
     if not quiet:
-        files = ", ".join(str(p) for p in writer.paths)
-        console.print(f"wrote {files}; {recorder.misses} samples reported lost in transit")
+        files = ", ".join(str(p) for p in recording.paths)
+        err.print(f"wrote {files}; {recording.recorder.misses} samples reported lost in "
+                  "transit")
     err.file.flush()
 
 
@@ -329,7 +268,7 @@ def replay_command(
     the unit's line. Units are replayed side by side on the machine's cores; each
     unit's samples are the same as replayed alone.
     """
-    from bridge.exceptions import ArchiveError, ArchiveReadError, ReplayError, UnusableCapture
+    from bridge.exceptions import ArchiveError, ReplayError, UnusableCapture
     from bridge.recorder.replay import Replayed, replay
     from bridge.timing.stream import TRANSPORTS
 
@@ -360,14 +299,10 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    with written(output, captures, force) as temp:
-        try:
-            with progress:
-                results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
-                                 on_samples=advance, transport=transport)
-        except (ArchiveReadError, UnusableCapture) as exc:
-            raise fail(str(exc)) from None
-        except (ReplayError, ArchiveError) as exc:
-            raise fail(str(exc).replace(str(temp), str(output)), 1) from None
+    with written(output, captures, force) as temp, \
+            failing(ReplayError, ArchiveError, unless=(UnusableCapture,), temp=temp,
+                    path=output), progress:
+        results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
+                         on_samples=advance, transport=transport)
     err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
               f"{len(results)} unit(s)")

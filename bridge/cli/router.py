@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from bridge.cli.common import LogFormat, LogFormatOpt, LogLevel, LogLevelOpt, app, err, fail, log_to
+from bridge.cli.common import LogFormat, LogFormatOpt, LogLevel, LogLevelOpt, app, err, log_to
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
@@ -40,14 +40,10 @@ def router(
     """
     log_to(log_level, log_format)
     from bridge.bus.session import open_session
-    from bridge.exceptions import SessionError
 
     endpoints = listen or ([] if zenoh_config else [DEFAULT_LISTEN])
-    try:
-        session = open_session(zenoh_config, connect=connect or [], listen=endpoints,
-                               mode="router", multicast_scouting=False)
-    except SessionError as exc:
-        raise fail(str(exc)) from None
+    session = open_session(zenoh_config, connect=connect or [], listen=endpoints,
+                           mode="router", multicast_scouting=False)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
+    FAILED,
     ForceOpt,
     LogFormat,
     LogFormatOpt,
@@ -64,7 +65,6 @@ def rrd(
     killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
     message that is not what its topic says is left out with a warning.
     """
-    from bridge.exceptions import ArchiveReadError
     from bridge.recorder.reader import describe_problem, read_archive
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import log_archive
@@ -74,10 +74,7 @@ def rrd(
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
     with written(output, [archive], force) as temp:
-        try:
-            found = read_archive(archive)
-        except ArchiveReadError as exc:
-            raise fail(str(exc)) from None
+        found = read_archive(archive)
         if not found.complete:
             err.print(f"[yellow]{describe_problem(found)}[/]")
         counts = found.counts()
@@ -93,7 +90,7 @@ def rrd(
         try:
             logger = IronedLogger(irons, temp, found.units(), recording_id=archive.stem)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
-            raise fail(f"{output}: cannot write ({exc})", 1) from None
+            raise fail(f"{output}: cannot write ({exc})", FAILED) from None
         with progress:
             task = progress.add_task("rrd", total=total)
             logged = log_archive(found, logger, lambda n: progress.advance(task, n))
@@ -169,7 +166,6 @@ def view(
     """
     log_to(log_level, log_format)
     from bridge.bus.session import open_session
-    from bridge.exceptions import SessionError
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import LiveFeed
 
@@ -182,11 +178,8 @@ def view(
                    "and/or --save FILE.rrd")
     if save is not None:
         refused(save, force=force)
-    try:  # first: a session that cannot open leaves no empty FILE.rrd
-        session = open_session(zenoh_config, connect=connect or [], listen=listen or [],
-                               mode=mode)
-    except SessionError as exc:
-        raise fail(str(exc)) from None
+    # first: a session that cannot open leaves no empty FILE.rrd
+    session = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
     try:
         recording = live_recording(time.strftime("live-%Y%m%d-%H%M%S"), spawn, serve, save,
                                    bind, grpc_port, web_port)

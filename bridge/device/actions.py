@@ -21,7 +21,9 @@ Params = dict[str, Any]
 
 @dataclass(frozen=True)
 class Action:
-    """``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
+    """One operator action: its name, a line of help, and how to run it.
+
+    ``run`` returns a JSON-able result; ``persists`` tells whether ``params`` ask for a
     lasting change; ``effect`` what it does to a running stream: "none",
     "reconfigure" (settings changed), "discontinuity" (the timer jumps) or "restart"
     (the unit comes back as after power-up).
@@ -34,7 +36,7 @@ class Action:
     effect: str = "none"
 
 
-def info_result(info: UnitInfo) -> Params:
+def _info_result(info: UnitInfo) -> Params:
     return {"firmware": info.firmware, "firmware_text": info.firmware_text, **info.ids,
             "sampling": info.sampling, "baud": info.baud,
             "continuous_preset": info.continuous_preset, "record": info.record}
@@ -43,7 +45,7 @@ def info_result(info: UnitInfo) -> Params:
 def _info(session: Session, info: UnitInfo, params: Params) -> Params:
     fresh = session.identify()
     fresh.record = info.record
-    return info_result(fresh)
+    return _info_result(fresh)
 
 
 _SAMPLING = ("decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
@@ -123,7 +125,24 @@ ACTIONS: dict[str, Action] = {a.name: a for a in (
 
 def run_action(name: str, session: Session, info: UnitInfo, params: Params,
                confirmed: bool) -> Params:
-    """Run one action; a lasting change needs ``confirmed``."""
+    """Run one action on a unit.
+
+    Args:
+        name: The action (``ACTIONS``).
+        session: The session with the unit.
+        info: What bring-up learned of the unit; an action that changes a setting
+            updates it.
+        params: The action's parameters (JSON-able).
+        confirmed: The operator agreed to a lasting change; without it, an action that
+            would make one is refused.
+
+    Returns:
+        The action's result, JSON-able.
+
+    Raises:
+        DeviceError: An unknown action, a lasting change not confirmed, or a unit that
+            did not do what was asked.
+    """
     action = ACTIONS.get(name)
     if action is None:
         raise DeviceError(f"unknown action {name!r}; known: {', '.join(ACTIONS)}")

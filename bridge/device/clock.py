@@ -1,11 +1,10 @@
-"""The host's clocks as a read sees them: a raw stamp and a realtime stamp, and the sync state.
+"""The host's clocks as a read sees them: a raw stamp, a realtime stamp, the sync state.
 
 ``CLOCK_MONOTONIC_RAW`` runs at the oscillator's own rate: chrony, ntpd and PTP never
 step or slew it, so the unit's clock is fitted against it. The realtime clock is the
-one they discipline (stepped at boot or by hand, slewed, a leap second inserted), and
-the one everything else on the host stamps with, so each sample is mapped onto it at
-its own instant. Every read gets both, taken together (``stamp``): the raw clock read
-on either side of the realtime clock, again where something came between.
+one they discipline and the one everything else on the host stamps with, so each sample
+is mapped onto it at its own instant. Every read gets both, taken together (``stamp``).
+Why two clocks: docs/design/time.md.
 
 A script can move this process's realtime clock while its raw clock runs on, as a
 disciplined host's clock moves: ``GX3_HOST_CLOCK_SCRIPT`` names a JSON file::
@@ -98,6 +97,7 @@ class ClockScript:
         return moved
 
     def now_ns(self) -> int:
+        """The realtime clock as the script has moved it, ns since the Unix epoch."""
         real = time.time_ns()
         return real + self.shift(real)
 
@@ -115,8 +115,12 @@ realtime_ns: Callable[[], int] = time.time_ns if script is None else script.now_
 
 
 def use_script(path: Path | None) -> None:
-    """Move this process's realtime clock by the script at ``path`` from now on (None:
-    the host's own clock again); for tests that run a bridge in-process.
+    """Move this process's realtime clock by a script from now on.
+
+    For tests that run a bridge in-process.
+
+    Args:
+        path: The script (see the module); None: the host's own clock again.
     """
     global script, realtime_ns
     script = None if path is None else ClockScript(path)
@@ -125,9 +129,18 @@ def use_script(path: Path | None) -> None:
 
 def stamp(clock: Callable[[int], int] = time.clock_gettime_ns,
           real: Callable[[], int] = time.time_ns) -> tuple[int, int]:
-    """(raw, realtime) ns of this instant, read together: the realtime clock between two
-    raw readings, the raw stamp their middle. (The defaults bind the clocks once: this
-    runs once a read.)
+    """This instant on the raw and on the realtime clock, read together.
+
+    The realtime clock is read between two raw readings, the raw stamp is their middle;
+    a pair further apart than ``PAIR_NS`` (the thread was preempted) is taken again.
+
+    Args:
+        clock: ``time.clock_gettime_ns`` (the defaults bind the clocks once: this runs
+            once a read).
+        real: ``time.time_ns``.
+
+    Returns:
+        (raw, realtime) ns; the realtime one moved by the clock script, if any.
     """
     before = clock(RAW)
     now = real()
@@ -196,7 +209,12 @@ class HostSync:
     host: str = ""
 
     def describe(self) -> str:
-        """One line for people."""
+        """One line for people.
+
+        Returns:
+            Whether the clock is disciplined and, if it is, the kernel's estimated and
+            maximum error.
+        """
         if not self.known:
             return "host clock sync state unknown"
         if not self.synchronised:
@@ -211,8 +229,13 @@ with contextlib.suppress(OSError, AttributeError, TypeError):
 
 
 def host_sync() -> HostSync:
-    """The kernel's sync state of the realtime clock now (adjtimex, reading only), or what
-    the clock script says in its place.
+    """The kernel's sync state of the realtime clock now.
+
+    Asks adjtimex, reading only; the clock script's ``sync``, where it has one, answers
+    in its place.
+
+    Returns:
+        The state, ``known`` False where the kernel could not be asked.
     """
     host = socket.gethostname()
     if script is not None and script.sync:

@@ -28,8 +28,10 @@ _MAX_LATENCY_TIMER_MS = 255  # the FTDI driver's range is 1-255 ms
 
 @dataclass(frozen=True)
 class Link:
-    """How a unit reaches the host: "uart", "usb" or "usb-serial", and for an adapter
-    its latency timer in ms (None where sysfs does not say).
+    """How a unit reaches the host.
+
+    ``transport`` is "uart", "usb" or "usb-serial"; ``latency_timer_ms`` an adapter's
+    latency timer (None where sysfs does not say).
     """
 
     transport: str
@@ -37,13 +39,24 @@ class Link:
     device: str = ""  # kernel name (ttyUSB0, ...), where one was found
 
     def describe(self) -> str:
+        """One line for people.
+
+        Returns:
+            The transport, and an adapter's latency timer ("usb-serial, latency timer
+            16 ms").
+        """
         if self.transport != "usb-serial":
             return self.transport
         timer = "unknown" if self.latency_timer_ms is None else f"{self.latency_timer_ms} ms"
         return f"usb-serial, latency timer {timer}"
 
     def warning(self) -> str | None:
-        """What to change when the adapter holds reads back longer than a frame."""
+        """What to change when the adapter holds reads back longer than a frame.
+
+        Returns:
+            One line naming the fix (the udev rule, or the sysfs file now), or None
+            where the timer is 1 ms or not known.
+        """
         if self.latency_timer_ms is None or self.latency_timer_ms <= 1:
             return None
         return (f"the USB-serial adapter's latency timer is {self.latency_timer_ms} ms, so "
@@ -53,10 +66,17 @@ class Link:
 
 
 def kernel_name(url: str) -> str:
-    """The device's kernel name: the first ttyACM*/ttyUSB* on its chain of symlinks, else
-    the name it finally resolves to ("" for a URL such as socket://). A link udev
-    removes meanwhile (an unplug) or one it may not read ends the walk where it is:
-    opening the port then says what is wrong.
+    """The device's kernel name, followed through udev's symlinks.
+
+    A link udev removes meanwhile (an unplug) or one it may not read ends the walk where
+    it is: opening the port then says what is wrong.
+
+    Args:
+        url: A device path or a pyserial URL.
+
+    Returns:
+        The first ttyACM*/ttyUSB* on its chain of symlinks, else the name it finally
+        resolves to ("" for a URL such as socket://).
     """
     if "://" in url:
         return ""
@@ -71,9 +91,11 @@ def kernel_name(url: str) -> str:
     return path.name
 
 
-def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
-    """A USB-serial adapter's latency timer as the kernel reports it; None if it does not
-    (no such file, unreadable, or not a timer the kernel allows: 1 to 255 ms).
+def _latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
+    """A USB-serial adapter's latency timer as the kernel reports it.
+
+    None if it does not: no such file, unreadable, or not a timer the kernel allows
+    (1 to 255 ms).
     """
     try:
         text = (sysfs / "bus" / "usb-serial" / "devices" / device / "latency_timer").read_text()
@@ -84,13 +106,21 @@ def latency_timer_ms(device: str, sysfs: Path = SYSFS) -> int | None:
 
 
 def find_link(url: str, transport: str = "auto", sysfs: Path = SYSFS) -> Link:
-    """The link to a unit at ``url``: ``transport`` as given, or with "auto" by device
-    name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart).
+    """The link to a unit at ``url``.
+
+    Args:
+        url: The unit's device path (udev's stable names are followed) or pyserial URL.
+        transport: "uart", "usb" or "usb-serial" as given, or "auto": by the kernel's
+            device name (ttyACM: usb, ttyUSB: usb-serial, anything else: uart).
+        sysfs: Where sysfs is mounted, for an adapter's latency timer.
+
+    Returns:
+        The transport, an adapter's latency timer where sysfs tells it, the kernel name.
     """
     name = kernel_name(url)
     device = name if _KERNEL_TTY.fullmatch(name) else ""
     if transport == "auto":
         transport = ("usb" if device.startswith("ttyACM") else
                      "usb-serial" if device.startswith("ttyUSB") else "uart")
-    timer = latency_timer_ms(device, sysfs) if transport == "usb-serial" and device else None
+    timer = _latency_timer_ms(device, sysfs) if transport == "usb-serial" and device else None
     return Link(transport, timer, device)

@@ -51,14 +51,25 @@ def _error(url: str, exc: BaseException) -> PortError:
 
 @dataclass
 class Port:
-    """One open transport. ``baud`` is what the host side is set to."""
+    """One open transport: ``url`` and pyserial's object for it (``raw``)."""
 
     url: str
     raw: Any
 
     @classmethod
     def open(cls, url: str, baud: int) -> Port:
-        """Open ``url`` at ``baud``; exclusive, so a second bridge gets a clear 'busy'."""
+        """Open a transport, exclusively, so a second bridge gets a clear 'busy'.
+
+        Args:
+            url: A device path or any pyserial URL (``socket://``, ``rfc2217://``).
+            baud: The host side's baud rate.
+
+        Returns:
+            The open port.
+
+        Raises:
+            PortError: The port cannot be opened; the message says why and what to do.
+        """
         kwargs: dict[str, Any] = {"baudrate": baud, "timeout": 0, "write_timeout": 2.0}
         if "://" not in url:
             kwargs["exclusive"] = True
@@ -70,6 +81,7 @@ class Port:
 
     @property
     def baud(self) -> int:
+        """The baud rate the host side is set to; setting it raises PortError on failure."""
         return int(self.raw.baudrate)
 
     @baud.setter
@@ -86,10 +98,17 @@ class Port:
             return None
 
     def read(self, wait_s: float) -> tuple[bytes, int, int]:
-        """Bytes that arrived within ``wait_s``, and when they were read (ns) on the raw
-        monotonic and on the realtime clock (``clock.stamp``).
+        """Bytes that arrived within ``wait_s``, and when they were read.
 
-        Raises PortError when the transport is gone (cable pulled, server closed).
+        Args:
+            wait_s: How long to wait for the first byte.
+
+        Returns:
+            The bytes (none when nothing came), and their receive time in ns on the raw
+            monotonic and on the realtime clock (``clock.stamp``).
+
+        Raises:
+            PortError: The transport is gone (cable pulled, server closed).
         """
         fd = self._fileno()
         try:
@@ -115,14 +134,23 @@ class Port:
 
     def read_until(self, need: int, wait_s: float
                    ) -> tuple[list[bytes], list[int], list[int]]:
-        """Reads as bytes come until ``need`` bytes have come or ``wait_s`` has passed:
-        each read's bytes and receive times (raw, realtime). A live bridge waits so for the
-        rest of a record in compiled code (``bridge/_gather.c``, the GIL released), and
-        wakes in Python once a record rather than once a piece the link hands over. Without it,
-        or without a file descriptor, this is one ``read``, and the caller reads again:
-        the same reads either way.
+        """Reads as bytes come until ``need`` bytes have come or ``wait_s`` has passed.
 
-        Raises PortError when the transport is gone (cable pulled, server closed).
+        A live bridge waits so for the rest of a record in compiled code
+        (``bridge/_gather.c``, the GIL released), and wakes in Python once a record rather
+        than once a piece the link hands over. Without it, or without a file descriptor,
+        this is one ``read``, and the caller reads again: the same reads either way.
+
+        Args:
+            need: Bytes to wait for.
+            wait_s: How long to wait at most.
+
+        Returns:
+            Each read's bytes, and its receive times on the raw monotonic and on the
+            realtime clock.
+
+        Raises:
+            PortError: The transport is gone (cable pulled, server closed).
         """
         fd = self._fileno()
         reader = native.reader
@@ -138,6 +166,14 @@ class Port:
         return reads, raws, clock.moved(reals)
 
     def write(self, data: bytes) -> None:
+        """Write ``data`` and wait until it is sent.
+
+        Args:
+            data: The bytes.
+
+        Raises:
+            PortError: The transport is gone or the write timed out.
+        """
         try:
             self.raw.write(data)
             self.raw.flush()
@@ -145,6 +181,7 @@ class Port:
             raise _error(self.url, exc) from None
 
     def close(self) -> None:
+        """Close the transport; errors on the way are ignored."""
         with contextlib.suppress(serial.SerialException, OSError):
             self.raw.close()
 

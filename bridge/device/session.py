@@ -55,7 +55,7 @@ _MAX_SETTLE_S = float(wake_time_seconds(32)) + 0.02  # Equation 1 at the widest 
 _OTHER_MODELS = ("GX2", "INERTIA-LINK", "INERTIALINK")
 
 
-def check_model(ids: dict[str, str]) -> None:
+def _check_model(ids: dict[str, str]) -> None:
     """Refuse a 3DM-GX2 or Inertia-Link unit with what to do instead."""
     text = f"{ids.get('model_name', '')} {ids.get('model_number', '')}".upper()
     if any(other in text.replace(" ", "") for other in _OTHER_MODELS):
@@ -68,7 +68,13 @@ def check_model(ids: dict[str, str]) -> None:
 
 @dataclass
 class UnitInfo:
-    """What bring-up learned about the unit."""
+    """What bring-up learned about the unit.
+
+    ``firmware`` is 0xE9's version number (1127 for 1.1.27); ``ids`` the 0xEA strings by
+    name (``ID_FIELDS``); ``sampling`` the 0xDB settings by name; ``record`` the record
+    chosen to stream (0: none chosen); ``bring_up_ns`` when bring-up asked (realtime
+    clock); ``notes`` what the unit did differently from what was asked.
+    """
 
     firmware: int
     ids: dict[str, str]
@@ -88,16 +94,19 @@ class UnitInfo:
 
     @property
     def little_endian(self) -> bool:
+        """Whether the unit sends floats little-endian (0xDB flag bit 4)."""
         return bool(self.sampling.get("flags", 0) & Flag.LITTLE_ENDIAN_FLOATS)
 
     @property
     def output_hz(self) -> float:
+        """Records a second: 1000 Hz / decimation."""
         return 1000.0 / max(1, self.sampling.get("decimation", 1))
 
     @property
     def stream_record(self) -> int:
-        """The record a stream of this unit carries: the one chosen, else its continuous
-        preset, else ``DEFAULT_RECORD``.
+        """The record a stream of this unit carries.
+
+        The one chosen, else its continuous preset, else ``DEFAULT_RECORD``.
         """
         return self.record or self.continuous_preset or DEFAULT_RECORD
 
@@ -107,6 +116,10 @@ class UnitInfo:
         The line carries baud/10 bytes a second and the unit skips every record that
         finds it busy (the manual's Data Output Rate table): record bytes x rate must
         fit, or records go missing.
+
+        Returns:
+            One line: what the stream needs, what the line carries, which baud rate or
+            decimation would fit.
         """
         record, decimation = self.stream_record, max(1, self.sampling.get("decimation", 1))
         size = REPLIES[record].length
@@ -138,18 +151,35 @@ _PIECE_SMOOTHING = 8
 
 
 def pace(rest: int, piece: float, baud: int) -> float:
-    """How long to sleep before reading the ``rest`` of a record cut by a read, over a
-    serial line whose reads bring ``piece`` bytes when the line wakes the reader: the
-    rest's line time when it would come in several pieces (each a wake-up), else 0.
+    """How long to sleep before reading the rest of a record cut by a read.
 
+    Over a serial line whose reads bring ``piece`` bytes when the line wakes the reader:
+    the rest's line time when it would come in several pieces (each a wake-up), else 0.
     A sleep is a timer wake-up, which costs as much CPU here as a wake-up by the link's
     bytes (~17 µs on a virtual machine): it pays only where it saves two or more.
+
+    Args:
+        rest: Bytes of the record still to come.
+        piece: Bytes a read brings when the line wakes the reader.
+        baud: The line's baud rate.
+
+    Returns:
+        Seconds.
     """
     return _line_time(rest, baud) if rest > 0 and piece * 2 < rest else 0.0
 
 
 class Session:
-    """One unit on one open port. Not thread-safe: one thread drives it."""
+    """One unit on one open port. Not thread-safe: one thread drives it.
+
+    ``streaming`` is the record ``read`` returns (streamed, or polled with ``polling``);
+    ``paced``: the port's bytes come at a UART's line rate, not in USB packets.
+
+    Args:
+        port: The open port; the session does not close it.
+        firmware: The unit's 0xE9 version number, if known (``identify`` learns it): the
+            command table's rules for non-volatile memory depend on it.
+    """
 
     def __init__(self, port: Port, firmware: int | None = None) -> None:
         self.port = port
@@ -175,8 +205,10 @@ class Session:
         self.framer.expect(codes)
 
     def _take(self, wait_s: float, need: int = 1) -> tuple[list[bytes], list[int]]:
-        """Reads until ``need`` bytes came (``Port.read_until``), handed to ``on_reads``:
-        their bytes and raw-clock receive times, which the framer and the clock model use.
+        """Read until ``need`` bytes came (``Port.read_until``), handing them to ``on_reads``.
+
+        Returns the reads' bytes and raw-clock receive times, which the framer and the
+        clock model use.
         """
         reads, raws, reals = self.port.read_until(need, wait_s)
         if reads:
@@ -190,20 +222,40 @@ class Session:
         return self.framer.feed(reads[0], rx_ns[0]) if reads else []
 
     def read(self, wait_s: float = 0.05) -> list[Batch]:
-        """Data records of the stream that arrived within ``wait_s`` (or while a command
-        waited for its reply).
+        """Data records of the stream that arrived within ``wait_s``.
+
+        Records that came while a command waited for its reply come first.
+
+        Args:
+            wait_s: How long to wait for bytes.
+
+        Returns:
+            Batches of the ``streaming`` record.
+
+        Raises:
+            PortError: The port is gone.
         """
         return [r if isinstance(r, Batch) else r.batch() for r in self.read_records(wait_s)]
 
     def read_records(self, wait_s: float = 0.05, hold_s: float = 0.0) -> list[Batch | Records]:
         """``read``, a fresh read's records as ``Records`` (a live bridge's per-read path).
 
-        ``hold_s``: let bytes gather in the port this long after the last read before
-        reading again (coalescing reads: fewer wake-ups, a few records a read); a byte
-        that arrives just after a read waits that long. On a UART (``paced``) that hands
-        its bytes over in small pieces (a FIFO's few bytes at a time), a record cut in
-        two by a read is not waited for piece by piece either: the rest cannot arrive
-        before its line time, so the session sleeps that long first (``pace``).
+        On a UART (``paced``) that hands its bytes over in small pieces (a FIFO's few
+        bytes at a time), a record cut in two by a read is not waited for piece by piece:
+        the rest cannot arrive before its line time, so the session sleeps that long
+        first (``pace``).
+
+        Args:
+            wait_s: How long to wait for bytes.
+            hold_s: Let bytes gather in the port this long after the last read before
+                reading again (coalescing reads: fewer wake-ups, a few records a read); a
+                byte that arrives just after a read waits that long.
+
+        Returns:
+            The backlog's batches, then the fresh read's records.
+
+        Raises:
+            PortError: The port is gone.
         """
         out: list[Batch | Records] = []
         woken = False  # whether the read below waits for the link's bytes
@@ -227,7 +279,18 @@ class Session:
         return out
 
     def drain(self, quiet_s: float = _QUIET_S, limit_s: float = _DRAIN_MAX_S) -> int:
-        """Discard input until the line has been quiet for ``quiet_s``; bytes discarded."""
+        """Discard input until the line has been quiet for ``quiet_s``.
+
+        Args:
+            quiet_s: The silence that ends it.
+            limit_s: How long it may take at most.
+
+        Returns:
+            Bytes discarded.
+
+        Raises:
+            PortError: The port is gone.
+        """
         dropped = 0
         deadline = time.monotonic() + limit_s
         while time.monotonic() < deadline:
@@ -240,7 +303,18 @@ class Session:
 
     # --- commands ----------------------------------------------------------------------
     def send(self, name: str, persist: bool = False, **params: Any) -> None:
-        """Send a command without waiting for a reply (0xFA, 0xFE, or function 3)."""
+        """Send a command without waiting for a reply (0xFA, 0xFE, or function 3).
+
+        Args:
+            name: The command's name.
+            persist: Allow it to write the unit's non-volatile memory.
+            **params: Its parameters.
+
+        Raises:
+            PersistRefused: It would write non-volatile memory and ``persist`` is False.
+            ProtocolError: A parameter is wrong for the command.
+            PortError: The port is gone.
+        """
         self._guard(name, params, persist)
         self.port.write(encode_command(name, **params))
 
@@ -255,8 +329,23 @@ class Session:
                 persist: bool = False, **params: Any) -> dict[str, Any]:
         """Send a command and return its decoded reply fields.
 
-        Raises CommandRejected on the error reply and CommandTimeout when no reply came
-        after ``retries`` further attempts.
+        Args:
+            name: The command's name.
+            timeout: Seconds to wait for each reply; None: a quarter second plus the
+                line time of the reply and some.
+            retries: Further attempts after the first.
+            persist: Allow it to write the unit's non-volatile memory.
+            **params: Its parameters.
+
+        Returns:
+            The reply's fields by name, as plain Python values.
+
+        Raises:
+            DeviceError: The command asks for the record being streamed.
+            PersistRefused: It would write non-volatile memory and ``persist`` is False.
+            CommandRejected: The unit answered with the error reply.
+            CommandTimeout: No reply came after every attempt.
+            PortError: The port is gone.
         """
         cmd = lookup(name)
         if cmd.data and cmd.code == self.streaming:
@@ -269,8 +358,23 @@ class Session:
 
     def transact(self, raw: bytes, code: int, timeout: float = 0.5,
                  retries: int = 0) -> dict[str, Any]:
-        """Write ``raw`` and wait for the reply starting with ``code`` (no safety check:
-        for bytes built by hand, e.g. to probe a unit).
+        """Write ``raw`` and wait for the reply starting with ``code``.
+
+        No safety check: for bytes built by hand, e.g. to probe a unit.
+
+        Args:
+            raw: The bytes to send.
+            code: The reply's first byte.
+            timeout: Seconds to wait for each reply.
+            retries: Further attempts after the first.
+
+        Returns:
+            The reply's fields by name, as plain Python values.
+
+        Raises:
+            CommandRejected: The unit answered with the error reply.
+            CommandTimeout: No reply came after every attempt.
+            PortError: The port is gone.
         """
         self._expect(code, ERROR_CODE)
         try:
@@ -311,6 +415,9 @@ class Session:
 
         The first byte wakes a sleeping unit and is lost in its settling time
         (Equation 1); a unit that wakes into continuous mode is stopped by the second.
+
+        Returns:
+            Bytes drained.
         """
         self.streaming = None
         self.send("stop_continuous")
@@ -319,13 +426,22 @@ class Session:
         return self.drain()
 
     def identify(self) -> UnitInfo:
-        """Firmware, every ID string, sampling settings, baud and continuous preset."""
+        """Ask the unit what it is: firmware, every ID string, sampling settings, preset.
+
+        Returns:
+            What it said, with the port's baud rate and when it was asked.
+
+        Raises:
+            UnsupportedUnit: The unit is a 3DM-GX2 or an Inertia-Link, not a 3DM-GX3.
+            CommandRejected: The unit refused a read.
+            CommandTimeout: The unit did not answer.
+        """
         firmware = int(self.command("firmware_version")["firmware"])
         self.firmware = firmware
         ids = {}
         for selector, key in enumerate(ID_FIELDS):
             ids[key] = str(self.command("device_id", selector=selector)["text"])
-        check_model(ids)
+        _check_model(ids)
         sampling = self.command("sampling_settings", function=0)
         preset = int(self.command("continuous_preset", continuous_preset=0)["continuous_preset"])
         return UnitInfo(firmware=firmware, ids=ids,
@@ -335,7 +451,22 @@ class Session:
 
     def apply_sampling(self, info: UnitInfo, persist: bool = False,
                        **changes: int | None) -> None:
-        """Change sampling settings (function 1, or 2 to store them); ``info`` follows."""
+        """Change sampling settings (0xDB function 1, or 2 to store them).
+
+        A setting the unit changed by its range rules is noted in ``info.notes``.
+
+        Args:
+            info: The unit's settings; they follow the unit's reply.
+            persist: Store the settings in non-volatile memory.
+            **changes: The settings to change by name (``decimation``, ``flags``, ...);
+                None leaves one as it is.
+
+        Raises:
+            PersistRefused: The unit's firmware (before 1.1.27) would store the settings
+                and ``persist`` is False.
+            CommandRejected: The unit refused the settings.
+            CommandTimeout: The unit did not answer.
+        """
         wanted = {k: v for k, v in changes.items() if v is not None}
         if not wanted:
             return
@@ -354,7 +485,20 @@ class Session:
                                   f"not {value} (its range rules)")
 
     def change_baud(self, info: UnitInfo, baud: int, persist: bool = False) -> None:
-        """0xD9: verify the reply at the old rate, then switch; fall back if the unit is lost."""
+        """Change the unit's baud rate (0xD9), and the port's with it.
+
+        The reply is verified at the old rate before the switch; if the unit does not
+        answer at the new one, both go back.
+
+        Args:
+            info: The unit's settings; ``baud`` follows.
+            baud: The new rate.
+            persist: Store it in non-volatile memory.
+
+        Raises:
+            DeviceError: The unit kept its rate, or stopped answering at the new one.
+            CommandTimeout: The unit did not answer.
+        """
         old = self.port.baud
         if baud == old:
             return
@@ -375,7 +519,15 @@ class Session:
         info.baud = baud
 
     def start_streaming(self, code: int) -> None:
-        """0xC4: stream ``code`` without touching the stored continuous preset."""
+        """Stream a record (0xC4) without touching the stored continuous preset.
+
+        Args:
+            code: The data record to stream.
+
+        Raises:
+            DeviceError: ``code`` is not a data record, or the unit refused to stream it.
+            CommandTimeout: The unit did not answer.
+        """
         if code not in DATA_CODES:
             raise DeviceError(f"0x{code:02X} is not a data record")
         # expect the records from now: the first can come in the same read as the reply
@@ -390,7 +542,14 @@ class Session:
             raise DeviceError(f"the unit refused to stream 0x{code:02X}")
 
     def start_polling(self, code: int) -> None:
-        """Receive ``code`` as replies to ``poll`` instead of a continuous stream."""
+        """Receive a record as replies to ``poll`` instead of a continuous stream.
+
+        Args:
+            code: The data record to poll.
+
+        Raises:
+            DeviceError: ``code`` is not a data record.
+        """
         if code not in DATA_CODES:
             raise DeviceError(f"0x{code:02X} is not a data record")
         self.streaming, self.polling = code, True
@@ -424,7 +583,20 @@ def _first_record(batch: Batch) -> dict[str, Any]:
 
 
 def find_baud(url: str, first: int, candidates: Iterable[int] = BAUD_RATES) -> tuple[Port, int]:
-    """Open ``url`` at the rate a unit answers 0xE9 on, trying ``first`` then the others."""
+    """Open ``url`` at the baud rate a unit answers 0xE9 on.
+
+    Args:
+        url: The device path or pyserial URL.
+        first: The rate tried first.
+        candidates: The others, tried in order.
+
+    Returns:
+        The open port and the rate.
+
+    Raises:
+        PortError: The port cannot be opened.
+        CommandTimeout: No unit answered at any rate.
+    """
     order = [first, *[b for b in candidates if b != first]]
     port = Port.open(url, order[0])
     try:

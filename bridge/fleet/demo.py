@@ -5,11 +5,11 @@ crosses the timer rollover, one suffers corruption and an unplug), one `gx3 brid
 OS process per unit, Zenoh on loopback (peers, or a `gx3 router`), and the recorder
 in this process writing the MCAP archive and the Rerun recording, with a live
 dashboard. Everything it starts, it stops; what it made stays in the output folder.
+How the parts fit: ``docs/design/architecture.md``.
 """
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import threading
@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from bridge.exceptions import DemoError
-from bridge.fleet.loopback import free_port, interrupt
+from bridge.fleet.loopback import free_port, interrupt, loopback_config
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import MotionConfig
@@ -35,6 +35,16 @@ STARTUP_TIMEOUT_S = 60.0
 
 @dataclass
 class DemoUnit:
+    """One unit of the demo fleet.
+
+    Attributes:
+        name: Its name on Zenoh.
+        config: The emulated unit.
+        faults: Its line faults.
+        unplug: Whether its cable is pulled part-way through the run.
+        notes: What it shows, in words (for the summary).
+    """
+
     name: str
     config: UnitConfig
     faults: FaultConfig = field(default_factory=FaultConfig)
@@ -42,7 +52,7 @@ class DemoUnit:
     notes: list[str] = field(default_factory=list)
 
 
-def line_baud(code: int, rate_hz: float) -> int:
+def _line_baud(code: int, rate_hz: float) -> int:
     """The slowest baud rate that carries ``rate_hz`` records of ``code`` with a margin."""
     need = REPLIES[code].length * 10 * rate_hz * 1.25
     for baud in BAUD_RATES:
@@ -53,8 +63,23 @@ def line_baud(code: int, rate_hz: float) -> int:
 
 
 def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[DemoUnit]:
-    """``count`` units: clock errors of tens of ppm; unit 2 (or the only one) crosses the
-    rollover halfway, the last suffers bit flips and an unplug.
+    """The demo fleet: clock errors of tens of ppm, a timer rollover, faults.
+
+    Unit 2 (or the only one) crosses the timer rollover halfway; the last suffers bit
+    flips and an unplug.
+
+    Args:
+        count: How many units.
+        code: The record type they stream.
+        rate_hz: Records per second.
+        duration_s: How long the demo streams, seconds (the rollover comes halfway).
+
+    Returns:
+        The units.
+
+    Raises:
+        DemoError: The record type is not a data record, or the rate is one the units
+            (or a UART) cannot give.
     """
     if code not in DATA_CODES:
         raise DemoError(f"--record-type 0x{code:02X} is not a data record")
@@ -64,7 +89,7 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     if code in ORIENTATION_RECORDS and decimation < 2:
         raise DemoError(f"0x{code:02X} needs the orientation filter, which runs up to 500 Hz; "
                         "lower --rate or pick a record without orientation (e.g. 0xC2)")
-    baud = line_baud(code, 1000 / decimation)
+    baud = _line_baud(code, 1000 / decimation)
     flags = int(Flag.ORIENTATION | Flag.CONING_SCULLING | (Flag.QUATERNION if code == 0xDF
                                                             else 0))
     stored = Stored(mode_preset=2, continuous_preset=code, baud=baud,
@@ -87,30 +112,21 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     return units
 
 
-def write_config(path: Path, mode: str, listen: list[str], connect: list[str]) -> Path:
-    """A Zenoh session on loopback only, multicast scouting off."""
-    path.write_text(json.dumps({
-        "mode": mode, "listen": {"endpoints": listen}, "connect": {"endpoints": connect},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": mode != "client"}},
-    }, indent=1) + "\n")
-    return path
-
-
-def gx3_executable() -> list[str]:
+def _gx3_executable() -> list[str]:
     """This installation's `gx3`, run with this interpreter."""
     beside = Path(sys.executable).parent / "gx3"
     return [str(beside)] if beside.exists() else [sys.executable, "-m", "bridge"]
 
 
 @dataclass
-class Processes:
+class _Processes:
     """Child processes, stopped by SIGINT (then killed) in reverse order."""
 
     children: list[tuple[str, subprocess.Popen[bytes], IO[bytes]]] = field(default_factory=list)
 
     def start(self, name: str, args: list[str], log: Path) -> subprocess.Popen[bytes]:
         out = log.open("wb")
-        proc = subprocess.Popen([*gx3_executable(), *args], stdout=out, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen([*_gx3_executable(), *args], stdout=out, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL)
         self.children.append((name, proc, out))
         return proc
@@ -126,7 +142,19 @@ class Processes:
 
 @dataclass
 class Demo:
-    """Runs the demo; ``show(rows, elapsed)`` draws the dashboard."""
+    """Runs the demo; ``show(rows, elapsed)`` draws the dashboard.
+
+    Attributes:
+        output: The folder it writes into: the archive, the Rerun recording, logs.
+        units: The fleet (``fleet``).
+        duration_s: How long to stream once every unit streams, seconds.
+        router: Run the bridges as Zenoh clients of a ``gx3 router``, not as peers.
+        viewer: A Rerun recording to mirror the live data into.
+        show: Draws the dashboard: the units' rows and the seconds streamed.
+        force: Replace an earlier run's archive in ``output``.
+        stop: Set it to end the run early.
+        rows: The units' rows, as the dashboard last showed them.
+    """
 
     output: Path
     units: list[DemoUnit]
@@ -140,13 +168,22 @@ class Demo:
 
     @property
     def archive(self) -> Path:
+        """The MCAP archive it writes."""
         return self.output / "demo.mcap"
 
     @property
     def rrd(self) -> Path:
+        """The Rerun recording it writes."""
         return self.output / "demo.rrd"
 
     def run(self) -> None:
+        """Run the demo to its end (or ``stop``), then stop all it started.
+
+        Raises:
+            DemoError: A bridge stopped, the units did not stream in time, or the archive
+                could not be written; it says where the logs are.
+            ArchiveError: The archive could not be created.
+        """
         from bridge.bus.session import open_session
         from bridge.exceptions import ArchiveError
         from bridge.recorder.live import Recorder
@@ -158,7 +195,7 @@ class Demo:
         # first: its lock keeps a second demo out of this folder before anything is written
         writer = ArchiveWriter(self.archive, force=self.force)
         endpoint = f"tcp/127.0.0.1:{free_port()}"
-        procs = Processes()
+        procs = _Processes()
         loggers: list[RerunLogger] = []
         session = None
         try:
@@ -166,14 +203,14 @@ class Demo:
                 mode = "client"
                 procs.start("router", ["router", "--listen", endpoint],
                             self.output / "router.log")
-                recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode, [],
-                                            [endpoint])
+                recorder_cfg = loopback_config(self.output / "zenoh-recorder.json5",
+                                               connect=[endpoint], mode=mode)
             else:
                 mode = "peer"
-                recorder_cfg = write_config(self.output / "zenoh-recorder.json5", mode,
-                                            [endpoint], [])
-            bridge_cfg = write_config(self.output / "zenoh-bridges.json5", mode, [],
-                                      [endpoint])
+                recorder_cfg = loopback_config(self.output / "zenoh-recorder.json5",
+                                               listen=[endpoint], mode=mode, gossip=True)
+            bridge_cfg = loopback_config(self.output / "zenoh-bridges.json5",
+                                         connect=[endpoint], mode=mode, gossip=mode != "client")
             links = [self.output / f"{u.name}.tty" for u in self.units]
             loggers.append(RerunLogger(self.rrd, [u.name for u in self.units],
                                        recording_id="demo"))
@@ -212,7 +249,7 @@ class Demo:
             if session is not None:
                 session.close()
 
-    def _stream(self, sim: Simulator, recorder: Any, procs: Processes) -> None:
+    def _stream(self, sim: Simulator, recorder: Any, procs: _Processes) -> None:
         """Wait for every unit to stream, then run for the duration (unplugging one)."""
         started = time.monotonic()
         streaming_since: float | None = None
@@ -245,7 +282,12 @@ class Demo:
             self.show(self.rows, 0.0 if streaming_since is None else now - streaming_since)
 
     def summary(self) -> list[dict[str, Any]]:
-        """Per unit: what arrived, what went wrong, and the drift found against the truth."""
+        """What the run gave, unit by unit.
+
+        Returns:
+            Per unit: what arrived, what went wrong, and the drift found against the
+            truth.
+        """
         by_name = {r["unit"]: r for r in self.rows}
         out = []
         for unit in self.units:

@@ -32,6 +32,11 @@ from bridge.viz.layout import TIME
 
 
 def rerun_executable() -> str:
+    """The ``rerun`` command beside this interpreter, or else on the PATH.
+
+    Raises:
+        RuntimeError: It is not installed.
+    """
     beside = Path(sys.executable).with_name("rerun")
     found = str(beside) if beside.exists() else shutil.which("rerun")
     if found is None:
@@ -42,10 +47,12 @@ def rerun_executable() -> str:
 def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: int | None = None,
            before_end_s: float | None = None, size: tuple[int, int] = (1600, 1000),
            timeout_s: float = 60.0) -> ViewerState:
-    """Open ``rrd`` in a headless viewer, pause the time cursor at ``at_ns`` on the ``time``
-    timeline, else ``before_end_s`` seconds before its end, else where the viewer puts it,
-    save what it shows to ``png`` and return the viewer's own account of it: recordings,
-    timelines, views and what each view failed to show.
+    """Open ``rrd`` in a headless viewer and save what it shows to ``png``.
+
+    The time cursor is paused at ``at_ns`` on the ``time`` timeline, else
+    ``before_end_s`` seconds before its end, else where the viewer puts it. Returns the
+    viewer's own account of what it showed: recordings, timelines, views and what each
+    view failed to show.
     """
     port = free_port()
     viewer = subprocess.Popen(
@@ -102,8 +109,9 @@ AFTER_RECONNECT_S = 1.5
 
 
 def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DURATION_S) -> Path:
-    """Run ``gx3 demo`` (real bridges, Zenoh, recorder) into the new folder ``out``; its
-    Rerun recording.
+    """Run ``gx3 demo`` (real bridges, Zenoh, recorder) into the new folder ``out``.
+
+    Returns its Rerun recording.
     """
     gx3 = Path(sys.executable).with_name("gx3")
     command = [str(gx3)] if gx3.exists() else [sys.executable, "-c",
@@ -116,8 +124,9 @@ def record_demo(out: Path, units: int = DEMO_UNITS, duration_s: float = DEMO_DUR
 
 
 def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object]) -> int:
-    """The screenshot scripts' main: ``take(recording, png)`` of a gx3 demo recording, a
-    new run's unless one is given.
+    """The screenshot scripts' main: ``take(recording, png)`` of a gx3 demo recording.
+
+    Of a new run's, unless one is given.
     """
     parser = argparse.ArgumentParser(prog=prog, description="Picture a gx3 demo recording.")
     parser.add_argument("png", type=Path, metavar="OUT.png", help="the picture to write")
@@ -135,9 +144,10 @@ def demo_picture(argv: list[str], prog: str, take: Callable[[Path, Path], object
     return 0
 
 
-def after_reconnect_ns(rrd: Path) -> int | None:
-    """A moment AFTER_RECONNECT_S after the first reconnect in the archive gx3 demo wrote
-    beside ``rrd`` (demo.mcap); None when there is none.
+def _after_reconnect_ns(rrd: Path) -> int | None:
+    """A moment AFTER_RECONNECT_S after the first reconnect in the demo's archive.
+
+    The archive gx3 demo wrote beside ``rrd`` (demo.mcap); None when there is none.
     """
     archive = rrd.with_suffix(".mcap")
     if not archive.is_file():
@@ -147,8 +157,9 @@ def after_reconnect_ns(rrd: Path) -> int | None:
 
 
 def main(argv: list[str]) -> int:
+    """``python -m bridge.fleet.snapshot``: picture a gx3 demo run, as the README shows."""
     return demo_picture(argv, "python -m bridge.fleet.snapshot",
-                        lambda rrd, png: render(rrd, png, at_ns=after_reconnect_ns(rrd),
+                        lambda rrd, png: render(rrd, png, at_ns=_after_reconnect_ns(rrd),
                                                 before_end_s=1.0))
 
 

@@ -28,12 +28,26 @@ from bridge.protocol.table import (
 
 
 def checksum(data: bytes | bytearray | memoryview) -> int:
-    """The manual's checksum: the 16-bit wrapping sum of every byte."""
+    """The manual's checksum: the 16-bit wrapping sum of every byte.
+
+    Args:
+        data: The bytes summed: a reply without its last two bytes, which carry the sum.
+
+    Returns:
+        The sum, 0 to 65535.
+    """
     return sum(data) & 0xFFFF
 
 
 def checksum_rows(block: np.ndarray) -> np.ndarray:
-    """``checksum`` of each row of an (n, k) uint8 block, at array speed."""
+    """``checksum`` of each row of an (n, k) uint8 block, at array speed.
+
+    Args:
+        block: The rows summed.
+
+    Returns:
+        The (n,) sums.
+    """
     sums: np.ndarray = block.sum(axis=1, dtype=np.uint32)
     return sums & 0xFFFF
 
@@ -59,7 +73,16 @@ def _parts(fields: tuple[Field, ...], little_endian: bool) -> list[tuple[Any, ..
 
 @functools.cache
 def reply_dtype(code: int, little_endian: bool = False) -> np.dtype[Any]:
-    """The packed wire layout of one reply: echo byte, fields, checksum."""
+    """The packed wire layout of one reply: echo byte, fields, checksum.
+
+    Args:
+        code: The reply's first byte (``REPLIES``).
+        little_endian: The float byte order (0xDB flag bit 4); integers are big-endian.
+
+    Returns:
+        A structured dtype of the reply's length: ``code``, each field by name (reserved
+        bytes as ``_padN`` voids), ``checksum``.
+    """
     spec = REPLIES[code]
     dtype = np.dtype([("code", "u1"), *_parts(spec.fields, little_endian),
                       ("checksum", ">u2")])
@@ -103,13 +126,21 @@ def _check_value(cmd: Command, f: Field, value: Any) -> None:
 def encode_command(command: int | str, /, strict: bool = True, **params: Any) -> bytes:
     """The bytes that send ``command`` with ``params``, confirmation sequence included.
 
-    ``command`` is positional-only so that 0xC4's parameter, also named ``command``,
-    can be passed as a keyword.
+    Args:
+        command: The command's code or name; positional-only so that 0xC4's parameter,
+            also named ``command``, can be passed as a keyword.
+        strict: Reject values the unit would clamp or ignore; False only requires each
+            value to fit its field (for probing a unit's range rules).
+        **params: The command's parameters by name. Those the unit ignores (a read's,
+            such as 0xDB function 0) may be left out; they are sent as 0.
 
-    ``strict`` rejects values the unit would clamp or ignore; ``strict=False``
-    only requires each value to fit its field (for probing a unit's range rules).
-    Parameters the unit ignores (those of a read, such as 0xDB function 0) may be
-    left out; they are sent as 0.
+    Returns:
+        The command's bytes, as the host sends them.
+
+    Raises:
+        KeyError: No such command.
+        ProtocolError: A parameter is missing, unknown or out of range, or the command
+            has no documented layout (0xFD); the message says which.
     """
     cmd = lookup(command)
     if not cmd.documented:
@@ -150,13 +181,32 @@ class ParsedCommand:
 
 
 def command_length(code: int) -> int | None:
-    """Bytes a command starting with ``code`` occupies, or None for a byte the unit ignores."""
+    """Bytes a command starting with ``code`` occupies, as the unit reads them.
+
+    Args:
+        code: The first byte.
+
+    Returns:
+        The command's length, or None for a byte the unit ignores.
+    """
     cmd = COMMANDS.get(code)
     return cmd.length if cmd is not None else None
 
 
 def parse_command(data: bytes) -> ParsedCommand:
-    """Decode one whole command (``command_length`` bytes) as the unit sees it."""
+    """Decode one whole command as the unit sees it.
+
+    Args:
+        data: The command's ``command_length`` bytes, its code first.
+
+    Returns:
+        The command, its parameters as plain Python values, and whether its
+        confirmation bytes were right.
+
+    Raises:
+        KeyError: The first byte is no command.
+        ProtocolError: ``data`` is not the command's length.
+    """
     cmd = COMMANDS[data[0]]
     if len(data) != cmd.length:
         raise ProtocolError(f"0x{cmd.code:02X} {cmd.name} is {cmd.length} bytes, got {len(data)}")
@@ -178,7 +228,18 @@ def _py(value: Any) -> Any:
 def encode_replies(
     code: int, columns: Mapping[str, Any], n: int = 1, little_endian: bool = False
 ) -> bytes:
-    """N replies of type ``code`` from per-field columns (or scalars broadcast to n)."""
+    """N replies of one type from per-field columns, checksums included.
+
+    Args:
+        code: The replies' first byte (``REPLIES``).
+        columns: Each field's values by name, n of them (or one, broadcast to n); an
+            ``ascii`` field may be a str.
+        n: How many replies.
+        little_endian: The float byte order.
+
+    Returns:
+        The replies end to end.
+    """
     spec = REPLIES[code]
     dtype = reply_dtype(code, little_endian)
     recs = np.zeros(n, dtype)
@@ -196,7 +257,16 @@ def encode_replies(
 
 
 def encode_reply(code: int, little_endian: bool = False, **values: Any) -> bytes:
-    """One reply; the emulator's and the tests' way to build exact reply bytes."""
+    """One reply; the emulator's and the tests' way to build exact reply bytes.
+
+    Args:
+        code: The reply's first byte (``REPLIES``).
+        little_endian: The float byte order.
+        **values: Each field's value by name.
+
+    Returns:
+        The reply, checksum included.
+    """
     return encode_replies(code, values, 1, little_endian)
 
 
@@ -207,15 +277,25 @@ def _decoded_fields(code: int) -> tuple[tuple[str, str], ...]:
 
 
 def decode_block(code: int, block: np.ndarray, little_endian: bool = False) -> dict[str, Any]:
-    """Columns of an (n, length) uint8 block of replies of one type, in native types."""
-    return dict(Columns(code, block, little_endian))
+    """Columns of a block of replies of one type, in native types.
+
+    Args:
+        code: The replies' first byte (``REPLIES``).
+        block: The replies' bytes, (n, length) uint8.
+        little_endian: The float byte order they were sent in.
+
+    Returns:
+        One array per field by name, n rows each (vectors and matrices shaped as in the
+        command table).
+    """
+    return dict(_Columns(code, block, little_endian))
 
 
-class Columns(Mapping[str, np.ndarray]):
-    """The fields of an (n, length) uint8 block of replies, each decoded to native types
-    when first asked for: a live bridge reads only the timer of each record and
-    publishes the rest from the wire bytes, and per read NumPy's cost per call is what
-    counts.
+class _Columns(Mapping[str, np.ndarray]):
+    """The fields of an (n, length) uint8 block of replies, each decoded when first asked for.
+
+    A live bridge reads only the timer of each record and publishes the rest from the
+    wire bytes, and per read NumPy's cost per call is what counts.
     """
 
     def __init__(self, code: int, block: np.ndarray, little_endian: bool = False) -> None:
@@ -238,9 +318,10 @@ class Columns(Mapping[str, np.ndarray]):
 
 @functools.cache
 def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct, int, Field], ...]:
-    """(unpacker, byte offset, field) for each field of a reply that has a domain; adjacent
-    fields of one kind and domain share one unpacker (named by the first), so a data
-    record's vectors cost one call per bound rather than one per field.
+    """(unpacker, byte offset, field) for each field of a reply that has a domain.
+
+    Adjacent fields of one kind and domain share one unpacker (named by the first), so a
+    data record's vectors cost one call per bound rather than one per field.
     """
     checks: list[tuple[str, int, Field]] = []
     offset = 1
@@ -262,10 +343,16 @@ def _domain_checks(code: int, little_endian: bool) -> tuple[tuple[struct.Struct,
 
 @functools.cache
 def native_checks(code: int, little_endian: bool) -> bytes:
-    """``_domain_checks`` as the compiled core reads them (``bridge/_records.c``): per
-    check, as float64s, its offset, value count, value width, whether floats, whether
-    little-endian, its bounds (infinite when it has none), and its allowed values
-    after their count.
+    """``plausible``'s checks of a reply as the compiled core reads them (``bridge/_records.c``).
+
+    Args:
+        code: The reply's first byte.
+        little_endian: The float byte order.
+
+    Returns:
+        Per check, as native float64s: its offset, value count, value width, whether
+        floats, whether little-endian, its bounds (infinite when it has none), and its
+        allowed values after their count.
     """
     out: list[float] = []
     for unpacker, offset, f in _domain_checks(code, little_endian):
@@ -283,6 +370,14 @@ def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
     A 16-bit additive checksum matches misaligned or damaged bytes now and then
     (short replies especially), so the framer requires this of every record.
     NaN and infinities pass in every float field: a unit sends them.
+
+    Args:
+        code: The reply's first byte.
+        record: The reply's bytes.
+        little_endian: The float byte order.
+
+    Returns:
+        False if any field is outside its ``domain`` or ``domain_values``.
     """
     for unpacker, offset, f in _domain_checks(code, little_endian):
         values = unpacker.unpack_from(record, offset)
@@ -302,8 +397,9 @@ def plausible(code: int, record: bytes, little_endian: bool = False) -> bool:
 def _row_checks(
     code: int, little_endian: bool
 ) -> tuple[list[tuple[int, int, np.ndarray]], list[tuple[int, int, np.dtype[Any], Field]]]:
-    """``_domain_checks`` grouped for blocks: adjacent float fields form one run, so a
-    data record costs one conversion and a few comparisons rather than per field.
+    """``_domain_checks`` grouped for blocks: adjacent float fields form one run.
+
+    A data record then costs one conversion and a few comparisons rather than per field.
     """
     runs: list[tuple[int, int, list[float]]] = []  # offset, size, bound per element
     ints: list[tuple[int, int, np.dtype[Any], Field]] = []
@@ -320,7 +416,16 @@ def _row_checks(
 
 
 def plausible_rows(code: int, block: np.ndarray, little_endian: bool = False) -> np.ndarray:
-    """``plausible`` of each row of an (n, length) uint8 block, at array speed."""
+    """``plausible`` of each row of an (n, length) uint8 block, at array speed.
+
+    Args:
+        code: The replies' first byte.
+        block: The replies' bytes, one a row.
+        little_endian: The float byte order.
+
+    Returns:
+        (n,) bool, True where the row is plausible.
+    """
     ok = np.ones(len(block), bool)
     floats, ints = _row_checks(code, little_endian)
     wire = np.dtype("<f4" if little_endian else ">f4")
@@ -349,7 +454,8 @@ class Batch:
     ``part_ns`` and ``part_bytes``: for a record whose bytes came in more than one read,
     the receive time of the latest read before the completing one and how many of the
     record's bytes had arrived by then (None: no record here had such a read; see
-    ``partial``).
+    ``partial``). ``batch["accel"]`` is ``batch.columns["accel"]``; ``len(batch)`` the
+    record count.
     """
 
     code: int
@@ -365,13 +471,29 @@ class Batch:
     def from_block(cls, code: int, block: np.ndarray, offsets: np.ndarray, rx_ns: np.ndarray,
                    little_endian: bool, part_ns: np.ndarray | None = None,
                    part_bytes: np.ndarray | None = None) -> Batch:
-        """Records as they came off the wire, decoded only as far as they are read."""
-        return cls(code, Columns(code, block, little_endian), offsets, rx_ns, little_endian,
+        """Records as they came off the wire, decoded only as far as they are read.
+
+        Args:
+            code: The records' first byte.
+            block: Their wire bytes, (n, length) uint8.
+            offsets: Each record's stream position.
+            rx_ns: The receive time of the read that completed each.
+            little_endian: The float byte order.
+            part_ns: The receive time of each record's partial read (see the class).
+            part_bytes: The record's bytes that partial read had brought.
+
+        Returns:
+            The batch, its ``block`` set.
+        """
+        return cls(code, _Columns(code, block, little_endian), offsets, rx_ns, little_endian,
                    block, part_ns, part_bytes)
 
     def partial(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per record, a receive time and how many of its bytes had arrived by then: the
-        latest read that ended inside it, else the read that completed it (all bytes).
+        """Per record, a receive time and how many of its bytes had arrived by then.
+
+        Returns:
+            The latest read that ended inside each record and the record's bytes it had
+            brought, else the read that completed it and the record's length.
         """
         if self.part_ns is None or self.part_bytes is None:
             return self.rx_ns, np.full(len(self.rx_ns), REPLIES[self.code].length, np.int64)
@@ -379,8 +501,13 @@ class Batch:
 
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
-        """Consecutive batches of one record type and byte order as one (still wire bytes
-        when they all are).
+        """Consecutive batches of one record type and byte order as one.
+
+        Args:
+            batches: At least one batch, in stream order.
+
+        Returns:
+            One batch of all their records, still wire bytes when they all are.
         """
         first = batches[0]
         if len(batches) == 1:
@@ -401,7 +528,14 @@ class Batch:
                    part_ns=part_ns, part_bytes=part_bytes)
 
     def select(self, keep: np.ndarray) -> Batch:
-        """The records where ``keep`` is True."""
+        """The records where ``keep`` is True.
+
+        Args:
+            keep: (n,) bool, one per record.
+
+        Returns:
+            A batch of those records.
+        """
         part_ns = None if self.part_ns is None else self.part_ns[keep]
         part_bytes = None if self.part_bytes is None else self.part_bytes[keep]
         if self.block is not None:
@@ -418,7 +552,11 @@ class Batch:
         return self.columns[name]
 
     def records(self) -> Iterator[dict[str, Any]]:
-        """One plain dict per record (command, then fields), for small tools."""
+        """One plain dict per record, for small tools.
+
+        Yields:
+            The record's ``command``, then its fields, as plain Python values.
+        """
         for i in range(len(self)):
             out: dict[str, Any] = {"command": self.code}
             for name, col in self.columns.items():
@@ -428,9 +566,11 @@ class Batch:
 
 @dataclass
 class Records:
-    """``Batch`` for a live read's record or two: each record's wire bytes and stream
-    position, the receive time of the read that completed it, in plain Python. Array
-    set-up costs more than such a read's work; ``batch`` gives the very ``Batch``.
+    """``Batch`` for a live read's record or two, in plain Python.
+
+    Each record's wire bytes and stream position, the receive time of the read that
+    completed it. Array set-up costs more than such a read's work; ``batch`` gives the
+    very ``Batch``.
     """
 
     code: int
@@ -445,11 +585,20 @@ class Records:
         return len(self.wire)
 
     def timers(self) -> list[int]:
-        """The unit's timer of each record (big-endian, whatever the float byte order)."""
+        """The unit's timer of each record (big-endian, whatever the float byte order).
+
+        Returns:
+            One timer (uint32) per record.
+        """
         at = _timer_at(self.code)
         return [int.from_bytes(w[at : at + 4], "big") for w in self.wire]
 
     def batch(self) -> Batch:
+        """The very ``Batch`` the framer gives for these records.
+
+        Returns:
+            The records as arrays, their wire bytes as ``block``.
+        """
         block = np.frombuffer(b"".join(self.wire), np.uint8).reshape(len(self.wire), -1)
         parts = (None, None) if self.part_ns is None or self.part_bytes is None else \
             (np.array(self.part_ns, np.int64), np.array(self.part_bytes, np.int64))

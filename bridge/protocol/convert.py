@@ -50,7 +50,17 @@ def _dirichlet(x: FloatArray, n: FloatArray | float) -> FloatArray:
 
 
 def euler_to_m(euler: npt.ArrayLike) -> FloatArray:
-    """Manual "Euler to M": (..., 3) roll, pitch, yaw [rad] -> (..., 3, 3) earth-to-sensor M."""
+    """Manual "Euler to M": roll, pitch, yaw to the earth-to-sensor orientation matrix.
+
+    Args:
+        euler: (..., 3) roll, pitch, yaw [rad].
+
+    Returns:
+        (..., 3, 3) M, v_local = M @ v_earth.
+
+    Raises:
+        ValueError: ``euler``'s last axis is not 3 long.
+    """
     e = _f64(euler)
     _check_shape(e, (3,), "euler")
     sr, sp, sy = np.sin(e[..., 0]), np.sin(e[..., 1]), np.sin(e[..., 2])
@@ -69,10 +79,19 @@ def euler_to_m(euler: npt.ArrayLike) -> FloatArray:
 
 
 def m_to_euler(m: npt.ArrayLike) -> FloatArray:
-    """Manual "M to Euler" (ZYX / aircraft): (..., 3, 3) M -> (..., 3) roll, pitch, yaw [rad].
+    """Manual "M to Euler" (ZYX / aircraft): orientation matrix to roll, pitch, yaw.
 
     The arcsine argument is clipped because a float32 M from the device can stray past
     +/-1 near pitch = +/-90 degrees; atan2 resolves the quadrant as the manual advises.
+
+    Args:
+        m: (..., 3, 3) earth-to-sensor M.
+
+    Returns:
+        (..., 3) roll, pitch, yaw [rad].
+
+    Raises:
+        ValueError: ``m`` does not end in (3, 3).
     """
     a = _f64(m)
     _check_shape(a, (3, 3), "m")
@@ -83,11 +102,20 @@ def m_to_euler(m: npt.ArrayLike) -> FloatArray:
 
 
 def m_to_quaternion(m: npt.ArrayLike) -> FloatArray:
-    """Manual "M to Q": (..., 3, 3) M -> (..., 4) scalar-first quaternion with q0 >= 0.
+    """Manual "M to Q": orientation matrix to a scalar-first quaternion with q0 >= 0.
 
     The manual picks whichever of its four formulas has the largest test value, because
     each one loses precision when its own square root approaches zero. All four are
     evaluated and the winner selected per element, so no Python loop is needed.
+
+    Args:
+        m: (..., 3, 3) earth-to-sensor M.
+
+    Returns:
+        (..., 4) q0 (scalar), q1, q2, q3.
+
+    Raises:
+        ValueError: ``m`` does not end in (3, 3).
     """
     a = _f64(m)
     _check_shape(a, (3, 3), "m")
@@ -117,10 +145,19 @@ def m_to_quaternion(m: npt.ArrayLike) -> FloatArray:
 
 
 def quaternion_to_m(q: npt.ArrayLike) -> FloatArray:
-    """Manual "Q to M": (..., 4) scalar-first quaternion -> (..., 3, 3) earth-to-sensor M.
+    """Manual "Q to M": scalar-first quaternion to the earth-to-sensor orientation matrix.
 
     The quaternion is normalised first so float32 round-off in a device reply does not
     turn into a non-orthogonal matrix.
+
+    Args:
+        q: (..., 4) q0 (scalar), q1, q2, q3.
+
+    Returns:
+        (..., 3, 3) M.
+
+    Raises:
+        ValueError: ``q``'s last axis is not 4 long.
     """
     a = _f64(q)
     _check_shape(a, (4,), "q")
@@ -140,17 +177,31 @@ def quaternion_to_m(q: npt.ArrayLike) -> FloatArray:
 
 
 def quaternion_to_euler(q: npt.ArrayLike) -> FloatArray:
-    """(..., 4) quaternion -> (..., 3) roll, pitch, yaw, through M as the manual prescribes."""
+    """Quaternion to roll, pitch, yaw, through M as the manual prescribes.
+
+    Args:
+        q: (..., 4) scalar-first quaternion.
+
+    Returns:
+        (..., 3) roll, pitch, yaw [rad].
+    """
     return m_to_euler(quaternion_to_m(q))
 
 
 def euler_to_quaternion(euler: npt.ArrayLike) -> FloatArray:
-    """(..., 3) roll, pitch, yaw -> (..., 4) quaternion, through M as the manual prescribes."""
+    """Roll, pitch, yaw to a quaternion, through M as the manual prescribes.
+
+    Args:
+        euler: (..., 3) roll, pitch, yaw [rad].
+
+    Returns:
+        (..., 4) scalar-first quaternion, q0 >= 0.
+    """
     return m_to_quaternion(euler_to_m(euler))
 
 
 def sensor_to_earth_xyzw(q: npt.ArrayLike) -> FloatArray:
-    """Manual Q (scalar-first) -> (..., 4) x, y, z, w quaternion of the sensor-to-earth rotation.
+    """Manual Q (scalar-first) to the x, y, z, w quaternion of the sensor-to-earth rotation.
 
     This is what a renderer such as Rerun wants: a Hamilton quaternion that rotates a
     sensor-frame vector into the earth (north-east-down) frame, i.e. the rotation M.T.
@@ -158,6 +209,15 @@ def sensor_to_earth_xyzw(q: npt.ArrayLike) -> FloatArray:
     *transpose* of the Hamilton rotation matrix of Q; with the Hamilton product (which
     Rerun uses) Q therefore already maps sensor to earth, v_earth = Q v_local Q*. So no
     conjugate is taken: the components are normalised and reordered from wxyz to xyzw.
+
+    Args:
+        q: (..., 4) the manual's quaternion, q0 (scalar) first.
+
+    Returns:
+        (..., 4) x, y, z, w, normalised.
+
+    Raises:
+        ValueError: ``q``'s last axis is not 4 long.
     """
     a = _f64(q)
     _check_shape(a, (4,), "q")
@@ -166,30 +226,66 @@ def sensor_to_earth_xyzw(q: npt.ArrayLike) -> FloatArray:
 
 
 def ticks_to_seconds(ticks: npt.ArrayLike) -> FloatOut:
-    """Device timer ticks -> seconds (the GX3 timer runs at 62,500 ticks per second)."""
+    """Device timer ticks to seconds (the GX3 timer runs at 62,500 ticks per second).
+
+    Args:
+        ticks: Ticks, any shape.
+
+    Returns:
+        Seconds, of the same shape (a NumPy scalar for a scalar).
+    """
     return _out(_f64(ticks) / TICKS_PER_SECOND)
 
 
 def mag_temperature_celsius(code: npt.ArrayLike) -> FloatOut:
-    """Equation 15: magnetometer-board temperature code -> degrees C (the accurate form)."""
+    """Equation 15: magnetometer-board temperature code to degrees C (the accurate form).
+
+    Args:
+        code: The 12-bit code (0xD1's first temperature), any shape.
+
+    Returns:
+        Degrees C, of the same shape.
+    """
     c = _f64(code)
     return _out(-1481.96 + np.sqrt(2.1962e6 + (1.8639 - 3.0 * c / 4096.0) / 3.88e-6))
 
 
 def mag_temperature_celsius_linear(code: npt.ArrayLike) -> FloatOut:
-    """Equation 16: the manual's linear approximation, valid from -40 to +85 degrees C."""
+    """Equation 16: the manual's linear approximation, valid from -40 to +85 degrees C.
+
+    Args:
+        code: The 12-bit magnetometer-board temperature code, any shape.
+
+    Returns:
+        Degrees C, of the same shape.
+    """
     c = _f64(code)
     return _out(-((3.0 * c / 4096.0) - 1.8583) / 11.67e-3)
 
 
 def celsius_to_mag_temperature_code(celsius: npt.ArrayLike) -> FloatOut:
-    """Inverse of Equation 16, so a simulator can report a chosen temperature (unrounded)."""
+    """Inverse of Equation 16, so a simulator can report a chosen temperature.
+
+    Args:
+        celsius: Degrees C, any shape.
+
+    Returns:
+        The magnetometer-board temperature code, unrounded, of the same shape.
+    """
     t = _f64(celsius)
     return _out((1.8583 - 11.67e-3 * t) * 4096.0 / 3.0)
 
 
 def local_gravity(latitude_deg: npt.ArrayLike, altitude_m: npt.ArrayLike) -> FloatOut:
-    """Equation 9: local gravity [m/s^2]; a static unit's |Accel| is this / STANDARD_GRAVITY."""
+    """Equation 9: local gravity; a static unit's |Accel| is this / STANDARD_GRAVITY.
+
+    Args:
+        latitude_deg: Latitude [degrees].
+        altitude_m: Altitude [m].
+
+    Returns:
+        Gravity [m/s^2], broadcast over the arguments.
+    """
     lat = np.radians(_f64(latitude_deg))
     h = _f64(altitude_m)
     g = 9.780318 * (1.0 + 0.0053024 * np.sin(lat) ** 2 - 0.0000058 * np.sin(2.0 * lat) ** 2)
@@ -197,7 +293,15 @@ def local_gravity(latitude_deg: npt.ArrayLike, altitude_m: npt.ArrayLike) -> Flo
 
 
 def fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
-    """Equation 2: |H| of the accel/gyro filter (30-tap 30 kHz stage, width-M 1 kHz stage)."""
+    """Equation 2: |H| of the accel/gyro filter (30-tap 30 kHz stage, width-M 1 kHz stage).
+
+    Args:
+        f_hz: Frequency [Hz].
+        width: The filter width M (0xDB ``filter_width``).
+
+    Returns:
+        The gain, broadcast over the arguments.
+    """
     f = _f64(f_hz)
     m = _f64(width)
     h = _dirichlet(np.pi * f / 1000.0, m) * _dirichlet(np.pi * f / 30000.0, 30.0)
@@ -205,7 +309,15 @@ def fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
 
 
 def mag_fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
-    """Equation 3: |H| of the high-resolution magnetometer filter (2-point, 7-point, width M)."""
+    """Equation 3: |H| of the high-resolution magnetometer filter (2-point, 7-point, width M).
+
+    Args:
+        f_hz: Frequency [Hz].
+        width: The filter width M (0xDB ``mag_filter_width``).
+
+    Returns:
+        The gain, broadcast over the arguments.
+    """
     f = _f64(f_hz)
     m = _f64(width)
     h = (
@@ -217,18 +329,42 @@ def mag_fir_response(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
 
 
 def mag_fir_response_simplified(f_hz: npt.ArrayLike, width: npt.ArrayLike) -> FloatOut:
-    """Equation 4: only the adjustable stage, as the fixed stages are ~1 below a few hundred Hz."""
+    """Equation 4: only the adjustable stage, as the fixed stages are ~1 below a few hundred Hz.
+
+    Args:
+        f_hz: Frequency [Hz].
+        width: The filter width M (0xDB ``mag_filter_width``).
+
+    Returns:
+        The gain, broadcast over the arguments.
+    """
     return _out(np.abs(_dirichlet(np.pi * _f64(f_hz) / 1000.0, _f64(width))))
 
 
 def mag_low_power_fir_response(
     f_hz: npt.ArrayLike, width: npt.ArrayLike, data_rate_hz: npt.ArrayLike
 ) -> FloatOut:
-    """Equation 5: low-power magnetometer mode, where the adjustable stage runs at the data rate."""
+    """Equation 5: low-power magnetometer mode, where the adjustable stage runs at the data rate.
+
+    Args:
+        f_hz: Frequency [Hz].
+        width: The filter width M (0xDB ``mag_filter_width``).
+        data_rate_hz: The output data rate [Hz].
+
+    Returns:
+        The gain, broadcast over the arguments.
+    """
     x = np.pi * _f64(f_hz) / _f64(data_rate_hz)
     return _out(np.abs(_dirichlet(x, _f64(width))))
 
 
 def wake_time_seconds(filter_width: npt.ArrayLike) -> FloatOut:
-    """Equation 1: approximate time from wake-up to the first valid data [s]."""
+    """Equation 1: approximate time from wake-up to the first valid data.
+
+    Args:
+        filter_width: The filter width M (0xDB ``filter_width``).
+
+    Returns:
+        Seconds, of the same shape.
+    """
     return _out(0.053 + 2.0 * _f64(filter_width) / 1000.0)

@@ -83,7 +83,12 @@ def _notes(c: Command) -> list[str]:
 
 
 def command_table_markdown() -> str:
-    """The whole command set: bytes sent, confirmation, parameters, reply layout."""
+    """The whole command set as a Markdown table, as ``gx3 commands --markdown`` prints it.
+
+    Returns:
+        A page: title, the byte-order rules, then one row per command (bytes sent,
+        confirmation, parameters, reply layout, notes).
+    """
     lines = [
         "# 3DM-GX3 command reference",
         "",
@@ -112,7 +117,14 @@ def _bytes(n: int | None) -> str:
 
 
 def command_list_text(width: int = 80) -> str:
-    """The same reference as a list for a terminal ``width`` columns wide."""
+    """The same reference as a list for a terminal, as ``gx3 commands`` prints it.
+
+    Args:
+        width: The terminal's columns.
+
+    Returns:
+        The text, wrapped to ``width``.
+    """
     indent = " " * 6
 
     def wrap(text: str) -> list[str]:
@@ -141,7 +153,13 @@ def command_list_text(width: int = 80) -> str:
 
 
 def reply_schemas() -> dict[str, Any]:
-    """Every reply's wire layout, language-neutral, for decoders written elsewhere."""
+    """Every reply's wire layout, language-neutral, for decoders written elsewhere.
+
+    Returns:
+        JSON-able: the byte order, checksum and plausibility rules, then per reply its
+        code, name, length and fields (name, offset, type, shape, range or values, unit,
+        doc), as the package ships it in ``replies.json``.
+    """
     replies = []
     for spec in REPLIES.values():
         offset, fields = 1, []

@@ -1,26 +1,13 @@
 """Find whole replies in a byte stream cut at arbitrary places.
 
-The framer is fed chunks of any size and returns every intact reply exactly once,
-in order, as columnar ``Batch`` es. A record needs an expected echo byte, a
-matching checksum and every field plausible: a 16-bit additive checksum matches
-garbage now and then, both while resynchronising and when a record cut short or
-missing a byte spans into the next one while the framer still believes it is in
-step. After losing step the framer advances one byte at a time. Long runs of one
-record type (continuous mode) take a NumPy fast path that checks many records at
-once and falls back to the byte-wise scanner only around corruption; both paths
-accept exactly the same records.
-
-Each chunk comes with its receive time; a record carries the time of the chunk that
-held its last byte, whenever the framer lets it out, so a capture replayed with its
-recorded times gives the live run's records and times whatever the chunking. A record
-whose bytes came in more than one read also carries the latest earlier read that ended
-inside it and how many of its bytes had arrived by then: over a serial line that bounds
-when the record began more tightly than its completing read can. Reads with the same
-receive time count as one (a read cut in two says nothing new), and an empty read as
-none. A replay hands over many reads at once (``feed_reads``): one scan instead of one
-per read, the same records and times. A live bridge takes its reads' record or two as
-``Records`` (``feed_records``): the same scan, the wire bytes of each record without
-arrays.
+Fed reads of any size with their receive times, the framer returns every intact reply
+exactly once, in order, as columnar ``Batch`` es, whatever the chunking: a capture
+replayed with its recorded times gives the live run's records and times. A record needs
+an expected echo byte, a matching checksum and every field plausible (a 16-bit additive
+checksum matches garbage now and then). It carries the receive time of the read that
+held its last byte and, where its bytes came in more than one read, the latest earlier
+read that ended inside it. How the framer resynchronises and why its NumPy fast path
+and the compiled core accept exactly the scanner's records: docs/design/protocol.md.
 """
 
 from __future__ import annotations
@@ -68,6 +55,12 @@ class FramerStats:
     bytes_fed: int = 0
 
     def summary(self) -> str:
+        """One line for people: records by type, then each count.
+
+        Returns:
+            ``records: 0xC8×199; checksum failures: 5; implausible: 0; bytes skipped: 67
+            of 13400; resyncs: 1``, for instance.
+        """
         by_type = ", ".join(f"0x{c:02X}×{n}" for c, n in sorted(self.records.items())) or "none"
         return (f"records: {by_type}; checksum failures: {self.checksum_failures}; "
                 f"implausible: {self.implausible}; "
@@ -94,10 +87,12 @@ class _Reads:
 
     def times(self, starts: np.ndarray,
               length: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """For records of ``length`` bytes at these stream positions: the receive time of
-        the read that completed each, and of the latest read before it (if it ended inside
-        the record, else the completing read's) with the record's bytes it had brought
-        (else ``length``); None, None when no read ended inside any of them.
+        """The receive times of records of ``length`` bytes at these stream positions.
+
+        For each: the receive time of the read that completed it, and of the latest read
+        before it (if it ended inside the record, else the completing read's) with the
+        record's bytes it had brought (else ``length``); None, None when no read ended
+        inside any of them.
         """
         if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
             return np.full(len(starts), self.ns[0], np.int64), None, None
@@ -136,9 +131,10 @@ class _Reads:
 
 
 class _Runs:
-    """Accepted records gathered into runs of one type and byte order, decoded once per
-    run. Each run is a list of chunks: consecutive records' bytes and the stream position
-    of the first.
+    """Accepted records gathered into runs of one type and byte order, decoded once per run.
+
+    Each run is a list of chunks: consecutive records' bytes and the stream position of
+    the first.
     """
 
     def __init__(self) -> None:
@@ -183,10 +179,17 @@ class _Runs:
 class Framer:
     """Streaming reply framer.
 
-    ``expect`` names the reply codes that may arrive (a continuous preset, or the
-    replies to commands in flight, plus 0x21 for errors); by default it runs
-    blind over every data record. ``little_endian`` is the float byte order to start
-    with; an accepted 0xDB reply sets it for the records after it.
+    Reads with the same receive time count as one (a read cut in two says nothing new),
+    and an empty read as none. ``stats`` counts what it saw.
+
+    Args:
+        expect: The reply codes that may arrive (a continuous preset, or the replies to
+            commands in flight, plus 0x21 for errors); None: every data record, blind.
+        little_endian: The float byte order to start with; an accepted 0xDB reply sets
+            it for the records after it.
+
+    Raises:
+        ValueError: An expected code starts no reply.
     """
 
     def __init__(self, expect: Iterable[int] | None = None, little_endian: bool = False) -> None:
@@ -201,7 +204,14 @@ class Framer:
         self.expect(DATA_CODES if expect is None else expect)
 
     def expect(self, codes: Iterable[int]) -> None:
-        """Change which replies may arrive from here on."""
+        """Change which replies may arrive from here on.
+
+        Args:
+            codes: Their first bytes; none at all skips every byte.
+
+        Raises:
+            ValueError: A code starts no reply.
+        """
         codes = frozenset(codes)
         unknown = [f"0x{c:02X}" for c in codes if c not in REPLIES]
         if unknown:
@@ -212,6 +222,7 @@ class Framer:
 
     @property
     def expected(self) -> frozenset[int]:
+        """The reply codes that may arrive."""
         return frozenset(self._lengths)
 
     @property
@@ -220,16 +231,34 @@ class Framer:
         return len(self._buf)
 
     def feed(self, data: bytes | bytearray | memoryview, rx_ns: int = 0) -> list[Batch]:
-        """Take the next read, received at ``rx_ns``; return the records decided so far."""
+        """Take the next read.
+
+        Args:
+            data: Its bytes.
+            rx_ns: Its receive time (ns, any clock; records carry it on).
+
+        Returns:
+            The records decided so far, one batch per run of one type and byte order; a
+            record begun and not yet whole waits for the next read.
+        """
         return self._take(data, [len(data)], [rx_ns], _Runs.batches)
 
     def feed_records(self, reads: list[bytes], rx_ns: list[int]) -> list[Records]:
-        """``feed`` of a live bridge's reads, the records as ``Records``: a record or
-        two without array set-up (``Records.batch`` gives the very ``Batch``). The reads
-        are one, or the pieces a record came in while the port read on until it was
-        whole: one scan for them all, the records and times that feeding them one by one
-        gives. As ``feed_reads``, an empty read is no read and of reads received at one
-        time the last stands for them.
+        """``feed`` of a live bridge's reads, the records as ``Records``.
+
+        A record or two without array set-up (``Records.batch`` gives the very
+        ``Batch``). The reads are one, or the pieces a record came in while the port read
+        on until it was whole: one scan for them all, the records and times that feeding
+        them one by one gives. As ``feed_reads``, an empty read is no read and of reads
+        received at one time the last stands for them.
+
+        Args:
+            reads: The reads' bytes, in order.
+            rx_ns: Their receive times.
+
+        Returns:
+            The records decided so far, one ``Records`` per run of one type and byte
+            order.
         """
         if len(reads) == 1:
             return self._take(reads[0], [len(reads[0])], rx_ns, _Runs.records)
@@ -246,9 +275,21 @@ class Framer:
 
     def feed_reads(self, data: bytes | bytearray | memoryview, ends: np.ndarray,
                    rx_ns: np.ndarray) -> list[Batch]:
-        """Take many reads at once, their bytes end to end in ``data``: read i ends at
-        ``ends[i]`` and was received at ``rx_ns[i]``. Gives the records and times that
-        feeding them one by one gives, with one scan instead of one per read.
+        """Take many reads at once (a replay): one scan instead of one per read.
+
+        Gives the records and times that feeding them one by one gives.
+
+        Args:
+            data: The reads' bytes end to end.
+            ends: Where each read ends in ``data``, rising to ``len(data)``.
+            rx_ns: Each read's receive time.
+
+        Returns:
+            The records decided so far, as ``feed`` returns them.
+
+        Raises:
+            ValueError: ``ends`` and ``rx_ns`` differ in shape, or ``ends`` does not rise
+                to the bytes given.
         """
         ends = np.asarray(ends, np.int64)
         rx_ns = np.asarray(rx_ns, np.int64)
@@ -275,7 +316,11 @@ class Framer:
         return self._scan(False, out)
 
     def flush(self) -> list[Batch]:
-        """End of stream: decide on every byte still held back."""
+        """End of stream: decide on every byte still held back.
+
+        Returns:
+            The last records; a record cut short is skipped and counted.
+        """
         return self._scan(True, _Runs.batches)
 
     def _scan(self, final: bool, out: Callable[[_Runs, _Reads], list[_Out]]) -> list[_Out]:

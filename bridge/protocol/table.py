@@ -2,7 +2,8 @@
 
 Every byte layout of the manual's Command Reference lives here and nowhere else:
 the encoder, the decoder, the framer, the emulator and the generated docs read it.
-Field order is wire order. Names of quantities follow DESIGN.md.
+Field order is wire order. A quantity has one name in every layer, from the wire to the
+archive (``QUANTITIES``; docs/design/protocol.md).
 """
 
 from __future__ import annotations
@@ -84,18 +85,21 @@ class Field:
     # cached: the framer asks for these for every record it checks
     @cached_property
     def count(self) -> int:
+        """Elements of ``kind`` in the field: 1 for a scalar, the product of ``shape``."""
         return math.prod(self.shape)
 
     @cached_property
     def size(self) -> int:
+        """Bytes the field occupies on the wire."""
         return SIZES[self.kind] * self.count
 
     @property
     def is_pad(self) -> bool:
+        """Whether the field is reserved bytes (sent as zero, never decoded)."""
         return self.kind == "pad"
 
 
-def pad(n: int) -> Field:
+def _pad(n: int) -> Field:
     """Reserved bytes: zero on the wire, never decoded."""
     return Field("reserved", "pad", (n,), doc="reserved, set to 0")
 
@@ -159,7 +163,7 @@ QUANTITIES: dict[str, Field] = {
 }
 
 
-def q(*names: str) -> tuple[Field, ...]:
+def _q(*names: str) -> tuple[Field, ...]:
     """Reply fields by quantity name."""
     return tuple(QUANTITIES[n] for n in names)
 
@@ -181,6 +185,16 @@ class When:
     before_firmware: int | None = None
 
     def holds(self, params: dict[str, Any], firmware: int | None = None) -> bool:
+        """Whether the condition holds for a command sent with ``params``.
+
+        Args:
+            params: The command's parameters by name.
+            firmware: The unit's 0xE9 version number (1127 for 1.1.27); None: unknown.
+
+        Returns:
+            True when ``param`` has one of ``values`` (or there is no ``param``) and the
+            firmware is older than ``before_firmware`` or not known.
+        """
         if (self.before_firmware is not None and firmware is not None
                 and firmware >= self.before_firmware):
             return False
@@ -190,7 +204,7 @@ class When:
 ALWAYS = (When(),)
 
 
-def when(param: str, *values: int, before_firmware: int | None = None) -> When:
+def _when(param: str, *values: int, before_firmware: int | None = None) -> When:
     return When(param, frozenset(values), before_firmware)
 
 
@@ -234,18 +248,39 @@ class Command:
     def changes_nonvolatile(self, params: dict[str, Any], firmware: int | None = None) -> bool:
         """Whether sending this with ``params`` writes the unit's non-volatile memory.
 
-        ``firmware`` is the 0xE9 version number (1127 for 1.1.27); unknown (None)
-        assumes the older, stricter rules.
+        Args:
+            params: The parameters it would be sent with, by name.
+            firmware: The 0xE9 version number (1127 for 1.1.27); unknown (None) assumes
+                the older, stricter rules.
+
+        Returns:
+            True if any rule of ``persists_when`` holds.
         """
         return any(rule.holds(params, firmware) for rule in self.persists_when)
 
     def replies(self, params: dict[str, Any]) -> bool:
+        """Whether the unit answers this command sent with ``params``.
+
+        Args:
+            params: The parameters it is sent with, by name.
+
+        Returns:
+            False for a command that never answers, or one sent the way that silences
+            it (``silent_when``, such as 0xDB function 3).
+        """
         if self.reply is None:
             return False
         return self.silent_when is None or not self.silent_when.holds(params)
 
     def ignores(self, params: dict[str, Any]) -> tuple[str, ...]:
-        """The parameters the unit ignores when sent with ``params``."""
+        """The parameters the unit ignores when sent with ``params``.
+
+        Args:
+            params: The parameters it is sent with, by name.
+
+        Returns:
+            The names in ``ignored`` when ``ignored_when`` holds (a read), else none.
+        """
         if self.ignored_when is not None and self.ignored_when.holds(params):
             return self.ignored
         return ()
@@ -278,7 +313,7 @@ _DATA = (
 
 DATA_CODES: frozenset[int] = frozenset(code for code, *_ in _DATA)
 _CONTINUOUS_ALLOWED = frozenset({0}) | DATA_CODES
-_SETTINGS_READ = when("function", 0)
+_SETTINGS_READ = _when("function", 0)
 _FUNCTION_RW = frozenset({0, 1, 2})
 _REALIGN = frozenset(range(1, 101)) | {255}
 
@@ -296,51 +331,51 @@ def _u16(name: str, lo: int | None = None, hi: int | None = None, doc: str = "",
 _SETTINGS: tuple[Command, ...] = (
     Command(0xC4, "set_continuous", "Set Continuous Mode", b"\xc1\x29",
             (_u8("command", _CONTINUOUS_ALLOWED, doc="data command to stream, 0 stops"),),
-            q("command", "timer"),
+            _q("command", "timer"),
             notes="Does not change the continuous preset."),
     Command(0xC9, "write_accel_bias", "Write Accel Bias Correction", b"\xb7\x44",
-            (Field("accel_bias", "f32", (3,), unit="g"),), q("accel_bias", "timer")),
+            (Field("accel_bias", "f32", (3,), unit="g"),), _q("accel_bias", "timer")),
     Command(0xCA, "write_gyro_bias", "Write Gyro Bias Correction", b"\x12\xa5",
-            (Field("gyro_bias", "f32", (3,), unit="rad/s"),), q("gyro_bias", "timer")),
+            (Field("gyro_bias", "f32", (3,), unit="rad/s"),), _q("gyro_bias", "timer")),
     Command(0xCD, "capture_gyro_bias", "Capture Gyro Bias", b"\xc1\x29",
             (_u16("sampling_time_ms", 0, 65_535, "stationary averaging, 10000-30000 advised"),),
-            q("gyro_bias", "timer"),
+            _q("gyro_bias", "timer"),
             notes="The reply comes after the sampling time has elapsed."),
     Command(0xD0, "transfer_to_nonvolatile", "Transfer Quantity to Non-Volatile Memory",
             b"\xc1\x29",
             (_u16("quantity", doc="1 accel bias, 2 gyro bias", allowed=frozenset({1, 2})),),
-            q("quantity", "timer"), persists_when=(when("quantity", 1, 2),),
+            _q("quantity", "timer"), persists_when=(_when("quantity", 1, 2),),
             notes="Any other quantity does nothing and is answered with 0xFFFF."),
     Command(0xD4, "mode", "Mode", b"\xa3\x47",
             (_u8("mode", frozenset(range(6)), doc="0 read, 1 active, 2 continuous, 3 idle, "
                  "4 sleep, 5 deep sleep"),),
-            q("mode"),
+            _q("mode"),
             notes="Entering continuous mode sends this reply before the first record."),
     Command(0xD5, "mode_preset", "Mode Preset", b"\xba\x89",
             (_u8("mode_preset", frozenset(range(4)), doc="0 read, 1 active, 2 continuous, "
                  "3 idle"),),
-            q("mode_preset"), persists_when=(when("mode_preset", 1, 2, 3),),
+            _q("mode_preset"), persists_when=(_when("mode_preset", 1, 2, 3),),
             notes="0 reads the preset and stores nothing."),
     Command(0xD6, "continuous_preset", "Continuous Preset", b"\xc6\x6b",
             (_u8("continuous_preset", _CONTINUOUS_ALLOWED, doc="data command, 0 reads"),),
-            q("continuous_preset"), persists_when=(when("continuous_preset", *DATA_CODES),),
+            _q("continuous_preset"), persists_when=(_when("continuous_preset", *DATA_CODES),),
             notes="0 or a non-data command stores nothing and returns the stored value."),
     Command(0xD7, "timer", "Timer", b"\xc1\x29",
             (_u8("function", frozenset({0, 1, 2}), doc="0 read, 1 set timer, 2 set PPS seconds"),
              Field("value", "u32", doc="new timer or PPS value")),
-            q("timer"), ignored_when=_SETTINGS_READ, ignored=("value",)),
+            _q("timer"), ignored_when=_SETTINGS_READ, ignored=("value",)),
     Command(0xD9, "comms_settings", "Communications Settings", b"\xc3\x55",
             (_u8("port", frozenset({1, 2, 3}), doc="1 UART1"),
              _u8("function", _FUNCTION_RW, doc="0 read, 1 set, 2 set and store"),
              Field("baud", "u32", allowed=frozenset(BAUD_RATES), unit="bit/s"),
              _u8("config", doc="bit 1: UART enabled (UART1 cannot be disabled)"),
-             pad(1)),
-            (QUANTITIES["port"], QUANTITIES["baud"], QUANTITIES["config"], pad(1)),
-            persists_when=(when("function", 2),),
+             _pad(1)),
+            (QUANTITIES["port"], QUANTITIES["baud"], QUANTITIES["config"], _pad(1)),
+            persists_when=(_when("function", 2),),
             ignored_when=_SETTINGS_READ, ignored=("baud", "config"),
             notes="The reply is sent at the old rate; the new rate applies after it. "
                   "Ports 2 and 3 reply with baud 0."),
-    Command(0xDA, "stationary_test", "Stationary Test", b"", (), q("test_result")),
+    Command(0xDA, "stationary_test", "Stationary Test", b"", (), _q("test_result")),
     Command(0xDB, "sampling_settings", "Sampling Settings", b"\xa8\xb9",
             (_u8("function", frozenset({0, 1, 2, 3}), doc="0 read, 1 set, 2 set and store, "
                  "3 set without reply"),
@@ -350,12 +385,12 @@ _SETTINGS: tuple[Command, ...] = (
              _u8("mag_filter_width", lo=1, hi=32, doc="mag filter width, default 17"),
              _u16("up_compensation", 1, 1000, "seconds, default 10"),
              _u16("north_compensation", 1, 1000, "seconds, default 10"),
-             pad(6)),
-            (*q("decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
-                "north_compensation"), pad(6)),
-            persists_when=(when("function", 2),
-                           when("function", 1, before_firmware=FIRMWARE_1_1_27)),
-            silent_when=when("function", 3), ignored_when=_SETTINGS_READ,
+             _pad(6)),
+            (*_q("decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
+                "north_compensation"), _pad(6)),
+            persists_when=(_when("function", 2),
+                           _when("function", 1, before_firmware=FIRMWARE_1_1_27)),
+            silent_when=_when("function", 3), ignored_when=_SETTINGS_READ,
             ignored=("decimation", "flags", "filter_width", "mag_filter_width",
                      "up_compensation", "north_compensation"),
             notes="Firmware before 1.1.27 stores with function 1 too, and replies 0 for "
@@ -364,22 +399,22 @@ _SETTINGS: tuple[Command, ...] = (
             (_u8("function", frozenset({0, 3}), doc="0 realign, 3 realign without reply"),
              _u8("up_realign", _REALIGN, doc="1-100 tenths of a second, 255 skip"),
              _u8("north_realign", _REALIGN, doc="1-100 tenths of a second, 255 skip"),
-             pad(4)),
-            (pad(4),), silent_when=when("function", 3),
+             _pad(4)),
+            (_pad(4),), silent_when=_when("function", 3),
             notes="The 4 reply bytes are undetermined; they are not decoded."),
     Command(0xE4, "write_eeprom", "Write Word to EEPROM", b"\xc1\x29\x00",
             (_u16("address", doc="user words 0x0000-0x00EF and 0x0400-0x042F"),
              _u16("value")),
-            q("word"), persists_when=ALWAYS,
+            _q("word"), persists_when=ALWAYS,
             notes="The fixed 0x00 after the confirmation is checked like it."),
     Command(0xE5, "read_eeprom", "Read Word from EEPROM", b"\x00",
             (_u16("address", doc="user words 0x0000-0x00EF and 0x0400-0x042F"),),
-            q("word"), notes="The fixed 0x00 is checked like a confirmation byte."),
-    Command(0xE9, "firmware_version", "Read Firmware Version Number", b"", (), q("firmware")),
+            _q("word"), notes="The fixed 0x00 is checked like a confirmation byte."),
+    Command(0xE9, "firmware_version", "Read Firmware Version Number", b"", (), _q("firmware")),
     Command(0xEA, "device_id", "Read Device ID String", b"",
             (_u8("selector", frozenset(range(5)), doc="0 model number, 1 serial, 2 model name, "
                  "3 options, 4 lot"),),
-            q("selector", "text")),
+            _q("selector", "text")),
     Command(0xFA, "stop_continuous", "Stop Continuous Mode", b"\x75\xb4", (), None),
     Command(0xFD, "firmware_update", "Firmware Update", b"", (), None, persists_when=ALWAYS,
             documented=False,
@@ -391,7 +426,7 @@ _SETTINGS: tuple[Command, ...] = (
 COMMANDS: dict[int, Command] = {
     c.code: c
     for c in sorted(
-        (*(Command(code, name, title, reply=(*q(*fields), QUANTITIES["timer"]), data=True)
+        (*(Command(code, name, title, reply=(*_q(*fields), QUANTITIES["timer"]), data=True)
            for code, name, title, fields in _DATA),
          *_SETTINGS),
         key=lambda c: c.code,
@@ -410,10 +445,21 @@ class ReplySpec:
 
     @cached_property
     def length(self) -> int:
+        """Bytes of the reply: echo byte, fields, 16-bit checksum."""
         return 3 + sum(f.size for f in self.fields)
 
     def offset(self, name: str) -> int:
-        """Byte position of field ``name`` in the reply (the echo byte is at 0)."""
+        """Byte position of a field in the reply (the echo byte is at 0).
+
+        Args:
+            name: The field's name.
+
+        Returns:
+            Where its first byte is.
+
+        Raises:
+            KeyError: The reply has no such field.
+        """
         at = 1
         for f in self.fields:
             if f.name == name:
@@ -431,7 +477,17 @@ REPLIES: dict[int, ReplySpec] = {
 
 
 def lookup(command: int | str) -> Command:
-    """Find a command by code or name, with an error that lists what exists."""
+    """Find a command by code or name.
+
+    Args:
+        command: Its code (0xDB) or its name ("sampling_settings").
+
+    Returns:
+        The command.
+
+    Raises:
+        KeyError: No such command; the message lists every one that exists.
+    """
     found = COMMANDS.get(command) if isinstance(command, int) else BY_NAME.get(command)
     if found is None:
         shown = f"0x{command:02X}" if isinstance(command, int) else repr(command)

@@ -1,7 +1,8 @@
-"""What an exported table says about itself: its column names, each column's physical unit
-and frame, and the file's provenance (units' Info, source archive, options, schema version),
-so a Parquet file read years later, or by someone who never saw this project, needs nothing
-else to be understood.
+"""What an exported table says about itself, so that it needs nothing else to be understood.
+
+Its column names, each column's physical unit and frame, and the file's provenance
+(units' Info, source archive, options, schema version): a Parquet file read years
+later, or by someone who never saw this project, explains itself.
 
 Column names are lower-case identifiers that no DuckDB keyword and no pandas DataFrame
 attribute takes, so they work unquoted in SQL and with pandas attribute access.
@@ -107,7 +108,7 @@ def flat_names(quantity: str, elements: int) -> list[str]:
     return [f"{quantity}_{i}" for i in range(elements)]
 
 
-def physical_unit(quantity: str) -> str:
+def _physical_unit(quantity: str) -> str:
     """The unit gx3.proto declares for a quantity ("unitless" where it declares none)."""
     options = ImuSample.DESCRIPTOR.fields_by_name[quantity].GetOptions()
     # the generated stub types extensions as plain FieldDescriptors
@@ -115,8 +116,10 @@ def physical_unit(quantity: str) -> str:
 
 
 def unit_labels(units: Iterable[str]) -> dict[str, str]:
-    """Each unit's column prefix in aligned output: lower-case, letters, digits and ``_``,
-    starting with a letter; distinct (``_2``, ``_3``.. where two names would meet).
+    """Each unit's column prefix in aligned output.
+
+    Lower-case, letters, digits and ``_``, starting with a letter; distinct (``_2``,
+    ``_3``.. where two names would meet).
     """
     labels: dict[str, str] = {}
     for unit in sorted(set(units)):
@@ -135,8 +138,9 @@ _FLAT = {name: (q, i) for q in QUANTITY_ORDER for i, name in enumerate(flat_name
 
 
 def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
-    """Field metadata of one column: physical unit, frame, description (and for an aligned
-    column, the unit it belongs to).
+    """Field metadata of one column: physical unit, frame, description.
+
+    For an aligned column, also the unit it belongs to.
     """
     about: dict[str, str] = {}
     for unit, label in labels.items():
@@ -153,7 +157,7 @@ def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
         physical, frame, description = _DERIVED[name]
     elif name in _FLAT:
         quantity, index = _FLAT[name]
-        physical = physical_unit(quantity)
+        physical = _physical_unit(quantity)
         frame, description = _QUANTITY[quantity]
         if quantity == "temperature":
             description = f"{description} (this is {index})"
@@ -173,7 +177,13 @@ class About:
     mag_cal: Mapping[str, object] = field(default_factory=dict)  # unit -> calibration file
 
     def metadata(self) -> dict[str, str]:
-        """Parquet file metadata (key-value pairs, values JSON where structured)."""
+        """Parquet file metadata.
+
+        Returns:
+            Key-value pairs, values JSON where structured: schema version, product,
+            conventions, source archive, export options, the units' Info and
+            calibrations.
+        """
         labels = unit_labels(self.infos)
         units = {u: {"column_prefix": labels[u],
                      "info": None if info is None else MessageToDict(
@@ -186,13 +196,13 @@ class About:
             "gx3.conventions": CONVENTIONS,
             "gx3.source": json.dumps({"name": self.source.name,
                                       "bytes": self.source.stat().st_size,
-                                      "sha256": file_sha256(self.source)}),
+                                      "sha256": _file_sha256(self.source)}),
             "gx3.export": json.dumps(dict(self.options)),
             "gx3.units": json.dumps(units),
         } | calibrated
 
 
-def file_sha256(path: Path) -> str:
+def _file_sha256(path: Path) -> str:
     """The hex SHA-256 of a file, as ``sha256sum`` prints it."""
     digest = hashlib.sha256()
     with path.open("rb") as f:

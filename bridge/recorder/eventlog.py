@@ -1,5 +1,6 @@
-"""A unit's events as ``foxglove.Log`` messages, so Foxglove's Log panel and Rerun's text
-log show gaps, resets and reconnects with no plugin.
+"""A unit's events as ``foxglove.Log`` messages, for viewers' log panels with no plugin.
+
+Foxglove's Log panel and Rerun's text log show gaps, resets and reconnects from them.
 
 One channel for the fleet (``<prefix>/log``): a Log panel shows one topic, and the
 fleet's events belong on one page; ``name`` is the unit, so the panel filters by unit.
@@ -20,8 +21,10 @@ _LEVELS = {"INFO": Log.INFO, "WARN": Log.WARNING, "ERROR": Log.ERROR}
 
 
 def log_message(unit: str, event: Event, time_ns: int, rate_hz: float = 0.0) -> bytes:
-    """The serialized Log of ``event`` at ``time_ns`` (its log time in the archive); a gap
-    or reset gives the time its lost records span when the unit's output rate is known.
+    """The serialized Log of ``event`` at ``time_ns``, its log time in the archive.
+
+    A gap or reset gives the time its lost records span when the unit's output rate is
+    known.
     """
     return Log(timestamp=Timestamp(seconds=time_ns // 1_000_000_000,
                                    nanos=time_ns % 1_000_000_000),

@@ -1,383 +1,289 @@
-"""Archive to table: one row per sample, flat quantity columns, for pandas, R, spreadsheets.
+"""What ``gx3 export`` runs: an archive's samples to a table or a ROS 2 bag, as one job.
 
-Columns: ``unit``, ``command``, ``timer``, ``ticks``, ``time_ns`` (the best estimate of
-the sample instant: the live estimate unless a re-estimate is given), ``live_time_ns``
-(as the bridge published it), ``rx_ns`` (host receive time), then each quantity any
-exported record holds, flattened as DESIGN.md names them (``accel_x``, ``m11`` ..
-``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN in the arrays where a record
-lacks it. Temperatures are A/D codes stored as float32 (exact) so they can be missing
-too. Rows are in ``time_ns`` order across units. Orientation columns keep the manual's convention:
-M maps earth (NED) to sensor, the quaternion is scalar first.
+``Export`` checks a request before anything is read or written (the formats, what goes
+with what, the span, the record types, the calibration files), then ``write`` turns
+an archive, read with ``read_samples_archive``, into the output and the events table;
+``run`` does all of it with safe outputs (each appears when complete, nothing is left
+if it fails). The tables and their writers are ``bridge.recorder.tables``'s::
 
-A written file describes itself: beside ``time_ns`` a ``time_utc`` column of type
-timestamp[ns, UTC]; every column name a lower-case identifier (SQL, pandas attribute
-access); a missing value is null, not NaN, so SQL engines and polars count it as
-missing; and in Parquet each column's unit and frame as field metadata, and the units'
-Info, the source archive, the options and the schema version as file metadata.
+    from pathlib import Path
+
+    from bridge.recorder.export import Export
+
+    done = Export(Path("fleet.mcap"), Path("fleet.parquet"), align_hz=100).run()
+    print(done.text())
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from datetime import UTC, datetime
+from collections.abc import Callable, Sequence
+from contextlib import ExitStack
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pa_csv
-import pyarrow.parquet as pq
-
-from bridge.bus.codec import elements
-from bridge.bus.gx3_pb2 import Event, Info
-from bridge.protocol.convert import (
-    euler_to_quaternion,
-    m_to_quaternion,
-    quaternion_to_euler,
-    quaternion_to_m,
+from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
+from bridge.recorder.magcal import UnitIron, apply, read_document, with_heading
+from bridge.recorder.reader import ArchiveReader, describe_problem, read_archive
+from bridge.recorder.ros2_export import Ros2Written, write_ros2
+from bridge.recorder.tables import (
+    TimeBound,
+    align_table,
+    archive_prefix,
+    check_format,
+    event_table,
+    last_info,
+    offline_times,
+    parse_time,
+    sample_table,
+    write_table,
 )
-from bridge.recorder.describe import (
-    ALIGNED_SEPARATOR,
-    QUANTITY_ORDER,
-    About,
-    column_metadata,
-    flat_names,
-    unit_labels,
-)
-from bridge.recorder.reader import ArchivedSamples, ArchiveReader
-from bridge.timing.offline import OfflineClock
-from bridge.timing.realtime import RealtimeReads
-from bridge.timing.stream import TRANSPORTS, Settings
 
-#: Offline re-estimate of sample times: (unit, its columns ``ticks``, ``time_ns`` (live),
-#: ``rx_ns`` and ``rx_mono_raw_ns``, in the order they were received) -> time_ns, int64
-#: ns; None keeps that unit's live times.
-ReEstimate = Callable[[str, Mapping[str, np.ndarray]], np.ndarray | None]
+__all__ = ["Export", "Exported", "read_samples_archive"]
 
-FORMATS = (".parquet", ".csv")
+#: What ``--format`` takes.
+FORMATS = ("parquet", "csv", "ros2")
+
+
+def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = None,
+                         on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
+    """Read an archive to take samples from; one with nothing readable is refused.
+
+    Args:
+        path: The archive.
+        on_read: Hears the bytes read so far, as the reading goes (a progress bar).
+        on_problem: Hears, once, what is wrong with an archive that was cut short or
+            damaged, and what to do about it; the readable rest is read.
+
+    Returns:
+        Everything readable in the archive.
+
+    Raises:
+        ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
+        ValueError: Nothing in it can be read as messages.
+    """
+    archive = read_archive(path, on_read)
+    if not archive.message_count:
+        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
+                         "; is it an archive written by gx3?")
+    problem = describe_problem(archive)
+    if problem and on_problem is not None:
+        on_problem(f"{problem}; `gx3 repair` makes a finished copy")
+    return archive
+
+
+def _code(code: int | str) -> int:
+    """A record type as a number, or as people write it (0xCC, 204)."""
+    if isinstance(code, int):
+        return code
+    try:
+        return int(code, 0)
+    except ValueError:
+        raise ValueError(f"{code!r} is not a number such as 0xC8") from None
+
+
+def _wants_ros2(output: Path, given: str | None) -> bool:
+    """Whether ``given`` (or else the output's extension) asks for a ROS 2 bag."""
+    suffix = output.suffix.lower()
+    if given is None:
+        return suffix == ".mcap"
+    if given.lower() not in FORMATS:
+        raise ValueError(f"--format {given}: give parquet, csv or ros2")
+    wanted = ".mcap" if given.lower() == "ros2" else f".{given.lower()}"
+    if suffix != wanted:
+        raise ValueError(f"--format {given} writes a {wanted} file; name the output "
+                         f"{output.with_suffix(wanted).name}")
+    return wanted == ".mcap"
 
 
 @dataclass(frozen=True)
-class TimeBound:
-    """A --start/--end bound: absolute host time in ns, or seconds from the first sample."""
+class Exported:
+    """What an export wrote.
 
-    ns: int
-    relative: bool
-
-    def resolve(self, first_ns: int) -> int:
-        return first_ns + self.ns if self.relative else self.ns
-
-
-def parse_time(text: str) -> TimeBound:
-    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start)."""
-    try:
-        return TimeBound(round(float(text) * 1e9), relative=True)
-    except ValueError:
-        pass
-    try:
-        when = datetime.fromisoformat(text)
-    except ValueError:
-        raise ValueError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z nor "
-                         "seconds from the start such as 12.5") from None
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
-    delta = when - datetime(1970, 1, 1, tzinfo=UTC)
-    return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
-                     + delta.microseconds * 1000, relative=False)
-
-
-def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
-                re_estimate: ReEstimate | None) -> list[np.ndarray]:
-    """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
-    live = [b.columns["time_ns"] for b in blocks]
-    if re_estimate is None:
-        return live
-    columns = {name: np.concatenate([b.columns[name] for b in blocks])
-               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")}
-    raw = columns["rx_mono_raw_ns"]
-    # the raw clock orders reads truly; the realtime clock may have been stepped back
-    order = np.argsort(raw if (raw > 0).all() else columns["rx_ns"], kind="stable")
-    found = re_estimate(unit, {name: col[order] for name, col in columns.items()})
-    if found is None:
-        return live
-    estimate = np.empty(len(raw), np.int64)
-    estimate[order] = np.asarray(found, np.int64)
-    return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
-
-
-def last_info(archive: ArchiveReader, unit: str) -> Info | None:
-    """The last Info a unit's bridge published into the archive."""
-    topic = f"{archive_prefix(archive)}/{unit}/info"
-    infos = archive.decoded(topic, Info) if topic in archive.topics("info") else []
-    return infos[-1][1] if infos else None
-
-
-def unit_settings(archive: ArchiveReader, unit: str) -> Settings | None:
-    """What decided a unit's timing, from the last Info its bridge published."""
-    info = last_info(archive, unit)
-    if info is None:
-        return None
-    if not (info.command and info.baud and info.decimation and info.filter_width):
-        return None
-    return Settings(record=info.command, decimation=info.decimation,
-                    filter_width=info.filter_width, baud=info.baud,
-                    transport=info.link if info.link in TRANSPORTS else "uart",
-                    latency_timer_ms=info.latency_timer_ms or None)
-
-
-def archive_prefix(archive: ArchiveReader) -> str:
-    """The key prefix the archive was recorded under."""
-    for m in archive.metadata:
-        if m.name == "gx3.archive" and "prefix" in m.metadata:
-            return m.metadata["prefix"]
-    return "gx3"
-
-
-def offline_times(archive: ArchiveReader) -> ReEstimate:
-    """Each unit's sample instants re-estimated over the whole recording (the live
-    estimate only had the past), with the settings of the unit's archived Info; units
-    without one keep their live times, and so do units behind a USB-serial adapter: the
-    archive keeps each record's completing read only, not the reads that ended inside
-    it, which timed it live to a byte.
-
-    Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
-    against the raw clock and each instant mapped onto the realtime clock as live
-    (``bridge.timing.realtime``), by the offsets of the samples' reads (``rx_ns`` less
-    ``rx_mono_raw_ns``); between two reads around a step the archive cannot tell which
-    side an instant was on, and takes the side the live estimate took.
+    Attributes:
+        output: The table or bag.
+        samples: The samples exported.
+        units: How many units they are of.
+        bag: With a ROS 2 bag: its messages of each type; None for a table.
+        align_hz: With an aligned table: its rate, Hz.
+        instants: With an aligned table: its rows (instants of the grid).
+        events_path: The events table, if one was asked for.
+        events: The events in it.
     """
-    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
-        ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
-        settings = unit_settings(archive, unit)
-        if settings is None or settings.serial or len(ticks) < 2:
-            return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
-        on_raw = bool((raw > 0).all())
-        order = np.argsort(ticks, kind="stable")
-        instants = clock.smooth(ticks[order], (raw if on_raw else rx_ns)[order])
-        if on_raw:
-            reads, first = np.unique(raw, return_index=True)
-            track = RealtimeReads(reads, rx_ns[first])
-            live_offset = columns["time_ns"][order] - instants
-            instants = track.map_array(instants, raw[order], sides=live_offset)
-        out = np.empty(len(ticks), np.int64)
-        out[order] = instants
-        return out
 
-    return estimate
+    output: Path
+    samples: int
+    units: int
+    bag: Ros2Written | None = None
+    align_hz: float | None = None
+    instants: int | None = None
+    events_path: Path | None = None
+    events: int = 0
+
+    def text(self) -> str:
+        """What was written, in one line for a person.
+
+        Returns:
+            The line.
+        """
+        of = f"{self.samples} samples of {self.units} units to {self.output}"
+        if self.bag is not None:
+            text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
+        elif self.align_hz is not None:
+            text = f"wrote {self.instants} instants at {self.align_hz:g} Hz of {of}"
+        else:
+            text = f"wrote {of}"
+        if self.events_path is not None:
+            text += f"; {self.events} events to {self.events_path}"
+        return text
 
 
-def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
-                 codes: Iterable[int] | None = None, start_ns: int | None = None,
-                 end_ns: int | None = None,
-                 re_estimate: ReEstimate | None = None) -> dict[str, np.ndarray]:
-    """Columns of the export: one row per sample, in time order, with ``start_ns <=
-    time_ns < end_ns``.
+class Export:
+    """One export of an archive's samples: a Parquet or CSV table, or a ROS 2 bag.
+
+    A table has one row per sample, every unit on one timeline (``align_hz``: one row
+    per instant of a common grid); a bag has sensor_msgs/Imu and MagneticField messages.
+    The request is checked when the job is made, before anything is read or written.
+
+    Args:
+        archive: The archive (.mcap) gx3 wrote.
+        output: The file to write: .parquet or .csv, or .mcap for a ROS 2 bag.
+        output_format: ``parquet``, ``csv`` or ``ros2``; None: from ``output``'s extension.
+        units: Only these units; None: every unit.
+        types: Only records of these commands (numbers, or text such as ``0xCC``); None:
+            every type.
+        start: The first instant: an ISO time, or seconds from the first sample.
+        end: The end instant (exclusive), as ``start``.
+        align_hz: Resample every unit onto one grid at this rate (tables only).
+        events: Also write every event per unit to this .parquet or .csv file.
+        mag_cal: Iron calibrations (``gx3 calibrate-mag`` files), one per unit: its
+            readings are corrected and a table gains its heading.
+
+    Raises:
+        ValueError: The request cannot be met: a calibration file that cannot be read, a
+            format or extension that does not fit, --align with a bag, the events table
+            on the output's own file, a record type or time that is not one.
     """
-    blocks = archive.samples(units, codes)
-    by_unit: dict[str, list[ArchivedSamples]] = {}
-    for b in blocks:
-        by_unit.setdefault(b.unit, []).append(b)
-    times = {u: _unit_times(u, bs, re_estimate) for u, bs in by_unit.items()}
-    unit_names = sorted(by_unit)
-    ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
-    time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)
-    keep = np.ones(len(time_ns), bool)
-    if start_ns is not None:
-        keep &= time_ns >= start_ns
-    if end_ns is not None:
-        keep &= time_ns < end_ns
-    present = [q for q in QUANTITY_ORDER if any(q in b.columns for b, _ in ordered)]
-    columns: dict[str, np.ndarray] = {
-        "unit": np.concatenate([np.full(len(b), unit_names.index(b.unit), np.int32)
-                                for b, _ in ordered]) if ordered else np.zeros(0, np.int32),
-        "command": _cat(ordered, "command", np.uint8),
-        "timer": _cat(ordered, "timer", np.uint32),
-        "ticks": _cat(ordered, "ticks", np.int64),
-        "time_ns": time_ns,
-        "live_time_ns": _cat(ordered, "time_ns", np.int64),
-        "rx_ns": _cat(ordered, "rx_ns", np.int64),
-    }
-    for q in present:
-        width = next(int(np.prod(b.columns[q].shape[1:])) for b, _ in ordered if q in b.columns)
-        flat = np.full((len(time_ns), width), np.nan, np.float32)
-        at = 0
-        for b, _ in ordered:
-            if q in b.columns:
-                flat[at : at + len(b)] = b.columns[q].reshape(len(b), width)
-            at += len(b)
-        for i, name in enumerate(flat_names(q, width)):
-            columns[name] = flat[:, i]
-    order = np.flatnonzero(keep)
-    order = order[np.lexsort((columns["unit"][order], time_ns[order]))]
-    out = {k: v[order] for k, v in columns.items()}
-    out["unit"] = np.asarray(unit_names, dtype=str)[out["unit"]] if unit_names \
-        else np.zeros(0, str)
-    return out
 
+    def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
+                 units: Sequence[str] | None = None, types: Sequence[int | str] | None = None,
+                 start: str | None = None, end: str | None = None,
+                 align_hz: float | None = None, events: Path | None = None,
+                 mag_cal: Sequence[Path] = ()) -> None:
+        self.archive, self.output, self.events = archive, output, events
+        self.units = None if units is None else list(units)
+        self.start, self.end, self.align_hz = start, end, align_hz
+        self.irons: list[UnitIron] = [read_document(path) for path in mag_cal]
+        self.ros2 = _wants_ros2(output, output_format)
+        if self.ros2 and align_hz is not None:
+            raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
+                             "own time (leave out --align or --format ros2)")
+        if not self.ros2:
+            check_format(output)
+        if events is not None:
+            check_format(events)
+            if events.absolute() == output.absolute():
+                raise ValueError(f"--events {events} is the table's own file; give it "
+                                 "another name")
+        self.types = [_code(c) for c in types] if types else None
+        self._start: TimeBound | None = parse_time(start) if start else None
+        self._end: TimeBound | None = parse_time(end) if end else None
 
-def _cat(ordered: list[tuple[ArchivedSamples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
-    if not ordered:
-        return np.zeros(0, dtype)
-    return np.concatenate([b.columns[name] for b, _ in ordered]).astype(dtype)
+    def read(self, on_read: Callable[[int], None] | None = None,
+             on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
+        """Read the archive (``read_samples_archive``).
 
+        Args:
+            on_read: Hears the bytes read so far.
+            on_problem: Hears what is wrong with an archive cut short or damaged.
 
-def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
-                start_ns: int | None = None, end_ns: int | None = None) -> dict[str, np.ndarray]:
-    """Every event (gap, reset, rollover, reconnect, ...) per unit with its time; the
-    Event's ``count`` is ``amount`` (``count`` is a method of a pandas DataFrame).
-    """
-    lo = -(1 << 63) if start_ns is None else start_ns
-    hi = (1 << 63) - 1 if end_ns is None else end_ns
-    rows = [(u, e) for u, e in archive.events(units) if lo <= e.time_ns < hi]
-    return {
-        "unit": np.array([u for u, _ in rows], str),
-        "time_ns": np.array([e.time_ns for _, e in rows], np.int64),
-        "ticks": np.array([e.ticks for _, e in rows], np.int64),
-        "kind": np.array([Event.Kind.Name(e.kind) for _, e in rows], str),
-        "amount": np.array([e.count for _, e in rows], np.uint64),
-        "detail": np.array([e.detail for _, e in rows], str),
-    }
+        Returns:
+            Everything readable in it.
 
+        Raises:
+            ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
+            ValueError: Nothing in it can be read as messages.
+        """
+        return read_samples_archive(self.archive, on_read, on_problem)
 
-def check_format(path: Path) -> str:
-    """The output format named by the file's extension, or a one-line error."""
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv")
-    return suffix
+    def write(self, data: ArchiveReader, table_file: Path,
+              events_file: Path | None = None) -> Exported:
+        """Export the samples of ``data`` (this job's archive, read).
 
+        Args:
+            data: The archive, as ``read`` gives it.
+            table_file: Where to write the table or bag (the output, or a temporary
+                file the caller puts in its place).
+            events_file: Where to write the events table (with ``events``).
 
-def _arrow(col: np.ndarray) -> pa.Array:
-    if col.dtype.kind in "OU":  # names: stored once per file, not once per row
-        return pa.array(col.astype(str), pa.string()).dictionary_encode()
-    if col.dtype.kind == "f":  # a missing value is null: SQL and polars count it as missing
-        missing = np.isnan(col)
-        return pa.array(col, mask=missing) if missing.any() else pa.array(col)
-    return pa.array(col)
+        Returns:
+            What was written.
 
+        Raises:
+            ValueError: No samples match, a calibration's unit has none, or a sample's
+                time does not fit a ROS time stamp.
+            OSError: An output cannot be written.
+        """
+        first = data.first_sample_ns() or 0
+        lo_ns = self._start.resolve(first) if self._start else None
+        hi_ns = self._end.resolve(first) if self._end else None
+        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, offline_times(data))
+        rows = len(table["time_ns"])
+        if not rows:
+            raise ValueError(f"{self.archive}: no samples match (units: "
+                             f"{', '.join(data.units()) or 'none'}); check --unit, "
+                             "--type, --start and --end")
+        names = sorted(set(table["unit"].tolist()))
+        irons = self.irons
+        apply(table, irons)
+        about = About(self.archive, {u: last_info(data, u) for u in names}, {
+            "units": self.units, "types": self.types, "start": self.start, "end": self.end,
+            "start_ns": lo_ns, "end_ns": hi_ns, "align_hz": self.align_hz,
+            "time_ns": "re-estimated"},
+            {iron.unit: iron.content for iron in irons})
+        done = Exported(self.output, rows, len(names), events_path=self.events)
+        if self.ros2:
+            done = replace(done, bag=write_ros2(table, table_file, archive_prefix(data)))
+        elif self.align_hz is not None:
+            table = align_table(table, self.align_hz)
+            if irons:
+                labels = unit_labels(names)
+                table = with_heading(table, [labels[i.unit] + ALIGNED_SEPARATOR
+                                             for i in irons])
+            done = replace(done, align_hz=self.align_hz, instants=len(table["time_ns"]))
+        elif irons:
+            table = with_heading(table, units=[i.unit for i in irons])
+        if not self.ros2:
+            write_table(table, table_file, about)
+        if events_file is not None:
+            events = event_table(data, self.units, lo_ns, hi_ns)
+            write_table(events, events_file, about)
+            done = replace(done, events=len(events["time_ns"]))
+        return done
 
-def _encoding(kind: pa.DataType) -> str | None:
-    """How a Parquet column is stored best (None: a dictionary, for names and codes).
+    def run(self, force: bool = False, on_read: Callable[[int], None] | None = None,
+            on_problem: Callable[[str], None] | None = None) -> Exported:
+        """Read the archive and write the outputs, each of which appears when complete.
 
-    Clocks and counters step by about a period: as deltas they take a few bits a row,
-    where zstd of the plain values leaves six bytes. Noisy floats compress a fifth
-    better, and faster, with their bytes split into streams of like significance.
-    """
-    if pa.types.is_timestamp(kind) or (pa.types.is_integer(kind) and kind.bit_width >= 32):
-        return "DELTA_BINARY_PACKED"
-    if pa.types.is_floating(kind):
-        return "BYTE_STREAM_SPLIT"
-    return None
+        Args:
+            force: Replace an output that exists (never the archive, nor a file another
+                process is writing).
+            on_read: Hears the bytes read so far.
+            on_problem: Hears what is wrong with an archive cut short or damaged.
 
+        Returns:
+            What was written.
 
-def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None = None) -> None:
-    """Write columns as Parquet (zstd) or CSV, chosen by the extension, with a ``time_utc``
-    timestamp beside ``time_ns``; in Parquet each column's unit and frame, and ``about``
-    as file metadata.
-    """
-    suffix = check_format(path)
-    labels = unit_labels(about.infos) if about else {}
-    fields, arrays = [], []
-    for name, col in columns.items():
-        named = [(name, _arrow(col))]
-        if name == "time_ns":
-            named.append(("time_utc", named[0][1].view(pa.timestamp("ns", tz="UTC"))))
-        for n, array in named:
-            fields.append(pa.field(n, array.type, metadata=column_metadata(n, labels)))
-            arrays.append(array)
-    schema = pa.schema(fields, metadata=about.metadata() if about else None)
-    table = pa.Table.from_arrays(arrays, schema=schema)
-    if suffix == ".parquet":
-        encodings = {f.name: e for f in fields if (e := _encoding(f.type))}
-        pq.write_table(table, path, compression="zstd", column_encoding=encodings,
-                       use_dictionary=[f.name for f in fields if f.name not in encodings])
-    else:
-        pa_csv.write_csv(table, path)
+        Raises:
+            OutputRefused: An output would destroy data (the archive, a file that exists
+                without ``force``, another process's).
+            ArchiveReadError: The archive is missing, empty, unreadable or not MCAP.
+            ValueError: Nothing matches, or what matches cannot be exported as asked.
+            OSError: An output cannot be written.
+        """
+        from bridge.recorder.outputs import staged
 
-
-# -- aligning units on one time grid ---------------------------------------------------------
-
-#: Neighbouring samples further apart than this many typical periods are a gap: no value
-#: is made up between them.
-GAP_PERIODS = 1.5
-_TO_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "m": lambda v: m_to_quaternion(v.reshape(-1, 3, 3)),
-    "quaternion": lambda v: v,
-    "euler": euler_to_quaternion,
-}
-_FROM_QUATERNION: dict[str, Callable[[np.ndarray], np.ndarray]] = {
-    "m": lambda q: quaternion_to_m(q).reshape(-1, 9),
-    "quaternion": lambda q: q,
-    "euler": quaternion_to_euler,
-}
-
-
-def _slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Spherical interpolation of (n, 4) unit quaternions, the short way round."""
-    q0 = q0 / np.linalg.norm(q0, axis=1, keepdims=True)
-    q1 = q1 / np.linalg.norm(q1, axis=1, keepdims=True)
-    dot = np.sum(q0 * q1, axis=1)
-    q1 = np.where(dot[:, None] < 0, -q1, q1)
-    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
-    sin = np.sin(theta)
-    small = sin < 1e-9
-    safe = np.where(small, 1.0, sin)
-    a = np.where(small, 1.0 - w, np.sin((1.0 - w) * theta) / safe)
-    b = np.where(small, w, np.sin(w * theta) / safe)
-    out: np.ndarray = a[:, None] * q0 + b[:, None] * q1
-    return out
-
-
-def resample(t: np.ndarray, values: np.ndarray, grid: np.ndarray, quantity: str) -> np.ndarray:
-    """``values`` (n, k) at sample times ``t`` on ``grid``: linear for vectors, slerp for
-    orientation (m, quaternion, euler); NaN outside the samples and inside gaps.
-    """
-    out = np.full((len(grid), values.shape[1]), np.nan)
-    if len(t) < 2:
-        exact = np.isin(grid, t)
-        out[exact] = values[:1]
-        return out
-    period = float(np.median(np.diff(t)))
-    i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 2)
-    span = (t[i + 1] - t[i]).astype(np.float64)
-    w = (grid - t[i]) / np.where(span > 0, span, 1.0)
-    ok = (grid >= t[0]) & (grid <= t[-1]) & (span <= GAP_PERIODS * period)
-    ok |= grid == t[i]  # a sample exactly on the grid is always kept
-    lo, hi, w = values[i[ok]].astype(np.float64), values[i[ok] + 1].astype(np.float64), w[ok]
-    if quantity in _TO_QUATERNION:
-        to_q, from_q = _TO_QUATERNION[quantity], _FROM_QUATERNION[quantity]
-        out[ok] = from_q(_slerp(to_q(lo), to_q(hi), w))
-    else:
-        out[ok] = lo + w[:, None] * (hi - lo)
-    return out
-
-
-def align_table(table: dict[str, np.ndarray], rate_hz: float) -> dict[str, np.ndarray]:
-    """One row per instant of a grid at ``rate_hz`` (on multiples of the period since the
-    epoch), one column per unit and quantity column, named ``<unit label>__<column>``
-    (``unit_labels``: a name SQL and pandas take as it is).
-    """
-    if not rate_hz > 0:
-        raise ValueError(f"--align {rate_hz}: give a positive rate in Hz, e.g. 100")
-    step = round(1e9 / rate_hz)
-    times = table["time_ns"]
-    grid = np.arange(-(-int(times.min()) // step) * step, int(times.max()) + 1, step,
-                     dtype=np.int64)
-    out: dict[str, np.ndarray] = {"time_ns": grid}
-    groups = [(q, flat_names(q, elements(q))) for q in QUANTITY_ORDER]
-    labels = unit_labels(table["unit"].tolist())
-    for unit, label in labels.items():
-        rows = table["unit"] == unit
-        for q, names in groups:
-            if names[0] not in table:
-                continue
-            values = np.stack([table[n][rows] for n in names], axis=1)
-            have = np.isfinite(values).all(axis=1)
-            if not have.any():
-                continue
-            aligned = resample(times[rows][have], values[have], grid, q)
-            for k, name in enumerate(names):
-                out[f"{label}{ALIGNED_SEPARATOR}{name}"] = aligned[:, k].astype(np.float32)
-    return out
+        with ExitStack() as outputs:
+            table_file = outputs.enter_context(staged(self.output, [self.archive], force))
+            events_file = (None if self.events is None else
+                           outputs.enter_context(staged(self.events, [self.archive], force)))
+            return self.write(self.read(on_read, on_problem), table_file, events_file)

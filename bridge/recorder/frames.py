@@ -43,16 +43,16 @@ FRAME_CLASS = FrameTransform
 MARKER_CLASS = PointCloud
 
 
-def root_frame(prefix: str = PREFIX) -> str:
+def _root_frame(prefix: str = PREFIX) -> str:
     """The fleet's world frame, east-north-up."""
     return frame_id("world", prefix)
 
 
-def ned_frame(prefix: str = PREFIX) -> str:
-    return f"{root_frame(prefix)}_ned"
+def _ned_frame(prefix: str = PREFIX) -> str:
+    return f"{_root_frame(prefix)}_ned"
 
 
-def body_frame(unit: str, prefix: str = PREFIX) -> str:
+def _body_frame(unit: str, prefix: str = PREFIX) -> str:
     """The frame id of a unit's body: forward-right-down, as the GX3's sensor axes."""
     return f"{frame_id(unit, prefix)}_frd"
 
@@ -62,11 +62,12 @@ def root_message(time_ns: int, prefix: str = PREFIX) -> bytes:
     x, y, z, w = NED_IN_ROOT
     return FrameTransform(timestamp=Timestamp(seconds=time_ns // 1_000_000_000,
                                               nanos=time_ns % 1_000_000_000),
-                          parent_frame_id=root_frame(prefix), child_frame_id=ned_frame(prefix),
+                          parent_frame_id=_root_frame(prefix), child_frame_id=_ned_frame(prefix),
                           rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
 
 
 def has_attitude(quantities: tuple[str, ...]) -> bool:
+    """Whether a record of these quantities carries an attitude (m, quaternion or Euler)."""
     return any(q in quantities for q in ATTITUDE)
 
 
@@ -93,8 +94,8 @@ def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,
     (fields in number order, zeros left out): the fields every frame shares once,
     timestamp and rotation as columns of bytes, a mask for the bytes present.
     """
-    shared = FrameTransform(parent_frame_id=ned_frame(prefix),
-                            child_frame_id=body_frame(unit, prefix),
+    shared = FrameTransform(parent_frame_id=_ned_frame(prefix),
+                            child_frame_id=_body_frame(unit, prefix),
                             translation=Vector3(x=0.0, y=slot * spacing, z=0.0))
     rotation = [part for k in range(4) for part in _double_field(k + 1, xyzw[:, k])]
     n = len(time_ns)
@@ -103,12 +104,14 @@ def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,
 
 
 def marker_messages(unit: str, time_ns: np.ndarray, prefix: str = PREFIX) -> list[bytes]:
-    """Serialized PointClouds of the unit's axes in its body frame, at ``time_ns``: what
-    a viewer draws for it (Rerun makes a 3-D view for points, none for transforms
-    alone; Foxglove draws a point cloud where its frame was at its timestamp, so it
-    comes with every frame).
+    """Serialized PointClouds of the unit's axes in its body frame, at ``time_ns``.
+
+    What a viewer draws for the unit: Rerun makes a 3-D view for points, none for
+    transforms alone; Foxglove draws a point cloud where its frame was at its timestamp,
+    so it comes with every frame.
     """
-    shared = PointCloud(frame_id=body_frame(unit, prefix), pose=Pose(orientation=Quaternion(w=1.0)),
+    shared = PointCloud(frame_id=_body_frame(unit, prefix),
+                        pose=Pose(orientation=Quaternion(w=1.0)),
                         point_stride=_POINT.itemsize, fields=_POINT_FIELDS,
                         data=_AXES.tobytes())
     return _serialized([*_stamp(time_ns),
@@ -126,8 +129,9 @@ _POINT_FIELDS = [PackedElementField(name=name, offset=_POINT.fields[name][1],  #
 
 
 def _axes() -> np.ndarray:
-    """Dots along the body axes from the origin: x (forward) red and 0.24 m, y (right)
-    green and z (down) blue 0.12 m, so a unit's heading and which side is down show.
+    """Dots along the body axes from the origin, so a unit's heading and which side is down show.
+
+    x (forward) red and 0.24 m, y (right) green and z (down) blue 0.12 m.
     """
     out = np.zeros(1, _POINT)
     out[["red", "green", "blue", "alpha"]] = (255, 255, 255, 255)

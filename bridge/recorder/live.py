@@ -1,33 +1,13 @@
 """`gx3 record`'s engine: every unit on Zenoh into one archive, as they come and go.
 
-Two threads. The receiving thread takes what arrives off Zenoh's channels as soon as
-it comes, checks it (bridge/bus/integrity.py: the payload's CRC-32, the unit against
-its key) and holds it in memory; the thread calling ``run_once`` hands the
-``ArchiveWriter`` each key's held messages in one call a few times a second, and the
-file is flushed at least once a second. So a writer that stalls (a slow disk) never
-holds Zenoh's receive path, and through it the publishers, which Zenoh 1.10 answers
-after ``wait_before_close`` by closing the link mid-write and splicing bytes into a
-payload. The memory held is capped (``buffer_bytes``); once it is full, imu and raw
-samples are shed until the writer takes what is held (so each key's shed samples are one
-run, a hole in the archive that one event spans).
-
-Nothing is lost unrecorded: samples Zenoh reports missed (LOST), messages that fail
-their checks (REJECTED) and samples shed (SHED) go into the archive as events of
-their unit, with their count and span, and to ``on_event``; so does a unit name
-published by two bridges at once (DUPLICATE_UNIT).
-
-Each host a bridge runs on has its clock looked at: a sample's ``time_ns`` is on that
-host's realtime clock, its arrival on the recorder's, and arrival - time_ns =
-(recorder's clock - host's) + latency, latency > 0. So the least of it over a host's
-samples bounds how far behind the recorder the host's clock can be, and a negative
-least proves it ahead by at least that much (a sample arrived before it was taken).
-A host provably ahead by more than the bridges' own timing error, or (with a
-tolerance) possibly behind by more than the tolerance, gets a HOST_CLOCK_OFFSET event
-for each of its units, once when it starts and again only once it has cleared; the
-bound over the whole recording goes into a ``gx3.hosts`` metadata record at close.
-
-Units are discovered by their bridges' liveliness tokens: a unit that appears gets
-its Info queried and archived; one that leaves and comes back simply continues.
+A receiving thread takes what arrives off Zenoh as soon as it comes, checks it and
+holds it in memory; the caller's thread hands it to the ``ArchiveWriter`` a few times
+a second. So a slow disk never holds Zenoh's receive path, and through it the
+publishers. Nothing is lost unrecorded: samples Zenoh missed, messages that fail their
+checks and samples shed while the memory was full go into the archive as events of
+their unit. Each bridge host's clock is judged against the recorder's by when its
+samples arrive. How and why: ``docs/design/archive.md``; the hosts' clocks:
+``docs/design/time.md``.
 """
 
 from __future__ import annotations
@@ -125,8 +105,10 @@ def _instant(leaf: str, payload: bytes | None, default_ns: int) -> tuple[int, in
 
 
 class _Lags:
-    """The least (arrival - time_ns) of one unit's samples: per second of arrival over the
-    last ``HOST_WINDOW_S`` seconds, and over the whole recording (see the module).
+    """The least (arrival - time_ns) of one unit's samples (see ``HostView``).
+
+    Kept per second of arrival over the last ``HOST_WINDOW_S`` seconds, and over the
+    whole recording.
 
     Samples are gathered and read about once a second of arrivals (their time_ns from
     their headers in bulk, ``stamps``): a read costs mostly a fixed amount, so a second
@@ -184,9 +166,10 @@ class _Lags:
             self.least = least if self.least is None else min(self.least, least)
 
     def bound(self, now_ns: int) -> int | None:
-        """The least over the seconds of arrival within ``HOST_WINDOW_S`` of ``now_ns``
-        (None: no sample arrived in them); samples gathered for less than a second are
-        not in it yet.
+        """The least over the seconds of arrival within ``HOST_WINDOW_S`` of ``now_ns``.
+
+        None: no sample arrived in them. Samples gathered for less than a second are not
+        in it yet.
         """
         self._read_due(now_ns)
         since = now_ns // _SECOND_NS - HOST_WINDOW_S
@@ -194,7 +177,7 @@ class _Lags:
 
 
 @dataclass
-class UnitView:
+class _UnitView:
     """What the terminal shows of one unit."""
 
     name: str
@@ -219,8 +202,9 @@ class UnitView:
         return self.meter.rate(now, self.samples)
 
     def learn_host(self, message: Status | Info, at_ns: int) -> None:
-        """Keep the host clock ``message`` carries if it is newer than the one known (an
-        Info answered late is older than the Status before it). A unit whose bridge now
+        """Keep the host clock ``message`` carries if it is newer than the one known.
+
+        An Info answered late is older than the Status before it. A unit whose bridge now
         runs on another host starts its clock bound afresh.
         """
         if not message.HasField("host_clock") or at_ns < self.host_clock_ns:
@@ -234,6 +218,11 @@ class UnitView:
 @dataclass(frozen=True)
 class HostView:
     """The clock of one host that bridges run on, as the recorder sees it.
+
+    A sample's ``time_ns`` is on its bridge host's realtime clock, its arrival on the
+    recorder's, and arrival - time_ns = (recorder's clock - host's) + latency, with
+    latency > 0: so the least of it over a host's samples bounds how far behind the
+    recorder the host's clock can be, and a negative least proves it ahead.
 
     ``bound_ns``: the least (arrival on the recorder's clock - time_ns) of its units'
     samples over the last ``HOST_WINDOW_S`` s, the most its clock can be behind the
@@ -257,15 +246,18 @@ class HostView:
 
 
 def ahead(bound_ns: int | None) -> bool:
-    """Whether a host whose least (arrival - time_ns) is ``bound_ns`` is provably ahead of
-    the recorder by more than the bridges' own timing error.
+    """Whether a host is provably ahead of the recorder by more than the bridges' timing error.
+
+    ``bound_ns`` is the host's least (arrival - time_ns).
     """
     return bound_ns is not None and bound_ns < -HOST_MARGIN_NS
 
 
 def host_tolerance_ns(ms: float | None) -> int | None:
-    """A host clock tolerance given in ms, in ns (None: none); ValueError unless above 0:
-    every sample arrives some time after it was taken, so 0 would always be exceeded.
+    """A host clock tolerance given in ms, in ns (None: none).
+
+    ValueError unless above 0: every sample arrives some time after it was taken, so 0
+    would always be exceeded.
     """
     if ms is None:
         return None
@@ -275,21 +267,48 @@ def host_tolerance_ns(ms: float | None) -> int | None:
 
 
 def recorder_metadata(sync: clock.HostSync) -> dict[str, str]:
-    """The recorder's own host and its clock's sync state, for the archive's metadata:
-    every arrival time (publish time) in the archive is on this clock.
+    """The recorder's own host and its clock's sync state, for the archive's metadata.
+
+    Every arrival time (publish time) in the archive is on this clock.
     """
     return {"recorder_host": sync.host, "recorder_clock": json.dumps(asdict(sync))}
 
 
 class Recorder:
-    """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into ``writer``.
+    """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into an archive.
 
-    ``queue_size``: messages each Zenoh channel holds until the receiving thread takes
-    them; ``buffer_bytes``: memory held for the writer (see the module's notes).
-    ``on_event(unit, event)`` hears of each event the recorder itself archives.
-    ``max_host_offset_ms``: how far behind the recorder's clock a bridge host's may be
-    (strictly, how late its samples may arrive) before a HOST_CLOCK_OFFSET event says so
-    (None: no such check; a host ahead of the recorder is always told).
+    Receiving starts at once, on a thread of its own; call ``run_once`` in a loop to
+    write what arrives, and ``close`` at the end. A unit that appears (its bridge's
+    liveliness token) gets its Info queried and archived; one that leaves and comes back
+    simply continues. What was not archived is archived as events of its unit: samples
+    Zenoh reports missed (LOST), messages that fail their checks (REJECTED), samples
+    shed while the buffer was full (SHED), and a unit name published by two bridges at
+    once (DUPLICATE_UNIT). A bridge host whose clock is provably ahead of the
+    recorder's, or (with a tolerance) may be behind by more than it, gets a
+    HOST_CLOCK_OFFSET event for each of its units, once when it starts and again only
+    once it has cleared; ``close`` writes each host's bound over the whole recording
+    (``gx3.hosts``).
+
+    Args:
+        session: The Zenoh session to subscribe on.
+        writer: The archive; the recorder writes into it, its owner closes it.
+        prefix: The key prefix of the bridges.
+        units: Which units, as a key expression chunk (``*``, ``lab-*``).
+        raw: Also record the units' raw reads (bridges run with --publish-raw).
+        history: Samples to ask each bridge's cache for at the start.
+        on_unit: Hears ``(unit, joined)`` as units appear and leave.
+        on_written: Hears each batch of messages written (a Rerun logger, say).
+        queue_size: Messages each Zenoh channel holds until the receiving thread takes
+            them.
+        buffer_bytes: Memory held for a writer that falls behind; once it is full, imu
+            and raw samples are shed until the writer takes what is held.
+        on_event: Hears ``(unit, event)`` of each event the recorder itself archives.
+        max_host_offset_ms: How far behind the recorder's clock a bridge host's may be
+            (strictly, how late its samples may arrive) before a HOST_CLOCK_OFFSET event
+            says so; None: no such check (a host ahead of the recorder is always told).
+
+    Raises:
+        ValueError: ``max_host_offset_ms`` is not above 0.
     """
 
     def __init__(self, session: zenoh.Session, writer: ArchiveWriter, prefix: str = "gx3",
@@ -301,7 +320,7 @@ class Recorder:
                  max_host_offset_ms: float | None = None) -> None:
         self.max_host_offset_ns = host_tolerance_ns(max_host_offset_ms)
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
-        self.views: dict[str, UnitView] = {}
+        self.views: dict[str, _UnitView] = {}
         self.error: ArchiveError | None = None
         self.written = 0
         self.buffer_bytes = buffer_bytes
@@ -350,6 +369,7 @@ class Recorder:
 
     @property
     def misses(self) -> int:
+        """Samples Zenoh reported missed so far, on every subscription."""
         return sum(sub.misses for sub in self._subs)
 
     @property
@@ -363,7 +383,7 @@ class Recorder:
         with self._lock:
             view = self.views.get(unit)
             if view is None:
-                view = self.views[unit] = UnitView(unit)
+                view = self.views[unit] = _UnitView(unit)
             elif joined and not view.alive:
                 view.joined += 1
             view.alive = joined
@@ -373,8 +393,9 @@ class Recorder:
             self._on_unit(unit, joined)
 
     def _archive_info(self, unit: str) -> None:
-        """A unit that appears gets its Info (identity and settings) into the archive; a
-        bridge still bringing its unit up answers "no Info yet", so ask again.
+        """Get the Info (identity and settings) of a unit that appears into the archive.
+
+        A bridge still bringing its unit up answers "no Info yet", so ask again.
         """
         for _ in range(_INFO_TRIES):
             if self._stop.is_set():
@@ -410,8 +431,9 @@ class Recorder:
                 self._stop.wait(period - (time.monotonic() - started))
 
     def _hold(self, groups: dict[str, Arrivals]) -> int:
-        """Keep checked messages for the writer (caller holds ``_held_lock``); shed imu
-        and raw ones while the held memory is over its cap.
+        """Keep checked messages for the writer (caller holds ``_held_lock``).
+
+        Shed imu and raw ones while the held memory is over its cap.
         """
         now = clock.realtime_ns()
         n = 0
@@ -446,8 +468,9 @@ class Recorder:
 
     def _missed_on(self, index: int) -> Callable[[str, int], None]:
         def missed(key: str, count: int) -> None:
-            """Zenoh's thread, before it delivers the first sample after the loss: what
-            came before it is taken first, so the loss has its place among them.
+            """Note a loss: Zenoh's thread, before it delivers the first sample after it.
+
+            What came before it is taken first, so the loss has its place among them.
             """
             with self._held_lock:
                 self._hold(self._subs[index].take_by_key(1 << 30))
@@ -482,8 +505,13 @@ class Recorder:
     # -- the writer's side --------------------------------------------------------------
 
     def run_once(self, wait_s: float = 0.2) -> None:
-        """Write what arrives during ``wait_s``, taken in bulk every ``_PASS_S`` (or at
-        least once); flush when a second has passed.
+        """Write what arrives during ``wait_s``; flush when a second has passed.
+
+        What arrived is taken in bulk every ``_PASS_S`` (or at least once). A write that
+        fails stops the archiving: ``error`` says why.
+
+        Args:
+            wait_s: How long to run, in seconds.
         """
         deadline = time.monotonic() + wait_s
         while True:
@@ -498,8 +526,9 @@ class Recorder:
             self.error = exc
 
     def _pass(self) -> None:
-        """Everything held into the archive, one write per key, then the events that
-        account for what was not archived.
+        """Write everything held into the archive, one write per key.
+
+        Then the events that account for what was not archived.
         """
         now = clock.realtime_ns()
         with self._held_lock:
@@ -538,8 +567,10 @@ class Recorder:
             self._on_written(written)
 
     def _lost(self, loss: _Loss, after: bytes | None, now: int) -> tuple[str, Event]:
-        """The event of samples missed between ``loss.before`` and ``after`` (None: none
-        came after them); on imu their ticks and times are spread evenly between.
+        """The event of samples missed between ``loss.before`` and ``after``.
+
+        ``after`` is None when none came after them; on imu their ticks and times are
+        spread evenly between.
         """
         leaf = loss.key.rpartition("/")[2]
         t0, k0 = _instant(leaf, loss.before, loss.missed_ns)
@@ -567,9 +598,10 @@ class Recorder:
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
                written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
-        """Archive messages of one key, received at ``received`` (host ns: one for all, or
-        one each; ``published``: raw reads' raw-clock stamps), and count them in their
-        unit's view (samples also in its clock bound).
+        """Archive messages of one key, and count them in their unit's view.
+
+        ``received``: host ns, one for all or one each; ``published``: raw reads'
+        raw-clock stamps. Samples also go into the unit's clock bound.
         """
         if self.error is not None:
             return
@@ -591,7 +623,7 @@ class Recorder:
         with self._lock:
             view = self.views.get(unit)
             if view is None:
-                view = self.views[unit] = UnitView(unit)
+                view = self.views[unit] = _UnitView(unit)
             view.bytes += sum(map(len, payloads))
             if leaf == "imu":
                 now = int(np.max(received))
@@ -611,14 +643,21 @@ class Recorder:
             written.extend(RawMessage(key, payload, encoding) for payload in payloads)
 
     def hosts(self, now_ns: int | None = None) -> list[HostView]:
-        """One row per bridge host (by name, unnamed ones last): its units and its clock
-        against the recorder's, over the last ``HOST_WINDOW_S`` s before ``now_ns`` (the
-        recorder's clock; default now). Units with neither samples nor a named host are
-        left out (nothing is known of their host).
+        """Every bridge host's clock against the recorder's.
+
+        Units with neither samples nor a named host are left out (nothing is known of
+        their host).
+
+        Args:
+            now_ns: The end of the last ``HOST_WINDOW_S`` s that ``bound_ns`` covers, on
+                the recorder's realtime clock; None: now.
+
+        Returns:
+            One row per host, by name, unnamed ones last.
         """
         now = clock.realtime_ns() if now_ns is None else now_ns
         with self._lock:
-            groups: dict[tuple[bool, str], list[UnitView]] = {}  # (unnamed, host or unit)
+            groups: dict[tuple[bool, str], list[_UnitView]] = {}  # (unnamed, host or unit)
             for view in sorted(self.views.values(), key=lambda v: v.name):
                 host = view.host_clock.host if view.host_clock is not None else ""
                 if host or view.lags.seen:
@@ -634,12 +673,14 @@ class Recorder:
         return rows
 
     def _clock_notes(self, now: int) -> list[tuple[str, Event]]:
-        """HOST_CLOCK_OFFSET events, one for each unit of a host whose clock disagrees
-        with the recorder's: provably ahead by more than ``HOST_MARGIN_NS`` (cleared once
-        it is not provably ahead at all), or, with a tolerance, its bound beyond it
-        (cleared once back under it by ``HOST_MARGIN_NS``). Each is told once when it
-        starts (and to a unit that joins the host while it holds), again only after it
-        cleared: a host that stays off fills no archive.
+        """HOST_CLOCK_OFFSET events, one for each unit of a host whose clock disagrees.
+
+        A host disagrees with the recorder when it is provably ahead by more than
+        ``HOST_MARGIN_NS`` (cleared once it is not provably ahead at all), or, with a
+        tolerance, when its bound is beyond it (cleared once back under it by
+        ``HOST_MARGIN_NS``). Each is told once when it starts (and to a unit that joins
+        the host while it holds), again only after it cleared: a host that stays off
+        fills no archive.
         """
         notes = []
         tolerance = self.max_host_offset_ns
@@ -681,8 +722,10 @@ class Recorder:
 
     @staticmethod
     def _hosts_metadata(hosts: list[HostView]) -> dict[str, str]:
-        """The ``gx3.hosts`` metadata record: each host's units, the least (arrival -
-        time_ns) over the whole recording, its latest sync state; the recorder's own.
+        """The ``gx3.hosts`` metadata record.
+
+        Each host's units, the least (arrival - time_ns) over the whole recording and its
+        latest sync state; and the recorder's own.
         """
         meta = {"note": "least_lag_ns: the least (arrival on the recorder's clock - "
                         "time_ns) of the host's samples over the recording: the most its "
@@ -698,8 +741,9 @@ class Recorder:
 
     def _each(self, key: str, payloads: list[bytes], received: int | np.ndarray
               ) -> list[bytes]:
-        """The payloads that ``write`` takes one by one (a message on a matching key that
-        is not one of ours is not archived).
+        """The payloads that ``write`` takes one by one.
+
+        A message on a matching key that is not one of ours is not archived.
         """
         kept = []
         stamps = np.broadcast_to(np.asarray(received, np.int64), (len(payloads),)).tolist()
@@ -715,7 +759,11 @@ class Recorder:
         return kept
 
     def snapshot(self) -> list[dict[str, Any]]:
-        """One row per unit for the terminal view."""
+        """What the terminal shows of the units.
+
+        Returns:
+            A row per unit, by name: alive, rate, samples and losses, its clock model.
+        """
         now = time.monotonic()
         rows = []
         with self._lock:
@@ -733,9 +781,11 @@ class Recorder:
         return rows
 
     def close(self) -> None:
-        """Stop receiving, write what has arrived (and the losses still open: nothing
-        came after them) and the hosts' clocks over the recording (``gx3.hosts``, in the
-        file being written), and leave the writer to its owner.
+        """Stop receiving and write what has arrived; the writer stays open, its owner's.
+
+        The losses still open (nothing came after them) are written too, and the hosts'
+        clocks over the recording (``gx3.hosts``, in the file being written). A write
+        that fails is kept in ``error``.
         """
         self._alive.undeclare()
         self._stop.set()

@@ -55,7 +55,14 @@ class Iron:
     soft_iron: FloatArray
 
     def correct(self, raw: npt.ArrayLike) -> FloatArray:
-        """Corrected readings, (n, 3), from raw ones; NaN rows stay NaN."""
+        """Readings corrected for the iron; NaN rows stay NaN.
+
+        Args:
+            raw: Raw readings, (n, 3), gauss, body frame.
+
+        Returns:
+            The corrected readings, (n, 3).
+        """
         out: FloatArray = (np.asarray(raw, np.float64) - self.hard_iron) @ self.soft_iron.T
         return out
 
@@ -88,14 +95,14 @@ def _face_centres() -> FloatArray:
 _BINS = _face_centres()
 
 
-def coverage(directions: FloatArray) -> float:
+def _coverage(directions: FloatArray) -> float:
     """Fraction of the sphere's 20 icosahedron faces that hold at least a few directions."""
     nearest = np.argmax(directions @ _BINS.T, axis=1)
     counts = np.bincount(nearest, minlength=len(_BINS))
     return float(np.mean(counts >= _MIN_PER_BIN))
 
 
-def relative_spread(vectors: FloatArray) -> float:
+def _relative_spread(vectors: FloatArray) -> float:
     """RMS of each vector's magnitude minus their mean magnitude, over that mean."""
     size = np.linalg.norm(vectors, axis=1)
     mean = float(size.mean())
@@ -149,11 +156,20 @@ def _sqrtm_spd(matrix: FloatArray) -> FloatArray:
 
 
 def fit(raw: npt.ArrayLike) -> IronCalibration:
-    """Hard and soft iron from magnetometer readings (n, 3) taken while the unit turned.
+    """Hard and soft iron from magnetometer readings taken while the unit turned.
 
-    Rows with a NaN are left out. Raises CalibrationError, saying what motion is
-    missing, when the readings cannot pin an ellipsoid down; a fit from readings that
-    cover the sphere only in part comes with warnings.
+    Rows with a NaN are left out. A fit from readings that cover the sphere only in part
+    comes with warnings.
+
+    Args:
+        raw: Readings, (n, 3), gauss, body frame.
+
+    Returns:
+        The iron, and how well it fits and what the readings saw.
+
+    Raises:
+        CalibrationError: The readings cannot pin an ellipsoid down; it says what motion
+            is missing.
     """
     points = np.asarray(raw, np.float64).reshape(-1, 3)
     points = points[np.isfinite(points).all(axis=1)]
@@ -180,7 +196,7 @@ def fit(raw: npt.ArrayLike) -> IronCalibration:
     soft = (soft + soft.T) / 2.0
     corrected = (points - hard) @ soft.T
     directions = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
-    covered = coverage(directions)
+    covered = _coverage(directions)
     # A fit to one side of the sphere can stretch that side over most of it: the
     # readings' mean direction still shows them crowded there (0 all round, 1 one way).
     lopsided = float(np.linalg.norm(directions.mean(axis=0)))
@@ -195,8 +211,8 @@ def fit(raw: npt.ArrayLike) -> IronCalibration:
         f"{_missing(corrected)}",)
     return IronCalibration(hard_iron=hard, soft_iron=soft,
                            field_gauss=float(np.mean(np.linalg.norm(corrected, axis=1))),
-                           residual_before=relative_spread(points),
-                           residual_after=relative_spread(corrected), coverage=covered,
+                           residual_before=_relative_spread(points),
+                           residual_after=_relative_spread(corrected), coverage=covered,
                            readings=len(points), warnings=warnings)
 
 
@@ -207,8 +223,9 @@ def _not_an_ellipsoid() -> str:
 
 
 def _missing(corrected: FloatArray) -> str:
-    """Which body axes never had the field along them (else, the side the readings crowd
-    away from), and what to do.
+    """Which body axes never had the field along them, and what to do.
+
+    Where every axis had it, the side the readings crowd away from.
     """
     directions = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
     names = []
@@ -267,7 +284,17 @@ class UnitIron(Iron):
 
 
 def read_document(path: Path) -> UnitIron:
-    """A calibration file that ``gx3 calibrate-mag`` wrote; ValueError says what is wrong."""
+    """Read a calibration file that ``gx3 calibrate-mag`` wrote.
+
+    Args:
+        path: The file (JSON).
+
+    Returns:
+        The calibration, whose unit it is, and all the file says.
+
+    Raises:
+        ValueError: The file cannot be read or is not a calibration; it says which.
+    """
     try:
         content = json.loads(path.read_text())
     except OSError as exc:
@@ -316,10 +343,11 @@ def apply(table: dict[str, np.ndarray], irons: Sequence[UnitIron]) -> None:
                     table[name][rows] = column
 
 
-def tilt_heading(accel: npt.ArrayLike, mag: npt.ArrayLike) -> FloatArray:
-    """Heading [rad, -pi..pi, from magnetic north toward east] of the body x axis, from
-    the specific force (down is against it when the unit is not accelerating) and the
-    field, both body FRD: the yaw a level compass would show, whatever the tilt.
+def _tilt_heading(accel: npt.ArrayLike, mag: npt.ArrayLike) -> FloatArray:
+    """Heading [rad, -pi..pi, from magnetic north toward east] of the body x axis.
+
+    From the specific force (down is against it when the unit is not accelerating) and
+    the field, both body FRD: the yaw a level compass would show, whatever the tilt.
     """
     down = -np.asarray(accel, np.float64)
     east = np.cross(down, np.asarray(mag, np.float64))
@@ -331,9 +359,10 @@ def tilt_heading(accel: npt.ArrayLike, mag: npt.ArrayLike) -> FloatArray:
 
 def with_heading(table: dict[str, np.ndarray], prefixes: Iterable[str] = ("",),
                  units: Iterable[str] = ()) -> dict[str, np.ndarray]:
-    """The table with a ``mag_heading`` column beside each yaw (or after mag), per column
-    prefix (an aligned table's ``<unit>__``), where the table has accel and mag; with
-    ``units``, rows of other units (whose mag is not corrected) have none.
+    """The table with a ``mag_heading`` column beside each yaw (or after mag).
+
+    One per column prefix (an aligned table's ``<unit>__``) where the table has accel and
+    mag; with ``units``, rows of other units (whose mag is not corrected) have none.
     """
     out = dict(table)
     others = ~np.isin(table["unit"], list(units)) if units else None
@@ -342,7 +371,7 @@ def with_heading(table: dict[str, np.ndarray], prefixes: Iterable[str] = ("",),
         if not all(n in table for n in needed):
             continue
         values = np.column_stack([table[n] for n in needed])
-        heading = tilt_heading(values[:, :3], values[:, 3:]).astype(np.float32)
+        heading = _tilt_heading(values[:, :3], values[:, 3:]).astype(np.float32)
         if others is not None:
             heading[others] = np.nan
         after = f"{p}yaw" if f"{p}yaw" in table else f"{p}mag_z"

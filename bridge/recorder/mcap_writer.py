@@ -3,35 +3,10 @@
 mcap's ``Writer`` builds each message record through a dozen Python calls (~30 us a
 message), which caps a recorder near 30,000 messages a second. A Message record is a
 fixed 31-byte head and the payload, so here a whole batch of them is laid out with one
-NumPy structured array, and the message index that follows each chunk likewise.
-
-What is written follows the MCAP specification (https://mcap.dev/spec, format version
-0), record for record where mcap 1.6's own writer puts them, little-endian throughout:
-
-- Magic, Header (op 0x01), then the data section: Metadata records (0x0C) at top level
-  as they are added; Schema (0x03) and Channel (0x04) records inside the chunk in
-  progress, before the first message that uses them.
-- Chunk (0x06): message_start_time u64, message_end_time u64, uncompressed_size u64,
-  uncompressed_crc u32 (CRC-32 of the records), compression string ("zstd"), records
-  (u64 length + zstd frame). It holds Message records (0x05): channel_id u16, sequence
-  u32, log_time u64, publish_time u64, data (the rest of the record).
-- After each chunk, one Message Index (0x07) per channel in it: channel_id u16, then
-  (log_time u64, offset u64) pairs (u32 byte length first), the offset being where the
-  Message record starts in the chunk's uncompressed records.
-- Data End (0x0F, data_section_crc 0: not computed), then the summary: Schema, Channel,
-  Statistics (0x0B), Chunk Index (0x08) and Metadata Index (0x0D) groups, a Summary
-  Offset (0x0E) per group that has records (no attachments are written, so no
-  Attachment Index group), the Footer (0x02, with the CRC-32 of the summary up to its
-  own CRC field) and the magic.
-
-Messages go into chunks in log-time order, so chunk time ranges never overlap: ``add``
-holds them, ``release`` writes those logged up to a given time, sorted. A chunk is
-closed once its records pass ``chunk_size`` and at every ``flush``; it is compressed on
-a worker thread while the next one fills and written when that one closes or at the
-next flush, so a writer killed mid-run leaves every chunk flushed before readable by a
-streaming reader (messages still held are lost with it). The rare records go through
-mcap's own record classes; only Message and Message Index records, the bulk of every
-file, are built here.
+NumPy structured array, and the message index that follows each chunk likewise; the
+rare records go through mcap's own record classes. The file follows the MCAP
+specification (https://mcap.dev/spec, format version 0) record for record where mcap
+1.6's own writer puts them. The records one by one: ``docs/design/archive.md``.
 """
 
 from __future__ import annotations
@@ -77,7 +52,7 @@ _INDEX_HEAD = struct.Struct("<BQHI")
 _MERGE = 1 << 16  # messages merged from spilled runs at a time
 
 
-def message_records(channel: int, first_sequence: int, log_time: np.ndarray,
+def _message_records(channel: int, first_sequence: int, log_time: np.ndarray,
                     publish_time: np.ndarray,
                     payloads: Sequence[bytes]) -> tuple[bytes, np.ndarray]:
     """Message records of ``payloads`` end to end, and each record's size in bytes.
@@ -175,8 +150,9 @@ def _read(fd: int, at: int, size: int) -> bytes:
 
 @dataclass
 class _Run:
-    """Held messages spilled, sorted, to the spill file: records start at ``ends[:-1]``
-    and end at ``ends[1:]``.
+    """Held messages spilled, sorted, to the spill file.
+
+    Records start at ``ends[:-1]`` and end at ``ends[1:]``.
     """
 
     channel: np.ndarray
@@ -186,8 +162,10 @@ class _Run:
 
 
 def _gather(data: np.ndarray, start: np.ndarray, size: np.ndarray) -> bytes:
-    """The byte ranges (``start``, ``size``) of ``data`` end to end: the records of each
-    size moved as rows of a window view, one row copy each (there are few sizes).
+    """The byte ranges (``start``, ``size``) of ``data`` end to end.
+
+    The records of each size are moved as rows of a window view, one row copy each
+    (there are few sizes).
     """
     total = int(size.sum())
     out = np.empty(total, np.uint8)
@@ -243,9 +221,11 @@ class McapWriter:
         self._metadata = 0
 
     def start(self, profile: str, library: str) -> None:
+        """Write the magic and the Header record."""
         self.stream.write(MAGIC + _record(Header(profile, library)))
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Add a Schema record to the chunk in progress; its id (from 1)."""
         schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
         self._schemas.append(schema)
         self._chunk.add(_record(schema))
@@ -253,6 +233,7 @@ class McapWriter:
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int,
                          metadata: dict[str, str]) -> int:
+        """Add a Channel record to the chunk in progress; its id (from 1)."""
         channel = Channel(id=len(self._channels) + 1, topic=topic,
                           message_encoding=message_encoding, schema_id=schema_id,
                           metadata=dict(metadata))
@@ -261,6 +242,7 @@ class McapWriter:
         return channel.id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write a Metadata record at top level, after the chunk last closed."""
         self._write_closed()
         record = _record(Metadata(name=name, metadata=dict(data)))
         self._metadata_indexes.append(MetadataIndex(self.stream.tell(), len(record), name))
@@ -268,16 +250,18 @@ class McapWriter:
         self._metadata += 1
 
     def late_among(self, log_time: np.ndarray) -> np.ndarray:
-        """Which of these log times ``add`` would write later than logged: before the last
-        message already written.
+        """Which of these log times ``add`` would write later than logged.
+
+        Those before the last message already written.
         """
         log_time = np.asarray(log_time, np.int64)
         return log_time < self._end if self._messages else np.zeros(len(log_time), bool)
 
     def add(self, channel: int, first_sequence: int, log_time: np.ndarray,
             publish_time: np.ndarray, payloads: Sequence[bytes]) -> None:
-        """Hold messages of ``channel`` (sequence numbers from ``first_sequence``) until
-        a ``release`` reaches their log time.
+        """Hold messages of ``channel`` until a ``release`` reaches their log time.
+
+        Their sequence numbers count from ``first_sequence``.
         """
         if not len(payloads):
             return
@@ -286,7 +270,7 @@ class McapWriter:
         if behind.any():
             self.late += int(behind.sum())
             log_time = np.maximum(log_time, self._end)
-        records, sizes = message_records(channel, first_sequence, log_time,
+        records, sizes = _message_records(channel, first_sequence, log_time,
                                          np.asarray(publish_time, np.int64), payloads)
         self._held.append(_Held(records, np.full(len(sizes), channel, np.uint16), log_time,
                                 np.cumsum(sizes) - sizes, sizes))
@@ -295,8 +279,9 @@ class McapWriter:
             self._spill()
 
     def release(self, upto: int | None = None) -> None:
-        """Write the held messages logged at or before ``upto`` (None: all), in log-time
-        order (messages of one time in the order added); chunks close as they fill.
+        """Write the held messages logged at or before ``upto`` (None: all), in log-time order.
+
+        Messages of one time go in the order added; chunks close as they fill.
         """
         if self._runs:
             self._spill()
@@ -329,8 +314,9 @@ class McapWriter:
                 self._close_chunk()
 
     def _spill(self) -> None:
-        """Move the held messages, sorted, to a run in a temporary file (memory stays
-        flat while a whole file waits to be sorted).
+        """Move the held messages, sorted, to a run in a temporary file.
+
+        Memory stays flat while a whole file waits to be sorted.
         """
         if not self._held:
             return
@@ -350,8 +336,9 @@ class McapWriter:
         self._held, self.held_bytes = [], 0
 
     def _merge(self, upto: int | None) -> None:
-        """Write the messages of the spilled runs logged up to ``upto``, in log-time order:
-        a slice of time at a time, each run's part of it read in one piece.
+        """Write the messages of the spilled runs logged up to ``upto``, in log-time order.
+
+        A slice of time at a time, each run's part of it read in one piece.
         """
         logs = np.concatenate([r.log_time[r.at :] for r in self._runs])
         if upto is not None:
@@ -394,9 +381,11 @@ class McapWriter:
             self._counts[cid] = self._counts.get(cid, 0) + count
 
     def _close_chunk(self) -> None:
-        """Close the chunk in progress (none without messages: its schemas and channels
-        wait for the next). It is compressed on a worker thread while the next one
-        fills, and written when that one closes or at the next flush.
+        """Close the chunk in progress.
+
+        A chunk without messages is not closed: its schemas and channels wait for the
+        next. It is compressed on a worker thread while the next one fills, and written
+        when that one closes or at the next flush.
         """
         chunk = self._chunk
         if not chunk.messages:
@@ -443,16 +432,20 @@ class McapWriter:
             compression="zstd", compressed_size=len(compressed), uncompressed_size=size))
 
     def flush(self) -> None:
-        """Close the chunk in progress and hand what is written to the OS (held messages
-        wait for their ``release``).
+        """Close the chunk in progress and hand what is written to the OS.
+
+        Held messages wait for their ``release``. A writer killed after a flush leaves
+        every chunk flushed before it readable by a streaming reader; the messages still
+        held are lost with it.
         """
         self._close_chunk()
         self._write_closed()
         self.stream.flush()
 
     def close(self) -> None:
-        """Stop the compression thread (``finish`` does; call this when not finishing,
-        after a write error). Safe to call twice.
+        """Stop the compression thread; safe to call twice.
+
+        ``finish`` does it; call this when not finishing, after a write error.
         """
         self._closed = None
         self._runs = []
@@ -462,8 +455,9 @@ class McapWriter:
         self._worker.shutdown(wait=True)
 
     def finish(self) -> None:
-        """Write every held message, close the last chunk and write the summary and footer
-        (the stream stays open).
+        """Write every held message, close the last chunk, write the summary and footer.
+
+        The stream stays open.
         """
         try:
             self.release()

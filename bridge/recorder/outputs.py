@@ -1,6 +1,6 @@
 """Files the product writes, written so that none the user has is ever lost.
 
-One place decides, for every command (DESIGN.md, "Archives"):
+One place decides, for every command (``docs/design/archive.md``):
 
 - an output that is one of the command's inputs (the same file, by device and inode,
   whatever the path says) is refused, even when the user allows replacing;
@@ -71,9 +71,10 @@ def refuse_if_written(path: Path) -> None:
 
 
 def refuse(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """Refuse ``path`` as an output unless writing it destroys nothing the user did not
-    give up: its folder must exist; it must not be a folder, one of ``inputs``, or a
-    file another process is writing; an existing file only with ``force``.
+    """Refuse ``path`` as an output unless writing it destroys nothing the user did not give up.
+
+    Its folder must exist; it must not be a folder, one of ``inputs``, or a file another
+    process is writing; an existing file only with ``force``.
     """
     folder = path.parent
     if not folder.is_dir():
@@ -106,10 +107,11 @@ def refuse(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None
 
 
 def create_locked(path: Path, force: bool = False) -> IO[bytes]:
-    """A new file at ``path`` to write, created exclusively and holding an exclusive
-    lock until closed. An existing file is refused (replaced with ``force`` unless
-    another process writes it). Other OS errors (no permission, full disk) raise as
-    OSError.
+    """A new file at ``path`` to write, created exclusively and holding an exclusive lock.
+
+    The lock holds until the file is closed. An existing file is refused (replaced with
+    ``force`` unless another process writes it). Other OS errors (no permission, full
+    disk) raise as OSError.
     """
     if force:
         refuse(path, force=True)
@@ -129,17 +131,20 @@ def create_locked(path: Path, force: bool = False) -> IO[bytes]:
 
 
 def temporary(path: Path) -> Path:
-    """The hidden name ``staged`` writes ``path`` under: same folder (the rename stays on
-    one file system) and same suffix (writers that pick a format by it still do).
+    """The hidden name ``staged`` writes ``path`` under.
+
+    Same folder (the rename stays on one file system) and same suffix (writers that
+    pick a format by it still do).
     """
     return path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
 
 
 @contextmanager
 def staged(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
-    """The temporary file to write the batch output ``path`` into: refused at once as
-    ``refuse`` says; renamed to ``path`` when the block ends, removed if it raises
-    (Ctrl-C included).
+    """The temporary file to write the batch output ``path`` into.
+
+    Refused at once as ``refuse`` says; renamed to ``path`` when the block ends, removed
+    if it raises (Ctrl-C included).
     """
     refuse(path, inputs, force)
     temp = temporary(path)
@@ -151,8 +156,10 @@ def staged(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iter
 
 
 def _commit(temp: Path, path: Path, force: bool) -> None:
-    """Put ``temp`` in place of ``path``; without ``force``, never over a file that
-    appeared meanwhile (a hard link fails if the name exists; rename would not).
+    """Put ``temp`` in place of ``path``.
+
+    Without ``force``, never over a file that appeared meanwhile (a hard link fails if
+    the name exists; rename would not).
     """
     if force:
         os.replace(temp, path)
@@ -170,9 +177,10 @@ def _commit(temp: Path, path: Path, force: bool) -> None:
 
 
 def free_folder(path: Path, force: bool = False, next_free: bool = False) -> Path:
-    """A folder for a run's results that holds no earlier run's: ``path`` if it is
-    missing or empty, or with ``force``; else, with ``next_free``, the first missing or
-    empty one of path-2, path-3, ...; else refused.
+    """A folder for a run's results that holds no earlier run's.
+
+    ``path`` if it is missing or empty, or with ``force``; else, with ``next_free``, the
+    first missing or empty one of path-2, path-3, ...; else refused.
     """
     def empty(folder: Path) -> bool:
         return not folder.exists() or (folder.is_dir() and not any(folder.iterdir()))

@@ -1,15 +1,11 @@
 """Raw captures: the exact bytes read from a unit, with the host times of each read.
 
-MCAP messages on topic ``<prefix>/<unit>/raw``, data = the bytes of that read, encoding
-``application/octet-stream``, no schema; log time = the read's receive time on the
-host's realtime clock (ns since the epoch), publish time = the same instant on its
-``CLOCK_MONOTONIC_RAW`` (the channel's metadata says so: ``publish_time``). Older
-captures have the realtime stamp in both; a publish time of 10^18 ns or more (2001
-on) is a realtime stamp, as no host has been up for 31 years. Replaying a capture
-through the pipeline gives what the live run gave, because framing and timing are
-pure functions of (bytes, receive times). The file is flushed at least once a second,
-so a crash loses at most that second, and a full disk stops the capture, never the
-bridge.
+One MCAP message per read on topic ``<prefix>/<unit>/raw``, logged at its receive time
+on the host's realtime clock and published at the same instant on its
+``CLOCK_MONOTONIC_RAW``. Replaying a capture through the pipeline gives what the live
+run gave, because framing and timing are pure functions of (bytes, receive times). The
+file is flushed at least once a second, so a crash loses at most that second, and a
+full disk stops the capture, never the bridge. The layout: ``docs/design/archive.md``.
 """
 
 from __future__ import annotations
@@ -40,14 +36,21 @@ REALTIME_FROM_NS = 10**18
 LATE_READS = "gx3.late_reads"
 
 
-def raw_topic(prefix: str, unit: str) -> str:
+def _raw_topic(prefix: str, unit: str) -> str:
     return f"{prefix}/{unit}/raw"
 
 
 def capture_metadata(info: Info) -> dict[str, str]:
-    """What a capture's reads need to be timed as live (``gx3.capture`` metadata), from
-    the unit's Info: a bridge writes it into its --capture file, and ``gx3 replay``
-    takes it from an archive's Info where raw reads came over Zenoh.
+    """What a capture's reads need to be timed as live: its ``gx3.capture`` metadata.
+
+    A bridge writes it into its --capture file, and ``gx3 replay`` takes it from an
+    archive's Info where raw reads came over Zenoh.
+
+    Args:
+        info: The unit's Info, as its bridge publishes it.
+
+    Returns:
+        The metadata: unit, port, link and the settings that time its records.
     """
     return {"unit": info.unit, "port": info.port, "baud": str(info.baud),
             "record": f"0x{info.command:02X}", "firmware": info.firmware_text,
@@ -58,7 +61,19 @@ def capture_metadata(info: Info) -> dict[str, str]:
 
 
 class RawCaptureWriter:
-    """Append reads to an MCAP raw capture; ``metadata`` describes the unit and link."""
+    """Append reads to an MCAP raw capture.
+
+    Args:
+        path: The capture file to create; an existing file is refused.
+        prefix: The key prefix of its topic, ``<prefix>/<unit>/raw``.
+        unit: The unit's name.
+        metadata: The unit and its link (``capture_metadata``), for a replay.
+        force: Replace an existing file, unless another process writes it.
+
+    Raises:
+        CaptureError: The file exists (without ``force``), another process writes it, or
+            it cannot be written.
+    """
 
     def __init__(self, path: Path, prefix: str, unit: str,
                  metadata: dict[str, str] | None = None, force: bool = False) -> None:
@@ -73,7 +88,7 @@ class RawCaptureWriter:
         self._writer = Writer(self._file, chunk_size=256 * 1024,
                               compression=CompressionType.ZSTD)
         self._guard(self._writer.start, "gx3-raw", "gx3-bridge")
-        self._channel = self._guard(self._writer.register_channel, raw_topic(prefix, unit),
+        self._channel = self._guard(self._writer.register_channel, _raw_topic(prefix, unit),
                                     RAW_ENCODING, 0, {"unit": unit, **RAW_CLOCK})
         if metadata:
             self._guard(self._writer.add_metadata, "gx3.capture", dict(metadata))
@@ -91,8 +106,17 @@ class RawCaptureWriter:
                                "(what was written stays readable)") from None
 
     def write(self, data: bytes, real_ns: int, raw_ns: int | None = None) -> None:
-        """One read's bytes, stamped with its receive times on the realtime and (where
-        known) the raw monotonic clock.
+        """Append one read's bytes, stamped with its receive times.
+
+        Args:
+            data: The bytes of the read.
+            real_ns: Its receive time on the realtime clock, ns since the epoch.
+            raw_ns: Its receive time on the raw monotonic clock; None where not known
+                (the realtime stamp is written in its place).
+
+        Raises:
+            CaptureError: The write failed: the capture stops there (what was written
+                stays readable).
         """
         self._guard(self._writer.add_message, self._channel, real_ns, data,
                     real_ns if raw_ns is None else raw_ns, self._sequence)
@@ -105,7 +129,11 @@ class RawCaptureWriter:
             self._guard(self._writer.flush)
 
     def close(self) -> None:
-        """Finish the file (summary and index); safe to call twice."""
+        """Finish the file (summary and index); safe to call twice.
+
+        Raises:
+            CaptureError: Finishing the file failed.
+        """
         if self._file.closed:
             return
         try:

@@ -1,13 +1,11 @@
 """Reading archives and raw captures, finished or cut short, into per-unit NumPy columns.
 
-One sequential pass over the file's records serves every case: a finished archive, one
-whose writer was killed (no summary, maybe a half-written chunk at the end) and a raw
-capture. Each record's length is checked against the file size before it is read, so a
-cut-off tail is measured (``dropped_bytes``), never parsed; everything before it is
-kept. Chunks are decompressed once; the message indexes that follow each chunk locate its
-message records (checked against them, and walked record by record where they are
-missing or disagree), and ImuSamples are decoded from rows read straight out of the
-chunks, so a million samples read in about a second.
+One sequential pass over the file's records serves a finished archive, one whose writer
+was killed and a raw capture alike: a cut-off tail is measured, never parsed, and a
+corrupt chunk of a finished file is skipped, so everything readable is kept. Chunks are
+decompressed once and samples decoded from rows read straight out of them, so a million
+samples read in about a second. How the reading goes, record by record:
+``docs/design/archive.md``.
 """
 
 from __future__ import annotations
@@ -86,8 +84,10 @@ class _Block:
     length: np.ndarray
 
     def commands(self, picked: np.ndarray, unit: str) -> np.ndarray:
-        """Command bytes of the ImuSamples at indexes ``picked``: read at their fixed place
-        in the bulk layout (tags checked), parsed for messages in any other layout.
+        """Command bytes of the ImuSamples at indexes ``picked``.
+
+        Read at their fixed place in the bulk layout (tags checked), parsed for messages
+        in any other layout.
         """
         n = len(unit.encode())
         start, length = self.start[picked], self.length[picked]
@@ -115,8 +115,9 @@ class _Block:
                                                 self.length[picked].tolist(), strict=True)]
 
     def rows(self, picked: np.ndarray, width: int) -> np.ndarray:
-        """(len(picked), width) bytes of the payloads at indexes ``picked``, all ``width``
-        long: straight out of the chunk, no bytes object each.
+        """(len(picked), width) bytes of the payloads at indexes ``picked``, all ``width`` long.
+
+        Straight out of the chunk, no bytes object each.
         """
         return _rows(np.frombuffer(self.data, np.uint8), self.start[picked], width)
 
@@ -191,8 +192,12 @@ class ArchiveReader:
     warn: Callable[[str], None] = _log.warning
 
     def skip(self, topic: str, count: int, why: str) -> None:
-        """Leave out ``count`` bad messages of ``topic`` and say so (once per topic and
-        reason).
+        """Leave out ``count`` bad messages of ``topic`` and say so, once per topic and reason.
+
+        Args:
+            topic: Where the messages are.
+            count: How many are left out.
+            why: Why, in words that follow "skipped N message(s)".
         """
         if count:
             if not self.skipped[f"{topic}: {why}"]:
@@ -203,12 +208,27 @@ class ArchiveReader:
 
     @property
     def message_count(self) -> int:
+        """Messages read, on every channel."""
         return sum(len(b.channel) for b in self.blocks)
 
     def topics(self, kind: str | None = None) -> list[str]:
+        """The topics read, sorted.
+
+        Args:
+            kind: Only topics whose last chunk is this (``imu``, ``status``, ``event``,
+                ``info``, ``raw``, ...); None: every topic.
+
+        Returns:
+            Topic names.
+        """
         return sorted({c.topic for c in self.channels.values() if kind in (None, c.kind)})
 
     def units(self) -> list[str]:
+        """The units that have a channel.
+
+        Returns:
+            Their names, sorted.
+        """
         return sorted({c.unit for c in self.channels.values() if c.unit})
 
     def _ids(self, topic: str | None = None, kind: str | None = None,
@@ -219,14 +239,22 @@ class ArchiveReader:
                          and unit in (None, c.unit)], np.uint16)
 
     def first_sample_ns(self) -> int | None:
-        """Log time (= live time_ns) of the earliest ImuSample, if any."""
+        """When the earliest sample was taken.
+
+        Returns:
+            Log time (= live ``time_ns``) of the earliest ImuSample; None if there is none.
+        """
         ids = self._ids(kind="imu")
         firsts = [int(b.log_time[m].min()) for b in self.blocks
                   if (m := np.isin(b.channel, ids)).any()]
         return min(firsts) if firsts else None
 
     def counts(self) -> dict[str, tuple[int, int, int]]:
-        """Per topic: (messages, first log time, last log time) in ns."""
+        """How many messages each topic holds, and when.
+
+        Returns:
+            Topic -> (messages, first log time, last log time), times in ns.
+        """
         channel = np.concatenate([b.channel for b in self.blocks]) if self.blocks \
             else np.zeros(0, np.uint16)
         log = np.concatenate([b.log_time for b in self.blocks]) if self.blocks \
@@ -241,7 +269,14 @@ class ArchiveReader:
     # -- messages ------------------------------------------------------------------------
 
     def messages(self, topic: str) -> Messages:
-        """Every message of ``topic``, in log-time order."""
+        """Every message of one topic, in log-time order.
+
+        Args:
+            topic: The topic; one that is not there gives no messages.
+
+        Returns:
+            Their times, sequence numbers and payloads.
+        """
         ids = self._ids(topic)
         info = next(c for c in self.channels.values() if c.topic == topic) if len(ids) else None
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -260,7 +295,15 @@ class ArchiveReader:
 
     def iter_messages(self, topics: Iterable[str] | None = None,
                       units: Iterable[str] | None = None) -> Iterator[Record]:
-        """Messages of ``topics`` and ``units`` (default: all) merged in log-time order."""
+        """Messages of several topics, merged in log-time order.
+
+        Args:
+            topics: The topics; None: every topic.
+            units: Only the topics of these units; None: every unit's.
+
+        Yields:
+            One record per message.
+        """
         chosen = self.topics() if topics is None else list(topics)
         if units is not None:
             keep = set(units)
@@ -281,11 +324,20 @@ class ArchiveReader:
 
     def samples(self, units: Iterable[str] | None = None,
                 codes: Iterable[int] | None = None) -> list[ArchivedSamples]:
-        """ImuSamples decoded in bulk, one ``Samples`` per unit and record type.
+        """ImuSamples decoded in bulk, one ``ArchivedSamples`` per unit and record type.
 
         Each chunk's messages are grouped by unit and command with array operations; a
         group whose messages all have the bulk layout's size reaches the decoder as rows
         read straight out of the chunks, any other as one bytes object per message.
+        Messages that are not samples of their unit are left out, and said once
+        (``skip``).
+
+        Args:
+            units: Only these units; None: every unit.
+            codes: Only these record types (command bytes); None: every type.
+
+        Returns:
+            Sample columns, by unit and then record type.
         """
         wanted_codes = None if codes is None else set(codes)
         chosen = self.units() if units is None else sorted(set(units))
@@ -333,8 +385,16 @@ class ArchiveReader:
                      if c.unit == unit and c.kind == kind), f"{unit}/{kind}")
 
     def decoded(self, topic: str, cls: type[M]) -> list[tuple[int, M]]:
-        """(log time, message) of every message of ``topic`` that parses as ``cls`` and
-        names the topic's unit; the others are left out and counted.
+        """Every message of a topic that parses as ``cls`` and names the topic's unit.
+
+        The others are left out, and said once (``skip``).
+
+        Args:
+            topic: The topic.
+            cls: The protobuf message class of its messages (``Status``, ``Info``, ...).
+
+        Returns:
+            (log time, message) pairs, in log-time order.
         """
         msgs = self.messages(topic)
         out: list[tuple[int, M]] = []
@@ -353,7 +413,14 @@ class ArchiveReader:
         return out
 
     def events(self, units: Iterable[str] | None = None) -> list[tuple[str, Event]]:
-        """(unit, Event) of every event channel, in time order."""
+        """The events of every unit, in time order.
+
+        Args:
+            units: Only these units' events; None: every unit's.
+
+        Returns:
+            (unit, Event) pairs.
+        """
         wanted = None if units is None else set(units)
         out: list[tuple[int, str, Event]] = []
         for topic in self.topics("event"):
@@ -365,7 +432,12 @@ class ArchiveReader:
         return [(u, e) for _, u, e in out]
 
     def summary(self) -> str:
-        """Units, record types, message counts and time ranges, one line each."""
+        """What the file holds, in words.
+
+        Returns:
+            Its size and state, then topics with their message counts and time ranges,
+            then units and record types with their sample counts: one line each.
+        """
         lines = [f"{self.path}: {self.size} bytes, {self.message_count} messages, "
                  f"{self.chunks} chunks, "
                  + (f"{len(self.damage)} corrupt chunk(s) skipped, " if self.damage else "")
@@ -382,9 +454,10 @@ class ArchiveReader:
 
 def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
             ) -> dict[str, np.ndarray]:
-    """decode_batch of the messages ``parts`` pick out of their chunks: rows read straight
-    out of the chunks when all have the size of one bulk layout (an older bridge's too),
-    else a bytes object each.
+    """decode_batch of the messages ``parts`` pick out of their chunks.
+
+    Rows read straight out of the chunks when all have the size of one bulk layout (an
+    older bridge's too), else a bytes object each.
     """
     found: np.ndarray | list[bytes] | None = None
     for header in (HEADER, LEGACY_HEADER):
@@ -398,8 +471,9 @@ def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
 
 
 def _decodable(unit: str, code: int, block: _Block, picked: np.ndarray) -> np.ndarray:
-    """Which of the messages at ``picked`` decode as ``unit``'s samples of ``code``: the
-    bulk layout's fixed bytes checked at once, any other message parsed on its own.
+    """Which of the messages at ``picked`` decode as ``unit``'s samples of ``code``.
+
+    The bulk layout's fixed bytes are checked at once, any other message parsed on its own.
     """
     lay = layout(code, unit)
     ok = np.zeros(len(picked), bool)
@@ -425,9 +499,10 @@ def _read_stream(body: bytes) -> ReadDataStream:
 
 
 def summary_counts(path: Path, kind: str) -> dict[str, int] | None:
-    """Messages per topic of one kind (the topic's last chunk), from the summary at the
-    end of a finished file: no chunk is read. None when the file has no usable summary
-    (cut short, or not MCAP: ``read_archive`` says which).
+    """Messages per topic of one kind (the topic's last chunk), from a finished file's summary.
+
+    No chunk is read. None when the file has no usable summary (cut short, or not MCAP:
+    ``read_archive`` says which).
     """
     try:
         with path.open("rb") as stream:
@@ -468,8 +543,10 @@ def _step(data: bytes, off: int, messages: list[int], others: list[tuple[int, in
 
 
 def _indexed_runs(buf: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(first, end) of each run of back-to-back message records at ``offsets`` (sorted,
-    unique); none when one is anything but a whole message record in the chunk.
+    """(first, end) of each run of back-to-back message records at ``offsets``.
+
+    The offsets are sorted and unique; there are no runs when one is anything but a
+    whole message record in the chunk.
     """
     none = np.zeros(0, np.int64), np.zeros(0, np.int64)
     if not len(offsets) or offsets[0] < 0 or offsets[-1] + 9 + _MESSAGE.itemsize > len(buf):
@@ -485,8 +562,10 @@ def _indexed_runs(buf: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    """(len(starts), width) bytes of ``buf`` from each start: one row copy each (through a
-    view of every window of ``width`` bytes, made without sliding_window_view's checks).
+    """(len(starts), width) bytes of ``buf`` from each start: one row copy each.
+
+    Through a view of every window of ``width`` bytes, made without
+    sliding_window_view's checks.
     """
     windows = np.ndarray((max(len(buf) - width + 1, 0), width), np.uint8, buf, strides=(1, 1))
     rows: np.ndarray = windows[starts]
@@ -600,8 +679,9 @@ def _open(path: Path) -> tuple[IO[bytes], int]:
 
 
 def _message_indexes(stream: IO[bytes], pos: int, size: int) -> list[bytes]:
-    """Bodies of the whole message index records that follow a chunk (the stream is left
-    after them).
+    """Bodies of the whole message index records that follow a chunk.
+
+    The stream is left after them.
     """
     out: list[bytes] = []
     while True:
@@ -641,8 +721,10 @@ def _after(chunks: dict[int, ChunkIndex], chunk: ChunkIndex) -> int:
 
 def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: str,
             channels: dict[int, Channel]) -> None:
-    """Note a chunk skipped: its time span from the chunk index, its messages per topic
-    from its message indexes (when those are intact).
+    """Note a chunk skipped.
+
+    Its time span comes from the chunk index, its messages per topic from its message
+    indexes (when those are intact).
     """
     lost: dict[str, int] | None = {}
     for cid, offset in index.message_index_offsets.items():
@@ -660,13 +742,23 @@ def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: s
 
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
                  warn: Callable[[str], None] = _log.warning) -> ArchiveReader:
-    """Read what is readable of an MCAP file; ``progress`` gets the bytes read so far.
+    """Read what is readable of an MCAP file: an archive or a raw capture.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
     ``dropped_bytes``, ``problem``). In a finished file, the summary's chunk index lets a
     corrupt chunk (its CRC, compression or records) be skipped and the reading go on
-    after it; ``damage`` says what was lost, ``warn`` hears it once. Raises
-    ArchiveReadError when the file is missing, empty or not MCAP at all.
+    after it; ``damage`` says what was lost.
+
+    Args:
+        path: The file.
+        progress: Called with the bytes read so far, as the reading goes.
+        warn: Hears, once each, the corrupt chunks skipped and the messages left out.
+
+    Returns:
+        Everything readable in the file.
+
+    Raises:
+        ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
     """
     path = Path(path)
     stream, size = _open(path)
@@ -768,7 +860,14 @@ def describe_damage(archive: ArchiveReader) -> str:
 
 
 def describe_problem(archive: ArchiveReader) -> str:
-    """One line about a file that did not read to its end; empty when it did."""
+    """One line about a file that did not read to its end.
+
+    Args:
+        archive: What ``read_archive`` read.
+
+    Returns:
+        The line; empty when the file read to its end.
+    """
     if archive.complete and not archive.dropped_bytes:
         return ""
     return (f"{archive.path}: not finished, read up to its last complete chunk "

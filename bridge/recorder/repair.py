@@ -3,8 +3,9 @@
 A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
 half-written chunk at the end; a damaged disk leaves a finished file with a corrupt
 chunk. Tools that seek (``make_reader``, most viewers) refuse both. Repair copies what
-reader.py can read (schemas, channels, every message of every intact chunk, metadata,
-attachments) into a new file with chunk index and summary, and says what was lost.
+``bridge.recorder.reader`` can read (schemas, channels, every message of every intact
+chunk, metadata, attachments) into a new file with chunk index and summary, and says
+what was lost.
 """
 
 from __future__ import annotations
@@ -33,6 +34,11 @@ class RepairReport:
     damage: str = ""
 
     def text(self) -> str:
+        """The report in words.
+
+        Returns:
+            The report, as ``gx3 repair`` prints it.
+        """
         state = "was finished" if self.was_complete else f"was not finished ({self.problem})"
         return (f"{self.source} {state}: recovered {self.messages} messages on "
                 f"{self.channels} channels from {self.chunks} chunks, dropped "
@@ -41,11 +47,25 @@ class RepairReport:
 
 
 def default_output(source: Path) -> Path:
+    """Where a repair writes by default: ``run.mcap`` gives ``run.repaired.mcap``."""
     return source.with_name(f"{source.stem}.repaired{source.suffix or '.mcap'}")
 
 
 def repair(source: Path, output: Path | None = None) -> RepairReport:
-    """Copy the readable part of ``source`` into a finished archive at ``output``."""
+    """Copy the readable part of an archive into a new, finished one.
+
+    Args:
+        source: The archive to repair; it is only read.
+        output: Where to write; None: ``default_output(source)``.
+
+    Returns:
+        What was kept and what could not be.
+
+    Raises:
+        ArchiveReadError: ``source`` is not an archive, holds no readable message, or
+            ``output`` would overwrite it.
+        ArchiveError: ``output`` cannot be written.
+    """
     source = Path(source)
     output = default_output(source) if output is None else Path(output)
     archive = read_archive(source, warn=lambda _: None)

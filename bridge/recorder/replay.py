@@ -1,19 +1,11 @@
 """`gx3 replay`: raw captures through the live path's framer and timing, into an archive.
 
-A raw capture holds every read a bridge made, with its receive times on the raw
-monotonic and the realtime clock (``bridge.recorder.rawcapture``). Replaying it
-frames the same bytes with the same framer and times the records with the same
-``StreamTiming``, told what the live bridge told it at the same points of the
-stream: settings from each 0xDB reply, a restarted stream at each 0xC4 reply
-(every bring-up starts streaming with one). So the samples and their live
-``time_ns`` come out as the live bridge published them, with no Zenoh involved.
-
-A capture without metadata (another program's) is understood from its bytes:
-the record type is the most common data record, the rate comes from the timer
-steps, the float byte order from whichever decodes, the filter width is the
-factory's 15 unless a 0xDB reply says otherwise, and the link (UART, USB, or a
-USB-serial adapter and its latency timer) comes from the receive times
-(``bridge.timing.links``). A transport given to ``replay`` overrides both.
+A replay frames a capture's bytes with the live bridge's framer and times its records
+with the same ``StreamTiming``, told what the live bridge told it at the same points of
+the stream, so the samples and their ``time_ns`` come out as the live bridge published
+them, with no Zenoh involved. A capture without metadata (another program's) is
+understood from its bytes and receive times. How, and what is inferred from what:
+``docs/design/archive.md``.
 """
 
 from __future__ import annotations
@@ -69,9 +61,11 @@ Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
 
 @dataclass
 class CapturedReads:
-    """One unit's reads from a raw capture, in the order they were made: receive times on
-    the realtime clock and (None: an older capture's, with none) on the raw monotonic
-    clock, bytes, what its bridge said.
+    """One unit's reads from a raw capture, in the order they were made.
+
+    Their receive times on the realtime clock (``rx_ns``) and on the raw monotonic clock
+    (``raw_ns``; None for an older capture, which has none), their bytes, what its bridge
+    said of the unit and the link (``metadata``), and the raw topic they came from.
     """
 
     unit: str
@@ -84,8 +78,10 @@ class CapturedReads:
 
 def _read_times(archive: ArchiveReader, messages: Messages
                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """A raw topic's receive times on the realtime clock and (None: an older capture's) the
-    raw one, in the order the reads were made, and that order.
+    """A raw topic's receive times on the realtime and the raw clock, and the reads' order.
+
+    The times are in the order the reads were made; the raw ones are None for an older
+    capture, which has none.
 
     A publish time of 10^18 or more is an older capture's realtime stamp. Otherwise it is
     the raw stamp and the log time the realtime one, except for a read an archive wrote
@@ -111,8 +107,19 @@ def _read_times(archive: ArchiveReader, messages: Messages
 
 def captures(path: Path, prefix: str = "gx3",
              topics: Collection[str] | None = None) -> list[CapturedReads]:
-    """Every unit's raw reads in ``path`` (a bridge's --capture file, or an archive), or
-    those of the raw ``topics`` named.
+    """Every unit's raw reads in a file: a bridge's --capture file, or an archive.
+
+    Args:
+        path: The file.
+        prefix: The key prefix the reads were recorded under (named in the error).
+        topics: Only these raw topics; None: every unit's.
+
+    Returns:
+        Each unit's reads.
+
+    Raises:
+        UnusableCapture: The file holds no raw reads.
+        ArchiveReadError: The file is missing, empty or not MCAP.
     """
     archive: ArchiveReader = read_archive(path)
     meta = {m.metadata.get("unit", ""): dict(m.metadata) for m in archive.metadata
@@ -139,6 +146,12 @@ def captures(path: Path, prefix: str = "gx3",
 
 @dataclass
 class Replayed:
+    """What the replay of one unit gave.
+
+    The samples archived, the events by kind, the settings its records were timed with
+    at the end, and what was inferred from the bytes (a capture without metadata).
+    """
+
     unit: str
     samples: int = 0
     events: Counter[str] = field(default_factory=Counter)
@@ -151,7 +164,7 @@ def _latency_timer_ms(text: str | None) -> int | None:
     return int(text) if text and text.isdigit() and int(text) > 0 else None
 
 
-class UnitReplay:
+class _UnitReplay:
     """Frames and times one unit's reads exactly as its live bridge did."""
 
     def __init__(self, capture: CapturedReads, transport: str | None = None) -> None:
@@ -171,8 +184,9 @@ class UnitReplay:
 
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self, little_endian: bool, transport: str | None) -> Settings:
-        """From the capture's metadata, or else its bytes and receive times; a
-        ``transport`` given overrides the link either gives.
+        """From the capture's metadata, or else its bytes and receive times.
+
+        A ``transport`` given overrides the link either gives.
         """
         meta = self.capture.metadata
         if {"record", "decimation", "filter_width", "baud"} <= meta.keys():
@@ -201,8 +215,10 @@ class UnitReplay:
         return [b for found in frame_reads(framer, np.arange(len(reads)), reads) for b in found]
 
     def _unstepped(self, little_endian: bool) -> np.ndarray:
-        """The capture's realtime receive times with the steps of the host clock that the
-        data records show taken out (``bridge.timing.steps``), epoch by epoch.
+        """The capture's realtime receive times with the host clock's steps taken out.
+
+        The steps are those the data records show (``bridge.timing.steps``), epoch by
+        epoch.
         """
         framer = Framer(DATA_CODES, little_endian=little_endian)
         found = [b for group in frame_reads(framer, np.arange(len(self.capture.data)),
@@ -247,8 +263,9 @@ class UnitReplay:
 
     # --- replay --------------------------------------------------------------------------
     def _info(self, emit: Emit, prefix: str, at_ns: int) -> None:
-        """The unit's Info, as its bridge published it, so the archive is complete (and
-        the offline time estimate knows the settings).
+        """The unit's Info, as its bridge published it.
+
+        So the archive is complete, and the offline time estimate knows the settings.
         """
         s, meta = self.settings, self.capture.metadata
         info = Info(unit=self.capture.unit, port=meta.get("port", ""), baud=s.baud,
@@ -273,8 +290,9 @@ class UnitReplay:
         return self.result
 
     def _flush(self, emit: Emit, prefix: str) -> None:
-        """Time and archive the records gathered since the last settings change in one
-        go: the timing gives the same results however records are grouped.
+        """Time and archive the records gathered since the last settings change in one go.
+
+        The timing gives the same results however records are grouped.
         """
         pending, self._pending, self._pending_records = self._pending, [], 0
         if pending:
@@ -332,8 +350,9 @@ class UnitReplay:
 
 
 def frame_reads(framer: Framer, rx_ns: np.ndarray, reads: list[bytes]) -> Iterator[list[Batch]]:
-    """The framer's records from ``reads`` (received at ``rx_ns``), a megabyte of reads at
-    a time: the same records and times as read by read, for a fraction of the cost.
+    """The framer's records from ``reads`` (received at ``rx_ns``), a megabyte of reads at a time.
+
+    The same records and times as read by read, for a fraction of the cost.
     """
     sizes = np.fromiter(map(len, reads), np.int64, len(reads))
     ends = np.cumsum(sizes)
@@ -351,15 +370,38 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
            jobs: int | None = 1,
            on_samples: Callable[[int], None] | None = None,
            transport: str | None = None) -> list[Replayed]:
-    """Replay every unit of every capture in ``paths`` into one archive at ``out``.
+    """Replay every unit of every capture into one archive.
 
-    ``jobs`` > 1 (None: one per core) replays in that many worker processes at once,
-    the archive written here: a capture file each, or a unit each when there are fewer
-    files than jobs (a fleet's archive recorded with --raw). Units are independent, so
-    each gets the same samples; only their messages interleave in the file differently.
-    Results come in the order of ``paths``; ``on_unit`` hears each unit as it finishes,
-    ``on_samples`` how many samples each write added to the archive. ``transport``
-    times every unit as on that link, whatever its capture says or shows.
+    With ``jobs`` > 1, worker processes replay at once and the archive is written here:
+    a capture file each, or a unit each when there are fewer files than jobs (a fleet's
+    archive recorded with --raw). Units are independent, so each gets the same samples;
+    only their messages interleave in the file differently.
+
+    A capture without metadata (another program's) is understood from its bytes: the
+    record type is the most common data record, the rate comes from the timer steps,
+    the float byte order from whichever decodes, the filter width is the factory's 15
+    unless a 0xDB reply says otherwise, and the link (UART, USB, or a USB-serial adapter
+    and its latency timer) comes from the receive times; ``Replayed.inferred`` says
+    what was inferred.
+
+    Args:
+        paths: Raw captures (a bridge's --capture files) or archives holding raw reads.
+        out: The archive to write.
+        prefix: The key prefix of the captures' raw topics and of the archive's messages.
+        on_unit: Hears each unit's result as it finishes.
+        jobs: Processes replaying at once; None: one per core.
+        on_samples: Hears how many samples each write added to the archive.
+        transport: Time every unit as on this link (``uart``, ``usb``, ``usb-serial``),
+            whatever its capture says or shows.
+
+    Returns:
+        Each unit's result, in the order of ``paths``.
+
+    Raises:
+        UnusableCapture: A file holds no raw reads, or none a 3DM-GX3 sent.
+        ArchiveReadError: A file is missing, empty or not MCAP.
+        ArchiveError: The archive cannot be written.
+        ReplayError: A worker process stopped.
     """
     paths = list(paths)
     jobs = max(1, (os.cpu_count() or 1) if jobs is None else jobs)
@@ -372,7 +414,7 @@ def replay(paths: Iterable[Path], out: Path, prefix: str = "gx3",
         emit = _counted(writer.write_many, on_samples)
         for path in paths:
             for capture in captures(path, prefix):
-                results.append(UnitReplay(capture, transport).run(emit, prefix))
+                results.append(_UnitReplay(capture, transport).run(emit, prefix))
                 if on_unit is not None:
                     on_unit(results[-1])
     return results
@@ -411,9 +453,10 @@ def _tasks(paths: list[Path], jobs: int) -> list[_Task]:
 
 @contextlib.contextmanager
 def _archive(out: Path, prefix: str) -> Iterator[ArchiveWriter]:
-    """The replay's archive, sorted whole: finished when the replay is, abandoned
-    unfinished when it fails or is interrupted (the caller throws the file away), so
-    Ctrl-C is not held up by finishing a file nobody keeps.
+    """The replay's archive, sorted whole: finished when the replay is.
+
+    It is abandoned unfinished when the replay fails or is interrupted (the caller throws
+    the file away), so Ctrl-C is not held up by finishing a file nobody keeps.
     """
     writer = ArchiveWriter(out, prefix=prefix, reorder_s=None)
     try:
@@ -425,9 +468,10 @@ def _archive(out: Path, prefix: str) -> Iterator[ArchiveWriter]:
 
 
 def _unit_tasks(paths: list[Path]) -> list[_Task]:
-    """A task per unit (raw topic) of each file, counted from its summary (or, for a file
-    cut short, from its chunks); a file with none is a task of its own (its worker says
-    what is wrong with it).
+    """A task per unit (raw topic) of each file.
+
+    Counted from its summary (or, for a file cut short, from its chunks); a file with
+    none is a task of its own (its worker says what is wrong with it).
     """
     tasks = []
     for i, path in enumerate(paths):
@@ -445,9 +489,10 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
                        on_samples: Callable[[int], None] | None,
                        jobs: int, transport: str | None) -> list[Replayed]:
-    """``replay`` with the tasks shared out by weight among ``jobs`` processes, started
-    before the archive writer's thread is (a process with threads forks badly). A
-    bounded queue brings their messages here, so memory stays flat.
+    """``replay`` with the tasks shared out by weight among ``jobs`` processes.
+
+    They start before the archive writer's thread does (a process with threads forks
+    badly). A bounded queue brings their messages here, so memory stays flat.
     """
     shares: list[list[_Task]] = [[] for _ in range(jobs)]
     loads = [0] * jobs
@@ -503,9 +548,11 @@ def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
 def _worker(tasks: list[_Task], prefix: str,
             queue: multiprocessing.Queue[tuple[str, Any]], parent: int,
             transport: str | None) -> None:
-    """Replay ``tasks`` into ``queue``; each unit's result goes with its file's place and
-    its raw topic, the order it has replayed alone. Ctrl-C is the caller's to handle (it
-    ends the workers and removes its output), and its SIGTERM ends a worker at once.
+    """Replay ``tasks`` into ``queue``.
+
+    Each unit's result goes with its file's place and its raw topic, the order it has
+    replayed alone. Ctrl-C is the caller's to handle (it ends the workers and removes
+    its output), and its SIGTERM ends a worker at once.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -522,7 +569,7 @@ def _worker(tasks: list[_Task], prefix: str,
     try:
         for (index, path), topics in files.items():
             for capture in captures(path, prefix, topics):
-                result = UnitReplay(capture, transport).run(emit, prefix)
+                result = _UnitReplay(capture, transport).run(emit, prefix)
                 queue.put(("unit", (index, capture.topic, result)))
     except Exception as exc:  # every error reaches the caller, to say as it would alone
         queue.put(("error", _sendable(exc)))
@@ -539,8 +586,9 @@ def _sendable(exc: Exception) -> Exception:
 
 
 def _end_when_orphaned(parent: int) -> None:
-    """A worker whose caller is gone (killed) ends: nobody will read what it sends, and
-    it would wait on the full queue for ever.
+    """End a worker whose caller is gone (killed).
+
+    Nobody will read what it sends, and it would wait on the full queue for ever.
     """
     while os.getppid() == parent:
         time.sleep(1.0)

@@ -4,7 +4,7 @@ The file is MCAP as rosbag2's MCAP storage writes it (profile ``ros2``, schema e
 ``ros2msg`` with the message definitions embedded, message encoding ``cdr``): per unit
 ``/<prefix>/<unit>/imu`` (``sensor_msgs/msg/Imu``) and, for records with a magnetometer,
 ``/<prefix>/<unit>/mag`` (``sensor_msgs/msg/MagneticField``). It is built from the rows
-of :func:`bridge.recorder.export.sample_table`, so it holds exactly the samples a table
+of :func:`bridge.recorder.tables.sample_table`, so it holds exactly the samples a table
 export with the same options holds, stamped with the same ``time_ns``; each message is
 logged and published at its stamp, and messages are in log-time order.
 """
@@ -48,9 +48,10 @@ class Ros2Written:
     mag: int
 
 
-def quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
-    """The export's flat columns of ``rows`` back as quantities, (n, elements) each
-    (``m`` as (n, 9)), NaN where a record lacks one.
+def _quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    """The export's flat columns of ``rows`` back as quantities, (n, elements) each.
+
+    ``m`` comes as (n, 9); NaN where a record lacks a quantity.
     """
     out = {}
     for q in QUANTITY_ORDER:
@@ -61,7 +62,20 @@ def quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.n
 
 
 def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") -> Ros2Written:
-    """Write the samples of an export ``table`` (rows in time order) as a ROS 2 bag."""
+    """Write the samples of an export table as a ROS 2 bag.
+
+    Args:
+        table: A sample table (``sample_table``), rows in time order.
+        path: The bag to write (an MCAP file).
+        prefix: The key prefix, the first part of the topics and frame ids.
+
+    Returns:
+        How many messages of each type the bag got.
+
+    Raises:
+        ValueError: A sample's time is outside what a ROS time stamp holds (int32
+            seconds since 1970).
+    """
     counts = {"imu": 0, "mag": 0}
     units = table["unit"]
     with path.open("wb") as stream:
@@ -78,7 +92,7 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
                 frame = messages.frame_id(unit, prefix)
                 for at in range(0, len(unit_rows), SLICE):
                     rows = unit_rows[at : at + SLICE]
-                    columns = quantities(table, rows)
+                    columns = _quantities(table, rows)
                     for name, msgtype, keep, encode in _TOPICS:
                         mine = keep(columns, len(rows))
                         if not mine.any():

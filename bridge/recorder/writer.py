@@ -1,41 +1,12 @@
-"""The archive of record: one MCAP file (or numbered files) holding every unit's messages.
+"""The archive writer: every unit's Zenoh messages into one MCAP file, or numbered parts.
 
-Layout (DESIGN.md, "Archives"):
-
-- Data channels carry the very protobuf bytes from Zenoh; topic = the Zenoh key
-  (``gx3/u1/imu``, ``gx3/u1/status``, ``gx3/u1/event``, ``gx3/u1/info``), message
-  encoding ``protobuf``, schema = schemas/gx3.proto as a FileDescriptorSet (with
-  google/protobuf/descriptor.proto), named by the full message name.
-- Log time of an ImuSample is its ``time_ns`` (every viewer's timeline is the instant
-  the values describe); publish time is the recorder's receive time. Status, Event and
-  Info are logged at their own time (``time_ns``, ``bring_up_time_ns``), or at the
-  receive time when that is unset.
-- ``<prefix>/<unit>/frame``: ``foxglove.FrameTransform`` gx3_world_ned -> the unit's
-  body frame gx3_<unit>_frd, the sensor-to-earth rotation Mᵀ, from records that carry
-  an attitude (m, quaternion or Euler), at most ``frame_rate_hz`` per unit (the
-  full-rate attitude stays in the imu channel; a viewer gains nothing from more
-  transforms than it draws). ``<prefix>/frame`` holds, once per file at its first
-  frame's time, the static gx3_world (ENU, REP-103) -> gx3_world_ned: frames.py.
-  ``<prefix>/<unit>/axes``: with each frame, a ``foxglove.PointCloud`` of dots along
-  the unit's body axes in its frame, which Foxglove and Rerun draw (Rerun makes no
-  3-D view for transforms alone).
-- ``<prefix>/log``: every archived Event again as a ``foxglove.Log`` (name = unit), at
-  the event's log time, for Foxglove's Log panel and Rerun's text log: eventlog.py.
-- Raw captures (``<prefix>/<unit>/raw``) keep their receive time on the realtime clock
-  as log time and on the raw monotonic clock as publish time, octet-stream, no schema,
-  as bridge/recorder/rawcapture.py writes them.
-- Chunked (1 MiB), zstd, indexed, with a summary, in log-time order (chunks never
-  overlap). A message waits ``reorder_s`` (0.5 s of receive time) for any logged
-  before it, then is written at the next flush, at least once a second: a killed
-  recorder loses at most the last 1.5 s and the file still opens with reader.py. A
-  message that comes later than that is written at the log time of the last one
-  written (its own time stays in its payload; a raw read's in a ``gx3.late_reads``
-  metadata record written with it) and counted (``late``, and a
-  ``gx3.order`` metadata record). ``reorder_s=None`` sorts the whole file when it is
-  finished (a replay writes unit after unit).
-  ``write_many`` takes a batch of one key at once (bridge/recorder/mcap_writer.py lays
-  out its records in bulk): the same file as ``write`` per message, at a fraction of
-  the cost.
+Data channels keep the very protobuf bytes that came over Zenoh, with the Zenoh key as
+topic; a message is logged at the instant it describes (a sample's ``time_ns``), so
+every viewer's timeline is the sensors' own. Beside them go what viewers draw: each
+unit's attitude as ``foxglove.FrameTransform`` (with dots along its axes) and the
+fleet's events as ``foxglove.Log``. Messages are written in log-time order and at least
+once a second, so a killed recorder loses at most the last 1.5 s and its file still
+opens. The layout, channel by channel: ``docs/design/archive.md``.
 """
 
 from __future__ import annotations
@@ -102,11 +73,11 @@ MESSAGES: dict[str, tuple[type[Message], str]] = {
 }
 
 
-def frame_topic(prefix: str, unit: str) -> str:
+def _frame_topic(prefix: str, unit: str) -> str:
     return f"{prefix}/{unit}/{FRAME_LEAF}"
 
 
-def fleet_topic(prefix: str, leaf: str) -> str:
+def _fleet_topic(prefix: str, leaf: str) -> str:
     """A channel of the whole fleet (no unit): the root frame, the event log."""
     return f"{prefix}/{leaf}"
 
@@ -116,9 +87,10 @@ def numbered(path: Path, index: int) -> Path:
     return path.with_name(f"{path.stem}_{index:04d}{path.suffix}")
 
 
-def next_part(path: Path) -> int:
-    """The index after the highest part of the recording ``path`` already there: a
-    restarted recorder adds parts, never replaces one. Refused while another process
+def _next_part(path: Path) -> int:
+    """The index after the highest part of the recording ``path`` already there.
+
+    A restarted recorder adds parts, never replaces one. Refused while another process
     writes that last part (one writer per recording).
     """
     pattern = re.compile(rf"{re.escape(path.stem)}_(\d{{4,}}){re.escape(path.suffix)}")
@@ -155,9 +127,11 @@ _HOLD = 1024  # messages ``write`` holds at most before handing them on
 _RELEASE_CHUNKS = 4
 
 
-def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
-    """(unit, command, time_ns) of a serialized ImuSample: from its fixed header when it
-    has the bulk layout (a few hundred ns), else by parsing it.
+def _stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
+    """(unit, command, time_ns) of a serialized ImuSample.
+
+    Read from its fixed header when it has the bulk layout (a few hundred ns), else by
+    parsing it.
     """
     head = _header(unit)
     if len(payload) >= head.size:
@@ -169,8 +143,10 @@ def stamp(unit: str, payload: bytes) -> tuple[str, int, int]:
 
 
 def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """``stamp`` of many ImuSamples: units, commands, times. Many payloads of one length
-    whose headers all name ``unit`` are read as one array; any others one by one.
+    """``_stamp`` of many ImuSamples: units, commands, times.
+
+    Many payloads of one length whose headers all name ``unit`` are read as one array;
+    any others one by one.
     """
     head = _header_dtype(unit)
     name = unit.encode()
@@ -186,7 +162,7 @@ def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray,
         if ok.all():
             return ([unit] * len(payloads), h["command"].astype(np.int64),
                     h["time_ns"].astype(np.int64))
-    found = [stamp(unit, p) for p in payloads]
+    found = [_stamp(unit, p) for p in payloads]
     return ([f[0] for f in found], np.array([f[1] for f in found], np.int64),
             np.array([f[2] for f in found], np.int64))
 
@@ -199,14 +175,15 @@ def _framed(code: int) -> bool:
 
 def frame_picks(times: np.ndarray, due: int | None,
                 period: int) -> tuple[list[int], int | None]:
-    """Which of a unit's attitude samples (at ``times``) become frames, and when the next
-    is due: the first sample at or after each tick of a grid ``period`` apart, from the
-    first sample on, so frames come exactly 1/period a second whatever the unit's clock
-    drift (a grid from each pick would wait for the sample after, at 9.9996 ms steps
-    20 Hz instead of 25). A tick with no sample of its own is skipped; time going back
-    more than two periods (a reset) starts the grid again. Times that never go back (the
-    usual case) let it jump from frame to frame, each sample's successor found for all
-    at once.
+    """Which of a unit's attitude samples (at ``times``) become frames, and the next tick due.
+
+    The picks are the first sample at or after each tick of a grid ``period`` apart,
+    from the first sample on, so frames come exactly 1/period a second whatever the
+    unit's clock drift (a grid from each pick would wait for the sample after, at
+    9.9996 ms steps 20 Hz instead of 25). A tick with no sample of its own is skipped;
+    time going back more than two periods (a reset) starts the grid again. Times that
+    never go back (the usual case) let it jump from frame to frame, each sample's
+    successor found for all at once.
     """
     if not period:
         return list(range(len(times))), due
@@ -265,16 +242,41 @@ class _Frames:
 class ArchiveWriter:
     """Write Zenoh messages (key, payload bytes, receive time) into an MCAP archive.
 
-    Units and message types get their channels on first sight. ``split_bytes`` or
-    ``split_seconds`` (of receive time) start a new numbered file (``run_0001.mcap``,
-    ``run_0002.mcap``, ...) when the current one reaches that size or age, numbered on
-    after any parts already there. An existing file is refused (``force`` replaces it
-    unless another process writes it); each file is locked while written. Call
-    ``tick()`` at least once a second while no messages arrive, so the last ones reach
-    the disk; ``close()`` finishes the file with its summary and index. Messages are
-    written in log-time order, each once ``reorder_s`` of receive time has passed its
-    log time (the receive clock runs on with ``clock`` while none arrive); with
-    ``reorder_s=None``, when the file is finished.
+    Units and message types get their channels on first sight. A message is logged at
+    the instant it describes: an ImuSample at its ``time_ns``, a Status, Event or Info
+    at its own time (``time_ns``, ``bring_up_time_ns``), or at its receive time where
+    that is unset; its publish time is its receive time (a raw read's, its stamp on the
+    raw monotonic clock). Messages are written in log-time order, each once
+    ``reorder_s`` of receive time has passed its log time (the receive clock runs on
+    with ``clock`` while none arrive). Call ``tick()`` at least once a second while no
+    messages arrive, so the last ones reach the disk; ``close()`` finishes the file with
+    its summary and index. Each file is locked while written.
+
+    Args:
+        path: The archive to create. With ``split_bytes`` or ``split_seconds``, the name
+            of its numbered parts (``run.mcap``: ``run_0001.mcap``, ``run_0002.mcap``,
+            ...), numbered on after any parts already there.
+        prefix: The key prefix of the messages (``gx3``).
+        chunk_size: Bytes of records in an MCAP chunk before it is compressed.
+        split_bytes: Start the next part once the current one reaches this size.
+        split_seconds: Start the next part once the current one is this old, in seconds
+            of receive time.
+        frames: Whether attitude samples also become ``foxglove.FrameTransform`` and
+            axis dots for viewers.
+        frame_rate_hz: Frames per second and unit at most (None or 0: every attitude
+            sample).
+        frame_spacing: Metres between neighbouring units in the frames' scene.
+        reorder_s: How long (receive time) a message waits for those logged before it;
+            None sorts the whole file when it is finished (a replay writes unit after
+            unit).
+        metadata: Written into every file, as its ``gx3.archive`` metadata record.
+        clock: Monotonic seconds: the clock of flushes and of the reorder window.
+        force: Replace an existing file (not a split's parts: those continue after the
+            last), unless another process writes it.
+
+    Raises:
+        ArchiveError: The file exists (without ``force``), another process writes it,
+            or it cannot be created.
     """
 
     def __init__(self, path: Path, *, prefix: str = PREFIX, chunk_size: int = 1 << 20,
@@ -320,11 +322,12 @@ class ArchiveWriter:
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        """Create the next file exclusively and lock it (bridge/recorder/outputs.py): an existing
-        one is never truncated; split parts continue after those already there.
+        """Create the next file exclusively and lock it (``bridge.recorder.outputs``).
+
+        An existing one is never truncated; split parts continue after those already there.
         """
         if self._splits and not self.paths:
-            self._first_part = next_part(self.path)
+            self._first_part = _next_part(self.path)
         index = self._first_part + len(self.paths)
         path = numbered(self.path, index) if self._splits else self.path
         try:
@@ -395,10 +398,11 @@ class ArchiveWriter:
     def _add(self, topic: str, unit: str, leaf: str, log_ns: np.ndarray,
              payloads: Sequence[bytes], receive_ns: np.ndarray,
              publish_ns: np.ndarray | None = None) -> int:
-        """Hand messages of one topic to the file's writer; returns how many were taken
-        (all, unless the file splits by size: then about a chunk's worth, so the caller
-        can look at the file's size). Their publish times are ``publish_ns``, by default
-        their receive times.
+        """Hand messages of one topic to the file's writer; returns how many were taken.
+
+        All are taken, unless the file splits by size: then about a chunk's worth, so the
+        caller can look at the file's size. Their publish times are ``publish_ns``, by
+        default their receive times.
         """
         f = self._current()
         cid = f.channels.get(topic) or self._register(topic, unit, leaf)
@@ -427,7 +431,17 @@ class ArchiveWriter:
             self._rx_latest, self._rx_seen_at = rx, self._clock()
 
     def route(self, key: str) -> tuple[str, str]:
-        """(unit, leaf) of a key, checked once per key (ValueError: not one it archives)."""
+        """The unit and the leaf of a key, checked once per key.
+
+        Args:
+            key: A Zenoh key, ``<prefix>/<unit>/<leaf>``.
+
+        Returns:
+            (unit, leaf).
+
+        Raises:
+            ValueError: The key is not one the archive has a channel for.
+        """
         known = self._routes.get(key)
         if known is not None:
             return known
@@ -442,8 +456,7 @@ class ArchiveWriter:
     # -- writing -------------------------------------------------------------------------
 
     def write(self, key: str, payload: bytes, receive_ns: int | None = None) -> None:
-        """One message as it came from Zenoh (or one raw read), received at ``receive_ns``
-        (host ns; now when omitted).
+        """Archive one message as it came from Zenoh (or one raw read).
 
         It is checked at once (a bad key or payload raises here), then held with the
         other messages of its key: they go to ``write_many`` together when many are
@@ -451,13 +464,25 @@ class ArchiveWriter:
         soon as before. Each topic keeps its order; between topics the file's order
         can differ from the order of the calls, except in a recording split by age,
         where a message of another key hands over the ones held first.
+
+        Args:
+            key: The message's Zenoh key.
+            payload: Its bytes, as published.
+            receive_ns: When it was received, host ns on the realtime clock; now when
+                omitted.
+
+        Raises:
+            ValueError: The key is not one the archive has a channel for, or the payload
+                is not a message of the key's type.
+            ArchiveError: The archive is closed, or a write failed (the archive stops
+                there; what was written stays readable).
         """
         if self._broken is not None:
             raise self._broken
         self._current()  # a closed archive takes nothing
         unit, leaf = self.route(key)
         if leaf == "imu":
-            stamp(unit, payload)
+            _stamp(unit, payload)
         elif leaf != "raw":
             self._logged_at(key, leaf, payload)
         if self.split_ns is not None and key not in self._held:
@@ -485,10 +510,19 @@ class ArchiveWriter:
 
     def write_many(self, key: str, payloads: Sequence[bytes],
                    receive_ns: int | np.ndarray, publish_ns: np.ndarray | None = None) -> None:
-        """Messages of one key, received at ``receive_ns`` (host ns: one for all, or one
-        per payload): the archive ``write`` gives message by message, in bulk.
-        ``publish_ns``: raw reads' raw-clock stamps, their publish times (rawcapture.py);
-        by default the receive times are.
+        """Archive messages of one key at once: what ``write`` gives message by message.
+
+        Args:
+            key: The messages' Zenoh key.
+            payloads: Their bytes, as published.
+            receive_ns: When they were received, host ns: one time for all, or one each.
+            publish_ns: Raw reads' stamps on the raw monotonic clock, their publish times
+                (``bridge.recorder.rawcapture``); by default the receive times are.
+
+        Raises:
+            ValueError: The key is not one the archive has a channel for, a payload is
+                not a message of its type, or the times do not match the payloads.
+            ArchiveError: The archive is closed, or a write failed.
         """
         if self._broken is not None:
             raise self._broken
@@ -550,12 +584,13 @@ class ArchiveWriter:
         rate = self._rates.get(unit, 0.0)
         logs = [log_message(unit, Event.FromString(p), t, rate)
                 for p, t in zip(payloads, log_ns.tolist(), strict=True)]
-        self._add_all(fleet_topic(self.prefix, LOG_LEAF), LOG_LEAF, log_ns, logs, rx)
+        self._add_all(_fleet_topic(self.prefix, LOG_LEAF), LOG_LEAF, log_ns, logs, rx)
 
     def _add_all(self, topic: str, leaf: str, log_ns: np.ndarray,
                  payloads: Sequence[bytes], rx: np.ndarray, unit: str = "") -> None:
-        """``_add`` until every message is taken (a file split by size takes a chunk's
-        worth at a time).
+        """``_add`` until every message is taken.
+
+        A file split by size takes a chunk's worth at a time.
         """
         done = 0
         while done < len(payloads):
@@ -571,8 +606,9 @@ class ArchiveWriter:
 
     def _queue_frames(self, unit: str, units: list[str], codes: np.ndarray,
                       log_ns: np.ndarray, payloads: Sequence[bytes], rx: np.ndarray) -> None:
-        """Keep the samples that become FrameTransforms (records without attitude get
-        none): at most one a period per unit.
+        """Keep the samples that become FrameTransforms: at most one a period per unit.
+
+        Records without attitude get none.
         """
         code_list = codes.tolist()
         kinds = set(code_list)
@@ -623,12 +659,12 @@ class ArchiveWriter:
         if made and not f.rooted:  # the root before the file's first frame, at its time
             at = min(int(m[1].min()) for m in made)
             received = min(int(m[3].min()) for m in made)
-            self._add_all(fleet_topic(self.prefix, FRAME_LEAF), FRAME_LEAF,
+            self._add_all(_fleet_topic(self.prefix, FRAME_LEAF), FRAME_LEAF,
                           np.array([at], np.int64), [root_message(at, self.prefix)],
                           np.array([received], np.int64))
             f.rooted = True
         for unit, times, frames, rx in made:
-            self._add_all(frame_topic(self.prefix, unit), FRAME_LEAF, times, frames, rx, unit)
+            self._add_all(_frame_topic(self.prefix, unit), FRAME_LEAF, times, frames, rx, unit)
             self._add_all(f"{self.prefix}/{unit}/{AXES_LEAF}", AXES_LEAF, times,
                           marker_messages(unit, times, self.prefix), rx, unit)
 
@@ -646,8 +682,9 @@ class ArchiveWriter:
         return kept
 
     def _maybe_split(self, rx: int) -> None:
-        """Start the next file before a message received at ``rx`` if this one is full or
-        old; a file's age counts from the receive time of its first message.
+        """Start the next file before a message received at ``rx`` if this one is full or old.
+
+        A file's age counts from the receive time of its first message.
         """
         f = self._current()
         if f.opened_ns is None:
@@ -676,8 +713,12 @@ class ArchiveWriter:
             self._release()
 
     def flush(self) -> None:
-        """Write what the reorder window lets go, close the open chunk and hand it all to
-        the OS (a crash keeps it).
+        """Write what the reorder window lets go, close the open chunk, hand it to the OS.
+
+        A crash keeps what was flushed.
+
+        Raises:
+            ArchiveError: The archive is closed, or a write failed.
         """
         self._drain()
         self._write_frames()
@@ -686,13 +727,26 @@ class ArchiveWriter:
         self._flushed = self._clock()
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        """A metadata record into the file being written: what its writer learnt only
-        as the recording went (the ``metadata`` given at start go into every file).
+        """Write a metadata record into the file being written.
+
+        For what its writer learnt only as the recording went: the ``metadata`` given at
+        the start go into every file.
+
+        Args:
+            name: The record's name (``gx3.hosts``, ...).
+            data: Its key-value pairs.
+
+        Raises:
+            ArchiveError: The archive is closed, or a write failed.
         """
         self._guard(self._current().writer.add_metadata, name, data)
 
     def tick(self) -> None:
-        """Flush if the last flush is a second old: call this while messages pause."""
+        """Flush if the last flush is a second old: call this while messages pause.
+
+        Raises:
+            ArchiveError: A write failed.
+        """
         if self._file is not None and self._clock() - self._flushed >= FLUSH_EVERY_S:
             self.flush()
 
@@ -723,8 +777,10 @@ class ArchiveWriter:
                     raise self._fail(f.path, exc) from None
 
     def abandon(self) -> None:
-        """Stop without finishing the file: for an output that is thrown away (a batch
-        command that failed or was interrupted), where finishing is only a wait.
+        """Stop without finishing the file.
+
+        For an output that is thrown away (a batch command that failed or was
+        interrupted), where finishing is only a wait.
         """
         if self._file is not None:
             f, self._file = self._file, None
@@ -733,7 +789,11 @@ class ArchiveWriter:
                 f.stream.close()
 
     def close(self) -> None:
-        """Finish the file (summary and index); safe to call twice, and after an error."""
+        """Finish the file (summary and index); safe to call twice, and after an error.
+
+        Raises:
+            ArchiveError: Finishing the file failed (what was written stays readable).
+        """
         if self._file is not None:
             try:
                 self._drain()

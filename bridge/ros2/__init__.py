@@ -1,1 +1,54 @@
-"""ROS 2 messages of GX3 samples, shared by the archive export and live publishing."""
+"""ROS 2 messages of GX3 samples, shared by the archive export and live publishing.
+
+``bridge.ros2.messages`` says once what a GX3 sample means to ROS (REP-103 and REP-145
+frames, SI units, ``sensor_msgs/msg/Imu`` and ``MagneticField`` in CDR);
+``bridge.ros2.rmw`` puts them on Zenoh the way ``rmw_zenoh_cpp`` does, so that ROS 2
+nodes see a bridge's units as topics. How they fit in: ``docs/design/architecture.md``.
+
+The Zenoh side (``UnitTopics``, ``Ros2Node``, ``Ros2Publisher``, ``Qos``) is imported
+on first use, so that the archive export needs no Zenoh.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from bridge._lazy import imported
+from bridge.ros2.messages import (
+    IMU,
+    MAGNETIC_FIELD,
+    frame_id,
+    imu_cdr,
+    imu_cdr_batch,
+    mag_cdr_batch,
+    message_definition,
+    ros_topic,
+    type_hash,
+)
+
+if TYPE_CHECKING:
+    from bridge.ros2.rmw import Qos, Ros2Node, Ros2Publisher, UnitTopics
+
+__all__ = [
+    "IMU",
+    "MAGNETIC_FIELD",
+    "Qos",
+    "Ros2Node",
+    "Ros2Publisher",
+    "UnitTopics",
+    "frame_id",
+    "imu_cdr",
+    "imu_cdr_batch",
+    "mag_cdr_batch",
+    "message_definition",
+    "ros_topic",
+    "type_hash",
+]
+
+#: Names whose module imports Zenoh, imported on first use.
+_ON_FIRST_USE = {name: "bridge.ros2.rmw" for name in ("Qos", "Ros2Node", "Ros2Publisher",
+                                                      "UnitTopics")}
+
+
+def __getattr__(name: str) -> object:
+    return imported(__name__, _ON_FIRST_USE, name)

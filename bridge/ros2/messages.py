@@ -63,14 +63,28 @@ def _typestore() -> Typestore:
 
 
 def message_definition(msgtype: str) -> str:
-    """The ``ros2msg`` text rosbag2 embeds as an MCAP schema: the message, then each
-    type it uses after a line of ``=`` and ``MSG: <type>``.
+    """The ``ros2msg`` text rosbag2 embeds as an MCAP schema.
+
+    The message, then each type it uses after a line of ``=`` and ``MSG: <type>``.
+
+    Args:
+        msgtype: The message type, e.g. ``sensor_msgs/msg/Imu``.
+
+    Returns:
+        The definition.
     """
     return _typestore().generate_msgdef(msgtype, ros_version=2)[0]
 
 
 def type_hash(msgtype: str) -> str:
-    """The message's RIHS01 type hash, e.g. ``RIHS01_7d9a…`` for Imu."""
+    """The message's RIHS01 type hash.
+
+    Args:
+        msgtype: The message type, e.g. ``sensor_msgs/msg/Imu``.
+
+    Returns:
+        The hash, e.g. ``RIHS01_7d9a…`` for Imu.
+    """
     return _typestore().hash_rihs01(msgtype)
 
 
@@ -78,8 +92,10 @@ _NOT_ROS = re.compile(r"[^A-Za-z0-9_]+")
 
 
 def ros_token(name: str) -> str:
-    """A unit name or key prefix as one ROS name token (letters, digits, single '_',
-    not starting with a digit): ``imu-1`` -> ``imu_1``, ``6234.1`` -> ``u6234_1``.
+    """A unit name or key prefix as one ROS name token.
+
+    Letters, digits, single '_', not starting with a digit: ``imu-1`` -> ``imu_1``,
+    ``6234.1`` -> ``u6234_1``.
     """
     token = _NOT_ROS.sub("_", name).strip("_")
     token = re.sub("_+", "_", token) or "unit"
@@ -87,26 +103,43 @@ def ros_token(name: str) -> str:
 
 
 def ros_topic(prefix: str, unit: str, leaf: str) -> str:
-    """A unit's ROS topic, its Zenoh key chunks made ROS name tokens: ``/gx3/imu1/imu``."""
+    """A unit's ROS topic: its Zenoh key, the chunks made ROS name tokens.
+
+    Args:
+        prefix: The key prefix (``gx3``).
+        unit: The unit's name.
+        leaf: The topic's last part (``imu``, ``mag``).
+
+    Returns:
+        The topic, e.g. ``/gx3/imu1/imu``.
+    """
     return "/" + "/".join(ros_token(c) for c in (*prefix.split("/"), unit, leaf))
 
 
 def frame_id(unit: str, prefix: str = "gx3") -> str:
-    """A unit's body frame: ``gx3_<unit>``, prefixed so it cannot collide with another
-    system's frames (a key prefix with slashes keeps them as underscores).
+    """A unit's body frame: ``gx3_<unit>``, prefixed so it cannot collide with another system's.
+
+    Args:
+        unit: The unit's name.
+        prefix: The key prefix; its slashes become underscores.
+
+    Returns:
+        The frame id.
     """
     return f"{prefix.replace('/', '_')}_{unit}"
 
 
-def body_flu(frd: npt.ArrayLike) -> np.ndarray:
+def _body_flu(frd: npt.ArrayLike) -> np.ndarray:
     """(..., 3) vectors in the GX3 body frame (forward-right-down) -> forward-left-up."""
     out: np.ndarray = np.asarray(frd, np.float64) * np.array([1.0, -1.0, -1.0])
     return out
 
 
-def earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
-    """(n, 3, 3) M (earth NED -> sensor FRD) of n records, each from m, the quaternion or
-    the Euler angles, whichever it holds first in that order; NaN where it holds none.
+def _earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """(n, 3, 3) M (earth NED -> sensor FRD) of n records.
+
+    Each from m, the quaternion or the Euler angles, whichever it holds first in that
+    order; NaN where it holds none.
     """
     as_m: dict[str, Callable[[np.ndarray], np.ndarray]] = {
         "m": lambda v: v.reshape(n, 3, 3), "quaternion": quaternion_to_m, "euler": euler_to_m}
@@ -119,7 +152,7 @@ def earth_to_sensor(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     return out
 
 
-def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
+def _orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
     """(..., 3, 3) M -> (..., 4) x, y, z, w: the rotation from body FLU to world ENU.
 
     GX3 body-to-earth is Mᵀ; in ROS frames that is NED_TO_ENU · Mᵀ · FRD_TO_FLU, whose
@@ -132,8 +165,9 @@ def orientation_xyzw(m: npt.ArrayLike) -> np.ndarray:
 
 def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
           width: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n, width) float64 values, each row from the first of ``names`` that it holds
-    (finite), and which rows hold one; zeros where none.
+    """(n, width) float64 values, each row from the first of ``names`` that it holds (finite).
+
+    Also which rows hold one; zeros where none.
     """
     values, present = np.zeros((n, width)), np.zeros(n, bool)
     for name in names:
@@ -146,8 +180,9 @@ def _rows(columns: Mapping[str, np.ndarray], names: tuple[str, ...], n: int,
 
 
 def _stamp_layout(frame: str, doubles: int) -> np.dtype:
-    """The CDR layout of a message that starts with a std_msgs/Header of ``frame`` and
-    continues with ``doubles`` float64 (aligned to 8 from the end of the encapsulation).
+    """The CDR layout of a message: a std_msgs/Header of ``frame``, then ``doubles`` float64.
+
+    The doubles are aligned to 8 from the end of the encapsulation.
     """
     name = frame.encode() + b"\x00"
     body = 12 + len(name)
@@ -180,25 +215,27 @@ def _messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[b
     return [data[i : i + size] for i in range(0, len(data), size)]
 
 
-def imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
-    """(n, 37) float64 of Imu after its header, in ROS frames and units: orientation
-    x y z w and its covariance, angular velocity and its covariance, linear acceleration
-    and its covariance; element 0 of a covariance -1 where the record lacks the quantity.
+def _imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """(n, 37) float64 of Imu after its header, in ROS frames and units.
+
+    Orientation x y z w and its covariance, angular velocity and its covariance, linear
+    acceleration and its covariance; element 0 of a covariance -1 where the record lacks
+    the quantity.
 
     ``columns``: the record's quantities as the GX3 gives them (``accel`` g, ``ang_rate``
     rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN rows are absent.
     """
     out = np.zeros((n, 37))
-    m = earth_to_sensor(columns, n)
+    m = _earth_to_sensor(columns, n)
     has = np.isfinite(m).all(axis=(1, 2))
-    out[has, 0:4] = orientation_xyzw(m[has])
+    out[has, 0:4] = _orientation_xyzw(m[has])
     out[~has, 3] = 1.0  # geometry_msgs/Quaternion's default: the identity
     out[~has, 4] = -1.0
     rate, has_rate = _rows(columns, ("ang_rate",), n, 3)
-    out[has_rate, 13:16] = body_flu(rate[has_rate])
+    out[has_rate, 13:16] = _body_flu(rate[has_rate])
     out[~has_rate, 16] = -1.0
     accel, has_accel = _rows(columns, ("accel",), n, 3)
-    out[has_accel, 25:28] = body_flu(accel[has_accel]) * STANDARD_GRAVITY
+    out[has_accel, 25:28] = _body_flu(accel[has_accel]) * STANDARD_GRAVITY
     out[~has_accel, 28] = -1.0
     return out
 
@@ -219,16 +256,40 @@ def has_mag(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
 
 def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
                   columns: Mapping[str, np.ndarray]) -> list[bytes]:
-    """CDR ``sensor_msgs/msg/Imu`` of each record, stamped ``time_ns`` (int ns since
-    1970), in ``frame``; see :func:`imu_doubles` for ``columns``.
+    """CDR ``sensor_msgs/msg/Imu`` of each record, in ROS frames and units.
+
+    A quantity a record lacks (a NaN row, or an absent column) is marked by element 0
+    of its covariance, -1.
+
+    Args:
+        time_ns: Each record's stamp, int ns since 1970.
+        frame: The frame id (``frame_id``).
+        columns: The records' quantities as the GX3 gives them (``accel`` g,
+            ``ang_rate`` rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each.
+
+    Returns:
+        One message per record.
+
+    Raises:
+        ValueError: A stamp is outside the range of builtin_interfaces/Time.
     """
     n = len(np.asarray(time_ns).reshape(-1))
-    return _messages(time_ns, frame, imu_doubles(columns, n))
+    return _messages(time_ns, frame, _imu_doubles(columns, n))
 
 
 def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
-    """One record's CDR ``sensor_msgs/msg/Imu``; ``columns`` hold one value each
-    (``accel`` of shape (3,), ``m`` (3, 3), ...).
+    """One record's CDR ``sensor_msgs/msg/Imu``.
+
+    Args:
+        time_ns: Its stamp, int ns since 1970.
+        frame: The frame id (``frame_id``).
+        columns: One value of each quantity (``accel`` of shape (3,), ``m`` (3, 3), ...).
+
+    Returns:
+        The message.
+
+    Raises:
+        ValueError: The stamp is outside the range of builtin_interfaces/Time.
     """
     one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
     return imu_cdr_batch([time_ns], frame, one)[0]
@@ -236,20 +297,32 @@ def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> b
 
 def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
                   columns: Mapping[str, np.ndarray]) -> list[bytes]:
-    """CDR ``sensor_msgs/msg/MagneticField`` of each record (``mag``, or else
-    ``stab_mag``, in gauss): the field in tesla in the body FLU frame, covariance 0
-    (unknown). Give only records that carry a field (:func:`has_mag`).
+    """CDR ``sensor_msgs/msg/MagneticField`` of each record.
+
+    The field in tesla in the body FLU frame, covariance 0 (unknown).
+
+    Args:
+        time_ns: Each record's stamp, int ns since 1970.
+        frame: The frame id (``frame_id``).
+        columns: The records' ``mag``, or else ``stab_mag``, in gauss, (n, 3).
+
+    Returns:
+        One message per record.
+
+    Raises:
+        ValueError: A record carries no field (give only those ``has_mag`` picks), or a
+            stamp is outside the range of builtin_interfaces/Time.
     """
     t = np.asarray(time_ns, np.int64).reshape(-1)
     field, present = _rows(columns, MAGNETOMETER, len(t), 3)
     if not present.all():
         raise ValueError("a record without a magnetic field cannot be a MagneticField message")
     doubles = np.zeros((len(t), 12))
-    doubles[:, 0:3] = body_flu(field) * TESLA_PER_GAUSS
+    doubles[:, 0:3] = _body_flu(field) * TESLA_PER_GAUSS
     return _messages(t, frame, doubles)
 
 
-def mag_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
+def _mag_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
     """One record's CDR ``sensor_msgs/msg/MagneticField``."""
     one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
     return mag_cdr_batch([time_ns], frame, one)[0]

@@ -61,7 +61,15 @@ AUTOMATIC = 1
 
 @dataclass(frozen=True)
 class Qos:
-    """The QoS a token announces; the deadline, lifespan and lease stay infinite."""
+    """The QoS a token announces; the deadline, lifespan and lease stay infinite.
+
+    Attributes:
+        reliability: ``RELIABLE`` or ``BEST_EFFORT``.
+        durability: ``TRANSIENT_LOCAL`` or ``VOLATILE``.
+        history: ``KEEP_LAST`` or ``KEEP_ALL``.
+        depth: Messages kept, with ``KEEP_LAST``.
+        liveliness: ``AUTOMATIC``.
+    """
 
     reliability: int = RELIABLE
     durability: int = VOLATILE
@@ -88,22 +96,24 @@ def qos_keyexpr(qos: Qos) -> str:
             f"{differs(qos.liveliness, d.liveliness)},,")
 
 
-def mangle(name: str) -> str:
+def _mangle(name: str) -> str:
     """A ROS name as one key chunk: each '/' becomes '%' (so '/' alone is '%')."""
     return name.replace("/", "%")
 
 
 def dds_type(msgtype: str) -> str:
-    """The type name in keys and tokens: ``sensor_msgs/msg/Imu`` ->
-    ``sensor_msgs::msg::dds_::Imu_`` (as CDR names it in DDS).
+    """The type name in keys and tokens, as CDR names it in DDS.
+
+    ``sensor_msgs/msg/Imu`` -> ``sensor_msgs::msg::dds_::Imu_``.
     """
     package, kind, name = msgtype.split("/")
     return f"{package}::{kind}::dds_::{name}_"
 
 
 def topic_key(domain: int, topic: str, type_name: str, type_hash: str) -> str:
-    """The key a topic's samples travel on, e.g. ``0/chatter/std_msgs::msg::dds_::String_/
-    RIHS01_df66…``.
+    """The key a topic's samples travel on.
+
+    E.g. ``0/chatter/std_msgs::msg::dds_::String_/RIHS01_df66…``.
     """
     return f"{domain}/{topic.strip('/')}/{type_name}/{type_hash}"
 
@@ -121,14 +131,16 @@ class NodeName:
 
     def _head(self, entity_id: int, kind: str) -> str:
         return (f"{ADMIN_SPACE}/{self.domain}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
-                f"{mangle(self.enclave)}/{mangle(self.namespace)}/{self.name}")
+                f"{_mangle(self.enclave)}/{_mangle(self.namespace)}/{self.name}")
 
     def node_token(self) -> str:
+        """The node's liveliness token."""
         return self._head(self.node_id, "NN")
 
     def publisher_token(self, entity_id: int, topic: str, type_name: str, type_hash: str,
                         qos: Qos) -> str:
-        return (f"{self._head(entity_id, 'MP')}/{mangle(topic)}/{type_name}/{type_hash}/"
+        """The liveliness token of one of the node's publishers."""
+        return (f"{self._head(entity_id, 'MP')}/{_mangle(topic)}/{type_name}/{type_hash}/"
                 f"{qos_keyexpr(qos)}")
 
 
@@ -153,7 +165,18 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
 
 
 class Ros2Publisher:
-    """One topic: a Zenoh publisher on its key and its liveliness token."""
+    """One topic: a Zenoh publisher on its key and its liveliness token.
+
+    Args:
+        session: The Zenoh session.
+        node: The node it belongs to.
+        entity_id: Its id in the node (from 1).
+        topic: The ROS topic, e.g. ``/gx3/imu1/imu``.
+        type_name: The DDS type name (``dds_type``).
+        type_hash: The RIHS01 type hash.
+        qos: What its token announces; a reliable keep-all publisher blocks when
+            congested, any other drops.
+    """
 
     def __init__(self, session: zenoh.Session, node: NodeName, entity_id: int, topic: str,
                  type_name: str, type_hash: str, qos: Qos) -> None:
@@ -181,8 +204,12 @@ class Ros2Publisher:
         return bool(status.matching)
 
     def put_all(self, payloads: Iterable[bytes]) -> None:
-        """Publish CDR messages, each with the next sequence number; the source
-        timestamp is the publication time, as rmw_zenoh's.
+        """Publish CDR messages, each with the next sequence number.
+
+        The source timestamp is the publication time, as rmw_zenoh's.
+
+        Args:
+            payloads: The messages, CDR with encapsulation header.
         """
         put, source_gid = self._pub.put, self.gid
         sequence, now = self.sequence, clock.realtime_ns()
@@ -198,7 +225,17 @@ class Ros2Publisher:
 
 
 class Ros2Node:
-    """A ROS 2 node on a Zenoh session: its token, and publishers declared on it."""
+    """A ROS 2 node on a Zenoh session: its token, and publishers declared on it.
+
+    Args:
+        session: The Zenoh session.
+        domain: The ROS domain id (``ROS_DOMAIN_ID``).
+        name: The node's name.
+        namespace: The node's namespace.
+
+    Raises:
+        ValueError: The domain is outside 0 to ``MAX_DOMAIN``.
+    """
 
     def __init__(self, session: zenoh.Session, domain: int, name: str,
                  namespace: str = "/") -> None:
@@ -211,7 +248,16 @@ class Ros2Node:
         self._lock = threading.Lock()
 
     def publisher(self, topic: str, msgtype: str, qos: Qos = SENSOR_QOS) -> Ros2Publisher:
-        """A publisher of ``msgtype`` (e.g. ``sensor_msgs/msg/Imu``) on ``topic``."""
+        """Declare a publisher on the node.
+
+        Args:
+            topic: The ROS topic, e.g. ``/gx3/imu1/imu``.
+            msgtype: Its message type, e.g. ``sensor_msgs/msg/Imu``.
+            qos: What it announces.
+
+        Returns:
+            The publisher; the node closes it.
+        """
         with self._lock:
             pub = Ros2Publisher(self.session, self.name, len(self._publishers) + 1, topic,
                                 dds_type(msgtype), type_hash(msgtype), qos)
@@ -230,10 +276,21 @@ class Ros2Node:
 
 
 class UnitTopics:
-    """One unit on ROS 2: a node ``<prefix>_bridge_<unit>`` publishing ``sensor_msgs/Imu``
-    on ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
+    """One unit on ROS 2: a node publishing its samples as ``sensor_msgs`` messages.
+
+    The node ``<prefix>_bridge_<unit>`` publishes ``sensor_msgs/Imu`` on
+    ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
     ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
     ROS 2 export uses.
+
+    Args:
+        session: The Zenoh session.
+        domain: The ROS domain id.
+        prefix: The key prefix (``gx3``).
+        unit: The unit's name.
+
+    Raises:
+        ValueError: The domain is outside 0 to ``MAX_DOMAIN``.
     """
 
     def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str) -> None:
@@ -248,7 +305,12 @@ class UnitTopics:
             raise
 
     def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
-        """The records of ``batch``, stamped with their ``time_ns``."""
+        """Publish the records of a batch.
+
+        Args:
+            batch: The records.
+            time_ns: Their instants, host ns: each message's stamp.
+        """
         names, imu, mag = _contents(batch.code)
         columns = {name: batch[name] for name in names}
         if imu:  # every record: a NaN quantity is told by its covariance (-1)
@@ -262,6 +324,7 @@ class UnitTopics:
                                                {k: v[rows] for k, v in columns.items()}))
 
     def close(self) -> None:
+        """Undeclare the node and its publishers."""
         self.node.close()
 
 

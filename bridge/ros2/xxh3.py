@@ -1,6 +1,7 @@
-"""XXH3-128 (seed 0, default secret): how rmw_zenoh turns an entity's liveliness token
-into its 16-byte GID, so the GID in our attachments is the one every ROS 2 node
-computes for our publisher from its token.
+"""XXH3-128 (seed 0, default secret): how rmw_zenoh makes an entity's GID of its token.
+
+A liveliness token's 16-byte GID is its XXH3-128, so the GID in our attachments is the
+one every ROS 2 node computes for our publisher from its token.
 
 Only inputs longer than 16 bytes (a token is always much longer); checked against
 xxHash's own sanity-check vectors.

@@ -27,7 +27,16 @@ WALL_NS = 1_763_000_000_000_000_000  # where virtual host time 0 sits on the wal
 
 @dataclass
 class SyntheticCapture:
-    """Reads (receive time, bytes) and the truth of every record sent, oldest first."""
+    """Reads (receive time, bytes) and the truth of every record sent, oldest first.
+
+    Attributes:
+        rx_ns: Each read's receive time, host ns (int64).
+        data: Each read's bytes.
+        code: The record type streamed.
+        truth: Per record sent, as ``TruthLog.arrays`` gives it.
+        config: The unit, as it ran.
+        delivery: The link: native USB, a USB-serial adapter or a UART.
+    """
 
     rx_ns: np.ndarray  # int64, one per read
     data: list[bytes]
@@ -37,8 +46,12 @@ class SyntheticCapture:
     delivery: HostDelivery  # native USB, a USB-serial adapter or a UART
 
     def records(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every record's timer and the receive time of the read that completed it,
-        as the framer finds them in the reads: what the bridge feeds the timeline.
+        """Every record's timer and the receive time of the read that completed it.
+
+        As the framer finds them in the reads: what the bridge feeds the timeline.
+
+        Returns:
+            (timers, uint32; receive times, int64 ns), one each per record.
         """
         framer = Framer(expect=[self.code])
         timers, rx = [], []
@@ -52,9 +65,18 @@ class SyntheticCapture:
 
 def streaming_config(config: UnitConfig, code: int = 0xC2, decimation: int = 10,
                      filter_width: int | None = None, baud: int = USB_BAUD) -> UnitConfig:
-    """``config`` with a stored preset that streams ``code`` from power-up, its line
-    paced at ``baud``: USB speed by default, a serial port's rate behind a UART or a
-    USB-serial adapter.
+    """``config`` with a stored preset that streams ``code`` from power-up.
+
+    Args:
+        config: The unit.
+        code: The record type to stream.
+        decimation: Calculation cycles (1 ms) per record.
+        filter_width: The filter's width; None: the stored one.
+        baud: The pace of its line: USB speed (``USB_BAUD``) by default, a serial
+            port's rate behind a UART or a USB-serial adapter.
+
+    Returns:
+        The config, its stored memory changed.
     """
     s = config.stored
     sampling = replace(s.sampling, decimation=decimation,
@@ -73,6 +95,19 @@ def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
     crossing the unit's line (known from the record's cycle and the baud rate),
     before the host reads past its first byte; this keeps 10 minutes of 100 Hz
     output to a few seconds of CPU on every link.
+
+    Args:
+        config: A unit that streams from power-up (``streaming_config``).
+        delivery: The link to the host.
+        seconds: How long to run, virtual seconds.
+        start: Host time of power-up, virtual seconds.
+
+    Returns:
+        What the host read, beside the truth of every record.
+
+    Raises:
+        ValueError: The unit does not stream from power-up, its pace does not suit the
+            link, or its records do not fit its line.
     """
     code = config.stored.continuous_preset
     if config.stored.mode_preset != Mode.CONTINUOUS or code not in REPLIES:

@@ -10,10 +10,19 @@ import numpy as np
 
 @dataclass(frozen=True)
 class FaultConfig:
-    """Rates are per byte; intervals are mean seconds between events (0: never).
+    """Line faults of one unit: rates are per byte, intervals mean seconds between events.
 
-    ``disconnect_power_cycles``: a disconnect also cuts a USB-powered unit's power,
-    so it boots when plugged back in.
+    Attributes:
+        bit_flip_rate: Chance that a byte has one bit flipped.
+        drop_rate: Chance that a byte is lost.
+        stall_every_s: Mean seconds between stalls (the host receives nothing, then
+            everything at once); 0: never.
+        stall_s: How long a stall lasts.
+        disconnect_every_s: Mean seconds between disconnects (the cable is out, bytes
+            are lost); 0: never.
+        disconnect_s: How long a disconnect lasts.
+        disconnect_power_cycles: A disconnect also cuts a USB-powered unit's power, so
+            it boots when plugged back in.
     """
 
     bit_flip_rate: float = 0.0
@@ -68,10 +77,12 @@ class Faults:
 
     @property
     def stalls(self) -> int:
+        """Stalls that have ended so far."""
         return self._stalls.ended
 
     @property
     def disconnects(self) -> int:
+        """Disconnects that have ended so far."""
         return self._outages.ended
 
     def corrupt(self, data: bytes) -> bytes:

@@ -63,9 +63,16 @@ class MotionConfig:
 
 
 def tumbling(config: MotionConfig) -> MotionConfig:
-    """``config`` turned through every orientation: roll and yaw keep turning (at
-    incommensurate rates) while pitch swings to its +/-55 degrees, the motion a
-    magnetometer iron calibration needs.
+    """``config`` turned through every orientation: the motion an iron calibration needs.
+
+    Roll and yaw keep turning (at incommensurate rates) while pitch swings to its +/-55
+    degrees.
+
+    Args:
+        config: The motion to turn.
+
+    Returns:
+        The config, its attitude amplitude and spin changed.
     """
     return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
@@ -115,6 +122,9 @@ class Motion:
     wraps); the earth-frame linear acceleration is a sum of two per axis. Pitch stays
     within +/-55 degrees, clear of the Euler singularity. static freezes the t = 0 pose.
     Sums over terms use einsum: one pass, in an order that does not depend on the batch.
+
+    Args:
+        config: What the unit experiences; None: the default motion.
     """
 
     def __init__(self, config: MotionConfig | None = None) -> None:
@@ -148,7 +158,14 @@ class Motion:
         self._bandwidth_rad_s = float(3.0 * euler_rate.max() + 2.0 * max_omega)
 
     def euler_and_rates(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """Unwrapped roll, pitch, yaw [rad] and their time derivatives, shape t.shape + (3,)."""
+        """Unwrapped roll, pitch, yaw [rad] and their time derivatives.
+
+        Args:
+            t: Device times [s].
+
+        Returns:
+            (Euler angles, their rates [rad/s]), shape t.shape + (3,) each.
+        """
         t = np.asarray(t, dtype=np.float64)[..., None]
         phase = self._att_phase + self._att_omega * t[..., None]
         euler = np.einsum("ak,...ak->...a", self._att_amp, np.sin(phase))
@@ -156,7 +173,14 @@ class Motion:
         return euler + self._att_offset + self._att_drift * t, rates + self._att_drift
 
     def linear_accel_earth(self, t: npt.ArrayLike) -> FloatArray:
-        """Kinematic acceleration of the unit in the earth (NED) frame [g], shape t.shape + (3,)."""
+        """Kinematic acceleration of the unit in the earth (NED) frame [g].
+
+        Args:
+            t: Device times [s].
+
+        Returns:
+            The acceleration, shape t.shape + (3,).
+        """
         phase = self._lin_phase + self._lin_omega * np.asarray(t, dtype=np.float64)[..., None, None]
         accel: FloatArray = np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
         return accel
@@ -175,8 +199,10 @@ class Motion:
         return m, body_rate, np.einsum("nij,nj->ni", m, lin)
 
     def _node_count(self, half_period: float) -> int:
-        """Gauss-Legendre nodes (at least 5) for float64-exact deltas at any period: n nodes
-        are exact to degree 2n - 1, so bandwidth B over half-width h errs by ~(Bh)^2n / (2n)!.
+        """Gauss-Legendre nodes (at least 5) for float64-exact deltas at any period.
+
+        n nodes are exact to degree 2n - 1, so bandwidth B over half-width h errs by
+        ~(Bh)^2n / (2n)!.
         """
         log_bh = math.log(max(self._bandwidth_rad_s * half_period, 1e-300))
         n = 5
@@ -192,7 +218,15 @@ class Motion:
         return sigma * _time_keyed_normals(cfg.seed, t, 9) if sigma.any() else np.zeros((1, 9))
 
     def magnetometer(self, t: npt.ArrayLike, gain: float = 1.0) -> FloatArray:
-        """The mag reading alone at times t, (n, 3): what ``sample`` gives, at less cost."""
+        """The mag reading alone: what ``sample`` gives, at less cost.
+
+        Args:
+            t: Device times [s], shape (n,).
+            gain: Scales the magnetometer noise (a filter averaging M samples: 1/sqrt(M)).
+
+        Returns:
+            The readings [gauss], (n, 3), sensor frame.
+        """
         t = _times(t)
         m = convert.euler_to_m(self.euler_and_rates(t)[0])
         field = self._ironed(m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64))
@@ -208,17 +242,27 @@ class Motion:
     def sample(self, t: npt.ArrayLike, period: float,
                noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0),
                only: Collection[str] | None = None) -> dict[str, np.ndarray]:
-        """Everything the unit can report at device times t [s], shape (n,); with ``only``,
-        at least those quantities (DeltaAng and DeltaVel's quadrature and C's previous
-        orientation, most of the cost, are computed only when asked for; every value is
-        the same either way).
+        """Everything the unit can report at device times ``t``.
 
-        period is the output sample period [s]: DeltaAng and DeltaVel integrate over
-        [t - period, t] by Gauss-Legendre quadrature, and C spans the last 1 ms
-        calculation cycle. All arrays are float64 except temperature, which holds the
-        uint16 A/D codes the device sends. Biases and noise affect only the sensor
-        readings (accel, ang_rate, mag, deltas, raw codes), never M or C. noise_gain
-        scales the accel, gyro and mag noise (a filter averaging M samples: 1/sqrt(M)).
+        DeltaAng and DeltaVel integrate over [t - period, t] by Gauss-Legendre
+        quadrature, and C spans the last 1 ms calculation cycle. Biases and noise affect
+        only the sensor readings (accel, ang_rate, mag, deltas, raw codes), never M or C.
+
+        Args:
+            t: Device times [s], shape (n,).
+            period: The output sample period [s].
+            noise_gain: Scales the accel, gyro and mag noise (a filter averaging M
+                samples: 1/sqrt(M)).
+            only: At least these quantities: DeltaAng and DeltaVel's quadrature and C's
+                previous orientation, most of the cost, are computed only when asked
+                for (every value is the same either way); None: everything.
+
+        Returns:
+            Quantity name -> values, (n, ...): float64, except temperature, which holds
+            the uint16 A/D codes the device sends.
+
+        Raises:
+            ValueError: ``t`` is not one-dimensional, or ``period`` is not positive.
         """
         t = _times(t)
         if not period > 0.0:

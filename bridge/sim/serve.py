@@ -1,10 +1,10 @@
 """Serve emulated units on pseudo-terminals or TCP, paced in real time.
 
-One thread drives every unit: it reads what hosts sent, runs each unit up to
-the current time and writes the bytes that have crossed the line. A pty is
-opened by pyserial like a real port (its baud setting is read back, and a host
-at the wrong rate receives what a UART would make of it); TCP serves pyserial's
-``socket://`` URLs.
+One thread drives every unit: it reads what hosts sent, runs each unit up to the
+current time and writes the bytes that have crossed the line. A pty is opened by
+pyserial like a real port (its baud setting is read back, and a host at the wrong rate
+receives what a UART would make of it); TCP serves pyserial's ``socket://`` URLs.
+How the transports follow a real line: ``docs/design/emulator.md``.
 """
 
 from __future__ import annotations
@@ -50,9 +50,11 @@ class Endpoint:
         raise NotImplementedError
 
     def host_baud(self) -> int | None:
+        """The baud rate the host opened its end at; None when there is none (TCP)."""
         return None
 
     def selectables(self) -> list[int | socket.socket]:
+        """What to select on for the host's bytes and connections."""
         raise NotImplementedError
 
     def readable(self, obj: object) -> bytes:
@@ -66,6 +68,7 @@ class Endpoint:
         """Offer the connection again after an unplug."""
 
     def close(self) -> None:
+        """Close the host connection for good."""
         raise NotImplementedError
 
 
@@ -106,15 +109,18 @@ class PtyEndpoint(Endpoint):
         self.url = str(self.link or self.path)
 
     def selectables(self) -> list[int | socket.socket]:
+        """The pty's master side."""
         return [self.master]
 
     def readable(self, obj: object) -> bytes:
+        """What the host wrote to the pty."""
         try:
             return os.read(self.master, 4096)
         except OSError:
             return b""
 
     def write(self, data: bytes) -> int:
+        """Write what the pty takes now; return the bytes lost (host not reading)."""
         try:
             written = os.write(self.master, data)
         except BlockingIOError:
@@ -126,18 +132,21 @@ class PtyEndpoint(Endpoint):
         return len(data) - written
 
     def host_baud(self) -> int | None:
+        """The baud rate the host set on the pty (None: not one a UART runs at)."""
         try:
             return _SPEEDS.get(termios.tcgetattr(self.slave)[5])
         except termios.error:
             return None
 
     def unplug(self) -> None:
-        """The pty goes and so does the stable name, as udev removes a pulled device's
-        link: a host retrying the name must not reach the next pty given that number.
+        """The pty goes, and so does the stable name, as udev removes a pulled device's link.
+
+        A host retrying the name must not reach the next pty given that number.
         """
         self.close()
 
     def plug(self) -> None:
+        """A new pty, under the same stable name."""
         self._open()
 
     def _close_fds(self) -> None:
@@ -147,6 +156,7 @@ class PtyEndpoint(Endpoint):
         self.master = self.slave = -1
 
     def close(self) -> None:
+        """Close the pty and remove the stable name."""
         self._close_fds()
         if self.link is not None and self.link.is_symlink() and _ours(self.link):
             self.link.unlink(missing_ok=True)
@@ -157,7 +167,7 @@ def _ours(link: Path) -> bool:
     return link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
 
 
-class TcpEndpoint(Endpoint):
+class _TcpEndpoint(Endpoint):
     """A TCP port serving one host at a time: a second client is closed at once."""
 
     def __init__(self, host: str, port: int, notify: Notify = _log.warning) -> None:
@@ -249,6 +259,24 @@ class Simulator:
     takes the socket:// URLs), ``units`` expose each unit's state and ground truth.
     ``notify`` gets one-line notices (a refused client, a state file that cannot be
     written) that must not stop the units.
+
+    Args:
+        configs: One config per unit (``unit_configs`` makes a fleet of them).
+        transport: ``pty`` or ``tcp``.
+        host: The address TCP ports listen on.
+        port: The first unit's TCP port, the next unit's one more, ...; 0: free ports
+            the OS picks.
+        faults: Line faults: one for all units, or one per unit; None: none.
+        links: Stable names (symlinks) for the units' ptys, one per unit.
+        notify: Hears one-line notices; default: a warning on this module's logger.
+        usb: How bytes reach the host (USB frames, an adapter); None: as they cross a
+            UART.
+
+    Raises:
+        ValueError: ``transport`` is neither ``pty`` nor ``tcp``.
+        LinkPathError: A link's path holds something that is not a link to a pty, or
+            cannot be made.
+        StateFileError: A unit's state file is there but not a unit's state.
     """
 
     def __init__(self, configs: list[UnitConfig], transport: str = "pty", host: str = "127.0.0.1",
@@ -270,7 +298,7 @@ class Simulator:
                 if transport == "pty":
                     link = PtyEndpoint(unit.baud, links[i] if links else None)
                 else:
-                    link = TcpEndpoint(host, port + i if port else 0, notify)
+                    link = _TcpEndpoint(host, port + i if port else 0, notify)
                 self.slots.append(_Slot(
                     unit, link, Faults(per_unit[i], config.motion.seed, now), bytearray(),
                     usb=None if usb is None else link_for(replace(usb, seed=usb.seed + i), now)))
@@ -283,17 +311,25 @@ class Simulator:
 
     @property
     def units(self) -> list[SimUnit]:
+        """Each unit's device model: its state, counters and ground truth."""
         return [s.unit for s in self.slots]
 
     @property
     def endpoints(self) -> list[str]:
+        """What a serial program opens: each unit's pty (or its link), or socket:// URL."""
         return [s.link.url for s in self.slots]
 
     def start(self) -> Simulator:
+        """Start the thread that runs the units.
+
+        Returns:
+            The simulator itself.
+        """
         self._thread.start()
         return self
 
     def stop(self) -> None:
+        """Stop the units and close their ports."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=5)
@@ -328,8 +364,9 @@ class Simulator:
             raise
 
     def _plan_one(self, now: float) -> None:
-        """Compute ahead for the unit closest to running dry, one per tick, so that
-        sixteen units never stall the line together.
+        """Compute ahead for the unit closest to running dry, one per tick.
+
+        So that sixteen units never stall the line together.
         """
         slot = min(self.slots, key=lambda s: s.unit.planned_until)
         if slot.unit.planned_until < now + LOOKAHEAD_S / 2:
@@ -348,8 +385,12 @@ class Simulator:
                 sel.register(obj, selectors.EVENT_READ, slot)
 
     def unplug(self, index: int, seconds: float, power_cycle: bool = False) -> None:
-        """Pull unit ``index``'s cable for ``seconds``, as a test or a demo does on purpose;
-        with ``power_cycle`` the unit loses power too (USB-powered) and boots on replug.
+        """Pull a unit's cable for a while, as a test or a demo does on purpose.
+
+        Args:
+            index: The unit's place in ``units``.
+            seconds: How long the cable stays out.
+            power_cycle: The unit loses power too (USB-powered), and boots on replug.
         """
         slot = self.slots[index]
         slot.power_cycle = power_cycle
@@ -397,11 +438,20 @@ class Simulator:
 
 def unit_configs(count: int, base: UnitConfig,
                  clock_ppm: list[float] | None = None) -> list[UnitConfig]:
-    """``count`` independent units: own serial numbers, seeds and clock errors.
+    """Independent units from one config: own serial numbers, seeds and clock errors.
 
-    Without ``clock_ppm`` each unit draws its clock error from its seed within
-    the manual's ±0.01 % (±100 ppm); with it, unit i takes ``clock_ppm[i]``
-    (the last value repeats).
+    Unit i gets serial ``<serial>-<i+1>``, motion seed ``seed + i`` and state file
+    ``<stem>-<i+1><suffix>`` (one unit keeps them as they are).
+
+    Args:
+        count: How many units.
+        base: What they share.
+        clock_ppm: Each unit's clock error, ppm: unit i takes ``clock_ppm[i]`` (the last
+            value repeats); None: each unit draws its own from its seed within the
+            manual's ±0.01 % (±100 ppm).
+
+    Returns:
+        One config per unit.
     """
     out = []
     for i in range(count):

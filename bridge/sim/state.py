@@ -45,11 +45,28 @@ class Stored:
     eeprom: tuple[tuple[int, int], ...] = ()
 
     def with_word(self, address: int, value: int) -> Stored:
+        """This memory with one EEPROM word written.
+
+        Args:
+            address: The word's address.
+            value: Its new value.
+
+        Returns:
+            The memory, changed.
+        """
         words = dict(self.eeprom)
         words[address] = value
         return replace(self, eeprom=tuple(sorted(words.items())))
 
     def word(self, address: int) -> int:
+        """An EEPROM word of this memory.
+
+        Args:
+            address: The word's address.
+
+        Returns:
+            Its value: 0 where none was written.
+        """
         return dict(self.eeprom).get(address, 0)
 
 
@@ -135,8 +152,9 @@ def _parse(raw: Any, default: Stored) -> Stored:
 
 
 def check_writable(path: Path) -> None:
-    """Fail at start, not on the first write to non-volatile memory, if ``path`` cannot be
-    saved: its folder must be creatable and writable, and it must not be a folder.
+    """Fail at start, not on the first write to non-volatile memory, if ``path`` cannot be saved.
+
+    Its folder must be creatable and writable, and it must not be a folder.
     """
     try:
         if path.is_dir():

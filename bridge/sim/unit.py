@@ -1,16 +1,10 @@
 """One emulated 3DM-GX3: the device's behaviour in time, with no I/O.
 
-A transport hands it the bytes the host sent (``receive``) and asks for the
-bytes that have finished crossing the line by a given host time (``poll``).
-Everything else follows the manual: commands are answered from the command
-table at the end of the next 1 ms calculation cycle, one per cycle; the line
-carries baud/10 bytes per second and a continuous record that finds it busy is
-skipped; the timer runs at 62,500 ticks per second of the unit's own clock,
-which is off by ``clock_ppm``.
-
-Time is host monotonic seconds throughout; the unit's clock is derived from it.
-Continuous records are computed a little ahead in vectorised blocks and the
-not-yet-started part of that plan is dropped whenever a command changes state.
+A transport hands it the bytes the host sent (``receive``) and asks for the bytes that
+have finished crossing the line by a given host time (``poll``); everything else
+follows the manual, from the command table. Time is host monotonic seconds throughout;
+the unit's clock is derived from it. How it follows the manual, and where it had to
+choose: ``docs/design/emulator.md``.
 """
 
 from __future__ import annotations
@@ -69,7 +63,28 @@ _RAW_FIELDS = ("raw_accel", "raw_ang_rate", "temperature")
 
 @dataclass(frozen=True)
 class UnitConfig:
-    """Identity, clock and motion of one unit; ``stored`` is its factory memory."""
+    """Identity, clock and motion of one unit; ``stored`` is its factory memory.
+
+    Attributes:
+        serial: Its serial number, as 0xEA reports it (selector 1).
+        model_number: Its model number (0xEA selector 0).
+        model_name: Its model name (0xEA selector 2).
+        options: Its options, such as the sensor ranges (0xEA selector 3).
+        lot: Its lot (0xEA selector 4).
+        firmware: Its firmware version as 0xE9 reports it (1127: 1.1.27).
+        timer_start: The timer's value at power-up.
+        clock_ppm: The constant rate error of its clock, ppm.
+        clock_wander_ppm: The most a slow, smooth wander adds to that error, ppm.
+        clock_wander_period_s: The time scale of the wander, s.
+        clock_seed: Seeds the wander.
+        motion: What the unit experiences.
+        stored: Its non-volatile memory as it left the factory.
+        state_file: Where its non-volatile memory is kept across runs (it starts from
+            the file when there is one); None: in memory only.
+        truth_length: Records whose truth is kept (``SimUnit.truth``).
+        filter_model: Whether its filters' delay and noise averaging are modelled.
+        usb: On its own USB port: the baud rate has no effect on the line.
+    """
 
     serial: str = "SIM0001"
     model_number: str = "6225-4220"
@@ -90,6 +105,14 @@ class UnitConfig:
     usb: bool = False  # on its own USB port: the baud rate has no effect on the line
 
     def id_string(self, selector: int) -> str:
+        """The device ID string 0xEA reports.
+
+        Args:
+            selector: 0 model number, 1 serial, 2 model name, 3 options, 4 lot.
+
+        Returns:
+            The string.
+        """
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
 
 
@@ -108,6 +131,9 @@ class TruthLog:
     Rows wait in a short list and go into the columns a few hundred at a time (a row
     at a time cost a fleet of 16 units at 1 kHz 3 % of a core). Safe to read from
     another thread while the unit runs.
+
+    Args:
+        capacity: Records kept at most; older ones make way.
     """
 
     _BATCH = 256
@@ -127,14 +153,20 @@ class TruthLog:
         self._lock = threading.Lock()
 
     def append(self, row: TruthRow) -> None:
+        """Keep the truth of one record sent.
+
+        Args:
+            row: The record's truth (see ``TruthRow``).
+        """
         with self._lock:
             self._rows.append(row)
             if len(self._rows) >= self._BATCH:
                 self._store()
 
     def _store(self) -> None:
-        """The waiting rows into the columns (caller holds the lock); only the last
-        ``capacity`` of them can be kept.
+        """Put the waiting rows into the columns (caller holds the lock).
+
+        Only the last ``capacity`` of them can be kept.
         """
         rows = self._rows[-self._capacity :]
         at = (self._written + len(self._rows) - len(rows) + np.arange(len(rows))) \
@@ -150,7 +182,15 @@ class TruthLog:
             return min(self._written + len(self._rows), self._capacity)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Copies of every column, oldest record first."""
+        """The records kept, as columns.
+
+        Returns:
+            Copies of every column, oldest record first: ``time_ns`` (host ns of the
+            record's calculation cycle), ``value_ns`` (host ns of the instant its values
+            describe: ``time_ns`` less the filter delay), ``device_s``, ``timer``,
+            ``code`` and ``quaternion`` (the true attitude at ``value_ns``, scalar first,
+            earth to sensor).
+        """
         with self._lock:
             if self._rows:
                 self._store()
@@ -177,14 +217,32 @@ class _Segment:
 
 
 def _monotonic_to_wall_ns() -> int:
-    """Wall clock minus monotonic clock, from readings taken together (not from a
-    ``now`` captured earlier, which would put every ground-truth time late).
+    """Wall clock minus monotonic clock, from readings taken together.
+
+    Not from a ``now`` captured earlier, which would put every ground-truth time late.
     """
     return time.time_ns() - time.monotonic_ns()
 
 
 class SimUnit:
-    """The device model. Not thread-safe: one transport thread drives it."""
+    """The device model. Not thread-safe: one transport thread drives it.
+
+    Commands are answered from the command table at the end of the next 1 ms calculation
+    cycle, one per cycle; the line carries baud/10 bytes per second, and a continuous
+    record that finds it busy is skipped; the timer runs at 62,500 ticks per second of
+    the unit's own clock, which is off by ``clock_ppm``. Continuous records are computed
+    a little ahead in vectorised blocks, and the part of that plan not yet started is
+    dropped whenever a command changes state.
+
+    Args:
+        config: The unit.
+        now: Host monotonic seconds at power-up; None: now.
+        wall_ns: Wall clock minus host monotonic clock, ns, for the truth's host times;
+            None: this host's, read now.
+
+    Raises:
+        StateFileError: ``config.state_file`` is there but not a unit's state.
+    """
 
     def __init__(self, config: UnitConfig, now: float | None = None,
                  wall_ns: int | None = None) -> None:
@@ -218,6 +276,14 @@ class SimUnit:
     @overload
     def device_time(self, host: np.ndarray) -> np.ndarray: ...
     def device_time(self, host: Any) -> Any:
+        """Device seconds at host time ``host``, counted from the unit's start.
+
+        Args:
+            host: Host monotonic seconds: a float, or an array.
+
+        Returns:
+            Device seconds, a float or an array as ``host`` is.
+        """
         if self._clock.wanders:
             return self._clock.device(host)
         return (host - self._t0) * self._scale
@@ -227,6 +293,14 @@ class SimUnit:
     @overload
     def host_time(self, device: np.ndarray) -> np.ndarray: ...
     def host_time(self, device: Any) -> Any:
+        """Host time at device seconds ``device``: the inverse of ``device_time``.
+
+        Args:
+            device: Device seconds: a float, or an array.
+
+        Returns:
+            Host monotonic seconds, a float or an array as ``device`` is.
+        """
         if self._clock.wanders:
             return self._clock.host(device)
         return self._t0 + device / self._scale
@@ -244,7 +318,14 @@ class SimUnit:
         return round(float(self.device_time(host)) / CALCULATION_CYCLE_S)
 
     def timer_at(self, cycles: np.ndarray | int) -> np.ndarray:
-        """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly."""
+        """The timer at cycle boundaries: 62.5 ticks a cycle, rounded half up, exactly.
+
+        Args:
+            cycles: Indexes of calculation cycles.
+
+        Returns:
+            The timer at the end of each, uint32.
+        """
         elapsed = np.asarray(cycles, np.int64) - self._timer_epoch
         ticks = (elapsed * _HALF_TICKS_PER_CYCLE + 1) >> 1
         return ((ticks + self._timer_value) & 0xFFFF_FFFF).astype(np.uint32)
@@ -255,7 +336,11 @@ class SimUnit:
 
     # --- state -------------------------------------------------------------------------
     def power_cycle(self, now: float) -> None:
-        """Power returns at ``now`` (a USB-powered unit replugged): it boots from scratch."""
+        """Power returns at ``now`` (a USB-powered unit replugged): it boots from scratch.
+
+        Args:
+            now: Host monotonic seconds.
+        """
         self._plan.clear()
         self._line_free = self._sent_until = self._busy_until = now
         self._restart(now, 0)
@@ -293,10 +378,12 @@ class SimUnit:
 
     @property
     def little_endian(self) -> bool:
+        """Whether it sends floats little-endian (a flag of its sampling settings)."""
         return bool(self.sampling.flags & Flag.LITTLE_ENDIAN_FLOATS)
 
     @property
     def period(self) -> float:
+        """Seconds between continuous records: the decimation's cycles."""
         return self.sampling.decimation * CALCULATION_CYCLE_S
 
     def _persist(self, **changes: Any) -> None:
@@ -310,7 +397,12 @@ class SimUnit:
 
     # --- transport interface -------------------------------------------------------------
     def receive(self, data: bytes, now: float) -> None:
-        """Bytes from the host, arrived at host time ``now``."""
+        """Take bytes from the host.
+
+        Args:
+            data: The bytes.
+            now: When they arrived, host monotonic seconds.
+        """
         if now < self._ready or not data:
             return
         if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
@@ -331,11 +423,25 @@ class SimUnit:
             del self._inbox[:size]
 
     def poll(self, now: float) -> bytes:
-        """Run the unit up to ``now``; return the bytes that finished crossing the line."""
+        """Run the unit up to ``now``.
+
+        Args:
+            now: Host monotonic seconds; not before the last call's.
+
+        Returns:
+            The bytes that finished crossing the line since the last call.
+        """
         return b"".join(data for _, data in self.poll_line(now))
 
     def poll_line(self, now: float) -> list[tuple[int, bytes]]:
-        """As ``poll``, with the baud rate each run of bytes went out at (0xD9 changes it)."""
+        """As ``poll``, with the baud rate each run of bytes went out at (0xD9 changes it).
+
+        Args:
+            now: Host monotonic seconds; not before the last call's.
+
+        Returns:
+            (baud, bytes) runs, in the order they went out.
+        """
         while self._queue:
             arrived, raw = self._queue[0]
             at = self.host_time(max(self._cycle_after(arrived), self._cycle_after(self._busy_until))
@@ -356,7 +462,11 @@ class SimUnit:
         return self._stream_from if streaming else math.inf
 
     def plan(self, now: float) -> None:
-        """Compute continuous output up to ``LOOKAHEAD_S`` past ``now``."""
+        """Compute continuous output up to ``LOOKAHEAD_S`` past ``now``.
+
+        Args:
+            now: Host monotonic seconds.
+        """
         self._plan_stream(now + LOOKAHEAD_S)
 
     # --- output --------------------------------------------------------------------------
@@ -437,6 +547,10 @@ class SimUnit:
         frequency; its amplitude response (Equations 2-5) at the motion model's
         <= 0.5 Hz is 1 within 1e-4 for any width up to 32, so the filter is modelled
         as that time shift alone, and noise as white noise averaged over M samples.
+
+        Returns:
+            (accel and gyro delay, magnetometer delay), seconds; zero without the filter
+            model.
         """
         if not self.config.filter_model:
             return 0.0, 0.0
@@ -446,8 +560,9 @@ class SimUnit:
 
     def _sample(self, device: np.ndarray, period: float, names: list[str]
                 ) -> dict[str, np.ndarray]:
-        """The motion as the unit's filters see it at the end of cycles at ``device``: at
-        least the quantities ``names`` and the quaternion (the truth, always computed).
+        """The motion as the unit's filters see it at the end of cycles at ``device``.
+
+        At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
         if not self.config.filter_model:
             return self.motion.sample(device, period, only=names)

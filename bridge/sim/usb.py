@@ -2,23 +2,10 @@
 
 Three links, all driven by explicit host times, so they serve virtual-time captures
 and a live transport alike: ``push`` bytes the unit finished sending, then ask
-``reads(now)`` for the reads that completed by ``now``. Deterministic from a seed.
-
-- Native USB (``UsbDelivery``): the host controller polls the device once per 1 ms
-  frame on the HOST's clock, so bytes finished at t reach the driver at the first
-  frame boundary at or after t.
-- A USB-serial adapter (``AdapterDelivery``, FTDI-like): bytes cross the unit's serial
-  line at its baud rate into the adapter's buffer. At each frame's poll the adapter
-  sends full 62-byte packets (64 less 2 status bytes) while it holds that many, and
-  everything it holds once its latency timer (1 or 16 ms, restarted by every packet
-  it sends) has expired; otherwise it answers nothing.
-- A plain UART (``UartDelivery``): each byte reaches the driver as it crosses the line.
-
-On every link the reading thread wakes an exponential OS latency after bytes reach
-the driver and reads everything the driver holds by then, so serial reads often
-end mid-record; now and then the host ignores the port for 5-40 ms (a stall) and
-the next read returns the whole backlog. Latency only ever delays: nothing is read
-before it reached the driver.
+``reads(now)`` for the reads that completed by ``now``. Deterministic from a seed. On
+every link the reading thread wakes an OS latency after bytes reach the driver and
+reads everything the driver holds by then, and now and then the host stalls; latency
+only ever delays. The link models in full: ``docs/design/emulator.md``.
 """
 
 from __future__ import annotations
@@ -38,7 +25,23 @@ _DRAW_BLOCK = 4096
 
 @dataclass(frozen=True, kw_only=True)
 class HostDelivery:
-    """What every link shares on the host: OS latency and stalls (seconds)."""
+    """What every link shares on the host: OS latency and stalls (seconds).
+
+    The reading thread wakes an exponential OS latency after bytes reach the driver and
+    reads everything the driver holds by then, so serial reads often end mid-record;
+    now and then the host ignores the port for a while (a stall), and the next read
+    returns the whole backlog.
+
+    Attributes:
+        os_latency_mean_s: The mean OS latency.
+        stall_every_s: Mean seconds between stalls; 0: none.
+        stall_min_s: The shortest stall.
+        stall_max_s: The longest stall.
+        seed: Seeds the latencies and stalls.
+
+    Raises:
+        ValueError: A negative latency or interval, or stall lengths out of order.
+    """
 
     transport: ClassVar[str] = "uart"
     os_latency_mean_s: float = 0.0003
@@ -57,12 +60,23 @@ class HostDelivery:
 
 @dataclass(frozen=True, kw_only=True)
 class UartDelivery(HostDelivery):
-    """A real serial port: bytes reach the driver as they cross the line."""
+    """A plain UART: each byte reaches the driver as it crosses the line."""
 
 
 @dataclass(frozen=True, kw_only=True)
 class UsbDelivery(HostDelivery):
-    """The unit's own USB port: the host's frame grid on top of latency and stalls."""
+    """The unit's own USB port: the host's frame grid on top of latency and stalls.
+
+    The host controller polls the device once per frame on the host's clock, so bytes
+    finished at t reach the driver at the first frame boundary at or after t.
+
+    Attributes:
+        frame_s: The frame period (1 ms: full speed).
+        frame_phase_s: Where the host's frame grid starts, host seconds.
+
+    Raises:
+        ValueError: ``frame_s`` is not positive.
+    """
 
     transport: ClassVar[str] = "usb"
     frame_s: float = 0.001
@@ -76,7 +90,20 @@ class UsbDelivery(HostDelivery):
 
 @dataclass(frozen=True, kw_only=True)
 class AdapterDelivery(UsbDelivery):
-    """A USB-serial adapter between the unit's serial line and the host's frames."""
+    """A USB-serial adapter (FTDI-like) between the unit's serial line and the host's frames.
+
+    Bytes cross the unit's serial line at its baud rate into the adapter's buffer. At
+    each frame's poll the adapter sends full packets while it holds that many, and
+    everything it holds once its latency timer (restarted by every packet it sends) has
+    expired; otherwise it answers nothing.
+
+    Attributes:
+        latency_timer_s: The adapter's latency timer (1 or 16 ms, as drivers set it).
+        packet_bytes: Payload bytes in a packet (62: 64 less 2 status bytes).
+
+    Raises:
+        ValueError: ``latency_timer_s`` or ``packet_bytes`` is not positive.
+    """
 
     transport: ClassVar[str] = "usb-serial"
     latency_timer_s: float = DEFAULT_LATENCY_TIMER_MS / 1000
@@ -127,8 +154,9 @@ class HostDriver:
         self.stalls = 0
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
-        """Bytes the unit sent back to back, one every ``byte_s``, the last finished by
-        host time ``finished``.
+        """Hand over bytes the unit sent back to back.
+
+        One every ``byte_s``, the last finished by host time ``finished``.
         """
         raise NotImplementedError
 
@@ -160,8 +188,10 @@ class HostDriver:
         return out
 
     def _os_latency(self) -> float:
-        """The next read's OS latency. Drawn a block at a time (the same numbers as one
-        at a time), since a UART capture makes a read every few bytes.
+        """The next read's OS latency.
+
+        Drawn a block at a time (the same numbers as one at a time), since a UART capture
+        makes a read every few bytes.
         """
         mean = self.config.os_latency_mean_s
         if not mean:
@@ -198,6 +228,7 @@ class UartLink(HostDriver):
         self._line_end = -math.inf
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
+        """Hand over bytes the unit sent back to back (see ``HostDriver.push``)."""
         if data:
             chunk = _line_chunk(data, finished, byte_s, self._line_end)
             self._line_end = chunk.last
@@ -217,6 +248,7 @@ class UsbLink(HostDriver):
         return math.ceil((t - c.frame_phase_s) / c.frame_s - STEP_SLACK)
 
     def frame_time(self, k: float) -> float:
+        """The host time of frame boundary ``k``."""
         return self.usb.frame_phase_s + k * self.usb.frame_s
 
     def frame_at(self, t: float) -> float:
@@ -224,6 +256,7 @@ class UsbLink(HostDriver):
         return self.frame_time(self.frame_index(t))
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
+        """Hand over bytes the unit sent back to back (see ``HostDriver.push``)."""
         if not data:
             return
         chunk = _Chunk(finished - (len(data) - 1) * byte_s, byte_s, data)
@@ -248,6 +281,7 @@ class AdapterLink(UsbLink):
         self.packets = 0
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
+        """Hand over bytes the unit sent back to back (see ``HostDriver.push``)."""
         if data:
             chunk = _line_chunk(data, finished, byte_s, self._line_end)
             self._line_end = chunk.last
@@ -302,8 +336,9 @@ class AdapterLink(UsbLink):
 
 
 def _line_chunk(data: bytes, finished: float, byte_s: float, after: float) -> _Chunk:
-    """Bytes that crossed a serial line back to back, never before the line's last byte
-    (a live transport learns of bytes late, in runs).
+    """Bytes that crossed a serial line back to back, never before the line's last byte.
+
+    A live transport learns of bytes late, in runs.
     """
     return _Chunk(max(finished - (len(data) - 1) * byte_s, after), byte_s, data)
 

@@ -1,25 +1,11 @@
 """Which link a capture came over, from its receive times alone.
 
 A capture from another program says nothing of its link, yet the clock model needs
-it: a frame clock to take out on USB, a line time to take out on a serial line.
-The reads themselves tell, in this order:
-
-- A UART: a read takes every byte that has crossed the line, so a read that ends
-  mid-record, less that record's bytes so far at one byte time each, falls within a
-  byte time of the record's start on the unit's clock; at one baud rate (which
-  this gives too) and no other. Behind USB frames reads come an OS latency after
-  the frame that carried the bytes, which no baud rate takes out.
-- A frame clock: on USB the reads that complete records crowd just after one phase
-  of the host's millisecond, sharper there than at any phase of the unit's clock.
-  Where too few reads end mid-record to judge the line, this decides, and a unit
-  that stays in step with the host's frames (the two alike) is taken to be on its
-  own USB port, since a serial line would have split its records.
-- Behind a frame clock, an adapter rather than the unit's own port: whole 62-byte
-  packets, or reads about 16 ms apart (a 16 ms latency timer); records completed a
-  byte time later per byte still to come; or reads ending mid-record more often
-  than a unit's own port splits records, judged only where the unit's clock beats
-  through the frames over the capture (in step, its own port may split every
-  record at the same place).
+it: a frame clock to take out on USB, a line time to take out on a serial line. The
+reads tell: on a UART, reads that end mid-record fit the line at one baud rate; over
+USB, reads crowd just after the host's 1 ms frames; an adapter shows in whole 62-byte
+packets, a 16 ms latency timer, or records completed a byte time later per byte still
+to come. The evidence and the order it is weighed in: docs/design/time.md.
 
 Known blind spot: a 1 ms-timer adapter at 921,600 baud carrying 1 kHz, its unit
 within a few ppm of the host over the capture, reads as the unit's own USB port
@@ -58,7 +44,11 @@ BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 
 @dataclass(frozen=True)
 class Inferred:
-    """The link a capture's reads show, with what showed it (one line)."""
+    """The link a capture's reads show, with what showed it.
+
+    ``transport`` as ``Settings.transport``; ``latency_timer_ms`` an adapter's;
+    ``evidence`` one line; ``baud`` a UART's, where its reads show it.
+    """
 
     transport: str
     latency_timer_ms: int | None
@@ -66,15 +56,25 @@ class Inferred:
     baud: int | None = None  # a UART's, where its reads show it
 
     def describe(self) -> str:
+        """One line for people.
+
+        Returns:
+            The transport, an adapter's latency timer, and the evidence.
+        """
         timer = f", {self.latency_timer_ms} ms latency timer" if self.latency_timer_ms else ""
         return f"transport {self.transport}{timer} ({self.evidence})"
 
 
 def crowding(phase_ns: np.ndarray) -> float:
-    """How sharply times crowd just after one phase of a 1 ms cycle: the most reads in
-    0.1 ms after any phase less those in the 0.1 ms before it, as a fraction of all
-    (0 for times spread evenly; about 0.11 for a frame read after an exponential OS
-    latency of 0.8 ms mean, 0.28 at 0.3 ms).
+    """How sharply times crowd just after one phase of a 1 ms cycle.
+
+    Args:
+        phase_ns: The times (ns; only their phase in the millisecond counts).
+
+    Returns:
+        The most reads in 0.1 ms after any phase less those in the 0.1 ms before it, as a
+        fraction of all: 0 for times spread evenly; about 0.11 for a frame read after an
+        exponential OS latency of 0.8 ms mean, 0.28 at 0.3 ms.
     """
     if not len(phase_ns):
         return 0.0
@@ -89,7 +89,18 @@ def crowding(phase_ns: np.ndarray) -> float:
 
 def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
                     little_endian: bool = False) -> Inferred:
-    """The link of a capture of ``record`` records: its reads' receive times and bytes."""
+    """The link a capture came over.
+
+    Args:
+        rx_ns: Each read's receive time.
+        data: Each read's bytes.
+        record: The data record the capture streams.
+        little_endian: The float byte order of its records.
+
+    Returns:
+        The transport, an adapter's latency timer, a UART's baud rate where the reads
+        show them, and the evidence.
+    """
     rx_ns = np.asarray(rx_ns, np.int64)
     sizes = np.array([len(d) for d in data], np.int64)
     ends = np.cumsum(sizes)
@@ -149,8 +160,9 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
 
 def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
                mid_record: np.ndarray) -> float | None:
-    """How much later a record split by a read is completed per byte still to come (ns):
-    a serial line's byte time behind an adapter, next to nothing on the unit's own USB
+    """How much later a record split by a read is completed per byte still to come (ns).
+
+    A serial line's byte time behind an adapter, next to nothing on the unit's own USB
     port (the rest of the record is there at the next frame). None: too few to tell.
     """
     inside = mid_record < len(completions)
@@ -168,10 +180,11 @@ def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
 def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
               mid_bytes: np.ndarray, mid_record: np.ndarray,
               bauds: Sequence[int]) -> tuple[float, int] | None:
-    """How well reads that end mid-record fit a plain serial line, at the baud rate that
-    fits best among ``bauds`` (those that carry the stream): (score, baud), or None
-    with too few such reads to tell. ``rate``: host seconds per second of the unit's
-    clock (``_unit_fit``).
+    """How well reads that end mid-record fit a plain serial line.
+
+    At the baud rate that fits best among ``bauds`` (those that carry the stream):
+    (score, baud), or None with too few such reads to tell. ``rate``: host seconds per
+    second of the unit's clock (``_unit_fit``).
 
     On a UART a read takes every byte that has crossed the line, so its time less the
     record's bytes so far times the byte time falls within one byte time of the
@@ -195,9 +208,10 @@ def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
 
 
 def _unit_fit(ticks: np.ndarray, completions: np.ndarray) -> tuple[float, np.ndarray]:
-    """A line through the records' ticks and receive times, stalls left out: host
-    seconds per second of the unit's clock, and each receive time against it (ns),
-    which is what reads follow on a serial line.
+    """A line through the records' ticks and receive times, stalls left out.
+
+    Returns host seconds per second of the unit's clock, and each receive time against
+    it (ns), which is what reads follow on a serial line.
     """
     x = ticks / TICKS_PER_SECOND
     y = (completions - completions[0]) / 1e9

@@ -1,24 +1,11 @@
 """Re-estimate sample instants over a whole recording (the recorder's second pass).
 
-Online, a record's time can only use what came before it; offline, every record
-has the points on both sides. At anchors a few seconds apart the smoother takes
-the shortest window around the anchor in which the frame staircase pins one
-straight line (a long one for a unit whose phase crawls across the frame, a
-short one where it sweeps the frame and wander would bend a longer line) and
-puts the anchor in the middle of every line the points allow; records between
-anchors are interpolated. Without a frame grid (a serial line), or where wander
-bends every window so that no straight line fits its staircase, an anchor gets
-the lower envelope's line through the shortest window, less half of the frame
-its points leave uncovered: nothing where the phase has swept the frame (the
-envelope then runs along the staircase's corners), half a frame where it has not.
-
-Over a serial line (a UART, or an adapter whose reads end inside records: see
-``OnlineClock``) the points are the line's to a byte, and each anchor gets the lower
-envelope of a window centred on it (moved inside the recording at its ends): 20 s on
-a UART, behind an adapter's frames long enough for the unit's phase to sweep an
-eighth of a frame. Over the frame staircase the live clock is run on the same
-records, and where the offline lines are no narrower than the live ones were (no
-crossing pinned either) the live instant stands: never worse than live.
+Online, a record's time can only use what came before it; offline, every record has
+the points on both sides. The smoother solves anchors a few seconds apart, each from
+the window around it that pins the line best, and interpolates the records between
+them. Over USB frames the live clock is run on the same records too, and where the
+offline pass is no surer the live instant stands: never worse than live. How the
+windows and anchors are chosen: docs/design/time.md.
 """
 
 from __future__ import annotations
@@ -29,8 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.timing.clock import (
-    OnlineClock,
+from bridge.timing._fit import (
     best_centre,
     bucket_minima,
     grid_histogram,
@@ -40,6 +26,7 @@ from bridge.timing.clock import (
     support_slope,
     uncovered_half,
 )
+from bridge.timing.clock import OnlineClock
 from bridge.timing.unwrap import NS_PER_TICK
 
 # Shortest first. The longest lets a unit that beats slowly against the frame clock
@@ -57,7 +44,16 @@ _SURER = 0.75  # or this much narrower than live's
 class OfflineClock:
     """Maps one epoch's unwrapped ticks to host ns using the whole recording.
 
-    Parameters as ``OnlineClock``; ``anchor_s`` is the spacing of solved points.
+    Args:
+        filter_delay_ns: As ``OnlineClock``'s.
+        floor_ns: As ``OnlineClock``'s.
+        frame_ns: As ``OnlineClock``'s.
+        anchor_s: The spacing of solved points, seconds of the unit's clock.
+        serial: As ``OnlineClock``'s.
+
+    Raises:
+        ValueError: A negative delay, floor or frame, or an anchor spacing that is not
+            positive.
     """
 
     def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
@@ -73,8 +69,19 @@ class OfflineClock:
     def smooth(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
                part_ns: npt.ArrayLike | None = None,
                part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
-        """Sample instants (host ns) of valid records of one epoch, increasing ticks;
-        ``part_ns``, ``part_lead_ns`` as ``OnlineClock.update``'s.
+        """Sample instants of the valid records of one epoch.
+
+        Args:
+            ticks: The records' unwrapped ticks, increasing.
+            rx_ns: The receive time of the read that completed each.
+            part_ns: As ``OnlineClock.update``'s.
+            part_lead_ns: As ``OnlineClock.update``'s.
+
+        Returns:
+            Host ns, filter delay taken out.
+
+        Raises:
+            ValueError: The arrays differ in length.
         """
         x = np.asarray(ticks, np.int64)
         y = np.asarray(rx_ns, np.int64) - self.floor_ns
@@ -137,10 +144,11 @@ class OfflineClock:
 
     def _solve(self, x: np.ndarray, y: np.ndarray, bx: np.ndarray, by: np.ndarray, at: int,
                rate: float, staircase: bool, half: int) -> tuple[float, float]:
-        """The line's value at ticks ``at`` less ``y[0]`` (in float64 the absolute value
-        would be rounded to 256 ns) from the window around it that pins it best, and
-        the extent of the lines the staircase allows there (inf: the envelope's);
-        ``half``: half the envelope's window, where no staircase does.
+        """The line's value at ticks ``at``, from the window around it that pins it best.
+
+        The value is less ``y[0]`` (in float64 the absolute value would be rounded to
+        256 ns), with the extent of the lines the staircase allows there (inf: the
+        envelope's); ``half``: half the envelope's window, where no staircase does.
         """
         halves = [round(w * TICKS_PER_SECOND / 2) for w in _WINDOWS_S]
         if len(bx):
@@ -158,8 +166,10 @@ class OfflineClock:
                               staircase), math.inf
 
     def _line_window(self, rate: float) -> float:
-        """Seconds of envelope: the shortest on a UART; behind frames, long enough for the
-        unit's phase to sweep ``_SWEEP`` of a frame at its rate against the host's.
+        """Seconds of envelope.
+
+        The shortest on a UART; behind frames, long enough for the unit's phase to sweep
+        ``_SWEEP`` of a frame at its rate against the host's.
         """
         if not self.frame_ns:
             return _LINE_S[0]
@@ -169,8 +179,9 @@ class OfflineClock:
 
     def _envelope(self, x: np.ndarray, y: np.ndarray, base: int, at: int, middle: int,
                   rate: float, staircase: bool) -> float:
-        """The lower envelope's value at ``at`` less ``base``, its slope judged at
-        ``middle``, less half of the frame uncovered.
+        """The lower envelope's value at ``at`` less ``base``.
+
+        Its slope is judged at ``middle``; half of the frame uncovered is taken off.
         """
         dx, dy = (x - middle).astype(np.float64), (y - int(y[0])).astype(np.float64)
         slope = support_slope(dx, dy, rate) if len(x) > 1 else rate

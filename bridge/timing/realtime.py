@@ -1,22 +1,16 @@
 """Sample instants from the raw clock onto the host's realtime clock, each at its own instant.
 
-The unit's clock is fitted against the raw monotonic clock, which only the oscillator
-moves; chrony, ntpd and PTP step and slew the realtime clock, the one everything else
-on the host stamps with. Each read carries both (``bridge.device.clock.stamp``), so the
-realtime clock's offset from the raw clock is known at every read. An instant between
-two reads gets the offset there: linear between them where the clock only ran at its
-disciplined rate or was slewed, the nearer read's where it was stepped (a change no
-slew makes: more than ``MAX_SLEW`` of the time between the reads, chrony's fastest slew
-being 1/12, and more than ``STEP_MIN_NS``). A step then shows in ``time_ns`` where it
-happened, a slew at its rate, and the clock model never sees either.
+Each read carries both clocks (``bridge.device.clock.stamp``), so the realtime clock's
+offset from the raw clock is known at every read. An instant between two reads gets
+the offset there: linear between them, the nearer read's where the clock was stepped
+(the offset moved by more than ``STEP_MIN_NS`` and more than ``MAX_SLEW`` of the time
+between the reads, which no slew does). Steps, and slews faster than ``SLEW_PPM`` beyond
+the clock's usual rate, are named as they are found (``ClockChange``).
 
-Steps, and slews faster than ``SLEW_PPM`` beyond the clock's usual rate, are named as
-they are found (``ClockChange``): a leap second is a step of a second at midnight.
-
-``RealtimeTrack`` does this live, a read at a time, holding the latest reads;
-``RealtimeReads`` for a capture's reads all at once, in arrays. Both map an instant
-with the reads up to the read that completed its record (``until``), the last
-``WINDOW`` of them, so a capture replays to the very instants published live.
+``RealtimeTrack`` does this live, a read at a time; ``RealtimeReads`` for a capture's
+reads all at once. Both map an instant with the last ``WINDOW`` reads up to the one that
+completed its record (``until``), so a capture replays to the very instants published
+live. Why the clock model never sees a step or a slew: docs/design/time.md.
 """
 
 from __future__ import annotations
@@ -73,6 +67,12 @@ class ClockChange:
         return min(into_day, _DAY_NS - into_day) < 2 * _LEAP_NS
 
     def describe(self) -> str:
+        """One line for people.
+
+        Returns:
+            What moved the clock (a step, a slew, a leap second), by how much, and over
+            what time.
+        """
         size = f"{self.size_ns / 1e6:+,.3f} ms"
         if self.kind == ChangeKind.SLEW:
             ppm = self.size_ns / max(1, self.span_ns) * 1e6
@@ -84,12 +84,13 @@ class ClockChange:
 
 
 @overload
-def jumps(change: int, apart: int) -> bool: ...
+def _jumps(change: int, apart: int) -> bool: ...
 @overload
-def jumps(change: np.ndarray, apart: np.ndarray) -> np.ndarray: ...
-def jumps(change: Any, apart: Any) -> Any:
-    """Whether an offset ``change`` between reads ``apart`` ns apart is a step (no slew is
-    that fast); for numbers and for arrays alike.
+def _jumps(change: np.ndarray, apart: np.ndarray) -> np.ndarray: ...
+def _jumps(change: Any, apart: Any) -> Any:
+    """Whether an offset ``change`` between reads ``apart`` ns apart is a step.
+
+    No slew is that fast. For numbers and for arrays alike.
     """
     size = abs(change)
     return (size > STEP_MIN_NS) & (size > MAX_SLEW * apart)
@@ -97,17 +98,19 @@ def jumps(change: Any, apart: Any) -> Any:
 
 def _between(t: int, ra: int, oa: int, rb: int, ob: int) -> int:
     """The offset at ``t`` between reads (``ra``, ``oa``) and (``rb``, ``ob``)."""
-    if jumps(ob - oa, rb - ra):
+    if _jumps(ob - oa, rb - ra):
         return oa if t - ra < rb - t else ob
     return oa + round((ob - oa) * ((t - ra) / (rb - ra)))
 
 
 class _Slews:
-    """Slews found from the realtime clock's rate over spans of reads: a span whose rate is
-    more than ``SLEW_PPM`` from the usual one is slewed; a run of them is one slew, named
-    when it ends, its rate the fastest span's (a slew rarely fills its first and last
-    spans) and its start where the first span's share of it would begin at that rate.
-    The usual rate (the disciplined frequency) follows the other spans.
+    """Slews found from the realtime clock's rate over spans of reads.
+
+    A span whose rate is more than ``SLEW_PPM`` from the usual one is slewed; a run of
+    them is one slew, named when it ends, its rate the fastest span's (a slew rarely
+    fills its first and last spans) and its start where the first span's share of it
+    would begin at that rate. The usual rate (the disciplined frequency) follows the
+    other spans.
     """
 
     def __init__(self) -> None:
@@ -117,8 +120,9 @@ class _Slews:
         self._run: tuple[int, int, float, float, float] | None = None
 
     def span(self, raw0: int, raw1: int, real1: int, moved: int) -> ClockChange | None:
-        """One span of reads from ``raw0`` to ``raw1`` (realtime ``real1``) over which the
-        offset moved by ``moved`` besides any steps.
+        """One span of reads from ``raw0`` to ``raw1`` (realtime ``real1``).
+
+        Over it the offset moved by ``moved`` besides any steps.
         """
         length = raw1 - raw0
         rate = moved / length
@@ -156,14 +160,22 @@ class RealtimeTrack:
         return self._off[-1] if self._off else None
 
     def add(self, raws: list[int], reals: list[int]) -> list[ClockChange]:
-        """The next reads' stamps, in order; the steps and slews they show."""
+        """The next reads' stamps, in order.
+
+        Args:
+            raws: Their receive times on the raw monotonic clock.
+            reals: The same instants on the realtime clock.
+
+        Returns:
+            The steps and slews they show.
+        """
         changes: list[ClockChange] = []
         raw, off = self._raw, self._off
         for r, real in zip(raws, reals, strict=True):
             o = real - r
             if off:
                 change = o - off[-1]
-                if jumps(change, r - raw[-1]):
+                if _jumps(change, r - raw[-1]):
                     changes.append(ClockChange(ChangeKind.STEP, change, real - (r - raw[-1]) // 2,
                                                (r + raw[-1]) // 2, r - raw[-1]))
                     if self._span is not None:
@@ -183,9 +195,16 @@ class RealtimeTrack:
         return changes
 
     def map(self, instants: list[int], until: list[int]) -> list[int]:
-        """Raw-clock ``instants`` on the realtime clock, each by the reads up to the one at
-        its ``until`` (the read that completed its record; for that read's own stamp, its
-        own realtime stamp).
+        """Raw-clock instants on the realtime clock.
+
+        Args:
+            instants: Raw-clock ns.
+            until: Per instant, the raw stamp of the read that completed its record: the
+                instant is mapped by the reads up to that one (for that read's own stamp,
+                its own realtime stamp).
+
+        Returns:
+            Realtime ns; the instants themselves before any read was heard.
         """
         raw, off = self._raw, self._off
         if not raw:  # no read heard: the instants are the caller's own clock's
@@ -207,12 +226,27 @@ class RealtimeTrack:
         return out
 
     def map_array(self, instants: np.ndarray, until: np.ndarray) -> np.ndarray:
+        """``map`` of arrays.
+
+        Args:
+            instants: Raw-clock ns.
+            until: As ``map``'s.
+
+        Returns:
+            Realtime ns, int64.
+        """
         return np.array(self.map(instants.tolist(), until.tolist()), np.int64)
 
 
 class RealtimeReads:
-    """A capture's reads at once: ``map_array`` as ``RealtimeTrack.map`` gives live, and the
-    changes ``RealtimeTrack.add`` names, in arrays.
+    """A capture's reads at once, in arrays.
+
+    ``map_array`` gives what ``RealtimeTrack.map`` gives live, ``changes`` what
+    ``RealtimeTrack.add`` names.
+
+    Args:
+        raw: Each read's receive time on the raw monotonic clock.
+        real: The same instants on the realtime clock.
     """
 
     def __init__(self, raw: npt.ArrayLike, real: npt.ArrayLike) -> None:
@@ -221,10 +255,18 @@ class RealtimeReads:
 
     def map_array(self, instants: np.ndarray, until: np.ndarray,
                   sides: np.ndarray | None = None) -> np.ndarray:
-        """``RealtimeTrack.map`` of many instants at once; ``sides``: per instant, an
-        offset it is known to be near, which decides its side of a step between the reads
-        around it (an archive's samples keep only their completing reads: the live
-        estimate, which had every read, took the side).
+        """``RealtimeTrack.map`` of many instants at once.
+
+        Args:
+            instants: Raw-clock ns.
+            until: As ``RealtimeTrack.map``'s.
+            sides: Per instant, an offset it is known to be near, which decides its side
+                of a step between the reads around it (an archive's samples keep only
+                their completing reads: the live estimate, which had every read, took
+                the side).
+
+        Returns:
+            Realtime ns, int64.
         """
         raw, off = self.raw, self.off
         t = np.asarray(instants, np.int64)
@@ -240,7 +282,7 @@ class RealtimeReads:
             linear = oa + np.round((ob - oa) * ((t - ra) / span)).astype(np.int64)
         nearer = np.where(t - ra < rb - t, oa, ob) if sides is None else \
             np.where(np.abs(oa - sides) <= np.abs(ob - sides), oa, ob)
-        o = np.where(jumps(ob - oa, rb - ra), nearer, linear)
+        o = np.where(_jumps(ob - oa, rb - ra), nearer, linear)
         o = np.where(t >= raw[hi], off[hi], np.where(t < raw[lo], off[lo], o))
         return t + o
 
@@ -250,16 +292,29 @@ class RealtimeReads:
         return int(self.off[-1]) if len(self.off) else None
 
     def map(self, instants: list[int], until: list[int]) -> list[int]:
+        """``map_array`` of lists, as ``RealtimeTrack.map`` takes them.
+
+        Args:
+            instants: Raw-clock ns.
+            until: As ``RealtimeTrack.map``'s.
+
+        Returns:
+            Realtime ns.
+        """
         mapped = self.map_array(np.array(instants, np.int64), np.array(until, np.int64))
         return [int(t) for t in mapped]
 
     def changes(self) -> list[ClockChange]:
-        """Every step and slew the reads show, in order, as ``RealtimeTrack.add`` names them."""
+        """Every step and slew the reads show, in order, as ``RealtimeTrack.add`` names them.
+
+        Returns:
+            The changes, in the order of the reads that show them.
+        """
         raw, off = self.raw, self.off
         if len(raw) < 2:
             return []
         change, apart = np.diff(off), np.diff(raw)
-        jumped = jumps(change, apart)
+        jumped = _jumps(change, apart)
         at = np.flatnonzero(jumped) + 1
         steps = [ClockChange(ChangeKind.STEP, int(change[i - 1]),
                              int(raw[i] + off[i] - apart[i - 1] // 2),

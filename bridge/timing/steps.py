@@ -1,18 +1,13 @@
 """Host clock steps found in receive times alone: captures with no raw-clock stamps.
 
-Another program's capture, or one from before reads were stamped on the raw clock,
-has realtime receive times only, and the host may have stepped that clock while it
-ran. A step shows in the data itself: a record's receive time less its nominal device
-time (``ticks`` x 16 µs) is the clock offset plus a latency that is never negative, so
-the lower envelope of that difference over half a second (the least-delayed record
-there) follows the offset, drifting at the unit's few ppm. A step moves the envelope
-at once and for good, while its fine structure stays; a host stall only lifts it for
-the records that waited, and a backlog read at once falls along a slope of one, so
-neither stays level. A step back can only be a step: no read comes earlier than the
-unit's clock allows. Each step found is taken out from the first record it shows in
-(``raw_like``), giving receive times on a clock that was never stepped, as a raw
-clock's would be, and the realtime ones stay for mapping instants back onto the
-stepped clock (``bridge.timing.realtime``).
+Another program's capture, or one from before reads were stamped on the raw clock, has
+realtime receive times only, and the host may have stepped that clock while it ran. A
+step shows in the data itself, as a lasting move of the lower envelope of receive time
+less nominal device time (``find_steps``). Each step found is taken out from the first
+record it shows in (``raw_like``), giving receive times on a clock that was never
+stepped, as a raw clock's would be; the realtime ones stay for mapping instants back
+onto the stepped clock (``bridge.timing.realtime``). How a step is told from a stall or
+a backlog: docs/design/time.md.
 
 Steps of ``THRESHOLD_NS`` and more are found; smaller ones stay in the data as the
 clock model would take any change of latency.
@@ -33,9 +28,16 @@ _BREAK_TICKS = 600 * TICKS_PER_SECOND  # a timer jump longer than this starts an
 
 
 def unwrap_timer(timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """32-bit timers as increasing ticks, and where each stretch of one epoch begins (a
-    timer that went back, or jumped ten minutes: a reset). Rough, for finding steps:
+    """32-bit timers as increasing ticks, and where each stretch of one epoch begins.
+
+    A timer that went back, or jumped ten minutes, is a reset. Rough, for finding steps:
     the unwrapper proper times the records.
+
+    Args:
+        timer: The records' timers, in the order they were read.
+
+    Returns:
+        The ticks, and the index of each epoch's first record (0 first).
     """
     step = np.mod(np.diff(np.asarray(timer, np.int64)), 1 << 32)
     breaks = np.flatnonzero(step > _BREAK_TICKS) + 1
@@ -44,8 +46,15 @@ def unwrap_timer(timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def find_steps(ticks: np.ndarray, rx_ns: np.ndarray) -> list[tuple[int, int]]:
-    """Each step of the clock that stamped ``rx_ns``: (the first record on the new clock,
-    its size in ns), for records of one epoch in the order they were read.
+    """Each step of the clock that stamped ``rx_ns``.
+
+    Args:
+        ticks: The ticks of records of one epoch, in the order they were read.
+        rx_ns: Their receive times on the (realtime) clock that may have stepped.
+
+    Returns:
+        Per step, the index of the first record on the new clock and the step's size in
+        ns.
     """
     ticks = np.asarray(ticks, np.int64)
     y = np.asarray(rx_ns, np.int64) - ticks * NS_PER_TICK
@@ -87,8 +96,9 @@ def _lows(y: np.ndarray, starts: np.ndarray) -> np.ndarray:
 
 
 class _Line:
-    """The envelope expected from the settled half seconds before: their line where there
-    are several (the unit's drift), else the last one's level.
+    """The envelope expected from the settled half seconds before.
+
+    Their line where there are several (the unit's drift), else the last one's level.
     """
 
     def __init__(self, good: list[tuple[int, int]]) -> None:
@@ -107,10 +117,19 @@ class _Line:
 
 def raw_like(real_ns: np.ndarray, completing: np.ndarray,
              steps: list[tuple[int, int]]) -> np.ndarray:
-    """Receive times of every read with the steps taken out: each from the read that
-    completed the first record on the new clock (``completing``: each record's read).
-    A read between that one and the read before it (part of that record) goes with
-    whichever side keeps the reads in order.
+    """Receive times of every read with the steps taken out.
+
+    Each step is taken out from the read that completed the first record on the new
+    clock. A read between that one and the read before it (part of that record) goes
+    with whichever side keeps the reads in order.
+
+    Args:
+        real_ns: Every read's receive time on the clock that stepped.
+        completing: Each record's read (index into ``real_ns``).
+        steps: ``find_steps``' answer.
+
+    Returns:
+        The reads' receive times as a clock that never stepped would give them.
     """
     real = np.asarray(real_ns, np.int64)
     moved = np.zeros(len(real), np.int64)

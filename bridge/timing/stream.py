@@ -30,7 +30,11 @@ TRANSPORTS = ("uart", "usb", "usb-serial")
 
 @dataclass(frozen=True)
 class Settings:
-    """What decides a record's timing: its type, the unit's 0xDB settings, the link."""
+    """What decides a record's timing: its type, the unit's 0xDB settings, the link.
+
+    ``transport`` is one of ``TRANSPORTS``; ``polled``: records come as replies to polls,
+    not at the output rate; ``latency_timer_ms``: a USB-serial adapter's, where known.
+    """
 
     record: int
     decimation: int
@@ -47,8 +51,9 @@ class Settings:
 
     @property
     def frame_ns(self) -> int:
-        """The host's USB frame where one carries the bytes (own port or adapter); 0 on a
-        plain UART.
+        """The host's USB frame where one carries the bytes (own port or adapter).
+
+        0 on a plain UART.
         """
         return 0 if self.transport == "uart" else USB_FRAME_NS
 
@@ -59,9 +64,11 @@ class Settings:
 
     @property
     def floor_ns(self) -> int:
-        """The least time a record takes to reach the host: its line time on a serial
-        line (a UART, or one behind a USB-serial adapter); on the unit's own USB port
-        (the baud setting has no effect there) its transfer at full speed's payload rate.
+        """The least time a record takes to reach the host.
+
+        Its line time on a serial line (a UART, or one behind a USB-serial adapter); on
+        the unit's own USB port (the baud setting has no effect there) its transfer at
+        full speed's payload rate.
         """
         if self.transport == "usb":
             return REPLIES[self.record].length * USB_BYTE_NS
@@ -74,21 +81,30 @@ class Settings:
 
     @property
     def by_bytes(self) -> bool:
-        """Whether reads that end inside records time them (a serial line's bytes); on
-        the unit's own USB port the frames alone do.
+        """Whether reads that end inside records time them (a serial line's bytes).
+
+        On the unit's own USB port the frames alone do.
         """
         return self.transport != "usb"
 
     @property
     def byte_ns(self) -> float:
-        """One byte's time on the link: 10 bits at the baud rate on a serial line (a UART
-        or the line into a USB-serial adapter), full speed's payload rate on USB.
+        """One byte's time on the link.
+
+        10 bits at the baud rate on a serial line (a UART or the line into a USB-serial
+        adapter), full speed's payload rate on USB.
         """
         return USB_BYTE_NS if self.transport == "usb" else 10e9 / self.baud
 
     def part_lead_ns(self, part_bytes: np.ndarray) -> np.ndarray:
-        """The line time of a record's first ``part_bytes`` bytes: the floor less the time
-        of the bytes still to come (so exactly the floor for a whole record).
+        """The line time of a record's first ``part_bytes`` bytes.
+
+        Args:
+            part_bytes: Per record, how many of its bytes a read had brought.
+
+        Returns:
+            The floor less the time of the bytes still to come (so exactly the floor for a
+            whole record), int64 ns.
         """
         missing = REPLIES[self.record].length - np.asarray(part_bytes, np.int64)
         return self.floor_ns - np.round(missing * self.byte_ns).astype(np.int64)
@@ -96,8 +112,11 @@ class Settings:
 
 @dataclass
 class Timed:
-    """One batch's valid records with their ticks, sample instants and receive times on
-    the realtime clock (the batch's ``rx_ns`` are the raw clock's), and what happened.
+    """One batch's valid records with their ticks, sample instants and receive times.
+
+    ``time_ns`` and ``rx_ns`` are on the realtime clock (the batch's own ``rx_ns`` are the
+    raw clock's); ``events`` what the timeline found, ``dropped`` samples missing (gaps),
+    ``invalid`` records dropped for a corrupt timer.
     """
 
     batch: Batch
@@ -120,8 +139,14 @@ class TimedFew:
 
 
 class StreamTiming:
-    """One timeline for a unit's whole life: ticks keep increasing across reconnects
-    (a gap or a reset is for the unwrapper to find); settings changes update it.
+    """One timeline for a unit's whole life, from the settings that decide timing.
+
+    Ticks keep increasing across reconnects (a gap or a reset is for the unwrapper to
+    find); settings changes update it. ``configure`` before the first batch.
+
+    Args:
+        host: Each read's realtime offset: None for a live stream (``hear`` feeds it), a
+            capture's reads all at once (``RealtimeReads``).
     """
 
     def __init__(self, host: RealtimeTrack | RealtimeReads | None = None) -> None:
@@ -135,11 +160,19 @@ class StreamTiming:
 
     @property
     def state(self) -> ClockState | None:
+        """The clock model now, for status (None before ``configure``)."""
         return self.timeline.state if self.timeline else None
 
     def configure(self, settings: Settings, restarted: bool) -> None:
-        """Apply ``settings``; ``restarted``: the stream began anew here (bring-up, a
-        timer set or reset), so the next record may be off the old output lattice.
+        """Apply the settings from the next record on.
+
+        Args:
+            settings: What decides the records' timing now.
+            restarted: The stream began anew here (bring-up, a timer set or reset), so
+                the next record may be off the old output lattice.
+
+        Raises:
+            ValueError: An unknown transport.
         """
         if settings.transport not in TRANSPORTS:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
@@ -155,15 +188,28 @@ class StreamTiming:
             if settings.by_bytes else None
 
     def hear(self, raws: list[int], reals: list[int]) -> list[ClockChange]:
-        """The next reads' stamps on both clocks, before their records are processed: the
-        host clock's steps and slews they show.
+        """The next reads' stamps on both clocks, before their records are processed.
+
+        Args:
+            raws: Their receive times on the raw monotonic clock.
+            reals: The same instants on the realtime clock.
+
+        Returns:
+            The host clock's steps and slews they show.
         """
         assert isinstance(self.host, RealtimeTrack), "a capture's reads come all at once"
         return self.host.add(raws, reals)
 
     def process(self, batch: Batch) -> Timed:
-        """Ticks and host times of a batch's records; corrupt timers are dropped. A
-        record's partial read, where the framer saw one, bounds its instant too.
+        """Ticks and host times of a batch's records; corrupt timers are dropped.
+
+        A record's partial read, where the framer saw one, bounds its instant too.
+
+        Args:
+            batch: The next records of the stream, their ``rx_ns`` on the raw clock.
+
+        Returns:
+            The valid records with their ticks and realtime instants, and the events.
         """
         assert self.timeline is not None and self.settings is not None, "configure() first"
         if batch.part_ns is None or batch.part_bytes is None or self._parts is None:
@@ -182,9 +228,17 @@ class StreamTiming:
     def process_few(self, timers: list[int], rx_ns: list[int],
                     part_ns: list[int] | None = None, part_bytes: list[int] | None = None
                     ) -> TimedFew | None:
-        """``process`` of a live read's record or two in plain integers, when every one is
-        intact and one period after the last. None: nothing changed, ``process`` them.
-        ``part_ns``, ``part_bytes``: the batch's partial reads, if it has them.
+        """``process`` of a live read's record or two in plain integers.
+
+        Args:
+            timers: The records' timers.
+            rx_ns: The raw receive time of the read that completed each.
+            part_ns: The records' partial reads, if they have them.
+            part_bytes: The record's bytes each partial read had brought.
+
+        Returns:
+            Their ticks, instants and receive times, when every one is intact and one
+            period after the last; None: nothing changed, ``process`` them.
         """
         assert self.timeline is not None and self.settings is not None, "configure() first"
         if part_ns is None or part_bytes is None or self._parts is None:

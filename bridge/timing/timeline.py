@@ -13,7 +13,11 @@ from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrap
 
 @dataclass
 class TimelineBatch:
-    """One batch's timing, aligned with its records; drop those not ``valid``."""
+    """One batch's timing, aligned with its records; drop those not ``valid``.
+
+    ``ticks`` and ``time_ns`` are -1 where not valid; ``dropped`` counts samples the unit
+    produced that never arrived (gaps).
+    """
 
     ticks: npt.NDArray[np.int64]  # -1 where not valid
     time_ns: npt.NDArray[np.int64]  # -1 where not valid
@@ -24,10 +28,20 @@ class TimelineBatch:
 
 
 class Timeline:
-    """Feeds each batch's timers through the unwrapper and its valid records through
-    the clock, restarting the clock at each reset (the tick base moved). A jump the
-    receive times cannot back (a backlog read after a host stall) is judged by the
-    clock as fed every record before it.
+    """Timer in, sample instants out: the unwrapper and the clock model in step.
+
+    Feeds each batch's timers through the unwrapper and its valid records through the
+    clock, restarting the clock at each reset (the tick base moved). A jump the receive
+    times cannot back (a backlog read after a host stall) is judged by the clock as fed
+    every record before it.
+
+    Args:
+        period_ticks: The output period in ticks (decimation x 62.5); None if unknown.
+        filter_delay_ns: As ``OnlineClock``'s.
+        floor_ns: As ``OnlineClock``'s.
+        frame_ns: As ``OnlineClock``'s.
+        window_s: As ``OnlineClock``'s.
+        serial: As ``OnlineClock``'s.
     """
 
     def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
@@ -38,17 +52,34 @@ class Timeline:
 
     @property
     def state(self) -> ClockState:
+        """The clock model now, for status."""
         return self.clock.state
 
     def expect_discontinuity(self, period_ticks: float | None = None) -> None:
-        """The bridge reset the unit, set its timer or changed its sampling."""
+        """The bridge reset the unit, set its timer or changed its sampling.
+
+        Args:
+            period_ticks: The new output period, if it changed.
+        """
         self.unwrapper.expect_discontinuity(period_ticks)
 
     def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike,
                part_ns: npt.ArrayLike | None = None,
                part_lead_ns: npt.ArrayLike | None = None) -> TimelineBatch:
-        """``part_ns``, ``part_lead_ns``: the records' partial reads, for the clock (see
-        ``OnlineClock.update``).
+        """Ticks and sample instants of one batch's records.
+
+        Args:
+            timer: The records' timers (uint32).
+            rx_ns: The receive time of the read that completed each.
+            part_ns: The records' partial reads, for the clock (see
+                ``OnlineClock.update``).
+            part_lead_ns: The line time of the bytes each partial read held.
+
+        Returns:
+            Ticks, instants, validity and events, aligned with the records.
+
+        Raises:
+            ValueError: The arrays differ in length.
         """
         rx = np.asarray(rx_ns, np.int64)
         parts = None if part_ns is None or part_lead_ns is None else \
@@ -70,10 +101,16 @@ class Timeline:
     def update_few(self, timers: list[int], rx_ns: list[int],
                    parts: tuple[list[int], list[int]] | None = None
                    ) -> tuple[list[int], list[int], list[TimingEvent]] | None:
-        """``update`` of a few records in plain integers, when the unwrapper takes them
-        as they are (each one period after the last): ticks, instants and rollovers.
-        None: nothing changed, ask ``update``. ``parts``: the partial reads' receive
-        times and line times.
+        """``update`` of a few records in plain integers.
+
+        Args:
+            timers: The records' timers.
+            rx_ns: The receive time of the read that completed each.
+            parts: The partial reads' receive times and line times.
+
+        Returns:
+            Ticks, instants and rollovers, when the unwrapper takes the records as they
+            are (each one period after the last); None: nothing changed, ask ``update``.
         """
         run = self.unwrapper.update_few(timers, rx_ns)
         if run is None:
@@ -83,8 +120,10 @@ class Timeline:
 
     def _timed(self, u: Unwrapped, rx: npt.NDArray[np.int64],
                parts: npt.NDArray[np.int64] | None) -> TimelineBatch:
-        """Host times of one unwrapped stretch's valid records, the clock restarted at
-        each reset in it; ``parts``: the partial reads' times and line times, stacked.
+        """Host times of one unwrapped stretch's valid records.
+
+        The clock is restarted at each reset in it; ``parts``: the partial reads' times
+        and line times, stacked.
         """
         resets = [e.index for e in u.events if e.kind == TimingKind.RESET]
         if not resets and u.all_valid:  # the common case, without index arithmetic

@@ -1,31 +1,15 @@
 """The 32-bit timer as a 64-bit tick count, with its discontinuities named.
 
-The timer counts 62,500 ticks a second and wraps every ~19 h. Between two records
-it advances by a whole number of output periods (a multiple of decimation x 62.5
-ticks, give or take the half tick the unit rounds to); more than one period is a
-gap of dropped samples. A value off that lattice is either a reset (0xD7 timer
-set, 0xFE reset, power cycle: the timer starts again somewhere else) or a
-corrupted record (two compensating bit flips pass the additive checksum). The two
-look the same until the next record: a reset is followed by records that agree
-with it, a glitch by records that agree with what came before. So an off-lattice
-record is dropped at once and named when the next one arrives; after an
-unannounced reset that costs the first record of the new epoch. A bridge that
-itself resets the unit, sets the timer or changes the sampling calls
-``expect_discontinuity`` and loses nothing. A single bit flip never lands on the
-lattice (62.5 x decimation never divides a power of two), and with receive times
-a jump the host clock does not back is refused too.
-
-A host that stalls (a suspended or starved bridge) then reads a backlog at once:
-the records before the stall and the first after the records lost in it arrive
-together, so receive times cannot back the jump between them. Such a jump (forward,
-on the lattice) is judged against the clock model instead: a timer that ran on is
-no further ahead than the model's prediction at the record's receive time, while a
-reset starts again near 0 or at the value set. So is the first record after an
-announced discontinuity whose receive times disagree (a reconnect after a backlog:
-the last record before it came late). ``update(..., ask=True)`` stops
-before such a record for the caller to ``judge`` it (``Timeline`` does, with its
-clock model fed every record before it, so the outcome does not depend on how the
-records are cut into calls).
+The timer counts 62,500 ticks a second and wraps every ~19 h; between two records it
+advances by whole output periods (decimation x 62.5 ticks), more than one being a gap
+of dropped samples. A value off that lattice is a reset or a corrupt timer (a glitch
+that passed the checksum); the next record tells which, so such a record is dropped at
+once and named when the next one arrives. After an unannounced reset that costs the
+first record of the new epoch: a bridge that itself resets the unit, sets the timer or
+changes the sampling calls ``expect_discontinuity`` and loses nothing. A jump the
+receive times cannot back (a backlog read after a host stall) is judged against the
+clock model: ``update(..., ask=True)`` stops before it for the caller to ``judge`` it,
+as ``Timeline`` does. How each case is told apart: docs/design/time.md.
 """
 
 from __future__ import annotations
@@ -95,6 +79,7 @@ class Unwrapped:
 
     @property
     def all_valid(self) -> bool:
+        """Whether every record is valid."""
         return self.intact or bool(self.valid.all())
 
 
@@ -108,8 +93,14 @@ class _Anchor:
 class TimerUnwrapper:
     """Unwraps timers record by record; state carries across ``update`` calls.
 
-    ``period_ticks`` is the output period in ticks (decimation x 62.5), or None
-    when unknown: then gaps are not counted and only host time checks jumps.
+    ``dropped``, ``glitches``, ``resets`` and ``rollovers`` count what it found so far.
+
+    Args:
+        period_ticks: The output period in ticks (decimation x 62.5), or None when
+            unknown: then gaps are not counted and only host time checks jumps.
+
+    Raises:
+        ValueError: ``period_ticks`` is not positive.
     """
 
     def __init__(self, period_ticks: float | None = None) -> None:
@@ -129,15 +120,22 @@ class TimerUnwrapper:
         self.rollovers = 0
 
     def expect_discontinuity(self, period_ticks: float | None = None) -> None:
-        """The next record starts a new timer epoch or phase (the bridge caused it)."""
+        """The next record starts a new timer epoch or phase (the bridge caused it).
+
+        Args:
+            period_ticks: The new output period, if it changed.
+        """
         if period_ticks is not None:
             self.period_ticks = period_ticks
         self._fresh = True
 
     def judge(self, horizon: int | None) -> None:
-        """The clock model's answer for the record an ``update`` stopped before: the most
-        ticks a record received when it was can carry (None: the model has no line yet,
-        so the jump is doubted as any other).
+        """The clock model's answer for the record an ``update`` stopped before.
+
+        Args:
+            horizon: The most ticks a record received when it was can carry
+                (``OnlineClock.horizon``); None: the model has no line yet, so the jump
+                is doubted as any other.
         """
         self._horizon = (horizon,)
 
@@ -161,12 +159,23 @@ class TimerUnwrapper:
     # --- update --------------------------------------------------------------------------
     def update(self, timer: npt.ArrayLike, rx_ns: npt.ArrayLike | None = None,
                ask: bool = False) -> Unwrapped:
-        """Unwrap one batch of timers (uint32), with each record's receive time if known.
+        """Unwrap one batch of timers.
 
         Runs of records one period apart go through in bulk, the rest record by record;
-        the result does not depend on where the batch is cut. With ``ask`` the result
-        may stop at a ``pending`` record, a jump ahead of its receive time that only
-        the clock model can judge; without, such a jump is doubted like any other.
+        the result does not depend on where the batch is cut.
+
+        Args:
+            timer: The records' timers (uint32).
+            rx_ns: Each record's receive time, if known.
+            ask: Stop at a record whose jump is ahead of its receive time, which only the
+                clock model can judge (``pending``); without, such a jump is doubted like
+                any other.
+
+        Returns:
+            Ticks, validity and events, aligned with the records.
+
+        Raises:
+            ValueError: ``timer`` and ``rx_ns`` differ in length.
         """
         timers = np.asarray(timer).astype(np.int64)
         rx = None if rx_ns is None else np.asarray(rx_ns, np.int64)
@@ -188,9 +197,15 @@ class TimerUnwrapper:
 
     def update_few(self, timers: list[int],
                    rx_ns: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
-        """``update`` of a few records in plain integers (a live bridge gets one or two a
-        read), when each is one period after the last: their ticks and rollovers. None
-        when they are not, or the state is not plain: nothing changed, ask ``update``.
+        """``update`` of a few records in plain integers (a live bridge gets one or two a read).
+
+        Args:
+            timers: The records' timers.
+            rx_ns: Their receive times, if known.
+
+        Returns:
+            Their ticks and rollovers, when each is one period after the last; None when
+            they are not, or the state is not plain: nothing changed, ask ``update``.
         """
         ref = self._ref
         if (ref is None or self._candidate is not None or self._fresh or not timers
@@ -202,8 +217,9 @@ class TimerUnwrapper:
         return run
 
     def _fast(self, timers: np.ndarray, rx: np.ndarray | None) -> Unwrapped | None:
-        """The common case in one go: the leading records each exactly one period after
-        the last (None when not even the first is).
+        """The common case in one go: the leading records each one period after the last.
+
+        None when not even the first is.
         """
         ref = self._ref
         if ref is None or self._candidate is not None or self._fresh or not len(timers):
@@ -240,9 +256,10 @@ class TimerUnwrapper:
 
     def _fast_scalar(self, ref: _Anchor, timers: list[int],
                      rx: list[int] | None) -> tuple[list[int], list[TimingEvent]] | None:
-        """``_fast`` for a few records, in plain integers: the same rules without NumPy's
-        fixed cost per call. Their ticks and rollovers; None (nothing changed) unless
-        every one is one period after the last.
+        """``_fast`` for a few records, in plain integers.
+
+        The same rules without NumPy's fixed cost per call. Their ticks and rollovers;
+        None (nothing changed) unless every one is one period after the last.
         """
         period, slack = self.period_ticks, HOST_SLACK_NS // NS_PER_TICK
         prev_t, prev_rx, value = ref.timer, ref.rx, ref.ticks
@@ -272,9 +289,10 @@ class TimerUnwrapper:
         return ticks, events
 
     def _slow(self, timers: np.ndarray, rx: np.ndarray | None, ask: bool) -> Unwrapped:
-        """Record by record, at least ``_SLOW_RUN`` of them and on until the state is
-        plain again (an anchor, nothing in doubt), so the bulk path can take over; or
-        up to a record that waits for the clock model.
+        """Record by record, at least ``_SLOW_RUN`` of them.
+
+        And on until the state is plain again (an anchor, nothing in doubt), so the bulk
+        path can take over; or up to a record that waits for the clock model.
         """
         n = len(timers)
         ticks = np.full(n, -1, np.int64)
@@ -384,8 +402,10 @@ class TimerUnwrapper:
 
     def _accept(self, ref: _Anchor, t: int, r: int | None, step: tuple[int, int], i: int,
                 out: Unwrapped, held: int = 0) -> int:
-        """Take a record ``step`` after ``ref``; ``held`` records in between arrived
-        corrupt (they are glitches, not missing samples).
+        """Take a record ``step`` after ``ref``.
+
+        ``held`` records in between arrived corrupt (they are glitches, not missing
+        samples).
         """
         d, periods = step
         missing = periods - 1 - held

@@ -5,6 +5,7 @@ timer, maps ticks to host time, and hands every sample, event and status to a
 ``Sink`` (the Zenoh publisher in ``gx3 bridge``; a list in tests). A pulled cable
 or a silent unit is reported, retried with backoff, and followed by a fresh
 bring-up when the unit is back, so a restarted or power-cycled unit resumes alone.
+Where it sits in the product: ``docs/design/architecture.md``.
 """
 
 from __future__ import annotations
@@ -45,7 +46,27 @@ PUBLISH_RESERVE_S = 0.001
 
 @dataclass(frozen=True)
 class Options:
-    """What the operator asked of the bridge; None leaves the unit's own setting."""
+    """What the operator asked of the bridge; None leaves the unit's own setting.
+
+    Attributes:
+        url: The port: a device path, or a pyserial URL (``socket://``).
+        baud: The unit's baud rate; None: find it.
+        record: The record type to stream (command byte).
+        decimation: Calculation cycles (1 ms) per record.
+        flags: The sampling settings' flags.
+        filter_width: The accel and gyro filter's width.
+        mag_filter_width: The magnetometer filter's width.
+        new_baud: A baud rate to move the unit to.
+        persist: Store the settings in the unit's non-volatile memory.
+        poll_hz: Poll the unit this often instead of streaming.
+        transport: The link: ``uart``, ``usb``, ``usb-serial`` or ``auto`` (by device
+            name).
+        silence_s: A unit that sends nothing for this long is lost, and brought up again.
+        sysfs: Where a USB-serial adapter's latency timer is read.
+        max_latency_s: The longest a byte may wait between arriving and its samples
+            going out; above ``PUBLISH_RESERVE_S``, reads gather (fewer wake-ups and puts
+            in bursts).
+    """
 
     url: str
     baud: int | None = 115_200  # None: find it
@@ -78,6 +99,12 @@ class TimedSamples:
     arrays, made from them only when asked for. The records' own ``rx_ns`` are their
     completing reads' receive times on the raw monotonic clock; ``rx_ns`` here the same
     reads' on the realtime clock, as ``time_ns`` is.
+
+    Args:
+        records: The records.
+        ticks: Their unwrapped device timer.
+        time_ns: The host-clock instants their values describe, ns.
+        rx_ns: Their completing reads' receive times on the realtime clock, ns.
     """
 
     def __init__(self, records: Batch | Records, ticks: np.ndarray | list[int],
@@ -89,23 +116,31 @@ class TimedSamples:
 
     @functools.cached_property
     def batch(self) -> Batch:
+        """The records as a batch of columns."""
         records = self.records
         return records if isinstance(records, Batch) else records.batch()
 
     @functools.cached_property
     def ticks(self) -> np.ndarray:
+        """The unwrapped device timer, int64."""
         return np.asarray(self.tick_values, np.int64)
 
     @functools.cached_property
     def time_ns(self) -> np.ndarray:
+        """The instants the values describe, host ns, int64."""
         return np.asarray(self.time_values, np.int64)
 
     @functools.cached_property
     def rx_ns(self) -> np.ndarray:
+        """The completing reads' receive times on the realtime clock, ns, int64."""
         return np.asarray(self.rx_values, np.int64)
 
     def lists(self) -> tuple[list[int], list[int], list[int]]:
-        """Ticks, instants and receive times in plain integers (as a live read's come)."""
+        """Ticks, instants and receive times in plain integers, as a live read's come.
+
+        Returns:
+            (ticks, time_ns, rx_ns).
+        """
         return _plain(self.tick_values), _plain(self.time_values), _plain(self.rx_values)
 
 
@@ -126,8 +161,10 @@ class UnitState(StrEnum):
 
 
 class EventKind(StrEnum):
-    """What happened to a unit's stream: the timeline's kinds (``TimingKind``) and the
-    pipeline's own; ``Event.Kind`` says each on Zenoh (``waiting`` is for the log only).
+    """What happened to a unit's stream: the timeline's kinds and the pipeline's own.
+
+    The timeline's are those of ``TimingKind``. ``Event.Kind`` says each on Zenoh
+    (``waiting`` is for the log only).
     """
 
     ROLLOVER = TimingKind.ROLLOVER.value
@@ -146,6 +183,17 @@ class EventKind(StrEnum):
 
 @dataclass
 class UnitEvent:
+    """Something that happened to a unit's stream.
+
+    Attributes:
+        kind: What happened.
+        time_ns: When, host ns on the realtime clock.
+        ticks: The unit's unwrapped timer at it, where it has one.
+        count: How many: records of a gap, bytes of a resync, ...
+        detail: What happened, in words.
+        clock_change_ns: For a host clock step or slew: how far the clock moved.
+    """
+
     kind: EventKind
     time_ns: int
     ticks: int = 0
@@ -170,23 +218,66 @@ class Counters:
     meter: RateWindow = field(default_factory=lambda: RateWindow(5.0))
 
     def rate(self, now: float) -> float:
-        """Samples per second over the last few seconds."""
+        """Samples per second over the last few seconds.
+
+        Args:
+            now: Monotonic seconds.
+
+        Returns:
+            The rate.
+        """
         return self.meter.rate(now, self.samples)
 
 
 class Sink(Protocol):
-    def info(self, info: UnitInfo) -> None: ...
-    def samples(self, samples: TimedSamples) -> None: ...
-    def event(self, event: UnitEvent) -> None: ...
-    def status(self, status: dict[str, Any]) -> None: ...
+    """Where a pipeline hands what it produces (the Zenoh publisher; a list in tests)."""
+
+    def info(self, info: UnitInfo) -> None:
+        """Take the unit as brought up: before its first sample, and after each change.
+
+        Args:
+            info: The unit's identity and settings.
+        """
+        ...
+
+    def samples(self, samples: TimedSamples) -> None:
+        """Take timed samples, as they come.
+
+        Args:
+            samples: One run of records of one type, with their times.
+        """
+        ...
+
+    def event(self, event: UnitEvent) -> None:
+        """Take something that happened to the stream, as it happens.
+
+        Args:
+            event: What happened.
+        """
+        ...
+
+    def status(self, status: dict[str, Any]) -> None:
+        """Take the pipeline's status, once a second.
+
+        Args:
+            status: The state, counters, clock model and host clock.
+        """
+        ...
 
 
 Action = Callable[[Session, UnitInfo], dict[str, Any]]
 
 
 class Pipeline:
-    """Run one unit until ``stop`` is set. ``submit`` queues operator actions that run
-    between reads, on the port's own thread.
+    """Run one unit until ``stop`` is set.
+
+    ``submit`` queues operator actions that run between reads, on the port's own thread.
+
+    Args:
+        options: What the operator asked of the bridge.
+        sink: Where samples, events, status and info go.
+        on_read: Hears every read from the port as ``(data, raw_ns, real_ns)``: its
+            receive times on the raw monotonic and the realtime clock (a raw capture).
     """
 
     def __init__(self, options: Options, sink: Sink,
@@ -210,8 +301,22 @@ class Pipeline:
                ) -> dict[str, Any]:
         """Run ``action(session, info)`` on the pipeline's thread; its result or error.
 
-        ``effect`` says what the action did to the stream: "reconfigure" (settings
-        changed: timing follows them) or "restart" (the unit resets: bring it up again).
+        Args:
+            action: Runs with the unit's session and info; returns its result.
+            effect: What the action does to the stream: "reconfigure" (settings
+                changed: timing follows them), "restart" (the unit resets: bring it up
+                again) or "none".
+            timeout: Seconds to wait for the result.
+
+        Returns:
+            The action's result.
+
+        Raises:
+            TimeoutError: The unit did not finish the action in time.
+            DeviceError: The unit refused the action (raised here as the action raised
+                it).
+            PortError: The port failed during the action.
+            ValueError: The action's parameters are wrong.
         """
         done: queue.Queue[Any] = queue.Queue(maxsize=1)
         self._actions.put((action, effect, done))
@@ -226,8 +331,13 @@ class Pipeline:
 
     # --- lifecycle -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> None:
-        """Keep the unit streaming until ``stop``; an unexpected error is kept in
-        ``error`` (and ends the run) so the process can report it and exit.
+        """Keep the unit streaming until ``stop`` is set.
+
+        An unexpected error is kept in ``error`` (and ends the run, setting ``stop``), so
+        the process can report it and exit.
+
+        Args:
+            stop: Ends the run.
         """
         try:
             self._run(stop)
@@ -273,8 +383,9 @@ class Pipeline:
         self.counters.state = UnitState.STOPPED
 
     def _wait(self, exc: PortError | DeviceError, lost: bool) -> None:
-        """Say why the unit is not up once, and again only when the reason changes:
-        a retry every few seconds must not flood the log or look like a new fault.
+        """Say why the unit is not up once, and again only when the reason changes.
+
+        A retry every few seconds must not flood the log or look like a new fault.
         """
         self.counters.state = UnitState.LOST if lost else UnitState.WAITING
         if exc.why != self.waiting_for:
@@ -296,8 +407,10 @@ class Pipeline:
         return session
 
     def _heard(self, reads: list[bytes], raws: list[int], reals: list[int]) -> None:
-        """Every read, before its records: the host clock's offset at it (its steps and
-        slews said as events), then ``on_read`` (a raw capture).
+        """Hear every read, before its records.
+
+        The host clock's offset at it first (its steps and slews said as events), then
+        ``on_read`` (a raw capture).
         """
         for change in self.timing.hear(raws, reals):
             self._clock_changed(change)
@@ -363,8 +476,9 @@ class Pipeline:
 
     @property
     def transport(self) -> str:
-        """The link to the unit: "uart", "usb" (its own USB port, /dev/ttyACM*) or
-        "usb-serial" (an adapter, /dev/ttyUSB*).
+        """The link to the unit: "uart", "usb" or "usb-serial".
+
+        "usb" is its own USB port (/dev/ttyACM*), "usb-serial" an adapter (/dev/ttyUSB*).
         """
         return self.link.transport
 
@@ -400,10 +514,14 @@ class Pipeline:
                 self._status(session)
 
     def process(self, records: Batch | Records) -> None:
-        """Time one read's records of the stream and hand them to the sink. A live read's
-        record or two go through in plain integers while they are intact and one period
-        apart; anything else (a gap, a glitch, a reset, a backlog) through the batch
-        path, with the same ticks, times and events either way.
+        """Time one read's records of the stream and hand them to the sink.
+
+        A live read's record or two go through in plain integers while they are intact
+        and one period apart; anything else (a gap, a glitch, a reset, a backlog) through
+        the batch path, with the same ticks, times and events either way.
+
+        Args:
+            records: The records of one read, of the streamed type.
         """
         if isinstance(records, Records):
             few = self.timing.process_few(records.timers(), records.rx_ns, records.part_ns,

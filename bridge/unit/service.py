@@ -8,7 +8,8 @@ publishes them (``--ros2``).
 Operator commands that reach the unit's command queryable run on the
 pipeline's thread, only when the bridge was started with ``--allow-commands``.
 One unit name, one live bridge: a bridge asks for the name's liveliness token before
-it declares its own, and does not start under a name a running bridge holds.
+it declares its own, and does not start under a name a running bridge holds. Where it
+sits in the product: ``docs/design/architecture.md``.
 """
 
 from __future__ import annotations
@@ -54,8 +55,17 @@ _KINDS: dict[str, Event.Kind] = {kind: getattr(Event, kind.name) for kind in Eve
 
 
 def claim_name(session: zenoh.Session, prefix: str, unit: str) -> None:
-    """Raise NameTaken if a running bridge answers for ``unit``'s liveliness token (two
-    bridges under one name would mix two units' samples under one key).
+    """Refuse a unit name that a running bridge answers for.
+
+    Two bridges under one name would mix two units' samples under one key.
+
+    Args:
+        session: The Zenoh session.
+        prefix: The key prefix.
+        unit: The name.
+
+    Raises:
+        NameTaken: A running bridge answers for the name's liveliness token.
     """
     from bridge.bus.keys import UnitKeys
 
@@ -65,7 +75,7 @@ def claim_name(session: zenoh.Session, prefix: str, unit: str) -> None:
                         "alive): stop it first, or give this unit another name with --unit")
 
 
-def host_clock_message(sync: clock.HostSync, offset_ns: int | None = None) -> HostClock:
+def _host_clock_message(sync: clock.HostSync, offset_ns: int | None = None) -> HostClock:
     """The host's clock as the kernel reports it, and its offset at the latest read."""
     return HostClock(host=sync.host, synchronised=sync.synchronised, known=sync.known,
                      estimated_error_ns=sync.estimated_error_ns,
@@ -76,9 +86,10 @@ def host_clock_message(sync: clock.HostSync, offset_ns: int | None = None) -> Ho
 def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
                  link: Link | None = None, polled: bool = False,
                  sync: clock.HostSync | None = None) -> Info:
+    """The unit's Info message: identity, settings, link and its bridge host's clock."""
     s = info.sampling
     return Info(
-        host_clock=host_clock_message(sync or clock.host_sync()),
+        host_clock=_host_clock_message(sync or clock.host_sync()),
         unit=unit, port=port, baud=info.baud, firmware=info.firmware,
         firmware_text=info.firmware_text, decimation=s.get("decimation", 0),
         flags=s.get("flags", 0), filter_width=s.get("filter_width", 0),
@@ -92,7 +103,7 @@ def info_message(unit: str, port: str, info: UnitInfo, allow_commands: bool,
         latency_timer_ms=(link.latency_timer_ms or 0) if link else 0, **info.ids)
 
 
-def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
+def _status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str, Any]) -> Status:
     model = status.get("clock")
     sync = status.get("host_sync")
     msg = Status(
@@ -111,21 +122,22 @@ def status_message(unit: str, port: str, info: UnitInfo | None, status: dict[str
         msg.clock_drift_ppm = float(model.drift_ppm)
         msg.clock_spread_ns = float(model.spread_ns)
     if sync is not None:
-        msg.host_clock.CopyFrom(host_clock_message(sync, status.get("host_offset_ns")))
+        msg.host_clock.CopyFrom(_host_clock_message(sync, status.get("host_offset_ns")))
     return msg
 
 
-def event_message(unit: str, event: UnitEvent) -> Event:
+def _event_message(unit: str, event: UnitEvent) -> Event:
     return Event(unit=unit, time_ns=event.time_ns, ticks=event.ticks,
                  kind=_KINDS.get(event.kind, Event.KIND_UNSPECIFIED),
                  count=event.count or 1, detail=event.detail,
                  clock_change_ns=event.clock_change_ns)
 
 
-def command_handler(pipeline: Pipeline) -> Callable[[str], str]:
-    """What the unit's command queryable answers (only on a bridge started with
-    --allow-commands): a JSON request ``{"action": NAME, "params": {...}, "confirm":
-    bool}`` in, the JSON result out; a ValueError becomes the query's error reply.
+def _command_handler(pipeline: Pipeline) -> Callable[[str], str]:
+    """What the unit's command queryable answers, on a bridge started with --allow-commands.
+
+    A JSON request ``{"action": NAME, "params": {...}, "confirm": bool}`` in, the JSON
+    result out; a ValueError becomes the query's error reply.
     """
     def handle(text: str) -> str:
         try:
@@ -154,6 +166,17 @@ class BusSink:
     The unit's name is known only after its first bring-up (its serial number,
     unless the operator named it), so the publisher is declared then; listeners
     registered with ``on_unit`` learn the name and the unit's description.
+
+    Args:
+        session: The Zenoh session to publish on.
+        prefix: The key prefix.
+        unit: The unit's name; None: from its serial number, at its first bring-up.
+        port: The port, as the Info and Status name it.
+        allow_commands: Answer operator commands on the unit's command queryable.
+        cache_s: Seconds of samples the publisher's cache keeps for late subscribers.
+        quiet: Log only disconnects and why the unit is not up, not every event.
+        raw: Also publish every read raw (``<prefix>/<unit>/raw``).
+        ros2_domain: Also publish the samples on ROS 2 in this domain; None: not.
     """
 
     def __init__(self, session: zenoh.Session, prefix: str, unit: str | None, port: str,
@@ -170,15 +193,34 @@ class BusSink:
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
-        self._lines = EventLines()
+        self._lines = _EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
+        """Serve this pipeline: its link, options and operator commands.
+
+        Args:
+            pipeline: The pipeline that hands this sink what it produces.
+        """
         self.pipeline = pipeline
 
     def on_unit(self, listener: Callable[[str, dict[str, str]], None]) -> None:
+        """Tell ``listener(name, metadata)`` the unit's name and description when it is up.
+
+        Args:
+            listener: Hears the name and the unit's capture metadata
+                (``capture_metadata``) at each bring-up.
+        """
         self._listeners.append(listener)
 
     def info(self, info: UnitInfo) -> None:
+        """Publish the unit's Info; at its first bring-up, declare its publisher first.
+
+        Args:
+            info: The unit as brought up.
+
+        Raises:
+            NameTaken: A running bridge already publishes a unit of this name.
+        """
         from bridge.bus.keys import check_unit
         from bridge.bus.publish import UnitPublisher
 
@@ -195,7 +237,7 @@ class BusSink:
         self.publisher = UnitPublisher(
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
-            on_command=command_handler(self.pipeline), allow_commands=self.allow_commands,
+            on_command=_command_handler(self.pipeline), allow_commands=self.allow_commands,
             raw=self.raw)
         if self.ros2_domain is not None:
             from bridge.ros2.rmw import UnitTopics
@@ -212,14 +254,23 @@ class BusSink:
         self._early_reads.clear()
 
     def on_read(self, listener: Callable[[bytes, int, int], None]) -> None:
-        """``listener(data, raw_ns, real_ns)`` hears every read from the port with its
-        receive times on the raw monotonic and the realtime clock (a raw capture).
+        """Tell ``listener`` every read from the port (a raw capture).
+
+        Args:
+            listener: Hears ``(data, raw_ns, real_ns)``: the read and its receive times
+                on the raw monotonic and the realtime clock.
         """
         self._read_listeners.append(listener)
 
     def read(self, data: bytes, raw_ns: int, real_ns: int) -> None:
-        """A read from the port: to the read listeners, and published raw with ``raw``.
+        """Take a read from the port: to the read listeners, and published raw with ``raw``.
+
         The reads of the first bring-up wait for the unit's name (and publisher).
+
+        Args:
+            data: The read.
+            raw_ns: Its receive time on the raw monotonic clock.
+            real_ns: Its receive time on the realtime clock.
         """
         if not (self.raw or self._read_listeners):
             return
@@ -235,6 +286,11 @@ class BusSink:
             self.publisher.publish_raw(data, raw_ns, real_ns)
 
     def samples(self, samples: TimedSamples) -> None:
+        """Publish timed samples (and on ROS 2, with ``ros2_domain``).
+
+        Args:
+            samples: The samples.
+        """
         if self.publisher is not None:
             if isinstance(samples.records, Records):
                 self.publisher.publish_records(samples.records, *samples.lists())
@@ -245,19 +301,30 @@ class BusSink:
                 self.ros2.publish(samples.batch, samples.time_ns)
 
     def event(self, event: UnitEvent) -> None:
+        """Log an event, and publish it (``waiting`` is for the log only).
+
+        Args:
+            event: What happened.
+        """
         if not self.quiet or event.kind in (EventKind.DISCONNECT, EventKind.WAITING):
             self._lines.event(event)
         # "waiting" (why the unit is not up yet) is for the log; status carries the state
         if self.publisher is not None and self.unit is not None and event.kind in _KINDS:
-            self.publisher.publish_event(event_message(self.unit, event))
+            self.publisher.publish_event(_event_message(self.unit, event))
 
     def status(self, status: dict[str, Any]) -> None:
+        """Publish the unit's Status.
+
+        Args:
+            status: The pipeline's state, counters and clock model.
+        """
         self._lines.flush(time.monotonic())
         if self.publisher is not None and self.unit is not None:
-            self.publisher.publish_status(status_message(self.unit, self.port, self._info,
+            self.publisher.publish_status(_status_message(self.unit, self.port, self._info,
                                                          status))
 
     def close(self) -> None:
+        """Log the gaps held back, and undeclare the publishers."""
         self._lines.flush(None)
         if self.ros2 is not None:
             self.ros2.close()
@@ -267,7 +334,11 @@ class BusSink:
             self.publisher = None
 
     def summary(self) -> str:
-        """The closing line: totals as the pipeline ends (not the last 1 Hz status)."""
+        """The closing line: totals as the pipeline ends (not the last 1 Hz status).
+
+        Returns:
+            The line.
+        """
         if self.pipeline is None or self.unit is None:
             return f"{self.port}: no unit brought up"
         c = self.pipeline.counters
@@ -297,10 +368,11 @@ def _print_event(event: UnitEvent) -> None:
         "event": event.kind, "count": event.count, "time_ns": event.time_ns})
 
 
-class EventLines:
-    """Events on the terminal, a line each, but gaps summed into a line every
-    ``GAP_LINE_S`` at most: a line too slow for the output rate gaps at every other
-    record. (On the bus and in archives each gap stays an event of its own.)
+class _EventLines:
+    """Events on the terminal, a line each, but gaps summed into a line every ``GAP_LINE_S``.
+
+    A line too slow for the output rate gaps at every other record. (On the bus and in
+    archives each gap stays an event of its own.)
     """
 
     def __init__(self) -> None:
@@ -315,8 +387,9 @@ class EventLines:
         self.flush(time.monotonic())
 
     def flush(self, now: float | None) -> None:
-        """Print the gaps held back once ``GAP_LINE_S`` has passed since the last gap
-        line (``now`` None: at once).
+        """Print the gaps held back once ``GAP_LINE_S`` has passed since the last gap line.
+
+        ``now`` None: at once.
         """
         gaps = self._gaps
         if not gaps or (now is not None and self._printed is not None

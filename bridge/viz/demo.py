@@ -24,9 +24,10 @@ DEMO_EPOCH_NS = 1_761_955_200_000_000_000
 
 def demo_columns(unit: str, code: int, seed: int, seconds: float, rate_hz: float = 100.0,
                  start_s: float = 0.0, drift_ppm: float = 0.0) -> dict[str, np.ndarray]:
-    """``seconds`` of one unit's ``code`` records from ``start_s`` of device time on, as
-    decode_batch returns them; time_ns is device time divided by 1 + drift_ppm * 1e-6 (a
-    unit whose clock runs fast by drift_ppm), as in the Status clock model.
+    """``seconds`` of one unit's ``code`` records from ``start_s`` of device time on.
+
+    As decode_batch returns them; time_ns is device time divided by 1 + drift_ppm * 1e-6
+    (a unit whose clock runs fast by drift_ppm), as in the Status clock model.
     """
     n = round(seconds * rate_hz)
     ticks = round(start_s * TICKS_PER_SECOND) + np.arange(n, dtype=np.int64) * round(
@@ -49,8 +50,9 @@ DEMO_FLEET = (("imu0", 0xCC, 1, 12.0), ("imu1", 0xCC, 2, -8.0), ("imu2", 0xC8, 3
 
 def _statuses(unit: str, code: int, seed: int, drift: float, rate_hz: float,
               device_s: np.ndarray, kept: np.ndarray) -> list[Status]:
-    """One status a second, as a bridge would publish: counts from the records kept, a
-    clock model that settles on the unit's drift.
+    """One status a second, as a bridge would publish.
+
+    Counts from the records kept, a clock model that settles on the unit's drift.
     """
     rng = np.random.default_rng(seed)
     out = []
@@ -68,8 +70,9 @@ def _statuses(unit: str, code: int, seed: int, drift: float, rate_hz: float,
 
 def write_demo(path: str | os.PathLike[str], seconds: float = 30.0, rate_hz: float = 100.0,
                gap_s: tuple[float, float] = (12.0, 12.5)) -> None:
-    """A recording of DEMO_FLEET: samples, status, bring-up events, and a gap in imu1 (its
-    records from gap_s[0] to gap_s[1] are missing, and a GAP event says so).
+    """A recording of DEMO_FLEET: samples, status, bring-up events, and a gap in imu1.
+
+    Its records from gap_s[0] to gap_s[1] are missing, and a GAP event says so.
     """
     with RerunLogger(path, [unit for unit, *_ in DEMO_FLEET], recording_id="demo") as log:
         for unit, code, seed, drift in DEMO_FLEET:

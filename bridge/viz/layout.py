@@ -2,19 +2,10 @@
 
 Entity paths group by quantity and line, not by unit (``/plots/accel/x/imu0``,
 ``/plots/accel/x/imu1``), so one time-series view per line (origin ``/plots/accel/x``)
-takes in every unit, including units that appear after the blueprint was sent.
-
-    /world                           ViewCoordinates.FRD: X north, Y east, Z down (NED)
-    /world/ned                       Arrows3D labelled N, E, D: which way is which
-    /world/<unit>                    Transform3D translation: units side by side, eastwards
-    /world/<unit>/body               Transform3D quaternion per sample: sensor to earth (M^T)
-    /world/<unit>/body/box           Boxes3D, the unit's case scaled up BOX_SCALE times
-    /world/<unit>/body/axes          Arrows3D, sensor x (red), y (green), z (blue)
-    /world/<unit>/body/accel         Arrows3D per sample, accel (or stab_accel), sensor frame
-    /world/<unit>/body/mag           Arrows3D per sample, mag (or stab_mag), sensor frame
-    /plots/<plot>/<line>/<unit>      Scalars per sample, one line (accel x), SeriesLines static
-    /plots/<plot>/<unit>             Scalars per status (one line), SeriesLines static
-    /events/<unit>                   TextLog per event
+takes in every unit, including units that appear after the blueprint was sent. The
+scene is ``/world`` (NED: x north, y east, z down), each unit's body under
+``/world/<unit>/body``; events are under ``/events/<unit>``. Every entity, and what it
+shows: ``docs/guides/rerun.md``.
 """
 
 from __future__ import annotations
@@ -70,8 +61,9 @@ GRID_COLUMNS = 4
 
 
 def _hue_color(hue: float, light: float) -> Rgb:
-    """An RGB of the given hue (0..1), saturated, at ``light`` (0..1): legible on the
-    viewer's dark background.
+    """An RGB of the given hue (0..1), saturated, at ``light`` (0..1).
+
+    Legible on the viewer's dark background.
     """
     r, g, b = colorsys.hls_to_rgb(hue % 1.0, light, 0.85)
     return round(r * 255), round(g * 255), round(b * 255)
@@ -137,6 +129,7 @@ def entity_part(unit: str) -> str:
 
 
 def body_path(unit: str) -> str:
+    """The entity of a unit's body: its attitude, case, axes and arrows."""
     return f"{WORLD}/{entity_part(unit)}/body"
 
 
@@ -147,25 +140,30 @@ def line_origin(plot: str, label: str) -> str:
 
 
 def plot_paths(plot: str, unit: str) -> list[str]:
-    """One entity per line of a unit's plot, in the order of its labels: a view per line
-    (accel x of every unit) then holds only the series it shows.
+    """One entity per line of a unit's plot, in the order of its labels.
+
+    A view per line (accel x of every unit) then holds only the series it shows.
     """
     return [f"{line_origin(plot, label)}/{entity_part(unit)}" for label in PLOT[plot].labels]
 
 
 def event_path(unit: str) -> str:
+    """The entity of a unit's text log of events."""
     return f"{EVENTS}/{entity_part(unit)}"
 
 
 def unit_position(index: int) -> npt.NDArray[np.float32]:
-    """Where the index-th unit sits: rows of GRID_COLUMNS along east, each row south of the
-    one before, so the units never overlap and a fleet of 16 is a square.
+    """Where the index-th unit sits in the scene.
+
+    Rows of GRID_COLUMNS along east, each row south of the one before, so the units
+    never overlap and a fleet of 16 is a square.
     """
     row, column = divmod(index, GRID_COLUMNS)
     return np.array([-row * UNIT_SPACING_M, column * UNIT_SPACING_M, 0.0], np.float32)
 
 
 def unit_color(index: int) -> Rgb:
+    """The index-th unit's colour, in the scene and in every plot."""
     return _UNIT_COLORS[index % len(_UNIT_COLORS)]
 
 
@@ -181,9 +179,10 @@ _EVENT_COLUMNS = rrb.archetypes.TextLogColumns(
                       rrb.encodings.TextLogColumn("EntityPath", visible=False)])
 
 
-def eye(units: int) -> rrb.EyeControls3D:
-    """A camera south of the grid of units and above it, looking north at its middle, so
-    east is to the right and every unit is in the picture.
+def _eye(units: int) -> rrb.EyeControls3D:
+    """A camera south of the grid of units and above it, looking north at its middle.
+
+    So east is to the right and every unit is in the picture.
     """
     count = max(units, 1)
     first, last = unit_position(0), unit_position(count - 1)
@@ -207,9 +206,10 @@ def natural_key(unit: str) -> tuple[tuple[int, int | str], ...]:
 
 def _line_views(plot: Plot, group: Sequence[str] | None,
                 ranges: list[rrb.VisibleTimeRange] | None) -> list[rrb.TimeSeriesView]:
-    """One view per line of ``plot`` (x, y, z...), each with that line of every unit, or
-    of the units of ``group``: the units' colours tell them apart, and every one has its
-    entry in the legend.
+    """One view per line of ``plot`` (x, y, z...), each with that line of every unit.
+
+    Or of the units of ``group``: the units' colours tell them apart, and every one has
+    its entry in the legend.
     """
     views = []
     for label in plot.labels:
@@ -227,10 +227,12 @@ def _line_views(plot: Plot, group: Sequence[str] | None,
 
 def blueprint(plots: Iterable[str], units: Sequence[str], window_s: float | None = None
               ) -> rrb.Blueprint:
-    """The default layout, in tabs. "fleet": the 3-D scene of ``units`` and the events,
-    beside the status plots (up to 8 units; a larger fleet has them in a "status" tab).
-    Then a tab per quantity present, in the order of PLOTS_TABLE, with one view per axis
-    (x, y, z side by side) holding that axis of every unit (of 8 units, in rows).
+    """The default layout, in tabs.
+
+    "fleet": the 3-D scene of ``units`` and the events, beside the status plots (up to 8
+    units; a larger fleet has them in a "status" tab). Then a tab per quantity present,
+    in the order of PLOTS_TABLE, with one view per axis (x, y, z side by side) holding
+    that axis of every unit (of 8 units, in rows).
 
     Why: Rerun has no unit selector, and a view of every unit's x, y and z is unreadable
     past a few units, with its legend cut short; a view per axis has one line per unit,
@@ -253,7 +255,7 @@ def blueprint(plots: Iterable[str], units: Sequence[str], window_s: float | None
               for view in _line_views(p, group, ranges)]
     scene = rrb.Vertical(
         rrb.Spatial3DView(origin=WORLD, name="attitude (NED: x north, y east, z down)",
-                          eye_controls=eye(len(units))),
+                          eye_controls=_eye(len(units))),
         rrb.TextLogView(origin=EVENTS, name="events", columns=_EVENT_COLUMNS),
         row_shares=[3, 2],
     )

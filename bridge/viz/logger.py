@@ -3,9 +3,9 @@
 One ``RerunLogger`` serves every caller: a live subscriber hands it each batch as it
 arrives (units may appear at any time), an archive reader hands it whole columns, a
 recorder writes an .rrd beside its MCAP. Each batch costs a few ``send_columns`` calls,
-whatever its length, so kHz streams of many units stay cheap. Orientation follows
-DESIGN.md: the unit's M maps earth (NED) to sensor, the scene shows the sensor-to-earth
-rotation M^T, as a Rerun (x, y, z, w) quaternion.
+whatever its length, so kHz streams of many units stay cheap. The unit's M maps earth
+(NED) to sensor; the scene shows the sensor-to-earth rotation M^T, as a Rerun
+(x, y, z, w) quaternion. What the recording holds, and where: ``docs/guides/rerun.md``.
 """
 
 from __future__ import annotations
@@ -37,8 +37,9 @@ NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
 
 
 def _indexes(time_ns: npt.ArrayLike, device_ns: npt.ArrayLike | None) -> list[rr.TimeColumn]:
-    """The timelines of rows: nanoseconds as datetime64/timedelta64, which Rerun takes as
-    such (plain numbers would be read as seconds).
+    """The timelines of rows: nanoseconds as datetime64/timedelta64.
+
+    Rerun takes those as such; plain numbers would be read as seconds.
     """
     cols = [rr.TimeColumn(TIME, timestamp=np.asarray(time_ns, np.int64).astype("datetime64[ns]"))]
     if device_ns is not None:
@@ -54,8 +55,9 @@ def _time_of_day(time_ns: int) -> str:
 
 
 def _host_clock_text(unit: str, state: HostClock) -> tuple[str, str]:
-    """(text, level) of a unit's bridge host clock's sync state, as the events read: a
-    clock nothing disciplines warns (its units' times drift from the rest of the fleet).
+    """(text, level) of a unit's bridge host clock's sync state, as the events read.
+
+    A clock nothing disciplines warns: its units' times drift from the rest of the fleet.
     """
     sync = HostSync(**{f.name: getattr(state, f.name) for f in fields(HostSync)})
     where = f" on {state.host}" if state.host else ""
@@ -63,9 +65,11 @@ def _host_clock_text(unit: str, state: HostClock) -> tuple[str, str]:
     return f"{unit}{where}: {sync.describe()}", level
 
 
-def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
-    """(n, 4) x, y, z, w quaternions of the rotation M^T, from whichever attitude the record
-    holds (M, else Q, else Euler angles); None for records without one.
+def _sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    """(n, 4) x, y, z, w quaternions of the rotation M^T.
+
+    From whichever attitude the record holds (M, else Q, else Euler angles); None for
+    records without one.
     """
     if "m" in columns:
         q = convert.m_to_quaternion(columns["m"])
@@ -79,7 +83,7 @@ def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
         return convert.sensor_to_earth_xyzw(q)
 
 
-def euler_degrees(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+def _euler_degrees(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
     """(n, 3) roll, pitch, yaw in degrees, as sent or derived from M or Q."""
     if "euler" in columns:
         euler = np.asarray(columns["euler"], np.float64)
@@ -93,11 +97,11 @@ def euler_degrees(columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
     return np.degrees(euler)
 
 
-def sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
+def _sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
     """Plot name -> (n, lines) float64 values of a batch of samples."""
     series = {name: np.asarray(columns[name], np.float64).reshape(n, -1)
               for name in columns if name in PLOT}
-    euler = euler_degrees(columns)
+    euler = _euler_degrees(columns)
     if euler is not None:
         series["euler"] = euler
     if "temperature" in columns:
@@ -119,18 +123,27 @@ class _Pending:
 class RerunLogger:
     """Writes a fleet's samples, status and events to one Rerun recording.
 
-    ``target`` is a RecordingStream the caller set up (spawned viewer, gRPC connection,
-    file) or a path, for which the logger opens an .rrd file of its own and closes it in
-    ``close``. ``units`` are placed in the scene first, in natural order (imu2 before
-    imu10); others join as they appear. The blueprint is (re)sent, as active and
-    default, whenever a plot or a unit appears, so it is in every recording and grows
-    with the fleet; ``window_s`` limits the plots to the last so many seconds, for live
-    viewing. Samples reach the recording at most ``latency_s`` after they were logged,
-    provided the caller logs or flushes at least that often (a live caller with no data
-    flowing calls ``flush``). A recorder writing hours of data to a file is better served
-    by latency_s of a few seconds (bigger chunks: a smaller file) and
-    ``write_footer=False`` (Rerun otherwise keeps an index entry per chunk in memory until
-    the file is closed).
+    The blueprint is (re)sent, as active and default, whenever a plot or a unit appears,
+    so it is in every recording and grows with the fleet. Samples reach the recording
+    at most ``latency_s`` after they were logged, provided the caller logs or flushes at
+    least that often (a live caller with no data flowing calls ``flush``). A recorder
+    writing hours of data to a file is better served by latency_s of a few seconds
+    (bigger chunks: a smaller file) and ``write_footer=False`` (Rerun otherwise keeps an
+    index entry per chunk in memory until the file is closed).
+
+    Args:
+        target: A RecordingStream the caller set up (spawned viewer, gRPC connection,
+            file), or a path, for which the logger opens an .rrd file of its own and
+            closes it in ``close``.
+        units: Units to place in the scene first, in natural order (imu2 before imu10);
+            others join as they appear.
+        application_id: The application id of a recording the logger opens.
+        recording_id: The recording id of a recording the logger opens.
+        window_s: Limit the plots to the last so many seconds, for live viewing; None:
+            no limit.
+        latency_s: The longest a sample waits before it is sent.
+        max_rows: Rows of one unit and record type sent at once, at most.
+        write_footer: Whether a file the logger opens gets Rerun's footer.
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
@@ -169,16 +182,25 @@ class RerunLogger:
     # --- public API --------------------------------------------------------------------
     @property
     def units(self) -> tuple[str, ...]:
+        """The units in the scene, in the order they were placed."""
         return tuple(self._units)
 
     def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
-        """A batch of one unit's records of type ``code``: every quantity the record holds
-        plus ``ticks`` (unwrapped device timer) and ``time_ns`` (aligned host time), as
-        ``bridge.bus.codec.decode_batch`` returns them.
+        """Log a batch of one unit's records of one type.
 
         Batches are gathered per unit and record type and sent once ``max_rows`` rows or
         ``latency_s`` seconds have built up (checked at each call), or on ``flush``: a
         send costs about the same for 10 rows as for 4,000.
+
+        Args:
+            unit: The unit.
+            code: The record type (command byte).
+            columns: Every quantity the record holds plus ``ticks`` (unwrapped device
+                timer) and ``time_ns`` (aligned host time), as
+                ``bridge.bus.codec.decode_batch`` returns them; copied.
+
+        Raises:
+            ValueError: A column is missing, or the columns differ in length.
         """
         quantities = record_quantities(code)
         missing = [c for c in ("ticks", "time_ns", *quantities) if c not in columns]
@@ -208,12 +230,18 @@ class RerunLogger:
         self._send_pending(now)
 
     def log_status(self, unit: str, statuses: Status | Sequence[Status]) -> None:
-        """Status messages of one unit: samples/s, dropped total, clock offset (relative
-        to the first status with a clock model) and drift. Device time is the clock
-        model's inverse, for statuses that have a model (clock_offset_ns != 0). Its
-        bridge host clock's sync state goes into the unit's event log when it is first
-        seen and whenever it changes (synchronised or not, another host), with the
-        kernel's estimated and maximum error at that moment.
+        """Log status messages of one unit.
+
+        Plotted: samples/s, dropped total, clock offset (relative to the first status
+        with a clock model) and drift. Device time is the clock model's inverse, for
+        statuses that have a model (clock_offset_ns != 0). Its bridge host clock's sync
+        state goes into the unit's event log when it is first seen and whenever it
+        changes (synchronised or not, another host), with the kernel's estimated and
+        maximum error at that moment.
+
+        Args:
+            unit: The unit.
+            statuses: One Status, or several in time order.
         """
         items = [statuses] if isinstance(statuses, Status) else list(statuses)
         if not items:
@@ -244,12 +272,18 @@ class RerunLogger:
         self._send_blueprint()
 
     def log_arrivals(self, unit: str, arrival_ns: npt.ArrayLike, time_ns: npt.ArrayLike) -> None:
-        """When a unit's samples reached this process (``arrival_ns``, its clock; a recorder's
-        receive times for an archive) against when they were taken (``time_ns``, the bridge
-        host's clock), in arrival order: the least arrival - time_ns of each second of
-        arrival is plotted (``host_clock``). The latency in it is never negative, so it is
-        the most the bridge host's clock can be behind this one's, and below zero the host
-        is provably ahead. A second is plotted once the next one begins.
+        """Log when a unit's samples arrived against when they were taken.
+
+        The least arrival - time_ns of each second of arrival is plotted
+        (``host_clock``). The latency in it is never negative, so it is the most the
+        bridge host's clock can be behind this one's, and below zero the host is provably
+        ahead. A second is plotted once the next one begins.
+
+        Args:
+            unit: The unit.
+            arrival_ns: When the samples reached this process, on its clock (for an
+                archive, the recorder's receive times), in arrival order.
+            time_ns: When they were taken, on the bridge host's clock.
         """
         arrival = np.asarray(arrival_ns, np.int64)
         if not len(arrival):
@@ -272,13 +306,19 @@ class RerunLogger:
             self._send_blueprint()
 
     def log_event(self, unit: str, events: Event | Sequence[Event]) -> None:
-        """Events of one unit as text log entries at the time they happened, the text led by
-        that time of day (UTC). Records lost are told with the time they span at the unit's
-        output rate, from its status or, before one came, from its samples.
+        """Log events of one unit as text log entries at the time they happened.
+
+        Each text is led by that time of day (UTC). Records lost are told with the time
+        they span at the unit's output rate, from its status or, before one came, from
+        its samples.
 
         Events are on the ``time`` timeline only: Rerun 0.41's text log view shows some rows
         with another row's level when the rows of one entity lie on different sets of
         timelines (events with device ticks on both, those without on ``time`` only).
+
+        Args:
+            unit: The unit.
+            events: One Event, or several.
         """
         items = [events] if isinstance(events, Event) else list(events)
         if not items:
@@ -351,12 +391,12 @@ class RerunLogger:
         time_ns = np.asarray(record.pop("time_ns"), np.int64)
         device_ns = np.asarray(record.pop("ticks"), np.int64) * NS_PER_TICK
         indexes = _indexes(time_ns, device_ns)
-        for plot, values in sample_series(record, n).items():
+        for plot, values in _sample_series(record, n).items():
             self._style(plot, unit, index)
             for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
                 rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=line))
         body = layout.body_path(unit)
-        xyzw = sensor_to_earth(record)
+        xyzw = _sensor_to_earth(record)
         if xyzw is not None:
             ok = np.isfinite(xyzw).all(axis=1)
             rec.send_columns(body, indexes=indexes if ok.all() else
@@ -383,8 +423,10 @@ class RerunLogger:
             self._send_texts(unit, changes)
 
     def _send_texts(self, unit: str, rows: Sequence[tuple[int, str, str]]) -> None:
-        """(time_ns, text, level) rows into the unit's event log, each text led by its time
-        of day (UTC), on the ``time`` timeline only (see ``log_event``).
+        """(time_ns, text, level) rows into the unit's event log.
+
+        Each text is led by its time of day (UTC), on the ``time`` timeline only (see
+        ``log_event``).
         """
         time_ns = np.array([t for t, _, _ in rows], np.int64)
         texts = np.array([f"{_time_of_day(t)}  {text}" for t, text, _ in rows], dtype=str)
@@ -405,8 +447,9 @@ class RerunLogger:
                                static=True)
 
     def _send_blueprint(self) -> None:
-        """Send the blueprint when the plots or the number of units changed since it was
-        last sent; one sender at a time, so the last one sent is the newest.
+        """Send the blueprint when the plots or the number of units changed since it was sent.
+
+        One sender at a time, so the last one sent is the newest.
         """
         with self._blueprint_lock:
             with self._lock:
@@ -420,8 +463,9 @@ class RerunLogger:
     def _send_split(self, path: str, time_ns: np.ndarray, device_ns: np.ndarray,
                     has_device: np.ndarray, columns: Callable[..., Any],
                     **values: np.ndarray) -> None:
-        """``columns(**values)`` of rows with a device time on both timelines, of the
-        others on ``time`` only.
+        """``columns(**values)`` of rows with a device time on both timelines.
+
+        The other rows go on ``time`` only.
         """
         for rows, dev in ((has_device, device_ns), (~has_device, None)):
             if rows.any():

@@ -1,15 +1,8 @@
-"""A magnetometer iron calibration in Rerun, as the manual's Figure 3 shows one: the raw
-readings on their fitted ellipsoid beside the corrected readings on a sphere.
+"""A magnetometer iron calibration in Rerun, and a RerunLogger that applies calibrations.
 
-    /raw/axes, /corrected/axes  Arrows3D, the sensor's x y z from zero field (so the
-                         hard-iron offset shows as the ellipsoid's distance from them)
-    /raw/readings        Points3D, raw readings [gauss], sensor frame FRD
-    /raw/ellipsoid       Ellipsoids3D, the fitted ellipsoid (centre = hard iron)
-    /corrected/readings  Points3D, soft_iron @ (raw - hard_iron)
-    /corrected/sphere    Ellipsoids3D, the sphere of the mean field magnitude
-    /calibration         TextDocument, the numbers
-
-and a RerunLogger that applies calibrations to what it shows.
+The recording shows, as the manual's Figure 3 does, the raw readings on their fitted
+ellipsoid (its centre the hard iron) beside the corrected readings on a sphere, with
+the numbers. What each entity shows: ``docs/guides/rerun.md``.
 """
 
 from __future__ import annotations
@@ -59,7 +52,15 @@ def _blueprint() -> rrb.Blueprint:
 
 def write_fit(path: Path, raw: np.ndarray, cal: IronCalibration, unit: str,
               text: str) -> None:
-    """Write the fit of ``raw`` (n, 3) to a Rerun recording at ``path``."""
+    """Write a fit and the readings it came from to a Rerun recording.
+
+    Args:
+        path: The .rrd file to write.
+        raw: The readings, (n, 3), gauss, sensor frame; NaN rows are left out.
+        cal: The fit of them.
+        unit: The unit, for the recording's id.
+        text: The numbers, Markdown, shown beside the views.
+    """
     rec = rr.RecordingStream("gx3_calibrate_mag", recording_id=f"calibrate-mag-{unit}")
     rec.save(path, default_blueprint=_blueprint())
     held = raw[np.isfinite(raw).all(axis=1)]
@@ -94,13 +95,29 @@ def write_fit(path: Path, raw: np.ndarray, cal: IronCalibration, unit: str,
 
 
 class IronedLogger(RerunLogger):
-    """A RerunLogger that shows calibrated units' mag and stab_mag corrected for iron."""
+    """A RerunLogger that shows calibrated units' mag and stab_mag corrected for iron.
+
+    Args:
+        irons: The calibrations, one per unit at most.
+        *args: As ``RerunLogger``'s.
+        **kwargs: As ``RerunLogger``'s.
+    """
 
     def __init__(self, irons: Sequence[UnitIron], *args: Any, **kwargs: Any) -> None:
         self._irons = {iron.unit: iron for iron in irons}
         super().__init__(*args, **kwargs)
 
     def log_samples(self, unit: str, code: int, columns: Mapping[str, np.ndarray]) -> None:
+        """Log a batch as ``RerunLogger.log_samples`` does, a calibrated unit's corrected.
+
+        Args:
+            unit: The unit.
+            code: The record type (command byte).
+            columns: As ``RerunLogger.log_samples`` takes them.
+
+        Raises:
+            ValueError: A column is missing, or the columns differ in length.
+        """
         iron = self._irons.get(unit)
         if iron is not None:
             columns = {name: iron.correct(value).astype(value.dtype) if name in IRONED

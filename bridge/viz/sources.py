@@ -27,7 +27,16 @@ from bridge.viz.logger import RerunLogger
 
 def log_archive(archive: ArchiveReader, logger: RerunLogger,
                 progress: Callable[[int], None] | None = None) -> int:
-    """Every unit's samples, status and events; the samples logged."""
+    """Log an archive: every unit's samples, status and events.
+
+    Args:
+        archive: The archive read.
+        logger: Where to log them; it is flushed at the end.
+        progress: Hears how many samples each batch logged.
+
+    Returns:
+        The samples logged.
+    """
     logged = 0
     for block in archive.samples():
         logger.log_samples(block.unit, block.code, block.columns)
@@ -51,10 +60,20 @@ def log_archive(archive: ArchiveReader, logger: RerunLogger,
 
 def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str,
                  arrival_ns: int | None = None) -> int:
-    """Zenoh messages as they came (any mix of units and kinds): samples decoded in bulk
-    per unit and record type; ``arrival_ns``: when they reached this process, which the
-    bridge hosts' clocks are judged against (``RerunLogger.log_arrivals``). Returns the
-    samples logged.
+    """Log Zenoh messages as they came, any mix of units and kinds.
+
+    Samples are decoded in bulk per unit and record type; a message that does not parse
+    is left out.
+
+    Args:
+        logger: Where to log them.
+        messages: The messages (samples, status and events).
+        prefix: The key prefix they came under.
+        arrival_ns: When they reached this process, which the bridge hosts' clocks are
+            judged against (``RerunLogger.log_arrivals``); None: not judged.
+
+    Returns:
+        The samples logged.
     """
     samples: dict[tuple[str, int], list[bytes]] = defaultdict(list)
     logged = 0
@@ -85,7 +104,14 @@ def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str,
 
 
 class LiveFeed:
-    """The fleet's samples, status and events on Zenoh, into ``logger`` until ``close``."""
+    """The fleet's samples, status and events on Zenoh, into a logger until ``close``.
+
+    Args:
+        session: The Zenoh session to subscribe on.
+        logger: Where to log them.
+        prefix: The key prefix of the bridges.
+        units: Which units, as a key expression chunk (``*``, ``lab-*``).
+    """
 
     def __init__(self, session: zenoh.Session, logger: RerunLogger, prefix: str = "gx3",
                  units: str = "*") -> None:
@@ -118,6 +144,7 @@ class LiveFeed:
             self.samples += log_messages(self.logger, batch, self.prefix, arrival)
 
     def close(self) -> None:
+        """Stop: unsubscribe and wait for the logging threads."""
         self._stop.set()
         for sub in self._subs:
             sub.close()

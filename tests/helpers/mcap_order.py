@@ -1,7 +1,8 @@
-"""What ``mcap doctor --strict-message-order`` checks, over the raw records with mcap's own
-low-level reader: chunks in log-time order that never overlap, and the messages inside
-each chunk (and any outside chunks) in log-time order. The Go CLI cannot be installed
-here, so this stands in for it."""
+"""What ``mcap doctor --strict-message-order`` checks, read with mcap's own low-level reader."""
+
+# Chunks in log-time order that never overlap, and the messages inside each chunk (and any
+# outside chunks) in log-time order. The Go CLI cannot be installed here, so this stands
+# in for it.
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 
 def header(path: Path) -> Header:
+    """The file's MCAP header record (its profile and library)."""
     with path.open("rb") as f:
         first = next(iter(StreamReader(f).records))
     assert isinstance(first, Header)

@@ -1,0 +1,297 @@
+"""What ``gx3 record`` runs, set up and torn down in one place: a ``Recording``.
+
+A recording is the archive's writer, the Zenoh session it records from, the
+``Recorder`` between them, and optionally a Rerun recording of what is archived.
+Entering opens them in the order that refuses a bad output before anything is
+written, and leaves nothing behind when a later step fails; leaving closes them in the
+order that loses nothing, whatever ended the block (Ctrl-C included)::
+
+    import threading
+    from pathlib import Path
+
+    from bridge.bus.session import ZenohOptions
+    from bridge.recorder.recording import Recording
+
+    stop = threading.Event()  # set it (a signal handler, say) to end the recording
+    with Recording(Path("fleet.mcap"), ZenohOptions(connect=["tcp/10.0.0.5:7447"]),
+                   rrd=Path("fleet.rrd")) as recording:
+        recording.run(stop, duration_s=60)
+    if recording.error is not None:
+        raise recording.error
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack, suppress
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+from bridge.bus.session import ZenohOptions
+from bridge.exceptions import ArchiveError, OutputRefused
+from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
+from bridge.recorder.writer import ArchiveWriter
+
+if TYPE_CHECKING:
+    import threading
+
+    import zenoh
+
+    from bridge.bus.gx3_pb2 import Event
+    from bridge.bus.subscribe import RawMessage
+    from bridge.viz.logger import RerunLogger
+
+__all__ = ["Recording"]
+
+#: How long ``run`` waits for messages at a time, seconds: how often ``every`` is called.
+RUN_STEP_S = 0.25
+
+
+class Recording:
+    """Record the fleet on Zenoh into an archive: ``gx3 record``, as a context manager.
+
+    Entering opens, in this order: the archive (first, so that a file that is refused is
+    said before anything else opens; after a check of ``rrd``), the Zenoh session, the
+    Rerun recording of ``rrd``, then the ``Recorder``. If a step fails, what was opened is
+    closed, and the archive, with nothing recorded in it, is removed. Leaving closes, in
+    this order: the Recorder (what has arrived is written, and the hosts' clocks), the
+    Rerun recording, the archive (finished with its index), the session.
+
+    Args:
+        archive: The archive: a path (an ``ArchiveWriter`` is opened on entry with
+            ``prefix``, ``split_bytes``, ``split_seconds``, ``force`` and the recorder's
+            host and clock sync as metadata), or a writer the caller opened (to hold its
+            lock from earlier on); the recording closes either.
+        session: Where to record from: how to open a session (closed on leaving), or an
+            open session (the caller's, left open). Default: Zenoh's own configuration.
+        prefix: The key prefix of the bridges.
+        units: Which units, as a key expression chunk (``*``, ``lab-*``).
+        raw: Also record the units' raw reads (bridges run with ``--publish-raw``).
+        history: Samples to ask each bridge's cache for on joining.
+        max_host_offset_ms: How far behind the recorder's clock a bridge host's may be
+            before it is told (``Recorder``); None: no tolerance.
+        split_bytes: With a path: start a new numbered part at this size.
+        split_seconds: With a path: start a new numbered part after this many seconds.
+        force: Replace an existing archive (with a path) and an existing ``rrd``.
+        metadata: With a path: more entries for the archive's ``gx3.archive`` metadata.
+        rrd: Also write a Rerun recording of what is archived, as it is archived.
+        rerun: More Rerun loggers to hand every batch written (a live viewer, say); they
+            stay the caller's to close.
+        on_unit: Hears ``(unit, joined)`` as units appear and leave.
+        on_event: Hears ``(unit, event)`` of each event the recorder itself archives.
+
+    Attributes:
+        writer: The archive's writer (once entered).
+        recorder: The recorder (once entered).
+        started: When recording began, on ``time.monotonic``.
+
+    Raises:
+        ValueError: ``max_host_offset_ms`` is not above 0.
+    """
+
+    def __init__(self, archive: Path | ArchiveWriter,
+                 session: ZenohOptions | zenoh.Session | None = None, *,
+                 prefix: str = "gx3", units: str = "*", raw: bool = False, history: int = 0,
+                 max_host_offset_ms: float | None = None, split_bytes: int | None = None,
+                 split_seconds: float | None = None, force: bool = False,
+                 metadata: Mapping[str, str] | None = None, rrd: Path | None = None,
+                 rerun: Sequence[RerunLogger] = (),
+                 on_unit: Callable[[str, bool], None] | None = None,
+                 on_event: Callable[[str, Event], None] | None = None) -> None:
+        host_tolerance_ns(max_host_offset_ms)  # refused before anything opens
+        self._archive = archive
+        self._session_from = ZenohOptions() if session is None else session
+        self.prefix, self.units, self.raw, self.history = prefix, units, raw, history
+        self.max_host_offset_ms = max_host_offset_ms
+        self.split_bytes, self.split_seconds, self.force = split_bytes, split_seconds, force
+        self.metadata = dict(metadata or {})
+        self.rrd = rrd
+        self._rerun = list(rerun)
+        self._on_unit, self._on_event = on_unit, on_event
+        self._writer = archive if isinstance(archive, ArchiveWriter) else None
+        self._session: zenoh.Session | None = None
+        self._own_session = False
+        self._logger: RerunLogger | None = None
+        self._recorder: Recorder | None = None
+        self.started = 0.0
+
+    @property
+    def path(self) -> Path:
+        """The archive's path (the name of its numbered parts when it is split)."""
+        return self._archive.path if isinstance(self._archive, ArchiveWriter) else self._archive
+
+    @property
+    def writer(self) -> ArchiveWriter:
+        """The archive's writer."""
+        if self._writer is None:
+            raise RuntimeError("the recording has not started: enter it first")
+        return self._writer
+
+    @property
+    def recorder(self) -> Recorder:
+        """The recorder: its units' rows (``snapshot``), hosts, counts and error."""
+        if self._recorder is None:
+            raise RuntimeError("the recording has not started: enter it first")
+        return self._recorder
+
+    @property
+    def paths(self) -> list[Path]:
+        """The files written (one, or each numbered part)."""
+        return [] if self._writer is None else list(self._writer.paths)
+
+    @property
+    def error(self) -> ArchiveError | None:
+        """The write that failed and ended the recording (finishing the file included)."""
+        return None if self._recorder is None else self._recorder.error
+
+    @property
+    def elapsed_s(self) -> float:
+        """Seconds since recording began."""
+        return time.monotonic() - self.started
+
+    def __enter__(self) -> Recording:
+        """Open the archive, the session, the Rerun recording and the recorder.
+
+        Returns:
+            The recording.
+
+        Raises:
+            OutputRefused: ``rrd`` is the archive's own file, or cannot be written (a
+                folder, another process's, an existing file without ``force``, or Rerun
+                cannot create it).
+            ArchiveError: The archive exists (without ``force``), another process writes
+                it, or it cannot be created.
+            BadName: ``prefix`` cannot be a chunk of a key.
+            SessionError: The Zenoh session cannot be opened.
+        """
+        try:
+            self._open()
+        except BaseException:
+            self._close(discard=True)
+            raise
+        return self
+
+    def _open(self) -> None:
+        from bridge.device import clock
+        from bridge.recorder.outputs import refuse
+
+        if self.rrd is not None:
+            if self.rrd.absolute() == self.path.absolute():
+                raise OutputRefused(f"--rrd {self.rrd} is the archive's own file; give the "
+                                    "recording another name")
+            refuse(self.rrd, force=self.force)
+        if self._writer is None:
+            assert isinstance(self._archive, Path)
+            self._writer = ArchiveWriter(
+                self._archive, prefix=self.prefix, split_bytes=self.split_bytes,
+                split_seconds=self.split_seconds, force=self.force,
+                metadata={**recorder_metadata(clock.host_sync()), **self.metadata})
+        if isinstance(self._session_from, ZenohOptions):
+            self._session, self._own_session = self._session_from.open(), True
+        else:
+            self._session = self._session_from
+        if self.rrd is not None:
+            self._logger = _rrd_logger(self.rrd, self.path.stem)
+        loggers = [*([self._logger] if self._logger is not None else []), *self._rerun]
+        self.started = time.monotonic()
+        self._recorder = Recorder(
+            self._session, self._writer, self.prefix, self.units, self.raw, self.history,
+            on_unit=self._on_unit, on_written=_to_rerun(loggers, self.prefix) if loggers else None,
+            on_event=self._on_event, max_host_offset_ms=self.max_host_offset_ms)
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """Close the recorder, the Rerun recording, the archive and the session, in order.
+
+        A failure to finish the archive is kept in ``error``.
+        """
+        self._close(discard=False)
+
+    def run(self, stop: threading.Event, duration_s: float | None = None,
+            every: Callable[[], None] | None = None) -> None:
+        """Record until ``stop`` is set, the duration is over, or a write fails (``error``).
+
+        Args:
+            stop: Ends the recording when set.
+            duration_s: Seconds after recording began to stop; None: no limit.
+            every: Called after each step (a quarter of a second at most), to show
+                progress.
+        """
+        recorder = self.recorder
+        while not stop.is_set() and recorder.error is None:
+            if duration_s is not None and self.elapsed_s >= duration_s:
+                break
+            recorder.run_once(RUN_STEP_S)
+            if every is not None:
+                every()
+
+    def _close(self, discard: bool) -> None:
+        """Close what is open: recorder, Rerun recording, archive, session, in that order.
+
+        With ``discard``, nothing was recorded: the archive's files are removed.
+        """
+        with ExitStack() as steps:  # each runs, even after one that failed; last first
+            steps.callback(self._close_session)
+            steps.callback(self._close_archive, discard)
+            steps.callback(self._close_logger)
+            steps.callback(self._close_recorder)
+
+    def _close_recorder(self) -> None:
+        if self._recorder is not None:
+            self._recorder.close()
+
+    def _close_logger(self) -> None:
+        logger, self._logger = self._logger, None
+        if logger is not None:
+            logger.close()
+
+    def _close_archive(self, discard: bool) -> None:
+        writer = self._writer
+        if writer is None:
+            return
+        if discard:
+            with suppress(ArchiveError):  # the file goes: why it failed matters no more
+                writer.close()
+            for part in writer.paths:
+                part.unlink(missing_ok=True)
+            return
+        try:
+            writer.close()
+        except ArchiveError as exc:
+            if self._recorder is None:
+                raise
+            self._recorder.error = self._recorder.error or exc
+
+    def _close_session(self) -> None:
+        session, self._session = self._session, None
+        if session is not None and self._own_session:
+            session.close()
+
+
+def _rrd_logger(path: Path, recording_id: str) -> RerunLogger:
+    """A Rerun recording written to ``path`` as the archive is written.
+
+    Raises:
+        OutputRefused: Rerun cannot create the file.
+    """
+    from bridge.viz.logger import RerunLogger
+
+    try:
+        # long recordings: bigger chunks, and no in-memory index of every chunk
+        return RerunLogger(path, recording_id=recording_id, latency_s=2.0, write_footer=False)
+    except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise OutputRefused(f"--rrd {path}: cannot write ({why})") from None
+
+
+def _to_rerun(loggers: list[RerunLogger], prefix: str) -> Callable[[list[RawMessage]], None]:
+    """What hands each batch written to every Rerun logger."""
+    from bridge.viz.sources import log_messages
+
+    def log(messages: list[RawMessage]) -> None:
+        for logger in loggers:
+            log_messages(logger, messages, prefix)
+
+    return log

@@ -1,0 +1,292 @@
+"""The line fits under the clocks: lower envelopes, the USB frame grid, the staircase.
+
+Shared by ``OnlineClock`` (``bridge.timing.clock``) and ``OfflineClock``
+(``bridge.timing.offline``), so that both fit one way. A record's point is its ticks
+and an upper bound on its sample instant (host ns); every line here lies under the
+points. The geometry (the lower hull, the frame staircase, the polygon of the lines the
+points allow): docs/design/time.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bridge.protocol.table import TICKS_PER_SECOND
+
+MAX_PPM = 500.0  # the manual promises +-100 ppm; searched well beyond that
+_MAX_STEPS = 32  # passes a search may take; a few find the answer, rounding may want more
+_START_PPM = 2.0  # the first bracket around the last fit's rate
+GRID_BIN_NS = 1_000
+_PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
+_GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
+BUCKET_TICKS = TICKS_PER_SECOND // 4
+_GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
+_PARTIAL_SHARE = 0.1  # of a window's records with a read ending inside: pinned to bytes
+
+
+def pinned_by_bytes(gain: np.ndarray) -> bool:
+    """Whether enough records had a read end inside them for the points' envelope to be the line.
+
+    ``gain``: the line time of the bytes that read did not hold, 0 where none did.
+    Behind a USB-serial adapter whose packets happen to end with records (a 16 ms
+    latency timer, records that divide its packet) the frames alone carry the time, as
+    on native USB.
+    """
+    return bool(len(gain)) and float(np.count_nonzero(gain)) >= _PARTIAL_SHARE * len(gain)
+
+
+def uncovered_half(residual: np.ndarray, frame: int) -> float:
+    """Half the frame that snapped points above a lower-envelope line leave uncovered.
+
+    The true line is under every snapped point and less than a frame under it; where
+    the unit's phase has swept the frame the residuals cover it and the envelope is
+    the line, where it has not the line is somewhere in the gap: take off half.
+    Residuals within a guard of a whole frame may be reads a frame late.
+    """
+    same = residual[residual < frame - _GRID_GUARD_NS]
+    return (frame - float(same.max())) / 2 if len(same) else 0.0
+
+
+def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
+    """Receive times folded onto one frame, in 1 us bins."""
+    return np.bincount((y % frame) // GRID_BIN_NS, minlength=max(1, frame // GRID_BIN_NS))
+
+
+def grid_phase(histogram: np.ndarray, frame: int) -> int:
+    """Where in the frame the boundary lies, from the receive times folded onto it.
+
+    It is the edge the times lie least far after. Their total distance after bin edge e
+    is sum(h c) - e sum(h) + frame (the times in bins before e); the first term is the
+    same for every edge and left out.
+    """
+    h = np.asarray(histogram, np.float64)
+    cost = frame * (np.cumsum(h) - h) - float(h.sum()) * GRID_BIN_NS * np.arange(len(h))
+    return int(np.argmin(cost)) * GRID_BIN_NS + GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+
+
+def snap_to(y: np.ndarray, phase: int, frame: int) -> np.ndarray:
+    return np.asarray((y - phase) // frame * frame + phase + _GRID_MARGIN_NS)
+
+
+def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """The earliest-received point of each short stretch of ticks.
+
+    Within a quarter second the unit's phase against the frame grid barely moves,
+    so the point nearest the line is one that was read in the frame that carried
+    it: a lower bound on the line as well as an upper one. The stretches at the
+    ends of ``x`` are partial and left out.
+    """
+    if not len(x):
+        return x, y
+    lows = bucket_lows(x, y, rate)
+    buckets = x[lows] // BUCKET_TICKS
+    lows = lows[(buckets > x[0] // BUCKET_TICKS) & (buckets < x[-1] // BUCKET_TICKS)]
+    return x[lows], y[lows]
+
+
+def bucket_lows(x: np.ndarray, y: np.ndarray, rate: float) -> np.ndarray:
+    """Index of the point least above a line of slope ``rate`` in each quarter second of ticks.
+
+    The first on a tie, for every stretch ``x`` touches, in order.
+    """
+    v = (y - y[0]).astype(np.float64) - rate * (x - x[0]).astype(np.float64)
+    buckets = x // BUCKET_TICKS
+    starts = np.concatenate(([0], np.flatnonzero(buckets[1:] != buckets[:-1]) + 1))
+    sizes = np.diff(np.concatenate((starts, [len(v)])))
+    lowest = np.flatnonzero(v == np.repeat(np.minimum.reduceat(v, starts), sizes))
+    kb = buckets[lowest]
+    return lowest[np.concatenate(([True], kb[1:] != kb[:-1]))]
+
+
+def best_centre(x: np.ndarray, y: np.ndarray, at: int, frame: int, prior: float,
+                spans: list[tuple[int, int]],
+                ppm: float = MAX_PPM) -> tuple[int, int, float, float, float] | None:
+    """``_polygon_centre`` over the shortest span that pins the line at ``at``.
+
+    ``spans`` are index ranges, shortest first; where none pins the line, the one that
+    pins it best. A unit whose phase sweeps the frame is pinned by a short span, which
+    wander bends least; a unit that beats slowly needs a long one. Slopes are searched
+    within ``ppm`` of ``prior``.
+    """
+    best: tuple[int, int, float, float, float] | None = None
+    for lo, hi in spans:
+        found = _polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
+        if found is not None and (best is None or found[3] < best[3]):
+            best = found
+        if best is not None and best[3] < _PINNED_NS:
+            break
+    return best
+
+
+def _polygon_centre(x: np.ndarray, y: np.ndarray, now: int, frame: int, prior: float,
+                   ppm: float = MAX_PPM) -> tuple[int, int, float, float, float] | None:
+    """The middle of every line the frame staircase allows, judged at ticks ``now``.
+
+    Each point (read in the frame that carried it) says the line lies at most one
+    frame under it and not above it. When one straight line can meet all of
+    them, the lines that do form a polygon; its extent at ``now`` is the honest
+    uncertainty there (returned after the slope, then the slopes' spread), and its
+    middle the estimate: half a frame wide for a unit
+    that has never crossed a frame boundary, narrowing with every crossing. When
+    no straight line fits (the rate wandered within the window), None.
+
+    Every search is over a piecewise-linear function of the slope r, convex or
+    concave: each step follows the linear piece it stands on to where that piece
+    would give the answer, so a few passes over the points find it exactly.
+    """
+    if len(x) < 2:
+        return None
+    newest = int(y[-1])
+    dx = (x - now).astype(np.float64)
+    dy = (y - newest).astype(np.float64)  # in integers first: ns since 1970 exceed float64's
+    band = _Band(dx, dy)
+    lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
+    best = band.narrowest(lo, hi)
+    if band.width(best)[0] > frame:
+        return None
+    low_rate, high_rate = band.reach(best, lo, frame), band.reach(best, hi, frame)
+    r_top, _ = _peak(dx, dy, low_rate, high_rate, band.ranges)
+    r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate, band.ranges)
+    top = float((dy - r_top * dx).min())
+    bottom = float((dy - r_bottom * dx).max()) - frame
+    return (now, newest + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
+            high_rate - low_rate)
+
+
+class _Band:
+    """The spread of ``dy - r dx`` over the points, a convex function of the slope r.
+
+    And the linear piece of it at each r (its value and slope there).
+    """
+
+    def __init__(self, dx: np.ndarray, dy: np.ndarray) -> None:
+        self.dx, self.dy = dx, dy
+        self._v = np.empty_like(dy)
+        self.ranges = _ranges(dx, dy)
+
+    def tie(self, r: float) -> float:
+        return _tie(self.ranges, r)
+
+    def width(self, r: float) -> tuple[float, float]:
+        v = self._v
+        np.multiply(r, self.dx, out=v)
+        np.subtract(self.dy, v, out=v)
+        top, bottom = int(v.argmax()), int(v.argmin())
+        return float(v[top] - v[bottom]), float(self.dx[bottom] - self.dx[top])
+
+    def narrowest(self, lo: float, hi: float) -> float:
+        """The r in [lo, hi] where the spread is least.
+
+        That is where the lines of the pieces on either side of it cross, unless a piece
+        there is higher.
+        """
+        w_lo, s_lo = self.width(lo)
+        w_hi, s_hi = self.width(hi)
+        if s_lo >= 0:
+            return lo
+        if s_hi <= 0:
+            return hi
+        for _ in range(_MAX_STEPS):
+            r = (w_hi - w_lo + s_lo * lo - s_hi * hi) / (s_lo - s_hi)
+            if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
+                return hi if r >= hi else lo
+            w, s = self.width(r)
+            if w - (w_lo + s_lo * (r - lo)) <= self.tie(r) or s == 0:
+                return r
+            if s > 0:
+                hi, w_hi, s_hi = r, w, s
+            else:
+                lo, w_lo, s_lo = r, w, s
+        return (lo + hi) / 2
+
+    def reach(self, inside: float, outside: float, level: float) -> float:
+        """The r between ``inside`` (spread <= level) and ``outside`` where the spread is ``level``.
+
+        ``outside`` if it never gets there. From the outside each piece's line lies under
+        the convex spread, so following it never overshoots.
+        """
+        r = outside
+        w, s = self.width(r)
+        for _ in range(_MAX_STEPS):
+            if w <= level + self.tie(r) or s == 0:
+                break
+            step = r - (w - level) / s
+            if not min(inside, r) <= step <= max(inside, r) or step == r:
+                break
+            r = step
+            w, s = self.width(r)
+        return r
+
+
+def support_slope(dx: np.ndarray, dy: np.ndarray, prior: float) -> float:
+    """The slope of the highest line under every point, judged at dx = 0.
+
+    That is the lower hull's edge over dx = 0, clamped to ``MAX_PPM`` around ``prior``.
+    The search starts a few ppm around ``prior`` (a refit's rate is close to the last
+    one) and widens until the answer is inside.
+
+    Args:
+        dx: The points' ticks, less the ticks the slope is judged at.
+        dy: Their host times, less a reference.
+        prior: The last slope (ns per tick).
+
+    Returns:
+        The slope, ns per tick.
+    """
+    if not len(dx):
+        return prior
+    ppm = _START_PPM
+    while True:
+        r, inside = _peak(dx, dy, prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6))
+        if inside or ppm >= MAX_PPM:
+            return r
+        ppm = min(MAX_PPM, ppm * 8)
+
+
+def _ranges(dx: np.ndarray, dy: np.ndarray) -> tuple[float, float]:
+    """The largest magnitudes of dx and dy, which bound float64's rounding of dy - r dx."""
+    return float(np.abs(dx).max()), float(np.abs(dy).max())
+
+
+def _tie(ranges: tuple[float, float], r: float) -> float:
+    """float64 rounds dy - r dx by ~1e-16 of its magnitude: closer than this is a tie."""
+    dx_range, dy_range = ranges
+    return 1e-14 * (dy_range + abs(r) * dx_range)
+
+
+def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float,
+          ranges: tuple[float, float] | None = None) -> tuple[float, bool]:
+    """The r in [lo, hi] where ``min(dy - r dx)`` is highest, and whether it is inside.
+
+    Inside: not at an end. ``ranges``: ``_ranges(dx, dy)`` when the caller has them.
+
+    The function is concave; its peak is where the lowest point moves from one side
+    of dx = 0 to the other. The line through the lowest points on either side is
+    tried: if no point lies under it, its slope is the peak; otherwise the point
+    under it replaces the one on its side. A few passes find the edge of thousands.
+    """
+    v = np.empty_like(dy)
+
+    def lowest(r: float) -> int:
+        np.multiply(r, dx, out=v)
+        np.subtract(dy, v, out=v)
+        return int(v.argmin())
+
+    i, j = lowest(lo), lowest(hi)
+    if dx[i] > 0:
+        return lo, False  # falling from lo on
+    if dx[j] <= 0:
+        return hi, False  # still rising at hi
+    tie = _tie(ranges or _ranges(dx, dy), max(abs(lo), abs(hi)))
+    for _ in range(_MAX_STEPS):
+        r = float((dy[j] - dy[i]) / (dx[j] - dx[i]))
+        if not lo < r < hi:  # the pieces at the ends meet at (or past) one of them
+            return (hi if r >= hi else lo), True
+        k = lowest(r)
+        if (dy[i] - r * dx[i]) - v[k] <= tie:
+            return r, True
+        if dx[k] > 0:
+            j, hi = k, r
+        else:
+            i, lo = k, r
+    return (lo + hi) / 2, True
