@@ -16,6 +16,8 @@ from typing import IO, Any
 import pytest
 
 from bridge.protocol.table import COMMANDS
+from bridge.recorder.writer import ArchiveWriter
+from tests.helpers.archives import write_capture
 from tests.helpers.processes import GX3
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -235,8 +237,8 @@ def test_ctrl_c_prints_the_summary_so_far_and_exits_130() -> None:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=60) == 130
         proc.stdin.close()
-        (summary,) = proc.stderr.read().decode().splitlines()
-        assert summary.startswith("records: 0xC2×2;")
+        summary, said = proc.stderr.read().decode().splitlines()
+        assert summary.startswith("records: 0xC2×2;") and said == "error: interrupted"
 
 
 def test_docs_command_reference_is_generated_from_the_table() -> None:
@@ -299,3 +301,21 @@ def test_expect_errors_name_the_option_on_one_line(value: str, message: str) -> 
     assert done.stdout == b""
     (line,) = done.stderr.decode().splitlines()
     assert line.startswith(f"error: --expect: {message}")
+
+
+def test_a_bridges_mcap_capture_decodes_as_its_bytes_did(tmp_path: Path) -> None:
+    """`gx3 bridge --capture` writes MCAP: decode reads its raw reads (cut anywhere, a
+    record split across two reads) as it reads the same bytes off a line, each object
+    led by the unit's name, and says what a file without raw reads is."""
+    cut = len(CAPTURE) // 2
+    capture = write_capture(tmp_path / "raw.mcap", [(1_000, CAPTURE[:cut]),
+                                                    (2_000, CAPTURE[cut:])])
+    done = gx3("decode", str(capture))
+    assert done.returncode == 0, done.stderr.decode()
+    assert lines(done.stdout) == [{"unit": "u1", **record} for record in EXPECTED]
+    assert done.stderr.decode().startswith("u1: records: 0xC2×1, 0xC8×1, 0xCB×1, 0xD1×1, ")
+    archive = tmp_path / "samples.mcap"
+    ArchiveWriter(archive).close()
+    refused = gx3("decode", str(archive))
+    assert refused.returncode == 2
+    assert refused.stderr.decode().count("\n") == 1 and "no raw reads" in refused.stderr.decode()

@@ -67,6 +67,37 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
         assert rerun_rows(rendered, entity) == rerun_rows(rrd, entity)
 
 
+def test_the_recorders_summary_is_for_people_at_80_columns(tmp_path: Path) -> None:
+    """What a person sees at the end of `gx3 record --rrd` in an 80-column terminal:
+    every line fits, no header is cut, the offset is how far the unit's clock moved
+    (a few ms at most here, not the epoch-sized offset itself), and no third-party
+    log line (Rerun's file sink warnings, raw ANSI codes) reaches the terminal."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    out = tmp_path / "fleet.mcap"
+    proc = subprocess.Popen([GX3, "record", "-o", out.name, "--zenoh-config", str(rec_cfg),
+                             "--rrd", "fleet.rrd"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, cwd=tmp_path,
+                            env={**os.environ, "COLUMNS": "80"})
+    with Simulator(TWO_UNITS[:1], "pty") as sim, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "imu-with-a-long-name"):
+        wait_for(lambda: samples_in(out, "imu-with-a-long-name") >= 300)
+        proc.send_signal(signal.SIGINT)
+        _, raw = proc.communicate(timeout=30)
+    assert proc.returncode == 0, raw.decode()
+    text = raw.decode()
+    assert "\x1b" not in text and "WARN" not in text and "FileSink" not in text, text
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= 80, text
+    header = next(line for line in lines if line.startswith("unit "))
+    assert header.split() == ["unit", "state", "rate/s", "samples", "drops", "crc", "ms",
+                              "ppm", "time", "MB"], text
+    (row,) = [line for line in lines if line.startswith("imu-with-a-long-name ")]
+    offset_ms = float(row.split()[6])
+    assert abs(offset_ms) < 5.0, text
+
+
 def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])

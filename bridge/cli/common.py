@@ -6,6 +6,7 @@ from __future__ import annotations
 import inspect
 import io
 import logging
+import os
 import signal
 import sys
 import time
@@ -29,6 +30,10 @@ from bridge.protocol.table import REPLIES
 
 REFUSED = 2  #: the exit status of a command refused before its work began (options, inputs)
 FAILED = 1  #: the exit status of a command whose work failed once begun
+#: The exit status of a command stopped by Ctrl-C (or SIGTERM) before its work was done.
+#: A service (bridge, record, view, router, sim) runs until it is stopped: stopping it is
+#: how it ends, exit 0.
+INTERRUPTED = 130
 
 
 def _paragraphs_wrapped(help_text: str | None) -> str | None:
@@ -74,6 +79,8 @@ class _Commands(TyperGroup):
             return super().invoke(ctx)
         except Gx3Error as exc:
             raise fail(str(exc)) from None
+        except KeyboardInterrupt:
+            raise fail("interrupted", INTERRUPTED) from None
 
 
 app = typer.Typer(
@@ -82,6 +89,9 @@ app = typer.Typer(
     help="MicroStrain 3DM-GX3 inertial sensors on Zenoh, in MCAP archives and in the "
          "Rerun viewer: bridge each unit, record the fleet, view it live, operate units, "
          "export archives; emulate units to try it all without hardware.",
+    epilog="Exit status: 0 done (a service, also when stopped by Ctrl-C or SIGTERM); 2 "
+           "refused before any work (options, inputs, outputs); 1 failed at its job; 130 "
+           "interrupted.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -141,7 +151,7 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
         with staged(path, inputs, force) as temp:
             yield temp
     except KeyboardInterrupt:
-        raise fail(f"interrupted; {path} was not written", 130) from None
+        raise fail(f"interrupted; {path} was not written", INTERRUPTED) from None
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -151,6 +161,15 @@ def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Non
     from bridge.recorder.outputs import refuse
 
     refuse(path, inputs, force)
+
+
+def duration_text(seconds: float) -> str:
+    """Seconds as a person reads a recording's length: 42 s, 12:05, 3:25:10."""
+    whole = int(seconds)
+    if whole < 60:
+        return f"{whole} s"
+    hours, rest = divmod(whole, 3600)
+    return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60}:{rest % 60:02d}"
 
 
 def parse_code(text: str | None) -> int:
@@ -190,7 +209,8 @@ class LogLevel(StrEnum):
 LogLevelOpt = Annotated[LogLevel, typer.Option(
     "--log-level", case_sensitive=False, metavar="LEVEL",
     help="The least severe log lines shown: debug, info, warning or error (a unit's "
-         "bring-up is info, a gap or reset a warning, a disconnect an error).")]
+         "bring-up is info, a gap or reset a warning, a disconnect an error). Rerun's own "
+         "warnings show only at debug (or as RUST_LOG says, where it is set).")]
 LogFormatOpt = Annotated[LogFormat, typer.Option(
     "--log-format", case_sensitive=False, metavar="FORMAT",
     help="text: lines for a person; json: every line on stderr one JSON object (time, "
@@ -263,8 +283,19 @@ class _ConsoleLines(io.StringIO):
 _installed: list[logging.Handler] = []  # what log_to added, replaced by its next call
 
 
+#: Whether the user set RUST_LOG, the filter of Rerun's own (Rust) log lines: theirs wins.
+_RUST_LOG_GIVEN = "RUST_LOG" in os.environ
+
+
 def log_to(level: LogLevel = LogLevel.info, fmt: LogFormat = LogFormat.text) -> None:
-    """Send the library's log records (and, in JSON, the command's own lines) to stderr."""
+    """Send the library's log records (and, in JSON, the command's own lines) to stderr.
+
+    Rerun's own log lines (a file sink's notes, in raw terminal colours) are a third
+    party's: below error they show only at debug. Rerun reads RUST_LOG when it is first
+    imported, which every command does after this.
+    """
+    if not _RUST_LOG_GIVEN:
+        os.environ["RUST_LOG"] = "warn" if level is LogLevel.debug else "error"
     root = logging.getLogger()
     while _installed:
         root.removeHandler(_installed.pop())

@@ -12,10 +12,11 @@ import orjson
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-from bridge.cli.common import app, err, fail, reply_code
+from bridge.cli.common import INTERRUPTED, app, err, fail, reply_code
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
+from bridge.recorder.mcap_writer import MAGIC
 
 _READ_SIZE = 1 << 20  # at most; a pipe gives what it holds, so records leave as they arrive
 _KEPT = 1 << 22  # input kept to try the other byte order when nothing decodes
@@ -53,12 +54,18 @@ def decode(
     docs/commands.md) and "timer" where the record has one; vectors and matrices
     are nested lists, matrices row-major. NaN and infinities are written as null.
     Corrupt bytes are skipped and counted; every intact record after them is still
-    decoded. From a pipe, records are written as they arrive. Exit status 1 when
-    no record decodes (an empty input included), 2 when the input cannot be read,
-    130 on Ctrl-C (after the summary so far).
+    decoded. From a pipe, records are written as they arrive.
+
+    An MCAP capture (a bridge's --capture file, or an archive recorded with --raw) is
+    decoded unit by unit from its raw reads, each object led by "unit"; a summary line
+    per unit. Exit status 1 when no record decodes (an empty input included), 2 when
+    the input cannot be read, 130 on Ctrl-C (after the summary so far).
     """
     codes = {*([reply_code("--expect", c) for c in expect] if expect else DATA_CODES),
              BYTE_ORDER_REPLY}
+    if file != "-" and _is_mcap(Path(file)):
+        _decode_capture(Path(file), codes, little_endian)
+        return
     framer = Framer(codes, little_endian=little_endian)
     stream = _open_input(file)
     fd = stream.fileno()
@@ -81,7 +88,7 @@ def decode(
             out.flush()
     except KeyboardInterrupt:
         err.print(framer.stats.summary())
-        raise typer.Exit(130) from None
+        raise fail("interrupted", INTERRUPTED) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None
@@ -89,6 +96,37 @@ def decode(
     err.print(stats.summary())
     if not stats.records:
         raise fail(_nothing_decoded(bytes(kept), codes, little_endian), 1)
+
+
+def _is_mcap(path: Path) -> bool:
+    """Whether the file starts as MCAP does (one that cannot be read is left to open)."""
+    try:
+        with path.open("rb") as stream:
+            return stream.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
+def _decode_capture(path: Path, codes: set[int], little_endian: bool) -> None:
+    """Each unit's raw reads in an MCAP capture, decoded as the bytes off its line."""
+    from bridge.recorder.replay import captures
+
+    found = 0
+    try:
+        for reads in captures(path):
+            framer = Framer(codes, little_endian=little_endian)
+            lead = f'{{"unit":{orjson.dumps(reads.unit).decode()},'.encode()
+            for data in reads.data:
+                sys.stdout.buffer.write(_lines(framer.feed(data), lead))
+            sys.stdout.buffer.write(_lines(framer.flush(), lead))
+            sys.stdout.buffer.flush()
+            err.print(f"{reads.unit}: {framer.stats.summary()}")
+            found += sum(framer.stats.records.values())
+    except BrokenPipeError:
+        sys.stderr.close()
+        raise typer.Exit(0) from None
+    if not found:
+        raise fail(f"no record decoded from the raw reads in {path}", 1)
 
 
 def _nothing_decoded(kept: bytes, codes: set[int], little_endian: bool) -> str:
@@ -124,20 +162,21 @@ def _pieces(values: np.ndarray) -> list[bytes]:
     return text[depth:-depth].split(b"]" * inner + b"," + b"[" * inner)
 
 
-def _template(batch: Batch) -> bytes:
-    """One record's line with a %s per field: command first, then wire order."""
-    parts = [f'{{"command":{batch.code}']
+def _template(batch: Batch, lead: bytes = b"{") -> bytes:
+    """One record's line with a %s per field: ``lead`` (the brace, and the unit's name
+    from a capture of several), command, then the fields in wire order."""
+    parts = [f'{lead.decode().replace("%", "%%")}"command":{batch.code}']
     for name, col in batch.columns.items():
         inner = col.ndim - 1
         parts.append(f',"{name}":{"[" * inner}%s{"]" * inner}')
     return ("".join(parts) + "}\n").encode()
 
 
-def _lines(batches: list[Batch]) -> bytes:
+def _lines(batches: list[Batch], lead: bytes = b"{") -> bytes:
     """JSON lines, one per record, as `json.dumps` of the record would give them."""
     out = []
     for batch in batches:
-        template = _template(batch)
+        template = _template(batch, lead)
         if batch.columns:
             out += [template % row for row in zip(*map(_pieces, batch.columns.values()),
                                                   strict=True)]

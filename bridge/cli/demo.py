@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import shlex
+import shutil
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -12,8 +16,11 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bridge.cli.common import app, fail, failing, parse_code
-from bridge.cli.record import _table
+from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
+from bridge.cli.record import unit_table
+
+#: Off a terminal (a CI log, a pipe), a line of progress this often, seconds.
+LOG_EVERY_S = 5.0
 
 
 def _summary(rows: list[dict[str, Any]]) -> Table:
@@ -21,13 +28,39 @@ def _summary(rows: list[dict[str, Any]]) -> Table:
                   title_justify="left", box=None, pad_edge=False)
     for name in ("unit", "samples", "drops", "checksum", "resyncs", "reconn.", "drift ppm",
                  "what happened"):
-        table.add_column(name, justify="left" if name in ("unit", "what happened") else "right")
+        table.add_column(name, justify="left" if name in ("unit", "what happened") else "right",
+                         no_wrap=name != "what happened")
     for r in rows:
-        found = "–" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}"
+        found = "not yet known" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}"
         table.add_row(r["unit"], f"{r['samples']:,}", str(r["dropped"]),
                       str(r["checksum_failures"]), str(r["resyncs"]), str(r["reconnects"]),
                       f"{found} ({r['true_ppm']:+.0f})", r["notes"])
     return table
+
+
+def runnable(name: str) -> str:
+    """``name`` (gx3, rerun) as a shell runs this installation's: bare where the PATH
+    finds it, else its path (relative where that is shorter), so a suggestion printed
+    with it runs as printed in the user's shell."""
+    here = Path(sys.executable).parent / name  # a venv's scripts sit beside its python
+    if not here.exists():
+        return name
+    found = shutil.which(name)
+    if found is not None and Path(found).resolve() == here.resolve():
+        return name
+    relative = os.path.relpath(here)
+    return shlex.quote(relative if len(relative) < len(str(here)) else str(here))
+
+
+def _progress_line(rows: list[dict[str, Any]], elapsed: float, duration: float,
+                   units: int) -> str:
+    """The demo's progress as one line, for a log."""
+    streaming = sum(1 for r in rows if r["samples"])
+    if not elapsed:
+        return f"demo: starting the bridges, {streaming} of {units} units streaming"
+    samples = sum(r["samples"] for r in rows)
+    return (f"demo: {elapsed:,.0f} of {duration:g} s, {samples:,} samples from {streaming} "
+            f"of {units} units")
 
 
 @app.command("demo")
@@ -76,29 +109,51 @@ def demo(
     output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
+    logged = [-LOG_EVERY_S]  # when the last progress line went out, off a terminal
 
     def show(rows: list[dict[str, Any]], elapsed: float) -> None:
+        if not console.is_terminal:
+            now = time.monotonic()
+            if now - logged[0] >= LOG_EVERY_S:
+                logged[0] = now
+                console.print(_progress_line(rows, elapsed, duration, units), highlight=False)
+            return
         title = f"demo: {elapsed:,.0f} of {duration:g} s" if elapsed else "demo: starting"
-        live.update(_table(rows, elapsed, 0, Path(title)), refresh=True)
+        live.update(unit_table(rows, title), refresh=True)
 
     recording = None
     if viewer is not None:
         recording = live_recording("demo-live", viewer == "spawn", viewer == "serve", None)
     run = Demo(output, members, duration, router, recording, show, force=force)
-    signal.signal(signal.SIGINT, lambda *_: run.stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: run.stop.set())
+    interrupted = []
+
+    def stop(*_: Any) -> None:
+        interrupted.append(True)
+        run.stop.set()
+
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
     started = time.monotonic()
     # an ArchiveError is a refusal (another demo writes there): exit 2, as any Gx3Error
     with failing(DemoError), live:
         run.run()
     console.print(_summary(run.summary()))
-    console.print(f"done in {time.monotonic() - started:,.0f} s; results in {output}/. "
-                  "Open them with:", highlight=False)
-    for command, what in ((f"rerun {run.rrd}", "the recording: attitude and signals"),
-                          (f"rerun {run.archive}",
+    ended = "interrupted after" if interrupted else "done in"
+    console.print(f"{ended} {time.monotonic() - started:,.0f} s; results in {output}/ (the "
+                  "archive, the Rerun recording, each bridge's log and the Zenoh configs "
+                  "they used). Open them with:", highlight=False)
+    gx3, rerun = runnable("gx3"), runnable("rerun")
+    folder = shlex.quote(str(output))
+    for command, what in ((f"{rerun} {shlex.quote(str(run.rrd))}",
+                           "the recording: attitude and signals"),
+                          (f"{rerun} {shlex.quote(str(run.archive))}",
                            "the archive: each unit's axes in 3-D, and the events"),
-                          (f"gx3 export {run.archive} -o {output}/demo.parquet",
-                           "one row per sample"),
-                          (f"gx3 export {run.archive} --align 100 -o {output}/aligned.csv",
-                           "every unit on one 100 Hz grid")):
-        console.print(f"  {command}\n      [dim]{what}[/]", highlight=False)
+                          (f"{gx3} export {shlex.quote(str(run.archive))} -o "
+                           f"{folder}/demo.parquet", "one row per sample"),
+                          (f"{gx3} export {shlex.quote(str(run.archive))} --align 100 -o "
+                           f"{folder}/aligned.csv", "every unit on one 100 Hz grid")):
+        # never wrapped: a command is copied as one line
+        console.print(f"  {command}", highlight=False, soft_wrap=True, markup=False)
+        console.print(f"      [dim]{what}[/]", highlight=False)
+    if interrupted:
+        raise typer.Exit(INTERRUPTED)

@@ -25,6 +25,7 @@ from bridge.cli.common import (
     LogLevel,
     LogLevelOpt,
     app,
+    duration_text,
     err,
     fail,
     failing,
@@ -37,21 +38,25 @@ if TYPE_CHECKING:
     from bridge.recorder.live import HostView
 
 
-def _table(rows: list[dict[str, Any]], elapsed: float, written: int, path: Path) -> Table:
-    table = Table(title=f"recording {path} · {elapsed:,.0f} s · {written:,} messages",
-                  title_justify="left", box=None, pad_edge=False)
-    for name, justify in (("unit", "left"), ("state", "left"), ("samples/s", "right"),
-                          ("samples", "right"), ("drops", "right"), ("checksum", "right"),
-                          ("offset ms", "right"), ("drift ppm", "right"),
-                          ("recorded", "right"), ("MB", "right")):
-        table.add_column(name, justify=justify)  # type: ignore[arg-type]
+def unit_table(rows: list[dict[str, Any]], title: str) -> Table:
+    """The units as a recorder sees them (``Recorder.snapshot``), in 80 columns: offset
+    is how far each unit's clock offset moved since its first clock model (the offset
+    itself is an instant)."""
+    table = Table(title=title, title_justify="left", box=None, pad_edge=False, padding=(0, 1),
+                  collapse_padding=True)
+    for name, justify in (("unit", "left"), ("state", "left"), ("rate/s", "right"),
+                          ("samples", "right"), ("drops", "right"), ("crc", "right"),
+                          ("offset\nms", "right"), ("drift\nppm", "right"),
+                          ("time", "right"), ("MB", "right")):
+        table.add_column(name, justify=justify, no_wrap=True,  # type: ignore[arg-type]
+                         overflow="ellipsis" if name == "unit" else "fold")
     for r in rows:
         table.add_row(
             r["unit"], "[green]live[/]" if r["alive"] else "[red]gone[/]", f"{r['rate']:,.0f}",
-            f"{r['samples']:,}", str(r["dropped"]), str(r["checksum_failures"]),
-            "–" if r["offset_ms"] is None else f"{r['offset_ms']:,.1f}",
+            f"{r['samples']:,}", f"{r['dropped']:,}", f"{r['checksum_failures']:,}",
+            "–" if r["offset_ms"] is None else f"{r['offset_ms']:+.2f}",
             "–" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}",
-            f"{r['recorded_s']:,.0f} s", f"{r['bytes'] / 1e6:,.1f}")
+            duration_text(r["recorded_s"]), f"{r['bytes'] / 1e6:,.1f}")
     if not rows:
         table.add_row("[dim]waiting for units…[/]", *[""] * 9)
     return table
@@ -218,7 +223,9 @@ def record(
         whole recording when ``whole``)."""
         recorder = recording.recorder
         hosts = recorder.hosts()
-        return Group(_table(recorder.snapshot(), recording.elapsed_s, recorder.written, path),
+        title = (f"recording {path} · {duration_text(recording.elapsed_s)} · "
+                 f"{recorder.written:,} messages")
+        return Group(unit_table(recorder.snapshot(), title),
                      *([_hosts_table(hosts, recorder.max_host_offset_ns, whole)]
                        if hosts else []))
 

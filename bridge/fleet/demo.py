@@ -153,7 +153,8 @@ class Demo:
         show: Draws the dashboard: the units' rows and the seconds streamed.
         force: Replace an earlier run's archive in ``output``.
         stop: Set it to end the run early.
-        rows: The units' rows, as the dashboard last showed them.
+        rows: The units' rows: as the dashboard last showed them while it runs, every
+            sample archived once it has run.
     """
 
     output: Path
@@ -237,6 +238,8 @@ class Demo:
                 procs.stop()
                 recorder.run_once(1.0)
             recorder.close()
+            # what the bridges published after the last look is archived too: count it
+            self.rows = recorder.snapshot()
             try:
                 writer.close()
             except ArchiveError as exc:

@@ -187,6 +187,9 @@ class _UnitView:
     first_ns: int = 0
     last_ns: int = 0
     status: Status | None = None
+    #: the clock offset of its first status with a clock model: the table shows how far
+    #: the offset has moved since (the offset itself is an instant near the epoch)
+    first_offset_ns: int | None = None
     joined: int = 1
     meter: RateWindow = field(default_factory=lambda: RateWindow(3.0))
     #: its bridge host's clock, from the latest Status or Info that carried one, and
@@ -635,6 +638,8 @@ class Recorder:
                                                             (len(payloads),)))
             elif status is not None:
                 view.status = status
+                if view.first_offset_ns is None and status.clock_offset_ns:
+                    view.first_offset_ns = status.clock_offset_ns
                 view.learn_host(status, status.time_ns)
             elif info is not None:
                 view.learn_host(info, info.bring_up_time_ns)
@@ -762,7 +767,9 @@ class Recorder:
         """What the terminal shows of the units.
 
         Returns:
-            A row per unit, by name: alive, rate, samples and losses, its clock model.
+            A row per unit, by name: alive, rate, samples and losses, its clock model
+            (``offset_ms``: how far its clock offset moved since its first status with
+            a model; it and ``drift_ppm`` None before one).
         """
         now = time.monotonic()
         rows = []
@@ -774,8 +781,12 @@ class Recorder:
                     "samples": view.samples, "dropped": s.dropped if s else 0,
                     "checksum_failures": s.checksum_failures if s else 0,
                     "resyncs": s.resyncs if s else 0, "reconnects": s.reconnects if s else 0,
-                    "offset_ms": (s.clock_offset_ns / 1e6) if s else None,
-                    "drift_ppm": s.clock_drift_ppm if s else None,
+                    "offset_ms": None if s is None or view.first_offset_ns is None
+                    or not s.clock_offset_ns
+                    else (s.clock_offset_ns - view.first_offset_ns) / 1e6,
+                    # exactly 0 until the model has measured the rate (see gx3.proto)
+                    "drift_ppm": s.clock_drift_ppm if s and s.clock_offset_ns
+                    and s.clock_drift_ppm else None,
                     "recorded_s": (view.last_ns - view.first_ns) / 1e9,
                     "bytes": view.bytes, "joined": view.joined})
         return rows
