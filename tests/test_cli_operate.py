@@ -49,6 +49,23 @@ def test_info_and_a_temporary_change_on_a_port(port: str) -> None:
     assert timer.returncode == 0, timer.stderr
 
 
+def test_info_shows_the_presets_as_a_person_reads_them(port: str) -> None:
+    """The stored presets, named (the unit's JSON keeps the numbers the unit gave)."""
+    stored = gx3("configure", "--port", port, "--continuous-preset", "0xCC", "--mode-preset",
+                 "2", "--yes")
+    assert stored.returncode == 0, stored.stderr
+    text = gx3("info", "--port", port)
+    assert text.returncode == 0, text.stderr
+    rows = {line.split(None, 1)[0]: line.split(None, 1)[1].strip()
+            for line in text.stdout.splitlines() if line.strip() and not line.startswith(" ")}
+    assert rows["continuous_preset"] == "0xCC (accel, ang_rate, mag, m)"
+    assert rows["mode_preset"] == "2 (continuous)"
+    assert rows["firmware"] == "1.1.27"
+    assert "record" not in rows and "streaming" not in rows  # nothing streams on a port
+    as_json = json.loads(gx3("info", "--port", port, "--json").stdout)
+    assert (as_json["continuous_preset"], as_json["mode_preset"]) == (0xCC, 2)
+
+
 def test_a_lasting_change_needs_yes_and_a_target_is_required(port: str) -> None:
     refused = gx3("configure", "--port", port, "--mode-preset", "2")
     assert refused.returncode != 0

@@ -198,3 +198,13 @@ def test_readme_is_a_front_page_of_at_most_10_kb() -> None:
     size = len(README.read_bytes())
     assert size <= README_LIMIT, (f"README.md is {size:,} bytes; a front page is at most "
                                   f"{README_LIMIT:,}: move the detail into docs/")
+
+
+def test_the_readmes_first_screen_says_what_it_is_and_what_to_try() -> None:
+    """A newcomer's first screen (24 lines): what the product is and the one command to
+    try, which ends in the demo with the environment active (so the demo's own
+    suggestions, bare `gx3` and `rerun`, run in that shell)."""
+    first = README.read_text().splitlines()[:24]
+    assert "3DM-GX3" in " ".join(first[:4])
+    (command,) = [line for line in first if line.startswith("python3 -m venv")]
+    assert ". .venv/bin/activate && gx3 demo" in command

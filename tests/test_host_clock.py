@@ -138,6 +138,7 @@ def test_time_ns_follows_the_host_clock_through_steps_slews_and_a_leap_second(
     done = subprocess.run([GX3, "replay", str(capture), "-o", str(tmp_path / "again.mcap")],
                           capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
+    assert done.stderr.rstrip().endswith(" samples of 1 unit"), done.stderr  # not "1 units"
     again = read_archive(tmp_path / "again.mcap")
     live_cols, replay_cols = (by_ticks(a) for a in (archive, again))
     keep = np.isin(replay_cols["ticks"], live_cols["ticks"])

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import logging
 import shutil
 import signal
@@ -145,6 +146,8 @@ def test_the_bridge_logs_json_lines_with_their_fields(tmp_path: Path) -> None:
     assert isinstance(bring_up["time_ns"], int)
     gap = next(line for line in lines if line.get("event") == "gap")
     assert gap["level"] == "warning" and gap["count"] >= 1, gap
+    # a lone gap says how many went missing too, as a summed line does
+    assert re.match(r"gap \([\d,]+ samples? missing", gap["message"]), gap
     # the command's own closing line comes as JSON too, not as text for a person
     assert any(line["logger"] == "gx3" and line["message"].startswith("lib1: ")
                for line in lines), lines

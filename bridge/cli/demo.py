@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from bridge._text import counted
 from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
 from bridge.cli.record import unit_table
 
@@ -57,10 +58,10 @@ def _progress_line(rows: list[dict[str, Any]], elapsed: float, duration: float,
     """The demo's progress as one line, for a log."""
     streaming = sum(1 for r in rows if r["samples"])
     if not elapsed:
-        return f"demo: starting the bridges, {streaming} of {units} units streaming"
+        return f"demo: starting the bridges, {streaming} of {counted(units, 'unit')} streaming"
     samples = sum(r["samples"] for r in rows)
-    return (f"demo: {elapsed:,.0f} of {duration:g} s, {samples:,} samples from {streaming} "
-            f"of {units} units")
+    return (f"demo: {elapsed:,.0f} of {duration:g} s, {counted(samples, 'sample')} from "
+            f"{streaming} of {counted(units, 'unit')}")
 
 
 @app.command("demo")

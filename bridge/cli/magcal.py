@@ -9,6 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
+from bridge._text import counted
 from bridge.cli.common import FAILED, EndOpt, ForceOpt, StartOpt, app, err, fail, written
 
 
@@ -124,6 +125,6 @@ def _summary(content: dict[str, Any]) -> str:
 
 def _only_unit(archive: Path, units: list[str]) -> str:
     if len(units) != 1:
-        raise ValueError(f"{archive} holds {len(units)} units ({', '.join(units) or 'none'}); "
-                         "choose one with --unit")
+        raise ValueError(f"{archive} holds {counted(len(units), 'unit')} "
+                         f"({', '.join(units) or 'none'}); choose one with --unit")
     return units[0]

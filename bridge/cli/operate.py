@@ -162,16 +162,40 @@ def _run_local(port_url: str, baud_text: str, name: str, params: dict[str, Any],
     show(result, as_json)
 
 
+def _for_people(key: str, value: Any) -> tuple[str, str] | None:
+    """A result's entry as a person reads it (presets and records named, flags in hex),
+    or None for one that says nothing here (no record streams on a port)."""
+    from bridge.protocol.docs import mode_text, record_text
+
+    if key == "firmware":
+        return None  # its firmware_text says it as the manual writes versions
+    if key == "firmware_text":
+        return "firmware", str(value)
+    if key == "record":
+        return None if not value else ("streaming", record_text(value))
+    if key == "continuous_preset":
+        return key, record_text(value)
+    if key == "mode_preset":
+        return key, mode_text(value)
+    if isinstance(value, dict):
+        return key, ", ".join(f"{k}=0x{v:04X}" if k == "flags" else f"{k}={v}"
+                              for k, v in value.items())
+    return key, str(value)
+
+
 def show(result: dict[str, Any], as_json: bool) -> None:
-    """A result for people (a two-column table) or for programs (JSON)."""
+    """A result for people (a two-column table) or for programs (JSON, values as the
+    unit gave them)."""
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")
         return
     table = Table(show_header=False, box=None, pad_edge=False)
     for key, value in result.items():
-        text = ", ".join(f"{k}={v}" for k, v in value.items()) if isinstance(value, dict) \
-            else str(value)
-        table.add_row(f"[bold yellow]{key}[/]" if key == "warning" else f"[bold]{key}[/]", text)
+        entry = _for_people(key, value)
+        if entry is not None:
+            name, text = entry
+            table.add_row(f"[bold yellow]{name}[/]" if name == "warning" else f"[bold]{name}[/]",
+                          text)
     Console().print(table)
 
 

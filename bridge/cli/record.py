@@ -16,6 +16,7 @@ from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
+from bridge._text import counted
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -288,9 +289,9 @@ def replay_command(
 
     # refreshed here, not by Rich's thread: replay forks its workers after this starts
     progress = Progress(TextColumn("replaying"), TextColumn("{task.completed:,.0f} samples"),
-                        TextColumn("{task.fields[units]} unit(s) done"), console=err,
+                        TextColumn("{task.fields[done]} done"), console=err,
                         transient=True, auto_refresh=False, disable=not err.is_terminal)
-    task = progress.add_task("replay", total=None, units=0)
+    task = progress.add_task("replay", total=None, units=0, done=counted(0, "unit"))
     shown = [0.0]
 
     def report(result: Replayed) -> None:
@@ -298,7 +299,8 @@ def replay_command(
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
         progress.console.print(f"{result.unit}: {result.samples:,} samples"
                                + (f", {events}" if events else "") + guessed)
-        progress.update(task, units=progress.tasks[0].fields["units"] + 1, refresh=True)
+        units = progress.tasks[0].fields["units"] + 1
+        progress.update(task, units=units, done=counted(units, "unit"), refresh=True)
 
     def advance(samples: int) -> None:
         progress.advance(task, samples)
@@ -311,5 +313,5 @@ def replay_command(
                     path=output), progress:
         results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,
                          on_samples=advance, transport=transport)
-    err.print(f"wrote {output}: {sum(r.samples for r in results):,} samples of "
-              f"{len(results)} unit(s)")
+    err.print(f"wrote {output}: {counted(sum(r.samples for r in results), 'sample')} of "
+              f"{counted(len(results), 'unit')}")

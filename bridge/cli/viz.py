@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+from bridge._text import counted
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -95,7 +96,8 @@ def rrd(
             task = progress.add_task("rrd", total=total)
             logged = log_archive(found, logger, lambda n: progress.advance(task, n))
             logger.close()
-    err.print(f"wrote {output}: {logged:,} samples of {len(found.units())} unit(s); "
+    err.print(f"wrote {output}: {counted(logged, 'sample')} of "
+              f"{counted(len(found.units()), 'unit')}; "
               f"open it with: rerun {output}")
 
 

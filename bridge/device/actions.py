@@ -36,16 +36,16 @@ class Action:
     effect: str = "none"
 
 
-def _info_result(info: UnitInfo) -> Params:
-    return {"firmware": info.firmware, "firmware_text": info.firmware_text, **info.ids,
-            "sampling": info.sampling, "baud": info.baud,
-            "continuous_preset": info.continuous_preset, "record": info.record}
-
-
 def _info(session: Session, info: UnitInfo, params: Params) -> Params:
+    """What the unit says it is and how it starts.
+
+    ``record`` is what its bridge streams (0 on a port, where nothing streams).
+    """
     fresh = session.identify()
-    fresh.record = info.record
-    return _info_result(fresh)
+    mode_preset = int(session.command("mode_preset", mode_preset=0)["mode_preset"])
+    return {"firmware": fresh.firmware, "firmware_text": fresh.firmware_text, **fresh.ids,
+            "sampling": fresh.sampling, "baud": fresh.baud, "mode_preset": mode_preset,
+            "continuous_preset": fresh.continuous_preset, "record": info.record}
 
 
 _SAMPLING = ("decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",

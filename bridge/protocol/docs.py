@@ -12,10 +12,45 @@ from bridge.protocol.table import (
     REPLIES,
     Command,
     Field,
+    Mode,
     When,
 )
 
 SCHEMA_VERSION = 1
+
+
+def record_text(code: int) -> str:
+    """A data record as an operator reads it, from the table: its code and quantities.
+
+    Args:
+        code: The record's command byte; 0 for none (a preset that was never set).
+
+    Returns:
+        ``0xCC (accel, ang_rate, mag, m)``, ``none`` for 0, the bare code for a byte
+        that is not a data record.
+    """
+    if not code:
+        return "none"
+    spec = REPLIES.get(code)
+    if spec is None or code not in DATA_CODES:
+        return f"0x{code:02X}"
+    quantities = ", ".join(f.name for f in spec.fields if f.name != "timer" and not f.is_pad)
+    return f"0x{code:02X} ({quantities})"
+
+
+def mode_text(mode: int) -> str:
+    """A mode (0xD4) or mode preset (0xD5) as an operator reads it: ``2 (continuous)``.
+
+    Args:
+        mode: The mode's value.
+
+    Returns:
+        The value and its name, or the value alone where the manual names none.
+    """
+    try:
+        return f"{mode} ({Mode(mode).name.lower().replace('_', ' ')})"
+    except ValueError:
+        return str(mode)
 
 
 def _field(f: Field) -> str:

@@ -21,6 +21,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from bridge._text import counted
 from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.recorder.magcal import UnitIron, apply, read_document, with_heading
 from bridge.recorder.reader import ArchiveReader, describe_problem, read_archive
@@ -125,7 +126,7 @@ class Exported:
         Returns:
             The line.
         """
-        of = f"{self.samples} samples of {self.units} units to {self.output}"
+        of = f"{counted(self.samples, 'sample')} of {counted(self.units, 'unit')} to {self.output}"
         if self.bag is not None:
             text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
         elif self.align_hz is not None:
@@ -178,7 +179,7 @@ class Export:
             raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
                              "own time (leave out --align or --format ros2)")
         if not self.ros2:
-            check_format(output)
+            check_format(output, bag=True)
         if events is not None:
             check_format(events)
             if events.absolute() == output.absolute():

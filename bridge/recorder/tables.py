@@ -268,12 +268,24 @@ def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     }
 
 
-def check_format(path: Path) -> str:
-    """The output format named by the file's extension, or a one-line error."""
+def check_format(path: Path, bag: bool = False) -> str:
+    """The table format named by the file's extension, or a one-line error.
+
+    Args:
+        path: The file to write.
+        bag: The error also names .mcap, for a command that writes a ROS 2 bag there.
+
+    Returns:
+        The extension, lower-case.
+
+    Raises:
+        ValueError: The extension names no table format.
+    """
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv")
+                         "name the file .parquet or .csv"
+                         + (" (a table), or .mcap (a ROS 2 bag)" if bag else ""))
     return suffix
 
 

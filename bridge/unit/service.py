@@ -22,6 +22,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
+from bridge._text import counted
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.device import clock
@@ -363,7 +364,10 @@ def _level(kind: str) -> int:
 
 
 def _print_event(event: UnitEvent) -> None:
-    count = f" ({event.count})" if event.count > 1 else ""
+    if event.kind == EventKind.GAP:  # how many went missing, even when one did
+        count = f" ({counted(event.count, 'sample')} missing)"
+    else:
+        count = f" ({event.count})" if event.count > 1 else ""
     _log.log(_level(event.kind), f"{event.kind}{count} {event.detail}".rstrip(), extra={
         "event": event.kind, "count": event.count, "time_ns": event.time_ns})
 
