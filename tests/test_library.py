@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import ast
 import json
-import re
 import logging
+import re
 import shutil
 import signal
 import subprocess
