@@ -195,3 +195,13 @@ def test_the_fleet_guide_steps_match_the_files(tmp_path: Path) -> None:
     assert shown is not None
     (command,) = _unit_settings(CONFIGS / "systemd/gx3-bridge@.service")["ExecStart"]
     assert shown.group(0) == command.replace("%i", "imu1")
+
+
+def test_git_leaves_out_what_the_demo_writes_in_a_checkout() -> None:
+    """`gx3 demo` run in a clone writes gx3-demo/ (gx3-demo-2/ the next time): logs,
+    Zenoh configurations, the archive; none of it shows as a change to commit."""
+    written = ["gx3-demo/imu1.log", "gx3-demo/zenoh-bridges.json5", "gx3-demo/demo.mcap",
+               "gx3-demo-2/zenoh-recorder.json5"]
+    done = subprocess.run(["git", "check-ignore", "--no-index", *written], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert done.stdout.split() == written, done.stderr
