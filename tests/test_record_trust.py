@@ -26,7 +26,7 @@ from bridge.recorder.live import Recorder
 from bridge.recorder.reader import read_archive
 from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.serve import Simulator
-from tests.helpers.archives import archived_events, samples_in
+from tests.helpers.archives import archived_events, samples_in, topics_in
 from tests.helpers.processes import GX3, bridge_process, published, recorder
 from tests.helpers.records import CODE, indexed_batch, indexed_payloads
 from tests.helpers.units import TWO_UNITS
@@ -51,7 +51,7 @@ def test_forged_and_damaged_samples_are_rejected_and_accounted_for(tmp_path: Pat
         with open_session(connect=[endpoint], mode="peer", multicast_scouting=False) as s, \
                 UnitPublisher(s, "a") as pub:
             pub.set_info(Info(command=CODE))
-            wait_for(lambda: out.exists() and "gx3/a/info" in read_archive(out).topics(),
+            wait_for(lambda: "gx3/a/info" in topics_in(out),
                      what="the recorder to see unit a")
             records, ticks, times = indexed_batch(0, 10)
             pub.publish_samples(records, ticks, times)

@@ -180,6 +180,10 @@ def view(
                    "and/or --save FILE.rrd")
     if save is not None:
         refused(save, force=force)
+    # before anything is made: a stop while it starts (systemd's SIGTERM) ends it cleanly
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     # first: a session that cannot open leaves no empty FILE.rrd
     session = open_session(zenoh_config, connect=connect or [], listen=listen or [], mode=mode)
     try:
@@ -188,9 +192,6 @@ def view(
     except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
         session.close()
         raise fail(f"cannot start the Rerun recording ({exc})") from None
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     logger = IronedLogger(irons, recording, window_s=window)
     feed = LiveFeed(session, logger, prefix, units)
     try:

@@ -126,6 +126,13 @@ def samples_in(path: Path, unit: str) -> int:
     return sum(len(b) for b in read_archive(path).samples([unit]))
 
 
+def topics_in(path: Path) -> list[str]:
+    """The topics of an archive being written (none before its header is written)."""
+    if not path.exists() or not path.stat().st_size:
+        return []
+    return read_archive(path).topics()
+
+
 def sample_columns(path: Path, unit: str) -> dict[str, np.ndarray]:
     """A unit's samples in an archive, in tick order: what replay must reproduce."""
     blocks = read_archive(path).samples([unit])
