@@ -741,7 +741,8 @@ def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: s
 
 
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
-                 warn: Callable[[str], None] = _log.warning) -> ArchiveReader:
+                 warn: Callable[[str], None] = _log.warning,
+                 on_blocks: Callable[[ArchiveReader], None] | None = None) -> ArchiveReader:
     """Read what is readable of an MCAP file: an archive or a raw capture.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
@@ -753,6 +754,11 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         path: The file.
         progress: Called with the bytes read so far, as the reading goes.
         warn: Hears, once each, the corrupt chunks skipped and the messages left out.
+        on_blocks: Streams the file instead of keeping it: called with the archive each
+            time a chunk (or a loose message) has been read, when the archive's
+            messages are that chunk's alone (``samples``, ``messages``); they are
+            dropped after the call, so memory stays that of one chunk however long the
+            file. None: every message is kept.
 
     Returns:
         Everything readable in the file.
@@ -770,6 +776,9 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
         summary_channels = {} if index is None else index.channels
         while True:
+            if on_blocks is not None and archive.blocks:
+                on_blocks(archive)
+                archive.blocks.clear()
             head = stream.read(9)
             if len(head) < 9:
                 archive.problem = "the file ends without a summary (the writer did not finish)" \
@@ -823,6 +832,9 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
             pos += 9 + length
             if progress is not None:
                 progress(pos)
+    if on_blocks is not None and archive.blocks:
+        on_blocks(archive)
+        archive.blocks.clear()
     archive.dropped_bytes = size - pos
     if archive.dropped_bytes and archive.complete:
         archive.problem = f"{archive.dropped_bytes} bytes after the end of the file"
