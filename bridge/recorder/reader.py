@@ -190,6 +190,7 @@ class ArchiveReader:
     damage: list[Damage] = field(default_factory=list)
     skipped: Counter[str] = field(default_factory=Counter)
     warn: Callable[[str], None] = _log.warning
+    streamed: int = 0  # messages handed to read_archive's on_blocks and dropped
 
     def skip(self, topic: str, count: int, why: str) -> None:
         """Leave out ``count`` bad messages of ``topic`` and say so, once per topic and reason.
@@ -208,8 +209,8 @@ class ArchiveReader:
 
     @property
     def message_count(self) -> int:
-        """Messages read, on every channel."""
-        return sum(len(b.channel) for b in self.blocks)
+        """Messages read, on every channel (those streamed and dropped too)."""
+        return self.streamed + sum(len(b.channel) for b in self.blocks)
 
     def topics(self, kind: str | None = None) -> list[str]:
         """The topics read, sorted.
@@ -740,6 +741,15 @@ def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: s
                                  index.message_end_time, why, lost))
 
 
+def _hand_over(archive: ArchiveReader, on_blocks: Callable[[ArchiveReader], None] | None
+               ) -> None:
+    """Give the messages read so far to ``on_blocks`` and drop them (counted: ``streamed``)."""
+    if on_blocks is not None and archive.blocks:
+        on_blocks(archive)
+        archive.streamed += sum(len(b) for b in archive.blocks)
+        archive.blocks.clear()
+
+
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
                  warn: Callable[[str], None] = _log.warning,
                  on_blocks: Callable[[ArchiveReader], None] | None = None) -> ArchiveReader:
@@ -776,9 +786,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
         summary_channels = {} if index is None else index.channels
         while True:
-            if on_blocks is not None and archive.blocks:
-                on_blocks(archive)
-                archive.blocks.clear()
+            _hand_over(archive, on_blocks)
             head = stream.read(9)
             if len(head) < 9:
                 archive.problem = "the file ends without a summary (the writer did not finish)" \
@@ -832,9 +840,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
             pos += 9 + length
             if progress is not None:
                 progress(pos)
-    if on_blocks is not None and archive.blocks:
-        on_blocks(archive)
-        archive.blocks.clear()
+    _hand_over(archive, on_blocks)
     archive.dropped_bytes = size - pos
     if archive.dropped_bytes and archive.complete:
         archive.problem = f"{archive.dropped_bytes} bytes after the end of the file"
