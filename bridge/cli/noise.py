@@ -95,7 +95,10 @@ def allan(
                 for each in _per_unit(option, path, asked).values():
                     refused(each, [archive], force)
     kept, take, first = collect_samples(asked)
-    data = read_with_progress(archive, take)
+    try:
+        data = read_with_progress(archive, take)
+    except ValueError as exc:  # an ArchiveReadError too: what cannot be read, exit 2
+        raise fail(str(exc)) from None
     units = asked if asked is not None else data.units()
     missing = [u for u in units if u not in data.units()]
     if missing or not units:
