@@ -87,9 +87,13 @@ class AllanSums:
         y = np.asarray(rates, np.float64)
         n = len(y)
         self.samples += n
-        # the stretch's mean changes no second difference, and keeps the phase small
         phase = np.zeros((n + 1, y.shape[1]))
-        np.cumsum(y - y.mean(axis=0), axis=0, out=phase[1:])
+        np.cumsum(y, axis=0, out=phase[1:])
+        # the stretch's mean changes no second difference: taken out, the phase stays small
+        steps = np.arange(n + 1, dtype=np.float64)
+        for column, mean in enumerate(y.mean(axis=0).tolist()):
+            phase[:, column] -= steps * mean
+        del steps
         block = np.empty((_BLOCK_ROWS, y.shape[1]))
         for j, m in enumerate(self.factors.tolist()):
             terms = n + 1 - 2 * m

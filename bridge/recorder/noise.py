@@ -287,9 +287,11 @@ def unit_noise(samples: UnitSamples, start_ns: int | None = None,
                                "random walks")
     time_ns = time_ns[order]
     timer = np.concatenate(samples.timer)[order]
-    force = np.concatenate(samples.accel)[order].astype(np.float64) * STANDARD_GRAVITY
-    rate = np.concatenate(samples.ang_rate)[order].astype(np.float64)
-    _moved(time_ns, force, rate, name)
+    rates = np.empty((len(order), 6))  # accel (m/s²) then gyro (rad/s): one array for all
+    rates[:, :3] = np.concatenate(samples.accel)[order]
+    rates[:, :3] *= STANDARD_GRAVITY
+    rates[:, 3:] = np.concatenate(samples.ang_rate)[order]
+    _moved(time_ns, rates[:, :3], rates[:, 3:], name)
     steps, step = _sample_step(timer)
     period = step / TICKS_PER_SECOND
     bounds = _stretch_bounds(timer, steps, step)
@@ -299,7 +301,6 @@ def unit_noise(samples: UnitSamples, start_ns: int | None = None,
         raise CalibrationError(f"unit {name}: no stretch of {2 * MIN_FACTOR} samples without "
                                "a gap; record the still unit for minutes without interruption")
     sums = AllanSums(averaging_factors(max(b - a for a, b in spans)), 6)
-    rates = np.column_stack([force, rate])
     finite = np.all(np.isfinite(rates), axis=1)
     used = []
     for a, b in spans:
@@ -342,9 +343,13 @@ def unit_noise(samples: UnitSamples, start_ns: int | None = None,
         stretches=tuple(used), samples=len(order), warnings=tuple(warnings))
 
 
-def _one(job: tuple[UnitSamples, int | None, int | None]) -> UnitNoise | CalibrationError:
+#: The jobs of ``units_noise``, for forked workers to find as they were (not pickled)
+_JOBS: list[tuple[UnitSamples, int | None, int | None]] = []
+
+
+def _one(job: int) -> UnitNoise | CalibrationError:
     try:
-        return unit_noise(*job)
+        return unit_noise(*_JOBS[job])
     except CalibrationError as exc:  # handed back whole: the caller says which unit
         return exc
 
@@ -363,14 +368,16 @@ def units_noise(units: Sequence[UnitSamples], start_ns: int | None = None,
     Returns:
         Each unit's noise, or the error that refused it, in the order given.
     """
-    work = [(u, start_ns, end_ns) for u in units]
-    jobs = min(len(work), max(1, (os.cpu_count() or 1) if jobs is None else jobs))
-    if jobs <= 1:
-        return [_one(w) for w in work]
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("fork" if "fork" in methods else None)
-    with context.Pool(jobs) as pool:
-        return pool.map(_one, work, chunksize=1)
+    _JOBS[:] = [(u, start_ns, end_ns) for u in units]
+    try:
+        jobs = min(len(_JOBS), max(1, (os.cpu_count() or 1) if jobs is None else jobs))
+        if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+            return [_one(i) for i in range(len(_JOBS))]
+        # forked workers share the samples read here; only the results come back
+        with multiprocessing.get_context("fork").Pool(jobs) as pool:
+            return pool.map(_one, range(len(_JOBS)), chunksize=1)
+    finally:
+        _JOBS.clear()
 
 
 def _number(value: float) -> str:
