@@ -52,7 +52,7 @@ def _panel(ax: object, tau: np.ndarray, sensor: SensorNoise) -> None:
     ax.set_ylabel(f"Allan deviation [{unit}]")
     ax.set_title(f"{sensor.sensor}: N {n:.3g} {unit}/√Hz, K {walk_label}{k:.3g} "
                  f"{walk_unit}/√Hz", fontsize=10)
-    ax.legend(fontsize=8, loc="lower left")
+    ax.legend(fontsize=8, loc="upper center")  # the read-off points sit low on the left
 
 
 def write_allan_plot(path: Path, noise: UnitNoise) -> None:
