@@ -16,6 +16,7 @@ from bridge.cli import (
     decode,
     demo,
     magcal,
+    noise,
     operate,
     record,
     router,
@@ -29,7 +30,7 @@ PANELS = {
     "Run a fleet": ("demo", "bridge", "record", "view", "router", "sim"),
     "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
                        "reset"),
-    "Archives": ("export", "replay", "rrd", "repair", "calibrate-mag"),
+    "Archives": ("export", "replay", "rrd", "repair", "calibrate-mag", "allan"),
     "Bytes and protocol": ("decode", "commands"),
 }
 
@@ -51,5 +52,5 @@ def _arrange() -> None:
 _arrange()
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "magcal", "operate",
+__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "magcal", "noise", "operate",
            "record", "router", "sim", "viz"]

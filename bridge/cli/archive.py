@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
@@ -29,8 +30,11 @@ if TYPE_CHECKING:
 # every other gx3 command starts as fast as before.
 
 
-def read_with_progress(path: Path) -> ArchiveReader:
-    """Read an archive with progress on a terminal; warn once when it was cut short."""
+def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | None = None
+                       ) -> ArchiveReader:
+    """Read an archive with progress on a terminal; warn once when it was cut short.
+
+    ``on_blocks`` streams it (``read_archive``)."""
     from bridge.recorder.export import read_samples_archive
 
     size = path.stat().st_size if path.is_file() else None
@@ -40,7 +44,7 @@ def read_with_progress(path: Path) -> ArchiveReader:
     with progress:
         task = progress.add_task("read", total=size)
         archive = read_samples_archive(path, lambda done: progress.update(task, completed=done),
-                                       problems.append)
+                                       problems.append, on_blocks)
     for problem in problems:
         err.print(f"[yellow]warning:[/] {problem}")
     return archive

@@ -62,6 +62,18 @@ def sim(
                                               "filter).")] = 0.0,
     noise_mag: Annotated[float, typer.Option(help="Magnetometer noise, gauss (1σ, before the "
                                              "filter).")] = 0.0,
+    accel_noise_density: Annotated[float, typer.Option(
+        help="Accel white noise density, m/s²/√Hz, as Kalibr's accelerometer_noise_density "
+             "(what gx3 allan reads off): each sample's noise is this over the square root "
+             "of its period, whatever the filter.")] = 0.0,
+    accel_random_walk: Annotated[float, typer.Option(
+        help="Accel bias random walk, m/s³/√Hz, as Kalibr's accelerometer_random_walk: the "
+             "bias wanders from zero at power-up.")] = 0.0,
+    gyro_noise_density: Annotated[float, typer.Option(
+        help="Gyro white noise density, rad/s/√Hz, as Kalibr's gyroscope_noise_density.")
+    ] = 0.0,
+    gyro_random_walk: Annotated[float, typer.Option(
+        help="Gyro bias random walk, rad/s²/√Hz, as Kalibr's gyroscope_random_walk.")] = 0.0,
     gyro_bias: Annotated[float, typer.Option(
         help="True gyro bias on every axis, rad/s (what 0xCD finds on a still unit).")] = 0.0,
     hard_iron: Annotated[str | None, typer.Option(
@@ -145,9 +157,12 @@ def sim(
         pty=pty, tcp=tcp, units=units, serial=serial, model_name=model_name,
         model_number=model_number, firmware=firmware, timer_start=timer_start,
         clock_ppm=clock_ppm, seed=seed, static=static, tumble=tumble, noise_accel=noise_accel,
-        noise_gyro=noise_gyro, noise_mag=noise_mag, gyro_bias=gyro_bias, hard_iron=hard_iron,
-        soft_iron=soft_iron, no_filter_model=no_filter_model, decimation=decimation,
-        flags=flags, continuous_preset=continuous_preset, mode_preset=mode_preset, baud=baud,
+        noise_gyro=noise_gyro, noise_mag=noise_mag, gyro_bias=gyro_bias,
+        accel_noise_density=accel_noise_density, accel_random_walk=accel_random_walk,
+        gyro_noise_density=gyro_noise_density, gyro_random_walk=gyro_random_walk,
+        hard_iron=hard_iron, soft_iron=soft_iron, no_filter_model=no_filter_model,
+        decimation=decimation, flags=flags, continuous_preset=continuous_preset,
+        mode_preset=mode_preset, baud=baud,
         flip_rate=flip_rate, drop_rate=drop_rate, stall_every=stall_every, stall_for=stall_for,
         disconnect_every=disconnect_every, disconnect_for=disconnect_for, usb=usb,
         usb_serial=usb_serial, latency_timer=latency_timer,

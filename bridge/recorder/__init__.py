@@ -17,8 +17,20 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
+from bridge.recorder.allan import AllanSums, NoiseFit, averaging_factors, read_off
 from bridge.recorder.describe import About
 from bridge.recorder.magcal import IronCalibration, UnitIron, fit, read_document
+from bridge.recorder.noise import (
+    NOISE_KEYS,
+    SensorNoise,
+    UnitNoise,
+    UnitSamples,
+    collect_samples,
+    kalibr_yaml,
+    stretch_text,
+    unit_noise,
+    units_noise,
+)
 from bridge.recorder.rawcapture import RawCaptureWriter, capture_metadata
 from bridge.recorder.reader import (
     ArchivedSamples,
@@ -46,7 +58,9 @@ if TYPE_CHECKING:
     )
 
 __all__ = [
+    "NOISE_KEYS",
     "About",
+    "AllanSums",
     "ArchiveReader",
     "ArchiveWriter",
     "ArchivedSamples",
@@ -56,25 +70,36 @@ __all__ = [
     "HostView",
     "IronCalibration",
     "Messages",
+    "NoiseFit",
     "RawCaptureWriter",
     "Record",
     "Recorder",
     "RepairReport",
     "Replayed",
     "Ros2Written",
+    "SensorNoise",
     "UnitIron",
+    "UnitNoise",
+    "UnitSamples",
     "align_table",
+    "averaging_factors",
     "capture_metadata",
     "captures",
+    "collect_samples",
     "describe_problem",
     "event_table",
     "fit",
+    "kalibr_yaml",
     "offline_times",
     "read_archive",
     "read_document",
+    "read_off",
     "repair",
     "replay",
     "sample_table",
+    "stretch_text",
+    "unit_noise",
+    "units_noise",
     "write_ros2",
     "write_table",
 ]

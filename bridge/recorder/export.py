@@ -46,7 +46,9 @@ FORMATS = ("parquet", "csv", "ros2")
 
 
 def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = None,
-                         on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
+                         on_problem: Callable[[str], None] | None = None,
+                         on_blocks: Callable[[ArchiveReader], None] | None = None
+                         ) -> ArchiveReader:
     """Read an archive to take samples from; one with nothing readable is refused.
 
     Args:
@@ -54,6 +56,7 @@ def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = Non
         on_read: Hears the bytes read so far, as the reading goes (a progress bar).
         on_problem: Hears, once, what is wrong with an archive that was cut short or
             damaged, and what to do about it; the readable rest is read.
+        on_blocks: Streams it chunk by chunk instead of keeping it (``read_archive``).
 
     Returns:
         Everything readable in the archive.
@@ -62,7 +65,7 @@ def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = Non
         ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
         ValueError: Nothing in it can be read as messages.
     """
-    archive = read_archive(path, on_read)
+    archive = read_archive(path, on_read, on_blocks=on_blocks)
     if not archive.message_count:
         raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
                          "; is it an archive written by gx3?")

@@ -190,6 +190,7 @@ class ArchiveReader:
     damage: list[Damage] = field(default_factory=list)
     skipped: Counter[str] = field(default_factory=Counter)
     warn: Callable[[str], None] = _log.warning
+    streamed: int = 0  # messages handed to read_archive's on_blocks and dropped
 
     def skip(self, topic: str, count: int, why: str) -> None:
         """Leave out ``count`` bad messages of ``topic`` and say so, once per topic and reason.
@@ -208,8 +209,8 @@ class ArchiveReader:
 
     @property
     def message_count(self) -> int:
-        """Messages read, on every channel."""
-        return sum(len(b.channel) for b in self.blocks)
+        """Messages read, on every channel (those streamed and dropped too)."""
+        return self.streamed + sum(len(b.channel) for b in self.blocks)
 
     def topics(self, kind: str | None = None) -> list[str]:
         """The topics read, sorted.
@@ -740,8 +741,18 @@ def _damage(archive: ArchiveReader, stream: IO[bytes], index: ChunkIndex, why: s
                                  index.message_end_time, why, lost))
 
 
+def _hand_over(archive: ArchiveReader, on_blocks: Callable[[ArchiveReader], None] | None
+               ) -> None:
+    """Give the messages read so far to ``on_blocks`` and drop them (counted: ``streamed``)."""
+    if on_blocks is not None and archive.blocks:
+        on_blocks(archive)
+        archive.streamed += sum(len(b) for b in archive.blocks)
+        archive.blocks.clear()
+
+
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
-                 warn: Callable[[str], None] = _log.warning) -> ArchiveReader:
+                 warn: Callable[[str], None] = _log.warning,
+                 on_blocks: Callable[[ArchiveReader], None] | None = None) -> ArchiveReader:
     """Read what is readable of an MCAP file: an archive or a raw capture.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
@@ -753,6 +764,11 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         path: The file.
         progress: Called with the bytes read so far, as the reading goes.
         warn: Hears, once each, the corrupt chunks skipped and the messages left out.
+        on_blocks: Streams the file instead of keeping it: called with the archive each
+            time a chunk (or a loose message) has been read, when the archive's
+            messages are that chunk's alone (``samples``, ``messages``); they are
+            dropped after the call, so memory stays that of one chunk however long the
+            file. None: every message is kept.
 
     Returns:
         Everything readable in the file.
@@ -770,6 +786,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
         summary_channels = {} if index is None else index.channels
         while True:
+            _hand_over(archive, on_blocks)
             head = stream.read(9)
             if len(head) < 9:
                 archive.problem = "the file ends without a summary (the writer did not finish)" \
@@ -823,6 +840,7 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
             pos += 9 + length
             if progress is not None:
                 progress(pos)
+    _hand_over(archive, on_blocks)
     archive.dropped_bytes = size - pos
     if archive.dropped_bytes and archive.complete:
         archive.problem = f"{archive.dropped_bytes} bytes after the end of the file"

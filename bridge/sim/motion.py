@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bridge.protocol import convert
+from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.protocol.table import CALCULATION_CYCLE_S
 
 FloatArray = npt.NDArray[np.float64]
@@ -31,6 +32,10 @@ _MAX_PITCH_AMPLITUDE_RAD = math.radians(55.0)  # keeps Euler angles clear of gim
 _GRAVITY_NED_G = np.array([0.0, 0.0, 1.0])
 # Gauss-Legendre nodes in [-1, 1] and weights; cached, as leggauss costs more than a batch.
 _gauss_legendre = functools.cache(np.polynomial.legendre.leggauss)
+#: Seconds between the knots of the bias random walk, which is linear between them: far
+#: below the averaging times at which a random walk shows in an Allan deviation.
+WALK_KNOT_S = 1.0
+_WALK_SALT = 0x5EED_7A1C_0FF5_E7B1  # keys the walk's normals apart from the white noise's
 
 
 @dataclass(frozen=True)
@@ -39,7 +44,13 @@ class MotionConfig:
 
     static freezes the seed's attitude (zero rate, gravity-only accel). The biases are
     the sensor's own true offsets, added to what it reports, so that a stationary bias
-    capture (0xCD) has something to find. Noise is white Gaussian, zero by default.
+    capture (0xCD) has something to find. Noise is white Gaussian, zero by default:
+    noise_accel_g and noise_gyro_rad_s per 1 ms calculation cycle (the unit's filter
+    averages it down), or, in Kalibr's continuous-time units (what ``gx3 allan`` reads
+    off), a white noise density (m/s²/√Hz, rad/s/√Hz: each output sample's noise is the
+    density over the square root of its period) and a bias random walk (m/s³/√Hz,
+    rad/s²/√Hz: the bias wanders from zero at t = 0 as a Wiener process, linear between
+    knots WALK_KNOT_S apart).
     earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
     it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
     calibration has to undo. spin_rad_s adds steady roll and yaw turns to the sway, so a
@@ -56,6 +67,10 @@ class MotionConfig:
     noise_accel_g: float = 0.0
     noise_gyro_rad_s: float = 0.0
     noise_mag_gauss: float = 0.0
+    accelerometer_noise_density: float = 0.0
+    accelerometer_random_walk: float = 0.0
+    gyroscope_noise_density: float = 0.0
+    gyroscope_random_walk: float = 0.0
     temperature_c: float = 25.0
     hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -156,6 +171,10 @@ class Motion:
         euler_rate = np.abs(self._att_amp * self._att_omega).sum(axis=1) + np.abs(self._att_drift)
         max_omega = max(self._att_omega.max(), self._lin_omega.max())
         self._bandwidth_rad_s = float(3.0 * euler_rate.max() + 2.0 * max_omega)
+        # accel then gyro, per sqrt(s) of a knot interval; the walk's knots so far
+        self._walk_sigma = np.repeat([cfg.accelerometer_random_walk / STANDARD_GRAVITY,
+                                      cfg.gyroscope_random_walk], 3) * math.sqrt(WALK_KNOT_S)
+        self._walk_knots = np.zeros((1, 6))
 
     def euler_and_rates(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Unwrapped roll, pitch, yaw [rad] and their time derivatives.
@@ -210,12 +229,53 @@ class Motion:
             n += 1
         return n
 
-    def _noise(self, t: FloatArray, gain: tuple[float, float, float]) -> FloatArray:
-        """(n, 9) accel, gyro and mag noise at t, each sigma times its gain."""
+    def _noise(self, t: FloatArray, gain: tuple[float, float, float],
+               period: float = math.inf) -> FloatArray:
+        """(n, 9) accel, gyro and mag noise at t.
+
+        Each per-cycle sigma times its gain, with the white noise density over the
+        square root of the output ``period`` added in quadrature (the same normals: zero
+        densities leave the noise, and so the emulator's bytes, as they were).
+        """
         cfg = self.config
-        sigma = np.repeat([cfg.noise_accel_g * gain[0], cfg.noise_gyro_rad_s * gain[1],
-                           cfg.noise_mag_gauss * gain[2]], 3)
+        root = math.sqrt(period)
+        sigma = np.repeat([
+            math.hypot(cfg.noise_accel_g * gain[0],
+                       cfg.accelerometer_noise_density / STANDARD_GRAVITY / root),
+            math.hypot(cfg.noise_gyro_rad_s * gain[1], cfg.gyroscope_noise_density / root),
+            cfg.noise_mag_gauss * gain[2]], 3)
         return sigma * _time_keyed_normals(cfg.seed, t, 9) if sigma.any() else np.zeros((1, 9))
+
+    def bias_walk(self, t: npt.ArrayLike) -> FloatArray:
+        """The accel [g] and gyro [rad/s] bias random walk at device times ``t``.
+
+        A pure function of (config, t): the knots are cumulative sums of normals keyed
+        by their index, kept as far as any time asked for so far, so that a batch costs
+        only its own knots.
+
+        Args:
+            t: Device times [s], shape (n,).
+
+        Returns:
+            (n, 6): accel x, y, z then gyro x, y, z; zero at and before t = 0.
+        """
+        t = _times(t)
+        if not self._walk_sigma.any():
+            return np.zeros((len(t), 6))
+        at = np.clip(t, 0.0, None) / WALK_KNOT_S
+        need = math.floor(float(at.max(initial=0.0))) + 2
+        have = len(self._walk_knots)
+        if need > have:
+            index = np.arange(have, need, dtype=np.float64)
+            steps = self._walk_sigma * _time_keyed_normals(
+                self.config.seed ^ _WALK_SALT, index, 6)
+            self._walk_knots = np.concatenate(
+                [self._walk_knots, self._walk_knots[-1] + np.cumsum(steps, axis=0)])
+        whole = np.floor(at).astype(np.int64)
+        frac = (at - whole)[:, None]
+        walk: FloatArray = (self._walk_knots[whole] * (1.0 - frac)
+                            + self._walk_knots[whole + 1] * frac)
+        return walk
 
     def magnetometer(self, t: npt.ArrayLike, gain: float = 1.0) -> FloatArray:
         """The mag reading alone: what ``sample`` gives, at less cost.
@@ -274,7 +334,9 @@ class Motion:
         stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
 
         stab_mag = self._ironed(stab_mag)
-        noise = self._noise(t, noise_gain)
+        noise = self._noise(t, noise_gain, period)
+        if self._walk_sigma.any():
+            noise = noise + np.pad(self.bias_walk(t), ((0, 0), (0, 3)))
         accel = force + accel_bias + noise[:, 0:3]
         ang_rate = rate + gyro_bias + noise[:, 3:6]
         out: dict[str, np.ndarray] = {}

@@ -225,6 +225,10 @@ class SimOptions:
     noise_accel: float = 0.0
     noise_gyro: float = 0.0
     noise_mag: float = 0.0
+    accel_noise_density: float = 0.0
+    accel_random_walk: float = 0.0
+    gyro_noise_density: float = 0.0
+    gyro_random_walk: float = 0.0
     gyro_bias: float = 0.0
     hard_iron: str | None = None
     soft_iron: str | None = None
@@ -278,6 +282,10 @@ class SimOptions:
         motion = MotionConfig(seed=self.seed, static=self.static,
                               noise_accel_g=self.noise_accel, noise_gyro_rad_s=self.noise_gyro,
                               noise_mag_gauss=self.noise_mag,
+                              accelerometer_noise_density=self.accel_noise_density,
+                              accelerometer_random_walk=self.accel_random_walk,
+                              gyroscope_noise_density=self.gyro_noise_density,
+                              gyroscope_random_walk=self.gyro_random_walk,
                               gyro_bias_rad_s=(self.gyro_bias,) * 3,
                               hard_iron_gauss=(hard[0], hard[1], hard[2]), soft_iron=soft)
         motion = tumbling(motion) if self.tumble else motion
@@ -324,6 +332,10 @@ class SimOptions:
             ("--noise-accel", self.noise_accel, 0, 100),
             ("--noise-gyro", self.noise_gyro, 0, 100),
             ("--noise-mag", self.noise_mag, 0, 100), ("--gyro-bias", self.gyro_bias, -100, 100),
+            ("--accel-noise-density", self.accel_noise_density, 0, 100),
+            ("--accel-random-walk", self.accel_random_walk, 0, 100),
+            ("--gyro-noise-density", self.gyro_noise_density, 0, 100),
+            ("--gyro-random-walk", self.gyro_random_walk, 0, 100),
             ("--flip-rate", self.flip_rate, 0, 1), ("--drop-rate", self.drop_rate, 0, 1),
             ("--stall-every", self.stall_every, 0, math.inf),
             ("--stall-for", self.stall_for, 0, math.inf),

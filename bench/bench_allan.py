@@ -1,0 +1,143 @@
+"""`gx3 allan` on hours of a still unit: its wall time and memory, the Allan core against
+allantools, and a fleet archive shared out a unit a process.
+
+    .venv/bin/python bench/bench_allan.py [--hours 8] [--rate 100] [--units 16]
+                                         [--fleet-hours 1] [--dir DIR]
+
+Writes (once; kept with --dir) an archive of one still unit streaming 0xC2 for --hours
+at --rate, made in virtual time from the emulator's noise model, and one of --units
+units for --fleet-hours each. Prints, with the load average (other work slows it all):
+
+- `gx3 allan` of the one unit as a user runs it (start-up included): wall seconds and
+  the peak resident memory of the process;
+- the overlapping Allan deviation alone of its six axes on the same taus: this
+  project's cumulative-sum version (``bridge.recorder.allan``) against allantools'
+  ``oadev`` (``pip install allantools==2024.6``; skipped when it is not installed),
+  seconds and peak memory (tracemalloc) of each;
+- `gx3 allan` of every unit of the fleet archive, with one process per core and with one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from bridge.protocol.convert import STANDARD_GRAVITY
+from bridge.recorder.allan import AllanSums, averaging_factors
+from bridge.recorder.export import read_samples_archive
+from bridge.recorder.noise import collect_samples
+from bridge.recorder.writer import ArchiveWriter
+from bridge.sim.archived import archive_samples
+from bridge.sim.motion import Motion, MotionConfig
+
+
+def load() -> str:
+    return f"load average {os.getloadavg()[0]:.2f}"
+
+
+def still_archive(path: Path, units: int, hours: float, rate: float) -> None:
+    if path.exists():
+        return
+    start = time.perf_counter()
+    times = np.arange(round(hours * 3600 * rate)) / rate
+    with ArchiveWriter(path) as writer:
+        for u in range(units):
+            config = MotionConfig(seed=u, static=True, accelerometer_noise_density=2e-3,
+                                  accelerometer_random_walk=2e-4, gyroscope_noise_density=1e-4,
+                                  gyroscope_random_walk=1e-5)
+            archive_samples(writer, f"imu{u}", Motion(config), times, 1 / rate)
+    print(f"wrote {path.name}: {units} x {len(times):,} samples, "
+          f"{path.stat().st_size / 1e6:.0f} MB in {time.perf_counter() - start:.0f} s",
+          flush=True)
+
+
+def gx3_allan(*args: str | Path) -> tuple[float, float]:
+    """Wall seconds and peak resident MiB of ``gx3 allan ARGS``, as a user runs it."""
+    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
+    start = time.perf_counter()
+    proc = subprocess.Popen([gx3, "allan", *map(str, args), "--force"],
+                            stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)  # this run's own peak, not earlier runs'
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    elapsed = time.perf_counter() - start
+    if proc.returncode:
+        raise SystemExit(f"gx3 allan failed ({proc.returncode})")
+    return elapsed, usage.ru_maxrss / 1024
+
+
+def core(path: Path) -> None:
+    """The Allan deviation alone, ours against allantools, on the one unit's six axes."""
+    kept, take, _ = collect_samples(None)
+    read_samples_archive(path, on_blocks=take)
+    unit = next(iter(kept.values()))
+    rates = np.column_stack([np.concatenate(unit.accel) * STANDARD_GRAVITY,
+                             np.concatenate(unit.ang_rate)]).astype(np.float64)
+    rate = 62_500 / float(np.median(np.diff(np.concatenate(unit.timer).astype(np.int64))))
+    factors = averaging_factors(len(rates))
+    tracemalloc.start()
+    start = time.perf_counter()
+    sums = AllanSums(factors, 6)
+    sums.add(rates)
+    ours = np.sqrt(sums.variance())
+    elapsed = time.perf_counter() - start
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    print(f"Allan core, cumulative sums: {elapsed:.2f} s, peak {peak:.0f} MiB for "
+          f"{len(rates):,} x 6 ({len(factors)} taus); {load()}", flush=True)
+    try:
+        import allantools  # type: ignore[import-untyped]
+    except ImportError:
+        print("allantools not installed: pip install allantools==2024.6 to compare")
+        return
+    tracemalloc.start()
+    start = time.perf_counter()
+    theirs = np.column_stack([
+        allantools.oadev(rates[:, i], rate=rate, data_type="freq", taus=factors / rate)[1]
+        for i in range(6)])
+    elapsed = time.perf_counter() - start
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    agree = np.nanmax(np.abs(theirs / ours[: len(theirs)] - 1))
+    print(f"Allan core, allantools.oadev: {elapsed:.2f} s, peak {peak:.0f} MiB; largest "
+          f"relative difference {agree:.1e}; {load()}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hours", type=float, default=8.0)
+    parser.add_argument("--rate", type=float, default=100.0)
+    parser.add_argument("--units", type=int, default=16)
+    parser.add_argument("--fleet-hours", type=float, default=1.0)
+    parser.add_argument("--dir", type=Path, default=None, help="where to write (default: tmp)")
+    args = parser.parse_args()
+    workdir = args.dir or Path(tempfile.mkdtemp(prefix="bench_allan_"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    one = workdir / f"still_{args.hours:g}h.mcap"
+    still_archive(one, 1, args.hours, args.rate)
+    elapsed, peak = gx3_allan(one, "-o", workdir / "imu.yaml")
+    print(f"gx3 allan, 1 unit x {args.hours:g} h at {args.rate:g} Hz: {elapsed:.1f} s, peak "
+          f"{peak:.0f} MiB; {load()}", flush=True)
+    core(one)
+    fleet = workdir / f"fleet_{args.units}x{args.fleet_hours:g}h.mcap"
+    still_archive(fleet, args.units, args.fleet_hours, args.rate)
+    for jobs in (None, 1):
+        extra = () if jobs is None else ("-j", str(jobs))
+        elapsed, peak = gx3_allan(fleet, "-o", workdir / "imu_{unit}.yaml", *extra)
+        print(f"gx3 allan, {args.units} units x {args.fleet_hours:g} h, "
+              f"{'one process per core' if jobs is None else 'one process'}: "
+              f"{elapsed:.1f} s, peak {peak:.0f} MiB (largest process); {load()}", flush=True)
+    if args.dir is None:
+        shutil.rmtree(workdir)
+
+
+if __name__ == "__main__":
+    main()
