@@ -94,7 +94,7 @@ def core(path: Path) -> None:
     print(f"Allan core, cumulative sums: {elapsed:.2f} s, peak {peak:.0f} MiB for "
           f"{len(rates):,} x 6 ({len(factors)} taus); {load()}", flush=True)
     try:
-        import allantools  # type: ignore[import-untyped]
+        import allantools  # only for the comparison: not a dependency
     except ImportError:
         print("allantools not installed: pip install allantools==2024.6 to compare")
         return
