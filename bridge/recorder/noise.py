@@ -25,6 +25,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 
+from bridge._text import counted
 from bridge.exceptions import CalibrationError
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.protocol.table import TICKS_PER_SECOND
@@ -458,7 +459,7 @@ def stretch_text(noise: UnitNoise) -> str:
     Returns:
         One line: samples and hours used, and in how many stretches.
     """
-    return (f"{noise.used_samples} of {noise.samples} samples ({noise.used_seconds / 3600:.2f} h"
-            f" at {noise.rate_hz:.4g} Hz) in {len(noise.stretches)} contiguous "
-            f"stretch{'es' if len(noise.stretches) != 1 else ''}")
+    return (f"{noise.used_samples:,} of {counted(noise.samples, 'sample')} "
+            f"({noise.used_seconds / 3600:.2f} h at {noise.rate_hz:.4g} Hz) in "
+            f"{counted(len(noise.stretches), 'contiguous stretch', 'contiguous stretches')}")
 
