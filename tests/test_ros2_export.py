@@ -258,7 +258,7 @@ def test_the_field_is_the_earths_in_tesla(
 @pytest.mark.parametrize("frame", ["u", "gx3_u1", "gx3_u12", "gx3_abcdefgh", "a" * 13])
 def test_messages_are_byte_for_byte_what_rosbags_serializes(frame: str) -> None:
     """Each frame id length puts the doubles after a different padding."""
-    store = get_typestore(messages.DISTRO)
+    store = get_typestore(messages.DISTROS[messages.DEFAULT_DISTRO])
     rng = np.random.default_rng(len(frame))
     n = 5
     columns = {"accel": rng.normal(size=(n, 3)), "ang_rate": rng.normal(size=(n, 3)),
