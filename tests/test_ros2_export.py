@@ -410,7 +410,7 @@ def test_a_humble_bag_is_the_jazzy_bag(fleet: Fleet, tmp_path: Path,
     for msgtype in (messages.IMU, messages.MAGNETIC_FIELD):
         assert (messages.message_definition(msgtype, "humble")
                 == messages.message_definition(msgtype, "jazzy"))
-    options = ["--unit", "u0", "--end", "3", "--noise", noisy[2]]
+    options: list[str | Path] = ["--unit", "u0", "--end", "3", "--noise", noisy[2]]
     assert gx3("export", fleet.archive, "-o", tmp_path / "j.mcap", *options).returncode == 0
     done = gx3("export", fleet.archive, "-o", tmp_path / "h.mcap", "--ros2-distro", "HUMBLE",
                *options)
