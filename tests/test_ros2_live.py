@@ -15,6 +15,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -220,27 +221,20 @@ def _quat_matrix(q: np.ndarray) -> np.ndarray:
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
-    """A still emulated unit on a pty, `gx3 bridge --ros2` and a plain Zenoh subscriber
-    through a `gx3 router`, as ROS 2 nodes meet: rmw_zenoh's keys, CDR that rosbags
-    decodes to the physics of a still unit (specific force +g up in the world frame),
-    attachments in sequence, and the graph's tokens."""
+@contextmanager
+def _still_unit_behind_router(tmp_path: Path, serial: str
+                              ) -> Iterator[tuple[str, Path, zenoh.Session]]:
+    """A still emulated unit (0xCC at 100 Hz) on a pty and a `gx3 router`: the pty, a
+    client config for a bridge, and a client session of our own; all stopped after."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     client = tmp_path / "client.json5"
     client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
                                   "scouting": {"multicast": {"enabled": False}}}))
-    types = get_typestore(Stores.ROS2_JAZZY)
-    received: dict[str, list[tuple[bytes, bytes]]] = {"imu": [], "mag": []}
-
-    def keep(sample: zenoh.Sample) -> None:
-        leaf = str(sample.key_expr).split("/")[3]
-        attached = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        received[leaf].append((sample.payload.to_bytes(), attached))
-
     router = subprocess.Popen([GX3, "router", "--listen", endpoint],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", "ROS0001",
-                            "--mode-preset", "2", "--continuous-preset", "0xCC"],
+    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", serial,
+                            "--decimation", "10", "--mode-preset", "2",
+                            "--continuous-preset", "0xCC"],
                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE)
     try:
@@ -249,20 +243,37 @@ def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
         pty = sim.stdout.readline().decode().strip()
         with open_session(connect=[endpoint], mode="client",
                           multicast_scouting=False) as here:
-            subs = [here.declare_subscriber(f"0/gx3/imu_1/{leaf}/**", keep)
-                    for leaf in ("imu", "mag")]
-            with bridge_process(pty, client, "--unit", "imu-1", "--ros2") as bridge:
-                wait_for(lambda: len(received["imu"]) >= 50 and len(received["mag"]) >= 50,
-                         60, "ROS 2 samples")
-                tokens = _tokens(here, "@ros2_lv/0/**")
-            assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
-            for sub in subs:
-                sub.undeclare()
-            wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == [], 20, "the tokens to go")
+            yield pty, client, here
     finally:
         for proc in (sim, router):
             proc.send_signal(signal.SIGINT)
             proc.communicate(timeout=30)
+
+
+def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
+    """A still emulated unit on a pty, `gx3 bridge --ros2` and a plain Zenoh subscriber
+    through a `gx3 router`, as ROS 2 nodes meet: rmw_zenoh's keys, CDR that rosbags
+    decodes to the physics of a still unit (specific force +g up in the world frame),
+    attachments in sequence, and the graph's tokens."""
+    types = get_typestore(Stores.ROS2_JAZZY)
+    received: dict[str, list[tuple[bytes, bytes]]] = {"imu": [], "mag": []}
+
+    def keep(sample: zenoh.Sample) -> None:
+        leaf = str(sample.key_expr).split("/")[3]
+        attached = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        received[leaf].append((sample.payload.to_bytes(), attached))
+
+    with _still_unit_behind_router(tmp_path, "ROS0001") as (pty, client, here):
+        subs = [here.declare_subscriber(f"0/gx3/imu_1/{leaf}/**", keep)
+                for leaf in ("imu", "mag")]
+        with bridge_process(pty, client, "--unit", "imu-1", "--ros2") as bridge:
+            wait_for(lambda: len(received["imu"]) >= 50 and len(received["mag"]) >= 50,
+                     60, "ROS 2 samples")
+            tokens = _tokens(here, "@ros2_lv/0/**")
+        assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
+        for sub in subs:
+            sub.undeclare()
+        wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == [], 20, "the tokens to go")
 
     zid = tokens[0].split("/")[2]
     node = "gx3_bridge_imu_1"
@@ -469,37 +480,17 @@ def test_gx3_bridge_ros2_humble_with_noise(tmp_path: Path) -> None:
     """`gx3 bridge --ros2 --ros2-distro humble --noise imu.yaml` on an emulated unit at
     100 Hz (its decimation 10): a Humble subscriber's key gets Imu messages whose
     covariances are N² · 100 Hz, the unit's rate, not the file's 200 Hz."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    client = tmp_path / "client.json5"
-    client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
-                                  "scouting": {"multicast": {"enabled": False}}}))
     noise = kalibr_yaml(tmp_path / "imu.yaml")
     received: list[bytes] = []
-    router = subprocess.Popen([GX3, "router", "--listen", endpoint],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", "ROS0002",
-                            "--decimation", "10", "--mode-preset", "2",
-                            "--continuous-preset", "0xCC"],
-                           stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE)
-    try:
-        assert router.stdout is not None and router.stdout.readline().strip() == b"READY"
-        assert sim.stdout is not None
-        pty = sim.stdout.readline().decode().strip()
-        with open_session(connect=[endpoint], mode="client",
-                          multicast_scouting=False) as here:
-            sub = here.declare_subscriber(
-                "0/gx3/imu_2/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported",
-                lambda s: received.append(s.payload.to_bytes()))
-            with bridge_process(pty, client, "--unit", "imu-2", "--ros2", "--ros2-distro",
-                                "humble", "--noise", str(noise)) as bridge:
-                wait_for(lambda: len(received) >= 20, 60, "Humble Imu messages")
-            assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
-            sub.undeclare()
-    finally:
-        for proc in (sim, router):
-            proc.send_signal(signal.SIGINT)
-            proc.communicate(timeout=30)
+    with _still_unit_behind_router(tmp_path, "ROS0002") as (pty, client, here):
+        sub = here.declare_subscriber(
+            "0/gx3/imu_2/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported",
+            lambda s: received.append(s.payload.to_bytes()))
+        with bridge_process(pty, client, "--unit", "imu-2", "--ros2", "--ros2-distro",
+                            "humble", "--noise", str(noise)) as bridge:
+            wait_for(lambda: len(received) >= 20, 60, "Humble Imu messages")
+        assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
+        sub.undeclare()
     types = get_typestore(Stores.ROS2_HUMBLE)
     gyro_var, accel_var = GYRO_DENSITY**2 * 100.0, ACCEL_DENSITY**2 * 100.0
     for payload in received:
