@@ -29,6 +29,7 @@ chosen per node.
 from __future__ import annotations
 
 import functools
+import logging
 import struct
 import threading
 from collections.abc import Iterable
@@ -58,6 +59,7 @@ from bridge.ros2.messages import (
 from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance
 from bridge.ros2.xxh3 import xxh3_128_bytes
 
+_log = logging.getLogger(__name__)
 ADMIN_SPACE = "@ros2_lv"
 #: What Humble's rmw_zenoh writes where Jazzy's writes the RIHS01 type hash.
 HUMBLE_TYPE_HASH = "TypeHashNotSupported"
@@ -355,6 +357,10 @@ class UnitTopics:
         """
         if self.noise is not None:
             self.covariance = imu_covariance(self.noise, rate_hz)
+            if abs(rate_hz - self.noise.update_rate_hz) > 1e-6 * rate_hz:
+                _log.info("%s: the Imu covariances use the unit's output rate, %g Hz, not "
+                          "%s's update_rate, %g Hz", self.frame, rate_hz,
+                          self.noise.path.name, self.noise.update_rate_hz)
 
     def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
         """Publish the records of a batch.
