@@ -25,6 +25,7 @@ an ``OSError``, a bad name a ``ValueError``)::
     ├── ReplayError (ValueError)          a replay that failed while working
     │   └── UnusableCapture               an input with nothing to replay
     ├── CalibrationError (ValueError)     readings that cannot give a calibration
+    ├── NoiseFileError (ValueError)       a noise file (imu.yaml) that cannot be used
     ├── DemoError (RuntimeError)          a demo that cannot run as asked
     └── EmulatorError                     the emulator (gx3 sim)
         ├── OptionError (ValueError)      an option it cannot run with
@@ -37,7 +38,7 @@ from __future__ import annotations
 __all__ = [
     "ArchiveError", "ArchiveReadError", "BadName", "BusError", "CalibrationError",
     "CaptureError", "CommandRejected", "CommandTimeout", "DemoError", "DeviceError",
-    "EmulatorError", "Gx3Error", "LinkPathError", "NameTaken", "OptionError",
+    "EmulatorError", "Gx3Error", "LinkPathError", "NameTaken", "NoiseFileError", "OptionError",
     "OutputRefused", "PersistRefused", "PortError", "ProtocolError", "RemoteError",
     "ReplayError", "SessionError", "StateFileError", "UnsupportedUnit", "UnusableCapture",
 ]
@@ -142,6 +143,10 @@ class UnusableCapture(ReplayError):
 
 class CalibrationError(Gx3Error, ValueError):
     """The readings cannot give a calibration; the message says what motion is missing."""
+
+
+class NoiseFileError(Gx3Error, ValueError):
+    """A noise file (Kalibr's imu.yaml) that cannot be used; the message says why."""
 
 
 class DemoError(Gx3Error, RuntimeError):

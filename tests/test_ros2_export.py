@@ -5,6 +5,8 @@ the field is the earth's in tesla, stamps are the table export's time_ns."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from rosbags.typesys import get_typestore
+from rosbags.typesys import Stores, get_typestore
 
 from bridge.protocol.convert import STANDARD_GRAVITY, quaternion_to_m
 from bridge.recorder import ros2_export
@@ -29,12 +31,14 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from tests.helpers.mcap_order import header, order_problems
+from tests.helpers.noise import ACCEL_DENSITY, FILE_RATE_HZ, GYRO_DENSITY, kalibr_yaml
 from tests.helpers.processes import gx3
 from tests.helpers.rotations import rotation
 
 #: unit -> record type: u0 has M and a magnetometer, u1 no attitude, u2 Euler angles only
 #: with its rate (no accel).
 UNITS = {"u0": 0xCC, "u1": 0xC2, "u2": 0xCF}
+UNIT_RATE_HZ = 100.0  # decimation 10
 EARTH_FIELD_GAUSS = (0.2, 0.0, 0.45)  # north-east-down
 #: The ROS world (ENU) of a GX3 earth (NED) vector, and the ROS body (FLU) of a GX3 body
 #: (FRD) vector, written out here rather than taken from the code under test.
@@ -51,6 +55,7 @@ class Fleet:
 @dataclass
 class Bag:
     profile: str
+    metadata: dict[str, dict[str, str]]  # MCAP metadata records by name
     channels: dict[str, tuple[str, str, str, bytes]]  # topic -> encodings, schema name, data
     log_time: list[int]  # every message in file order
     topics: list[str]
@@ -83,10 +88,11 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Fleet:
 
 
 def read_bag(path: Path) -> Bag:
-    bag = Bag("", {}, [], [], {}, {}, {})
+    bag = Bag("", {}, {}, [], [], {}, {}, {})
     with path.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         bag.profile = reader.get_header().profile
+        bag.metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         summary = reader.get_summary()
         assert summary is not None
         for c in summary.channels.values():
@@ -258,7 +264,7 @@ def test_the_field_is_the_earths_in_tesla(
 @pytest.mark.parametrize("frame", ["u", "gx3_u1", "gx3_u12", "gx3_abcdefgh", "a" * 13])
 def test_messages_are_byte_for_byte_what_rosbags_serializes(frame: str) -> None:
     """Each frame id length puts the doubles after a different padding."""
-    store = get_typestore(messages.DISTRO)
+    store = get_typestore(messages.DISTROS[messages.DEFAULT_DISTRO])
     rng = np.random.default_rng(len(frame))
     n = 5
     columns = {"accel": rng.normal(size=(n, 3)), "ang_rate": rng.normal(size=(n, 3)),
@@ -329,3 +335,116 @@ def test_an_existing_bag_is_kept_without_force(fleet: Fleet, tmp_path: Path) -> 
     assert out.read_bytes() == b"mine"
     assert gx3("export", fleet.archive, "-o", out, "--force").returncode == 0
     assert read_bag(out).profile == "ros2"
+
+
+@pytest.fixture(scope="module")
+def noisy(fleet: Fleet, tmp_path_factory: pytest.TempPathFactory) -> tuple[Bag, str, Path]:
+    """The fleet as a ROS 2 bag with a noise file measured at 200 Hz (the units run at
+    100 Hz), and what gx3 export said."""
+    folder = tmp_path_factory.mktemp("noisy")
+    noise = kalibr_yaml(folder / "imu.yaml", extra="allan_fit: {tau: [0.1, 1.0]}\n")
+    out = folder / "fleet.ros2.mcap"
+    done = gx3("export", fleet.archive, "-o", out, "--noise", noise)
+    assert done.returncode == 0, done.stderr
+    return read_bag(out), done.stderr, noise
+
+
+def test_noise_gives_variances_of_density_squared_times_the_units_rate(
+        exported: tuple[Bag, dict[str, np.ndarray], Path],
+        noisy: tuple[Bag, str, Path]) -> None:
+    """Read back by mcap-ros2-support: σ² = N² · 100 Hz (the units' rate from their Info,
+    not the file's 200 Hz) on the diagonal of every quantity a record carries, 0 off it;
+    -1 in element 0 for the orientation (no attitude accuracy in the manual) and for a
+    quantity a record lacks. Every value but the covariances is the noise-less bag's."""
+    plain, _, _ = exported
+    bag, stderr, _ = noisy
+    gyro = [GYRO_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0, GYRO_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0,
+            GYRO_DENSITY**2 * UNIT_RATE_HZ]
+    accel = [ACCEL_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0, ACCEL_DENSITY**2 * UNIT_RATE_HZ, 0, 0,
+             0, ACCEL_DENSITY**2 * UNIT_RATE_HZ]
+    assert gyro[0] == pytest.approx(3.6e-7) and accel[0] == pytest.approx(6.4e-5)
+    unknown = [-1.0] + [0.0] * 8
+    carries = {"u0": ("accel", "rate"), "u1": ("accel", "rate"), "u2": ("rate",)}
+    for unit, has in carries.items():
+        decoded = bag.decoded[f"/gx3/{unit}/imu"]
+        assert len(decoded) > 900
+        for m in decoded:
+            assert list(m.orientation_covariance) == unknown
+            assert list(m.angular_velocity_covariance) == (gyro if "rate" in has else unknown)
+            assert list(m.linear_acceleration_covariance) == (accel if "accel" in has
+                                                              else unknown)
+        before = plain.decoded[f"/gx3/{unit}/imu"]
+        np.testing.assert_array_equal(stamps(decoded), stamps(before))
+        np.testing.assert_array_equal(orientations(decoded), orientations(before))
+        for field in ("angular_velocity", "linear_acceleration"):
+            np.testing.assert_array_equal(vectors(decoded, field), vectors(before, field))
+    assert bag.raw["/gx3/u0/mag"] == plain.raw["/gx3/u0/mag"]
+    for unit in UNITS:
+        assert (f"unit {unit}: its covariances use its output rate, 100 Hz (its Info), not "
+                f"imu.yaml's update_rate, {FILE_RATE_HZ:g} Hz") in stderr
+
+
+def test_the_bag_names_the_noise_file_it_used(noisy: tuple[Bag, str, Path]) -> None:
+    bag, _, noise = noisy
+    record = bag.metadata["gx3.noise"]
+    assert record["file"] == str(noise)
+    assert record["sha256"] == hashlib.sha256(noise.read_bytes()).hexdigest()
+    assert float(record["gyroscope_noise_density"]) == GYRO_DENSITY
+    assert float(record["update_rate"]) == FILE_RATE_HZ
+    assert "allan_fit" not in record
+    units = json.loads(record["units"])
+    assert sorted(units) == sorted(UNITS)
+    assert units["u1"]["rate_hz"] == UNIT_RATE_HZ
+    assert units["u1"]["angular_velocity_covariance"][4] == GYRO_DENSITY**2 * UNIT_RATE_HZ
+
+
+def test_without_noise_the_bag_has_no_noise_record(
+        exported: tuple[Bag, dict[str, np.ndarray], Path]) -> None:
+    assert exported[0].metadata == {}
+
+
+def test_a_humble_bag_is_the_jazzy_bag(fleet: Fleet, tmp_path: Path,
+                                       noisy: tuple[Bag, str, Path]) -> None:
+    """Humble's definitions of Imu, MagneticField and the types they use are Jazzy's text,
+    so the bag for Humble is the same bytes; Humble's type store decodes it."""
+    for msgtype in (messages.IMU, messages.MAGNETIC_FIELD):
+        assert (messages.message_definition(msgtype, "humble")
+                == messages.message_definition(msgtype, "jazzy"))
+    options: list[str | Path] = ["--unit", "u0", "--end", "3", "--noise", noisy[2]]
+    assert gx3("export", fleet.archive, "-o", tmp_path / "j.mcap", *options).returncode == 0
+    done = gx3("export", fleet.archive, "-o", tmp_path / "h.mcap", "--ros2-distro", "HUMBLE",
+               *options)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "h.mcap").read_bytes() == (tmp_path / "j.mcap").read_bytes()
+    humble = get_typestore(Stores.ROS2_HUMBLE)
+    bag = read_bag(tmp_path / "h.mcap")
+    for topic, raw in bag.raw.items():
+        msgtype = bag.channels[topic][2]
+        assert bag.channels[topic][3].decode() == humble.generate_msgdef(msgtype,
+                                                                         ros_version=2)[0]
+        for data, m in zip(raw, bag.decoded[topic], strict=True):
+            again: Any = humble.deserialize_cdr(data, msgtype)
+            assert again.header.stamp.sec == m.header.stamp.sec
+    first: Any = humble.deserialize_cdr(bag.raw["/gx3/u0/imu"][0], messages.IMU)
+    assert first.angular_velocity_covariance[0] == GYRO_DENSITY**2 * UNIT_RATE_HZ
+
+
+def test_a_parquet_table_records_the_noise_file_and_keeps_its_samples(
+        fleet: Fleet, tmp_path: Path, noisy: tuple[Bag, str, Path]) -> None:
+    """--noise on a table is provenance: the samples are the same; the gx3.noise metadata
+    names the file and the covariances a bag would carry."""
+    noise = noisy[2]
+    options = ["--unit", "u1", "--end", "2"]
+    assert gx3("export", fleet.archive, "-o", tmp_path / "a.parquet", *options).returncode == 0
+    done = gx3("export", fleet.archive, "-o", tmp_path / "b.parquet", "--noise", noise,
+               *options)
+    assert done.returncode == 0, done.stderr
+    plain, noted = pq.read_table(tmp_path / "a.parquet"), pq.read_table(tmp_path / "b.parquet")
+    assert noted.equals(plain)
+    meta = noted.schema.metadata
+    assert b"gx3.noise" not in plain.schema.metadata
+    record = json.loads(meta[b"gx3.noise"])
+    assert record["file"] == str(noise) and record["gyroscope_noise_density"] == GYRO_DENSITY
+    assert record["units"]["u1"]["linear_acceleration_covariance"][8] == (
+        ACCEL_DENSITY**2 * UNIT_RATE_HZ)
+    assert record["units"]["u1"]["orientation_covariance"][0] == -1.0

@@ -15,6 +15,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ from bridge.ros2.messages import (
     ros_topic,
     type_hash,
 )
+from bridge.ros2.noise import read_noise
 from bridge.ros2.rmw import (
     NodeName,
     Qos,
@@ -44,11 +46,13 @@ from bridge.ros2.rmw import (
     attachment,
     dds_type,
     gid,
+    key_type_hash,
     parse_attachment,
     qos_keyexpr,
     topic_key,
 )
 from bridge.ros2.xxh3 import xxh3_128, xxh3_128_bytes
+from tests.helpers.noise import ACCEL_DENSITY, GYRO_DENSITY, kalibr_yaml
 from tests.helpers.processes import GX3, bridge_process
 from tests.helpers.waiting import free_port, wait_for
 
@@ -217,27 +221,20 @@ def _quat_matrix(q: np.ndarray) -> np.ndarray:
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
-    """A still emulated unit on a pty, `gx3 bridge --ros2` and a plain Zenoh subscriber
-    through a `gx3 router`, as ROS 2 nodes meet: rmw_zenoh's keys, CDR that rosbags
-    decodes to the physics of a still unit (specific force +g up in the world frame),
-    attachments in sequence, and the graph's tokens."""
+@contextmanager
+def _still_unit_behind_router(tmp_path: Path, serial: str
+                              ) -> Iterator[tuple[str, Path, zenoh.Session]]:
+    """A still emulated unit (0xCC at 100 Hz) on a pty and a `gx3 router`: the pty, a
+    client config for a bridge, and a client session of our own; all stopped after."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     client = tmp_path / "client.json5"
     client.write_text(json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]},
                                   "scouting": {"multicast": {"enabled": False}}}))
-    types = get_typestore(Stores.ROS2_JAZZY)
-    received: dict[str, list[tuple[bytes, bytes]]] = {"imu": [], "mag": []}
-
-    def keep(sample: zenoh.Sample) -> None:
-        leaf = str(sample.key_expr).split("/")[3]
-        attached = sample.attachment.to_bytes() if sample.attachment is not None else b""
-        received[leaf].append((sample.payload.to_bytes(), attached))
-
     router = subprocess.Popen([GX3, "router", "--listen", endpoint],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", "ROS0001",
-                            "--mode-preset", "2", "--continuous-preset", "0xCC"],
+    sim = subprocess.Popen([GX3, "sim", "--pty", "--static", "--serial", serial,
+                            "--decimation", "10", "--mode-preset", "2",
+                            "--continuous-preset", "0xCC"],
                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE)
     try:
@@ -246,20 +243,37 @@ def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
         pty = sim.stdout.readline().decode().strip()
         with open_session(connect=[endpoint], mode="client",
                           multicast_scouting=False) as here:
-            subs = [here.declare_subscriber(f"0/gx3/imu_1/{leaf}/**", keep)
-                    for leaf in ("imu", "mag")]
-            with bridge_process(pty, client, "--unit", "imu-1", "--ros2") as bridge:
-                wait_for(lambda: len(received["imu"]) >= 50 and len(received["mag"]) >= 50,
-                         60, "ROS 2 samples")
-                tokens = _tokens(here, "@ros2_lv/0/**")
-            assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
-            for sub in subs:
-                sub.undeclare()
-            wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == [], 20, "the tokens to go")
+            yield pty, client, here
     finally:
         for proc in (sim, router):
             proc.send_signal(signal.SIGINT)
             proc.communicate(timeout=30)
+
+
+def test_gx3_bridge_ros2_is_seen_as_rmw_zenoh_publishes(tmp_path: Path) -> None:
+    """A still emulated unit on a pty, `gx3 bridge --ros2` and a plain Zenoh subscriber
+    through a `gx3 router`, as ROS 2 nodes meet: rmw_zenoh's keys, CDR that rosbags
+    decodes to the physics of a still unit (specific force +g up in the world frame),
+    attachments in sequence, and the graph's tokens."""
+    types = get_typestore(Stores.ROS2_JAZZY)
+    received: dict[str, list[tuple[bytes, bytes]]] = {"imu": [], "mag": []}
+
+    def keep(sample: zenoh.Sample) -> None:
+        leaf = str(sample.key_expr).split("/")[3]
+        attached = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        received[leaf].append((sample.payload.to_bytes(), attached))
+
+    with _still_unit_behind_router(tmp_path, "ROS0001") as (pty, client, here):
+        subs = [here.declare_subscriber(f"0/gx3/imu_1/{leaf}/**", keep)
+                for leaf in ("imu", "mag")]
+        with bridge_process(pty, client, "--unit", "imu-1", "--ros2") as bridge:
+            wait_for(lambda: len(received["imu"]) >= 50 and len(received["mag"]) >= 50,
+                     60, "ROS 2 samples")
+            tokens = _tokens(here, "@ros2_lv/0/**")
+        assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
+        for sub in subs:
+            sub.undeclare()
+        wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == [], 20, "the tokens to go")
 
     zid = tokens[0].split("/")[2]
     node = "gx3_bridge_imu_1"
@@ -351,3 +365,141 @@ def test_a_units_topics_follow_the_domain_prefix_and_leave_out_records_without_a
     assert decoded[0].magnetic_field.z == pytest.approx(-0.4e-4)  # gauss down -> tesla up
     assert [parse_attachment(s.attachment.to_bytes())[0] for s in imu] == [1, 2, 3, 4]
     assert [parse_attachment(s.attachment.to_bytes())[0] for s in fields] == [1, 2, 3]
+
+
+# Humble: docs/design.md of rmw_zenoh's humble branch (release 0.1.9; upstream commit
+# d60045d71ca16efcc7b98ac9bd076426b9e8340e of ros2-gbp/rmw_zenoh-release).
+HUMBLE_KEY_FORMAT = "<domain_id>/<fully_qualified_name>/<type_name>/TypeHashNotSupported"
+HUMBLE_TOKEN_FORMAT = ("@ros2_lv/<domain_id>/<session_id>/<node_id>/<entity_id>/<entity_kind>/"
+                       "<mangled_enclave>/<mangled_namespace>/<node_name>/"
+                       "<mangled_qualified_name>/<type_name>/TypeHashNotSupported/<qos>")
+
+
+def _fill(form: str, **chunks: str) -> str:
+    for name, value in chunks.items():
+        form = form.replace(f"<{name}>", value)
+    assert "<" not in form, form
+    return form
+
+
+def test_humble_keys_and_tokens_are_the_humble_design_docs() -> None:
+    """The humble branch's design.md:
+
+        The format of key expressions for topics and services is:
+        `<domain_id>/<fully_qualified_name>/<type_name>/TypeHashNotSupported`
+
+        The format of a liveliness token for a publisher, subscription, service server,
+        or service client:
+        @ros2_lv/<domain_id>/<session_id>/<node_id>/<entity_id>/<entity_kind>/
+        <mangled_enclave>/<mangled_namespace>/<node_name>/<mangled_qualified_name>/
+        <type_name>/TypeHashNotSupported/<qos>
+
+    (its examples still show Jazzy's RIHS01 hashes; rmw_publisher_data.cpp of the same
+    release writes the constant "TypeHashNotSupported" where the hash goes). The node's
+    token has no type, so it is Jazzy's; the QoS chunk is the same code."""
+    hashed = key_type_hash("std_msgs/msg/String", "humble")
+    assert hashed == "TypeHashNotSupported"
+    assert key_type_hash("std_msgs/msg/String", "jazzy") == STRING_HASH
+    assert topic_key(0, "/chatter", STRING_TYPE, hashed) == _fill(
+        HUMBLE_KEY_FORMAT, domain_id="0", fully_qualified_name="chatter",
+        type_name=STRING_TYPE) == "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported"
+    assert topic_key(0, "/robot1/chatter", STRING_TYPE, hashed) == (
+        "0/robot1/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported")
+    talker = NodeName(2, "8b20917502ee955ac4476e0266340d5c", 0, "talker")
+    token = talker.publisher_token(10, "/chatter", STRING_TYPE, hashed, Qos(depth=7))
+    assert token == _fill(
+        HUMBLE_TOKEN_FORMAT, domain_id="2", session_id="8b20917502ee955ac4476e0266340d5c",
+        node_id="0", entity_id="10", entity_kind="MP", mangled_enclave="%",
+        mangled_namespace="%", node_name="talker", mangled_qualified_name="%chatter",
+        type_name=STRING_TYPE, qos="::,7:,:,:,,")
+    assert token == ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
+                     "std_msgs::msg::dds_::String_/TypeHashNotSupported/::,7:,:,:,,")
+    with pytest.raises(ValueError, match="give humble or jazzy"):
+        key_type_hash(IMU, "iron")
+
+
+def test_a_humble_subscriber_gets_the_units_imu_with_its_covariances(
+        sessions: tuple[zenoh.Session, zenoh.Session], tmp_path: Path) -> None:
+    """A subscriber on the exact key a Humble node declares receives every Imu, and the
+    Humble node's graph sees TypeHashNotSupported tokens; nothing goes out on Jazzy's key.
+    Decoded with rosbags' Humble types: σ² = N² · the rate given (250 Hz), -1 in element 0
+    of the orientation; a record without accel: -1 there too."""
+    there, here = sessions
+    humble_key = "0/gx3/imu1/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported"
+    jazzy_key = f"0/gx3/imu1/imu/{IMU_TYPE}/{IMU_HASH}"
+    received: list[zenoh.Sample] = []
+    on_jazzy: list[zenoh.Sample] = []
+    sub = here.declare_subscriber(humble_key, received.append)
+    other = here.declare_subscriber(jazzy_key, on_jazzy.append)
+    n = 5
+    accel = np.tile(np.array([0, 0, -1], np.float32), (n, 1))
+    accel[3] = np.nan
+    columns = {"accel": accel, "ang_rate": np.full((n, 3), 0.01, np.float32),
+               "mag": np.tile(np.array([0.2, 0.0, 0.4], np.float32), (n, 1)),
+               "m": euler_to_m(np.zeros((n, 3))).astype(np.float32),
+               "timer": np.arange(n, dtype=np.uint32)}
+    stamps = time.time_ns() + np.arange(n, dtype=np.int64) * 4_000_000
+    noise = read_noise(kalibr_yaml(tmp_path / "imu.yaml"))
+    topics = UnitTopics(there, 0, "gx3", "imu1", "humble", noise)
+    try:
+        topics.use_rate(250.0)
+        assert topics.imu.key == humble_key
+        wait_for(lambda: topics.imu.matched, 20, "the Humble subscriber")
+        zid = str(there.info.zid())
+        node = "gx3_bridge_imu1"
+        expected = sorted([
+            f"@ros2_lv/0/{zid}/0/0/NN/%/%/{node}",
+            f"@ros2_lv/0/{zid}/0/1/MP/%/%/{node}/%gx3%imu1%imu/{IMU_TYPE}/"
+            f"TypeHashNotSupported/{DOC_LISTENER_QOS}",
+            f"@ros2_lv/0/{zid}/0/2/MP/%/%/{node}/%gx3%imu1%mag/{dds_type(MAGNETIC_FIELD)}/"
+            f"TypeHashNotSupported/{DOC_LISTENER_QOS}"])
+        wait_for(lambda: _tokens(here, "@ros2_lv/0/**") == expected, 20, "Humble tokens")
+        topics.publish(Batch(0xCC, columns, np.arange(n), np.zeros(n, np.int64), False), stamps)
+        wait_for(lambda: len(received) == n, 20, "5 Imu messages")
+    finally:
+        topics.close()
+        sub.undeclare()
+        other.undeclare()
+    assert on_jazzy == []
+    types = get_typestore(Stores.ROS2_HUMBLE)
+    decoded: list[Any] = [types.deserialize_cdr(s.payload.to_bytes(), IMU) for s in received]
+    gyro_var, accel_var = GYRO_DENSITY**2 * 250.0, ACCEL_DENSITY**2 * 250.0
+    for k, m in enumerate(decoded):
+        assert m.header.stamp.nanosec == int(stamps[k] % 10**9)
+        assert list(m.orientation_covariance) == [-1.0] + [0.0] * 8
+        assert list(m.angular_velocity_covariance) == [gyro_var, 0, 0, 0, gyro_var, 0, 0, 0,
+                                                       gyro_var]
+        accel_cov = ([-1.0] + [0.0] * 8 if k == 3
+                     else [accel_var, 0, 0, 0, accel_var, 0, 0, 0, accel_var])
+        assert list(m.linear_acceleration_covariance) == accel_cov
+    assert [parse_attachment(s.attachment.to_bytes())[0] for s in received
+            if s.attachment is not None] == [1, 2, 3, 4, 5]
+
+
+def test_gx3_bridge_ros2_humble_with_noise(tmp_path: Path) -> None:
+    """`gx3 bridge --ros2 --ros2-distro humble --noise imu.yaml` on an emulated unit at
+    100 Hz (its decimation 10): a Humble subscriber's key gets Imu messages whose
+    covariances are N² · 100 Hz, the unit's rate, not the file's 200 Hz."""
+    noise = kalibr_yaml(tmp_path / "imu.yaml")
+    received: list[bytes] = []
+    with _still_unit_behind_router(tmp_path, "ROS0002") as (pty, client, here):
+        sub = here.declare_subscriber(
+            "0/gx3/imu_2/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported",
+            lambda s: received.append(s.payload.to_bytes()))
+        with bridge_process(pty, client, "--unit", "imu-2", "--ros2", "--ros2-distro",
+                            "humble", "--noise", str(noise)) as bridge:
+            wait_for(lambda: len(received) >= 20, 60, "Humble Imu messages")
+        assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
+        sub.undeclare()
+    types = get_typestore(Stores.ROS2_HUMBLE)
+    gyro_var, accel_var = GYRO_DENSITY**2 * 100.0, ACCEL_DENSITY**2 * 100.0
+    for payload in received:
+        m: Any = types.deserialize_cdr(payload, IMU)
+        assert m.header.frame_id == "gx3_imu-2"
+        assert list(m.angular_velocity_covariance) == [gyro_var, 0, 0, 0, gyro_var, 0, 0, 0,
+                                                       gyro_var]
+        assert list(m.linear_acceleration_covariance) == [accel_var, 0, 0, 0, accel_var, 0,
+                                                          0, 0, accel_var]
+        assert m.orientation_covariance[0] == -1.0
+        force = [m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
+        assert np.linalg.norm(force) == pytest.approx(9.80665, abs=0.05)  # still: g alone

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
 from bridge.cli.common import (
@@ -122,6 +123,24 @@ def export(
              "soft_iron @ (raw - hard_iron); a table gains mag_heading, the tilt-compensated "
              "heading from accel and the corrected mag, beside the unit's own yaw; a "
              "Parquet file records each calibration in its gx3.mag_cal metadata.")] = None,
+    noise: Annotated[Path | None, typer.Option(
+        "--noise", metavar="IMU.yaml",
+        help="The units' measured noise, Kalibr's imu.yaml (gx3 allan writes one; keys "
+             "accelerometer_noise_density, accelerometer_random_walk, "
+             "gyroscope_noise_density, gyroscope_random_walk, update_rate; others are "
+             "ignored). ROS 2 bag: each Imu's angular_velocity_covariance and "
+             "linear_acceleration_covariance diagonals become noise density² x the unit's "
+             "output rate from its Info (1000 Hz / decimation; the file's update_rate only "
+             "for a unit without Info), orientation_covariance -1 in element 0 (the manual "
+             "states no attitude accuracy), and the bag's gx3.noise metadata names the "
+             "file. Parquet: the samples are unchanged; gx3.noise metadata records the file "
+             "and the covariances it gives. CSV: refused (no metadata to record it in).")
+    ] = None,
+    ros2_distro: Annotated[str | None, typer.Option(
+        "--ros2-distro", metavar="humble|jazzy",
+        help="ROS 2 distribution of the bag's message definitions (--format ros2 only); "
+             "Humble's and Jazzy's definitions of Imu and MagneticField are the same, so "
+             "the bag is too. Default: jazzy.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline,
@@ -146,15 +165,16 @@ def export(
     (ROS 2 Jazzy types). REP-103/145 frames: body forward-left-up in frame gx3_<unit>,
     world east-north-up; orientation body to world, linear acceleration as specific force in
     m/s² (+9.81 up when level), angular velocity rad/s, field tesla; covariance element
-    0 is -1 for a quantity the record lacks. header.stamp and the log time are the
-    time_ns a table export with the same options gives.
+    0 is -1 for a quantity the record lacks; the other covariances are 0 (unknown)
+    unless --noise gives them. header.stamp and the log time are the time_ns a table
+    export with the same options gives.
     """
     from bridge.recorder.export import Export
 
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
                      types=record_type, start=start, end=end, align_hz=align, events=events,
-                     mag_cal=mag_cal or ())
+                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro)
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
@@ -168,4 +188,6 @@ def export(
         except OSError as exc:
             raise fail(f"cannot write the export ({exc.strerror or exc}); check the space "
                        "and permissions where it goes", FAILED) from None
+    for note in done.notes:
+        err.print(f"[yellow]note:[/] {escape(note)}")
     err.print(done.text())

@@ -106,6 +106,23 @@ def run_bridge(
     ros2_domain: Annotated[int | None, typer.Option(
         "--ros2-domain", min=0, max=232, metavar="N",
         help="ROS_DOMAIN_ID of the --ros2 topics. Default: 0.")] = None,
+    ros2_distro: Annotated[str | None, typer.Option(
+        "--ros2-distro", metavar="humble|jazzy",
+        help="ROS 2 distribution of the --ros2 subscribers: their rmw_zenoh's keys and "
+             "graph tokens carry the message's RIHS01 type hash on jazzy and the word "
+             "TypeHashNotSupported on humble, so a node of the other one never matches. "
+             "Default: jazzy.")] = None,
+    noise: Annotated[Path | None, typer.Option(
+        "--noise", metavar="IMU.yaml",
+        help="The unit's measured noise, Kalibr's imu.yaml (gx3 allan writes one): each "
+             "--ros2 Imu's angular_velocity_covariance and linear_acceleration_covariance "
+             "diagonals become noise density² x the unit's output rate (1000 Hz / "
+             "decimation, as brought up; not the file's update_rate), and "
+             "orientation_covariance gets -1 in element 0 (the manual states no attitude "
+             "accuracy). Without it every covariance is 0, which sensor_msgs/Imu reads as "
+             "unknown. A file without accelerometer_noise_density, "
+             "accelerometer_random_walk, gyroscope_noise_density, gyroscope_random_walk "
+             "and update_rate is refused (exit 2).")] = None,
     allow_commands: Annotated[bool, typer.Option(
         "--allow-commands", help="Carry out operator commands that arrive over Zenoh "
                                  "(gx3 configure --unit …); refused otherwise.")] = False,
@@ -141,8 +158,9 @@ def run_bridge(
     queryable, a liveliness token, and with --publish-raw each read (raw); every
     message carries the CRC-32 of its payload in its attachment. With --ros2 the
     samples also go out as ROS 2 messages (REP-103 frames: body FLU, world ENU) on
-    rmw_zenoh's keys, with its attachments (sequence, time, GID: what ROS 2 reads)
-    and graph tokens. Keeps
+    rmw_zenoh's keys (Jazzy's, or Humble's with --ros2-distro humble), with its
+    attachments (sequence, time, GID: what ROS 2 reads) and graph tokens; --noise gives
+    their Imu messages covariances measured on the unit. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
 
@@ -163,8 +181,20 @@ def run_bridge(
                    + " ".join(f"0x{c:02X}" for c in sorted(DATA_CODES)))
     if new_baud is not None and new_baud not in BAUD_RATES:
         raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))
-    if ros2_domain is not None and not ros2:
-        raise fail("--ros2-domain is the domain of the --ros2 topics: add --ros2")
+    for given, name in ((ros2_domain, "--ros2-domain"), (ros2_distro, "--ros2-distro"),
+                        (noise, "--noise")):
+        if given is not None and not ros2:
+            raise fail(f"{name} is for the --ros2 topics: add --ros2")
+    ros2_options = None
+    if ros2:
+        from bridge.ros2.noise import read_noise
+        from bridge.ros2.options import Ros2Options
+
+        measured = None if noise is None else read_noise(noise)  # exit 2 if unusable
+        try:
+            ros2_options = Ros2Options(ros2_domain or 0, ros2_distro or "jazzy", measured)
+        except ValueError as exc:  # a distribution that is not one
+            raise fail(f"--ros2-distro: {exc}") from None
     if transport not in ("auto", *TRANSPORTS):
         raise fail(f"--transport {transport!r}: use auto, " + ", ".join(TRANSPORTS))
     check_prefix(prefix)
@@ -189,7 +219,7 @@ def run_bridge(
     bridge = UnitBridge(
         options, prefix, unit, ZenohOptions(zenoh_config, connect or [], listen or [], mode),
         allow_commands, cache, quiet=quiet, publish_raw=publish_raw,
-        ros2_domain=(ros2_domain or 0) if ros2 else None, capture=capture, force=force,
+        ros2=ros2_options, capture=capture, force=force,
         on_capture_error=lambda exc: err.print(f"[red]error:[/] {exc}"),
         on_capture_stopped=lambda exc: err.print(f"[yellow]capture stopped:[/] {exc}"))
     outcome = bridge.run(stop, duration, give_up_after)

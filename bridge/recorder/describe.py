@@ -175,21 +175,24 @@ class About:
     infos: Mapping[str, Info | None]
     options: Mapping[str, object] = field(default_factory=dict)
     mag_cal: Mapping[str, object] = field(default_factory=dict)  # unit -> calibration file
+    noise: Mapping[str, object] = field(default_factory=dict)  # the noise file, covariances
 
     def metadata(self) -> dict[str, str]:
         """Parquet file metadata.
 
         Returns:
             Key-value pairs, values JSON where structured: schema version, product,
-            conventions, source archive, export options, the units' Info and
-            calibrations.
+            conventions, source archive, export options, the units' Info,
+            calibrations and the noise file with the covariances it gives.
         """
         labels = unit_labels(self.infos)
         units = {u: {"column_prefix": labels[u],
                      "info": None if info is None else MessageToDict(
                          info, preserving_proto_field_name=True)}
                  for u, info in sorted(self.infos.items())}
-        calibrated = {"gx3.mag_cal": json.dumps(dict(self.mag_cal))} if self.mag_cal else {}
+        extra = {"gx3.mag_cal": json.dumps(dict(self.mag_cal))} if self.mag_cal else {}
+        if self.noise:
+            extra["gx3.noise"] = json.dumps(dict(self.noise))
         return {
             "gx3.schema": SCHEMA_VERSION,
             "gx3.product": f"gx3-bridge {importlib.metadata.version('gx3-bridge')}",
@@ -199,7 +202,7 @@ class About:
                                       "sha256": _file_sha256(self.source)}),
             "gx3.export": json.dumps(dict(self.options)),
             "gx3.units": json.dumps(units),
-        } | calibrated
+        } | extra
 
 
 def _file_sha256(path: Path) -> str:

@@ -16,10 +16,12 @@ if it fails). The tables and their writers are ``bridge.recorder.tables``'s::
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bridge._text import counted
 from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
@@ -38,6 +40,11 @@ from bridge.recorder.tables import (
     sample_table,
     write_table,
 )
+from bridge.ros2.messages import DEFAULT_DISTRO, check_distro
+from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance, read_noise
+
+if TYPE_CHECKING:
+    from bridge.bus.gx3_pb2 import Info
 
 __all__ = ["Export", "Exported", "read_samples_archive"]
 
@@ -99,6 +106,37 @@ def _wants_ros2(output: Path, given: str | None) -> bool:
     return wanted == ".mcap"
 
 
+def _output_rate(info: Info | None) -> float | None:
+    """A unit's output rate from its Info (1000 Hz / decimation); None if it has none."""
+    if info is None:
+        return None
+    if info.output_rate_hz > 0:
+        return float(info.output_rate_hz)
+    return 1000.0 / info.decimation if info.decimation else None
+
+
+def _unit_covariances(noise: ImuNoise, infos: dict[str, Info | None]
+                      ) -> tuple[dict[str, ImuCovariance], list[str]]:
+    """Each unit's Imu covariances at its own output rate, and what a person should know.
+
+    The rate is the unit's, from its Info: the one its samples came at. The noise file's
+    ``update_rate`` serves only a unit whose archive holds no Info.
+    """
+    covariances, notes = {}, []
+    for unit, info in sorted(infos.items()):
+        rate = _output_rate(info)
+        if rate is None:
+            rate = noise.update_rate_hz
+            notes.append(f"unit {unit}: the archive holds no Info to give its output rate; "
+                         f"its covariances use {noise.path.name}'s update_rate, {rate:g} Hz")
+        elif abs(rate - noise.update_rate_hz) > 1e-6 * rate:
+            notes.append(f"unit {unit}: its covariances use its output rate, {rate:g} Hz "
+                         f"(its Info), not {noise.path.name}'s update_rate, "
+                         f"{noise.update_rate_hz:g} Hz")
+        covariances[unit] = imu_covariance(noise, rate)
+    return covariances, notes
+
+
 @dataclass(frozen=True)
 class Exported:
     """What an export wrote.
@@ -112,6 +150,8 @@ class Exported:
         instants: With an aligned table: its rows (instants of the grid).
         events_path: The events table, if one was asked for.
         events: The events in it.
+        notes: What a person should know about how it was made (which rate the
+            covariances use).
     """
 
     output: Path
@@ -122,6 +162,7 @@ class Exported:
     instants: int | None = None
     events_path: Path | None = None
     events: int = 0
+    notes: tuple[str, ...] = ()
 
     def text(self) -> str:
         """What was written, in one line for a person.
@@ -161,18 +202,25 @@ class Export:
         events: Also write every event per unit to this .parquet or .csv file.
         mag_cal: Iron calibrations (``gx3 calibrate-mag`` files), one per unit: its
             readings are corrected and a table gains its heading.
+        noise: The units' measured noise, Kalibr's imu.yaml: a bag's Imu messages carry
+            the covariances it gives at each unit's output rate; a Parquet table records
+            the file and those covariances in its ``gx3.noise`` metadata. A CSV file has
+            nowhere to record it and is refused.
+        ros2_distro: The ROS 2 distribution of a bag (``jazzy``, ``humble``); bags only.
 
     Raises:
-        ValueError: The request cannot be met: a calibration file that cannot be read, a
-            format or extension that does not fit, --align with a bag, the events table
-            on the output's own file, a record type or time that is not one.
+        ValueError: The request cannot be met: a calibration or noise file that cannot
+            be read, a format or extension that does not fit, --align with a bag, the
+            events table on the output's own file, a record type or time that is not
+            one, --noise with a CSV file, --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
                  units: Sequence[str] | None = None, types: Sequence[int | str] | None = None,
                  start: str | None = None, end: str | None = None,
                  align_hz: float | None = None, events: Path | None = None,
-                 mag_cal: Sequence[Path] = ()) -> None:
+                 mag_cal: Sequence[Path] = (), noise: Path | None = None,
+                 ros2_distro: str | None = None) -> None:
         self.archive, self.output, self.events = archive, output, events
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
@@ -183,6 +231,15 @@ class Export:
                              "own time (leave out --align or --format ros2)")
         if not self.ros2:
             check_format(output, bag=True)
+            if ros2_distro is not None:
+                raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a table "
+                                 "is the same for every ROS (leave it out or --format ros2)")
+            if noise is not None and output.suffix.lower() == ".csv":
+                raise ValueError("--noise is recorded in a Parquet table's metadata or used "
+                                 "in a ROS 2 bag; a CSV file has no metadata to record it "
+                                 "in (write .parquet, or leave out --noise)")
+        self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
+        self.noise = None if noise is None else read_noise(noise)
         if events is not None:
             check_format(events)
             if events.absolute() == output.absolute():
@@ -239,14 +296,27 @@ class Export:
         names = sorted(set(table["unit"].tolist()))
         irons = self.irons
         apply(table, irons)
-        about = About(self.archive, {u: last_info(data, u) for u in names}, {
+        infos = {u: last_info(data, u) for u in names}
+        covariances: dict[str, ImuCovariance] = {}
+        noted: dict[str, object] = {}
+        notes: list[str] = []
+        if self.noise is not None:
+            covariances, notes = _unit_covariances(self.noise, infos)
+            noted = self.noise.provenance() | {
+                "units": {u: c.as_dict() for u, c in covariances.items()}}
+        about = About(self.archive, infos, {
             "units": self.units, "types": self.types, "start": self.start, "end": self.end,
             "start_ns": lo_ns, "end_ns": hi_ns, "align_hz": self.align_hz,
             "time_ns": "re-estimated"},
-            {iron.unit: iron.content for iron in irons})
-        done = Exported(self.output, rows, len(names), events_path=self.events)
+            {iron.unit: iron.content for iron in irons}, noted)
+        done = Exported(self.output, rows, len(names), events_path=self.events,
+                        notes=tuple(notes))
         if self.ros2:
-            done = replace(done, bag=write_ros2(table, table_file, archive_prefix(data)))
+            record = {"gx3.noise": {k: v if isinstance(v, str) else json.dumps(v)
+                                    for k, v in noted.items()}} if noted else None
+            done = replace(done, bag=write_ros2(
+                table, table_file, archive_prefix(data), distro=self.distro,
+                covariances=covariances, metadata=record))
         elif self.align_hz is not None:
             table = align_table(table, self.align_hz)
             if irons:

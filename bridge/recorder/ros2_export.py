@@ -7,6 +7,11 @@ The file is MCAP as rosbag2's MCAP storage writes it (profile ``ros2``, schema e
 of :func:`bridge.recorder.tables.sample_table`, so it holds exactly the samples a table
 export with the same options holds, stamped with the same ``time_ns``; each message is
 logged and published at its stamp, and messages are in log-time order.
+
+With a unit's measured noise its Imu messages carry covariances (``bridge.ros2.noise``)
+and the bag a ``gx3.noise`` metadata record of the file they came from. Humble's and
+Jazzy's rosbag2 read the same file: the message definitions are the same text in both
+distributions, and the ros2 profile asks nothing of either that the other lacks.
 """
 
 from __future__ import annotations
@@ -16,12 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from bridge.bus.codec import elements
 from bridge.recorder.describe import QUANTITY_ORDER, flat_names
 from bridge.recorder.mcap_writer import McapWriter
 from bridge.recorder.writer import LIBRARY
 from bridge.ros2 import messages
+from bridge.ros2.noise import ImuCovariance
 
 PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
@@ -33,11 +40,20 @@ CHANNEL_METADATA = {"offered_qos_profiles": "[]"}
 #: not as Python objects.
 SLICE = 1 << 16
 _Keep = Callable[[Mapping[str, np.ndarray], int], np.ndarray]
-_Encode = Callable[[np.ndarray, str, Mapping[str, np.ndarray]], list[bytes]]
+_Encode = Callable[[np.ndarray, str, Mapping[str, np.ndarray], ImuCovariance | None],
+                   list[bytes]]
+
+
+def _mag_cdr_batch(time_ns: npt.ArrayLike, frame: str, columns: Mapping[str, np.ndarray],
+                   covariance: ImuCovariance | None) -> list[bytes]:
+    """MagneticField messages: the unit's Imu covariances are not theirs."""
+    return messages.mag_cdr_batch(time_ns, frame, columns)
+
+
 #: Topic name, message type, which records get one, and how they are encoded.
 _TOPICS: tuple[tuple[str, str, _Keep, _Encode], ...] = (
     ("imu", messages.IMU, messages.has_imu, messages.imu_cdr_batch),
-    ("mag", messages.MAGNETIC_FIELD, messages.has_mag, messages.mag_cdr_batch))
+    ("mag", messages.MAGNETIC_FIELD, messages.has_mag, _mag_cdr_batch))
 
 
 @dataclass(frozen=True)
@@ -61,21 +77,29 @@ def _quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.
     return out
 
 
-def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") -> Ros2Written:
+def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
+               distro: str = messages.DEFAULT_DISTRO,
+               covariances: Mapping[str, ImuCovariance] | None = None,
+               metadata: Mapping[str, Mapping[str, str]] | None = None) -> Ros2Written:
     """Write the samples of an export table as a ROS 2 bag.
 
     Args:
         table: A sample table (``sample_table``), rows in time order.
         path: The bag to write (an MCAP file).
         prefix: The key prefix, the first part of the topics and frame ids.
+        distro: The ROS 2 distribution whose message definitions the bag embeds.
+        covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not
+            in it gets 0 (unknown).
+        metadata: MCAP metadata records to add, by name (``gx3.noise``).
 
     Returns:
         How many messages of each type the bag got.
 
     Raises:
         ValueError: A sample's time is outside what a ROS time stamp holds (int32
-            seconds since 1970).
+            seconds since 1970), or the distribution is not one of ``DISTROS``.
     """
+    covariances = covariances or {}
     counts = {"imu": 0, "mag": 0}
     units = table["unit"]
     with path.open("wb") as stream:
@@ -83,7 +107,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
         try:
             writer.start(PROFILE, LIBRARY)
             schemas = {msgtype: writer.register_schema(
-                msgtype, SCHEMA_ENCODING, messages.message_definition(msgtype).encode())
+                msgtype, SCHEMA_ENCODING,
+                messages.message_definition(msgtype, distro).encode())
                 for msgtype in (messages.IMU, messages.MAGNETIC_FIELD)}
             channels: dict[tuple[str, str], int] = {}  # (unit, topic name) -> channel id
             sent: dict[tuple[str, str], int] = {}  # messages, the next one's sequence number
@@ -104,11 +129,14 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3") ->
                             sent[unit, name] = 0
                         stamps = table["time_ns"][rows][mine]
                         payloads = encode(stamps, frame,
-                                          {k: v[mine] for k, v in columns.items()})
+                                          {k: v[mine] for k, v in columns.items()},
+                                          covariances.get(unit))
                         writer.add(channels[unit, name], sent[unit, name], stamps, stamps,
                                    payloads)
                         sent[unit, name] += len(payloads)
                         counts[name] += len(payloads)
+            for name, data in (metadata or {}).items():
+                writer.add_metadata(name, dict(data))
             writer.finish()
         finally:
             writer.close()

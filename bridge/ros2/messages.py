@@ -12,14 +12,16 @@ publishing alike:
   magnetic field tesla (the GX3 reports gauss).
 - A quantity a record does not carry (a NaN row, or a column that is absent) is marked
   the way sensor_msgs documents it: element 0 of its covariance is -1, its value the
-  message's default. Other covariances are 0 (unknown), as REP-145 asks when the driver
-  does not know them.
+  message's default. Without a measured noise (``bridge.ros2.noise``) the other
+  covariances are all 0, which sensor_msgs/Imu defines as "covariance unknown"; with
+  one, angular velocity and linear acceleration carry its variances and the orientation
+  -1 in element 0 (the manual gives no attitude accuracy to derive one from).
 
 Messages are CDR (little-endian, XCDR1, the encapsulation rosbag2 and rmw use), built for
 a whole batch at once with NumPy: every message of one frame id has the same layout, so
 a structured array writes all of them in one pass. The message definitions and type
-hashes come from the ``rosbags`` type store of ROS 2 Jazzy (the definitions of these
-messages are the same in Humble).
+hashes come from the ``rosbags`` type store of the ROS 2 distribution asked for (Humble's
+and Jazzy's definitions of these messages are the same text, and so are their hashes).
 """
 
 from __future__ import annotations
@@ -40,9 +42,12 @@ from bridge.protocol.convert import (
     quaternion_to_m,
     sensor_to_earth_xyzw,
 )
+from bridge.ros2.noise import ImuCovariance
 
-#: The ROS 2 distribution whose message definitions and type hashes are used.
-DISTRO = Stores.ROS2_JAZZY
+#: The ROS 2 distributions whose message definitions and type hashes are used, by name.
+DISTROS = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
+#: The distribution spoken unless another is asked for.
+DEFAULT_DISTRO = "jazzy"
 IMU = "sensor_msgs/msg/Imu"
 MAGNETIC_FIELD = "sensor_msgs/msg/MagneticField"
 TESLA_PER_GAUSS = 1e-4
@@ -57,27 +62,49 @@ MAGNETOMETER = ("mag", "stab_mag")
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 
 
+def check_distro(distro: str) -> str:
+    """A ROS 2 distribution's name as the others take it, or a one-line refusal.
+
+    Args:
+        distro: ``humble`` or ``jazzy``, in any case.
+
+    Returns:
+        The name, lower case.
+
+    Raises:
+        ValueError: Another name.
+    """
+    name = distro.lower()
+    if name not in DISTROS:
+        raise ValueError(f"ROS 2 distribution {distro!r}: give {' or '.join(DISTROS)}")
+    return name
+
+
 @functools.cache
-def _typestore() -> Typestore:
-    return get_typestore(DISTRO)
+def _typestore(distro: str = DEFAULT_DISTRO) -> Typestore:
+    return get_typestore(DISTROS[check_distro(distro)])
 
 
-def message_definition(msgtype: str) -> str:
+def message_definition(msgtype: str, distro: str = DEFAULT_DISTRO) -> str:
     """The ``ros2msg`` text rosbag2 embeds as an MCAP schema.
 
     The message, then each type it uses after a line of ``=`` and ``MSG: <type>``.
 
     Args:
         msgtype: The message type, e.g. ``sensor_msgs/msg/Imu``.
+        distro: The ROS 2 distribution whose definition it is.
 
     Returns:
         The definition.
+
+    Raises:
+        ValueError: The distribution is not one of ``DISTROS``.
     """
-    return _typestore().generate_msgdef(msgtype, ros_version=2)[0]
+    return _typestore(distro).generate_msgdef(msgtype, ros_version=2)[0]
 
 
 def type_hash(msgtype: str) -> str:
-    """The message's RIHS01 type hash.
+    """The message's RIHS01 type hash (REP-2011; Jazzy's rmw_zenoh puts it in its keys).
 
     Args:
         msgtype: The message type, e.g. ``sensor_msgs/msg/Imu``.
@@ -215,12 +242,13 @@ def _messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[b
     return [data[i : i + size] for i in range(0, len(data), size)]
 
 
-def _imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+def _imu_doubles(columns: Mapping[str, np.ndarray], n: int,
+                 covariance: ImuCovariance | None = None) -> np.ndarray:
     """(n, 37) float64 of Imu after its header, in ROS frames and units.
 
     Orientation x y z w and its covariance, angular velocity and its covariance, linear
     acceleration and its covariance; element 0 of a covariance -1 where the record lacks
-    the quantity.
+    the quantity, else ``covariance``'s (all 0, "unknown", without one).
 
     ``columns``: the record's quantities as the GX3 gives them (``accel`` g, ``ang_rate``
     rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN rows are absent.
@@ -230,13 +258,15 @@ def _imu_doubles(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     has = np.isfinite(m).all(axis=(1, 2))
     out[has, 0:4] = _orientation_xyzw(m[has])
     out[~has, 3] = 1.0  # geometry_msgs/Quaternion's default: the identity
-    out[~has, 4] = -1.0
     rate, has_rate = _rows(columns, ("ang_rate",), n, 3)
     out[has_rate, 13:16] = _body_flu(rate[has_rate])
-    out[~has_rate, 16] = -1.0
     accel, has_accel = _rows(columns, ("accel",), n, 3)
     out[has_accel, 25:28] = _body_flu(accel[has_accel]) * STANDARD_GRAVITY
-    out[~has_accel, 28] = -1.0
+    if covariance is not None:
+        out[has, 4:13] = covariance.orientation
+        out[has_rate, 16:25] = covariance.angular_velocity
+        out[has_accel, 28:37] = covariance.linear_acceleration
+    out[~has, 4] = out[~has_rate, 16] = out[~has_accel, 28] = -1.0
     return out
 
 
@@ -254,8 +284,8 @@ def has_mag(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
     return _rows(columns, MAGNETOMETER, n, 3)[1]
 
 
-def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
-                  columns: Mapping[str, np.ndarray]) -> list[bytes]:
+def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str, columns: Mapping[str, np.ndarray],
+                  covariance: ImuCovariance | None = None) -> list[bytes]:
     """CDR ``sensor_msgs/msg/Imu`` of each record, in ROS frames and units.
 
     A quantity a record lacks (a NaN row, or an absent column) is marked by element 0
@@ -266,6 +296,8 @@ def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
         frame: The frame id (``frame_id``).
         columns: The records' quantities as the GX3 gives them (``accel`` g,
             ``ang_rate`` rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each.
+        covariance: The unit's covariances (``imu_covariance``) for the quantities a
+            record carries; None: all 0, which sensor_msgs/Imu reads as unknown.
 
     Returns:
         One message per record.
@@ -274,16 +306,18 @@ def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str,
         ValueError: A stamp is outside the range of builtin_interfaces/Time.
     """
     n = len(np.asarray(time_ns).reshape(-1))
-    return _messages(time_ns, frame, _imu_doubles(columns, n))
+    return _messages(time_ns, frame, _imu_doubles(columns, n, covariance))
 
 
-def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
+def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike],
+            covariance: ImuCovariance | None = None) -> bytes:
     """One record's CDR ``sensor_msgs/msg/Imu``.
 
     Args:
         time_ns: Its stamp, int ns since 1970.
         frame: The frame id (``frame_id``).
         columns: One value of each quantity (``accel`` of shape (3,), ``m`` (3, 3), ...).
+        covariance: As ``imu_cdr_batch``'s.
 
     Returns:
         The message.
@@ -292,7 +326,7 @@ def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> b
         ValueError: The stamp is outside the range of builtin_interfaces/Time.
     """
     one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
-    return imu_cdr_batch([time_ns], frame, one)[0]
+    return imu_cdr_batch([time_ns], frame, one, covariance)[0]
 
 
 def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,

@@ -16,11 +16,20 @@ KEEP_LAST publisher, no encoding) of the same tree.
   <topic>/<dds type>/<hash>/<qos>``, names mangled ('/' -> '%');
 - a publisher's GID is the XXH3-128 of its token (low 64 bits, then high, little-endian),
   which is what every rmw_zenoh node computes for it from the token.
+
+Humble: ``docs/design.md`` of rmw_zenoh's humble branch (release 0.1.9, upstream commit
+d60045d71ca16efcc7b98ac9bd076426b9e8340e of ros2-gbp/rmw_zenoh-release) gives the same
+keys and tokens with the constant ``TypeHashNotSupported`` where the hash goes (Humble's
+type support has no type hash; ``rmw_publisher_data.cpp`` "leave[s] it in place as a
+constant"); the attachment, the GID, the QoS chunk and its defaults are the same code.
+A Humble subscriber's key never matches a Jazzy publisher's, so the distribution is
+chosen per node.
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 import struct
 import threading
 from collections.abc import Iterable
@@ -34,9 +43,11 @@ from bridge.bus.codec import RecordBatch, record_quantities
 from bridge.device import clock
 from bridge.ros2.messages import (
     ATTITUDE,
+    DEFAULT_DISTRO,
     IMU,
     MAGNETIC_FIELD,
     MAGNETOMETER,
+    check_distro,
     frame_id,
     has_mag,
     imu_cdr_batch,
@@ -45,9 +56,13 @@ from bridge.ros2.messages import (
     ros_topic,
     type_hash,
 )
+from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance
 from bridge.ros2.xxh3 import xxh3_128_bytes
 
+_log = logging.getLogger(__name__)
 ADMIN_SPACE = "@ros2_lv"
+#: What Humble's rmw_zenoh writes where Jazzy's writes the RIHS01 type hash.
+HUMBLE_TYPE_HASH = "TypeHashNotSupported"
 MAX_DOMAIN = 232  # the highest ROS_DOMAIN_ID ROS 2 documents
 GID_SIZE = 16
 _ATTACHMENT = struct.Struct(f"<qqB{GID_SIZE}s")
@@ -108,6 +123,22 @@ def dds_type(msgtype: str) -> str:
     """
     package, kind, name = msgtype.split("/")
     return f"{package}::{kind}::dds_::{name}_"
+
+
+def key_type_hash(msgtype: str, distro: str = DEFAULT_DISTRO) -> str:
+    """The type hash chunk of a topic's key and tokens, as the distribution's rmw_zenoh writes it.
+
+    Args:
+        msgtype: The message type, e.g. ``sensor_msgs/msg/Imu``.
+        distro: ``jazzy`` (its RIHS01 hash) or ``humble`` (``TypeHashNotSupported``).
+
+    Returns:
+        The chunk.
+
+    Raises:
+        ValueError: Another distribution.
+    """
+    return HUMBLE_TYPE_HASH if check_distro(distro) == "humble" else type_hash(msgtype)
 
 
 def topic_key(domain: int, topic: str, type_name: str, type_hash: str) -> str:
@@ -232,15 +263,19 @@ class Ros2Node:
         domain: The ROS domain id (``ROS_DOMAIN_ID``).
         name: The node's name.
         namespace: The node's namespace.
+        distro: The ROS 2 distribution whose rmw_zenoh its subscribers run: ``jazzy``
+            or ``humble`` (whose keys carry no type hash).
 
     Raises:
-        ValueError: The domain is outside 0 to ``MAX_DOMAIN``.
+        ValueError: The domain is outside 0 to ``MAX_DOMAIN``, or the distribution is
+            not one of ``DISTROS``.
     """
 
     def __init__(self, session: zenoh.Session, domain: int, name: str,
-                 namespace: str = "/") -> None:
+                 namespace: str = "/", distro: str = DEFAULT_DISTRO) -> None:
         if not 0 <= domain <= MAX_DOMAIN:
             raise ValueError(f"ROS domain {domain}: use 0 to {MAX_DOMAIN}")
+        self.distro = check_distro(distro)
         self.session = session
         self.name = NodeName(domain, str(session.info.zid()), 0, name, namespace)
         self._token: Any = session.liveliness().declare_token(self.name.node_token())
@@ -260,7 +295,7 @@ class Ros2Node:
         """
         with self._lock:
             pub = Ros2Publisher(self.session, self.name, len(self._publishers) + 1, topic,
-                                dds_type(msgtype), type_hash(msgtype), qos)
+                                dds_type(msgtype), key_type_hash(msgtype, self.distro), qos)
             self._publishers.append(pub)
         return pub
 
@@ -281,28 +316,51 @@ class UnitTopics:
     The node ``<prefix>_bridge_<unit>`` publishes ``sensor_msgs/Imu`` on
     ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
     ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
-    ROS 2 export uses.
+    ROS 2 export uses. With the unit's measured noise, each Imu carries the covariances
+    it gives at the unit's output rate (``use_rate``, at each bring-up).
 
     Args:
         session: The Zenoh session.
         domain: The ROS domain id.
         prefix: The key prefix (``gx3``).
         unit: The unit's name.
+        distro: The ROS 2 distribution of the subscribers (``jazzy``, ``humble``).
+        noise: The unit's measured noise; None: covariances all 0 (unknown).
 
     Raises:
-        ValueError: The domain is outside 0 to ``MAX_DOMAIN``.
+        ValueError: The domain is outside 0 to ``MAX_DOMAIN``, or the distribution is
+            not one of ``DISTROS``.
     """
 
-    def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str) -> None:
+    def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str,
+                 distro: str = DEFAULT_DISTRO, noise: ImuNoise | None = None) -> None:
         self.frame = frame_id(unit, prefix)
+        self.noise = noise
+        self.covariance: ImuCovariance | None = None
         self.node = Ros2Node(session, domain,
-                             f"{ros_token(prefix)}_bridge_{ros_token(unit)}")
+                             f"{ros_token(prefix)}_bridge_{ros_token(unit)}", distro=distro)
         try:
             self.imu = self.node.publisher(ros_topic(prefix, unit, "imu"), IMU)
             self.mag = self.node.publisher(ros_topic(prefix, unit, "mag"), MAGNETIC_FIELD)
         except BaseException:
             self.node.close()
             raise
+
+    def use_rate(self, rate_hz: float) -> None:
+        """Give the Imu messages the noise's covariances at the unit's output rate.
+
+        Args:
+            rate_hz: The unit's output rate (1000 Hz / decimation), as brought up.
+
+        Raises:
+            ValueError: The rate is not a positive number.
+        """
+        if self.noise is not None:
+            self.covariance = imu_covariance(self.noise, rate_hz)
+            if abs(rate_hz - self.noise.update_rate_hz) > 1e-6 * rate_hz:
+                _log.info("%s: the Imu covariances use the unit's output rate, %g Hz, not "
+                          "%s's update_rate, %g Hz", self.frame, rate_hz,
+                          self.noise.path.name, self.noise.update_rate_hz)
 
     def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
         """Publish the records of a batch.
@@ -314,7 +372,7 @@ class UnitTopics:
         names, imu, mag = _contents(batch.code)
         columns = {name: batch[name] for name in names}
         if imu:  # every record: a NaN quantity is told by its covariance (-1)
-            self.imu.put_all(imu_cdr_batch(time_ns, self.frame, columns))
+            self.imu.put_all(imu_cdr_batch(time_ns, self.frame, columns, self.covariance))
         if mag:
             rows = has_mag(columns, len(time_ns))
             if rows.all():

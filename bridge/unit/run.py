@@ -1,7 +1,7 @@
 """What ``gx3 bridge`` runs: one unit's pipeline published on a Zenoh session, until stopped.
 
 ``UnitBridge`` holds what the bridge was asked for; ``run`` opens the session, claims the
-unit's name, publishes through a ``BusSink`` (and ROS 2 with ``ros2_domain``), writes the
+unit's name, publishes through a ``BusSink`` (and ROS 2 with ``ros2``), writes the
 raw capture, runs the ``Pipeline`` on a thread of its own until ``stop``, the duration or
 the give-up time, then closes everything in reverse order and says how it went::
 
@@ -23,11 +23,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import CaptureError, NameTaken, UnsupportedUnit
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.unit.pipeline import Options, Pipeline
+
+if TYPE_CHECKING:  # its module reads message definitions: loaded only with --ros2
+    from bridge.ros2.options import Ros2Options
 
 __all__ = ["BridgeOutcome", "UnitBridge"]
 
@@ -77,8 +81,8 @@ class UnitBridge:
         cache_s: Seconds of samples kept for subscribers that lose their link.
         quiet: Log only disconnects and why the unit is not up.
         publish_raw: Also publish every read on ``<prefix>/<unit>/raw``.
-        ros2_domain: Also publish every sample as ROS 2 does over rmw_zenoh, in this
-            ROS_DOMAIN_ID; None: not.
+        ros2: Also publish every sample as ROS 2 does over rmw_zenoh: the domain, the
+            distribution and the unit's measured noise; None: not.
         capture: Also write every read, with its receive times, to this raw capture
             (opened at the unit's first bring-up, once its name is known).
         force: Replace an existing capture file.
@@ -96,7 +100,7 @@ class UnitBridge:
     cache_s: float = 10.0
     quiet: bool = False
     publish_raw: bool = False
-    ros2_domain: int | None = None
+    ros2: Ros2Options | None = None
     capture: Path | None = None
     force: bool = False
     on_capture_error: Callable[[CaptureError], None] = _log_capture_error
@@ -149,7 +153,7 @@ class UnitBridge:
         with session:
             sink = BusSink(session, self.prefix, self.unit, self.options.url,
                            self.allow_commands, self.cache_s, quiet=self.quiet,
-                           raw=self.publish_raw, ros2_domain=self.ros2_domain)
+                           raw=self.publish_raw, ros2=self.ros2)
             pipeline = Pipeline(self.options, sink, on_read=sink.read)
             sink.attach(pipeline)
             if self.capture is not None:

@@ -39,6 +39,7 @@ if TYPE_CHECKING:  # Zenoh is imported once a unit is up: the CLI's help stays q
     import zenoh
 
     from bridge.bus.publish import UnitPublisher
+    from bridge.ros2.options import Ros2Options
     from bridge.ros2.rmw import UnitTopics
 
 DECLARE_SETTLE_S = 1.0
@@ -177,16 +178,16 @@ class BusSink:
         cache_s: Seconds of samples the publisher's cache keeps for late subscribers.
         quiet: Log only disconnects and why the unit is not up, not every event.
         raw: Also publish every read raw (``<prefix>/<unit>/raw``).
-        ros2_domain: Also publish the samples on ROS 2 in this domain; None: not.
+        ros2: Also publish the samples on ROS 2 as these options ask; None: not.
     """
 
     def __init__(self, session: zenoh.Session, prefix: str, unit: str | None, port: str,
                  allow_commands: bool, cache_s: float, quiet: bool = False,
-                 raw: bool = False, ros2_domain: int | None = None) -> None:
+                 raw: bool = False, ros2: Ros2Options | None = None) -> None:
         self.session, self.prefix, self.unit, self.port = session, prefix, unit, port
         self.allow_commands, self.cache_s, self.quiet = allow_commands, cache_s, quiet
-        self.raw, self.ros2_domain = raw, ros2_domain
-        self.ros2: UnitTopics | None = None  # the unit's ROS 2 topics, with ros2_domain
+        self.raw, self.ros2_options = raw, ros2
+        self.ros2: UnitTopics | None = None  # the unit's ROS 2 topics, with ros2_options
         # a unit that never comes up (a wrong baud rate) must not fill the memory
         self._early_reads: deque[tuple[bytes, int, int]] = deque(maxlen=EARLY_READS)
         self._read_listeners: list[Callable[[bytes, int, int], None]] = []
@@ -232,6 +233,8 @@ class BusSink:
         message = info_message(self.unit, self.port, info, self.allow_commands,
                                self.pipeline.link, self.pipeline.options.poll_hz is not None)
         if self.publisher is not None:
+            if self.ros2 is not None:  # a bring-up may change the rate
+                self.ros2.use_rate(info.output_hz)
             self.publisher.set_info(message)
             return
         claim_name(self.session, self.prefix, self.unit)
@@ -240,10 +243,13 @@ class BusSink:
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
             on_command=_command_handler(self.pipeline), allow_commands=self.allow_commands,
             raw=self.raw)
-        if self.ros2_domain is not None:
+        if self.ros2_options is not None:
             from bridge.ros2.rmw import UnitTopics
 
-            self.ros2 = UnitTopics(self.session, self.ros2_domain, self.prefix, self.unit)
+            o = self.ros2_options
+            self.ros2 = UnitTopics(self.session, o.domain, self.prefix, self.unit, o.distro,
+                                   o.noise)
+            self.ros2.use_rate(info.output_hz)
         self.publisher.set_info(message)
         for listener in self._listeners:
             listener(self.unit, capture_metadata(message))
@@ -287,7 +293,7 @@ class BusSink:
             self.publisher.publish_raw(data, raw_ns, real_ns)
 
     def samples(self, samples: TimedSamples) -> None:
-        """Publish timed samples (and on ROS 2, with ``ros2_domain``).
+        """Publish timed samples (and on ROS 2, with ``ros2``).
 
         Args:
             samples: The samples.

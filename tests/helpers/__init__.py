@@ -17,6 +17,7 @@
 - ``rotations``: ``rotation``, a quaternion's matrix by the textbook formula.
 - ``timing``: emulated USB captures in virtual time and the clock model's errors on them.
 - ``mcap_order``: what ``mcap doctor --strict-message-order`` checks.
+- ``noise``: ``kalibr_yaml``, a Kalibr imu.yaml as `gx3 allan` writes it, and its densities.
 - ``waiting``: ``wait_for`` a condition with a generous deadline; ``free_port``.
 
 Fixtures are in ``tests/conftest.py``: ``network`` (Zenoh configs for a bridge and a

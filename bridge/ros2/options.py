@@ -1,0 +1,34 @@
+"""What a live bridge's ROS 2 topics are asked for: the domain, the distribution, the noise.
+
+One value that ``gx3 bridge --ros2`` hands through the unit's bridge to its topics
+(``bridge.ros2.rmw.UnitTopics``), checked where it is made, without importing Zenoh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bridge.ros2.messages import DEFAULT_DISTRO, check_distro
+from bridge.ros2.noise import ImuNoise
+
+
+@dataclass(frozen=True)
+class Ros2Options:
+    """A unit's ROS 2 topics, as asked for.
+
+    Attributes:
+        domain: The ROS domain id (``ROS_DOMAIN_ID``), 0 to 232.
+        distro: The distribution of the subscribers' rmw_zenoh: ``jazzy`` or ``humble``.
+        noise: The unit's measured noise (``read_noise``), for the Imu covariances;
+            None: they stay 0 (unknown).
+
+    Raises:
+        ValueError: The distribution is not one of ``DISTROS``.
+    """
+
+    domain: int = 0
+    distro: str = DEFAULT_DISTRO
+    noise: ImuNoise | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "distro", check_distro(self.distro))
