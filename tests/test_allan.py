@@ -18,6 +18,7 @@ from bridge.recorder.allan import AllanSums, averaging_factors
 from bridge.recorder.export import read_samples_archive
 from bridge.recorder.noise import NOISE_KEYS, UnitNoise, collect_samples, unit_noise
 from bridge.recorder.writer import ArchiveWriter
+from bridge.ros2.noise import imu_covariance, read_noise
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
 from bridge.sim.options import SimOptions
@@ -73,6 +74,10 @@ def test_read_off_holds_to_the_truth(three_hours: Path, tmp_path: Path) -> None:
                 key, axes[term], sigma)
     assert extra["samples_used"] == 3 * 3600 * RATE and extra["stretches"] == 1
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the file is what --noise of the ROS 2 outputs takes: the same numbers come out
+    cov = imu_covariance(read_noise(out), RATE)
+    assert cov.angular_velocity[0] == found["gyroscope_noise_density"] ** 2 * RATE
+    assert cov.linear_acceleration[8] == found["accelerometer_noise_density"] ** 2 * RATE
 
 
 def test_gap_reset_and_rollover_split_the_series(tmp_path: Path) -> None:
