@@ -24,6 +24,7 @@ an ``OSError``, a bad name a ``ValueError``)::
     ├── CaptureError (OSError)            a raw capture that cannot be written
     ├── ReplayError (ValueError)          a replay that failed while working
     │   └── UnusableCapture               an input with nothing to replay
+    ├── LogImportError (ValueError)       byte logs that cannot be imported as asked
     ├── CalibrationError (ValueError)     readings that cannot give a calibration
     ├── NoiseFileError (ValueError)       a noise file (imu.yaml) that cannot be used
     ├── DemoError (RuntimeError)          a demo that cannot run as asked
@@ -38,8 +39,9 @@ from __future__ import annotations
 __all__ = [
     "ArchiveError", "ArchiveReadError", "BadName", "BusError", "CalibrationError",
     "CaptureError", "CommandRejected", "CommandTimeout", "DemoError", "DeviceError",
-    "EmulatorError", "Gx3Error", "LinkPathError", "NameTaken", "NoiseFileError", "OptionError",
-    "OutputRefused", "PersistRefused", "PortError", "ProtocolError", "RemoteError",
+    "EmulatorError", "Gx3Error", "LinkPathError", "LogImportError", "NameTaken",
+    "NoiseFileError", "OptionError", "OutputRefused", "PersistRefused", "PortError",
+    "ProtocolError", "RemoteError",
     "ReplayError", "SessionError", "StateFileError", "UnsupportedUnit", "UnusableCapture",
 ]
 
@@ -138,6 +140,13 @@ class UnusableCapture(ReplayError):
     """An input that holds nothing to replay (no raw reads, no GX3 records).
 
     The user's input is wrong, not the replay.
+    """
+
+
+class LogImportError(Gx3Error, ValueError):
+    """Byte logs that cannot be imported as asked (``gx3 import``).
+
+    No record in them, no start given, or a reset whose time the logs cannot tell.
     """
 
 

@@ -15,6 +15,7 @@ from bridge.cli import (
     commands,
     decode,
     demo,
+    importlog,
     magcal,
     noise,
     operate,
@@ -30,7 +31,7 @@ PANELS = {
     "Run a fleet": ("demo", "bridge", "record", "view", "router", "sim"),
     "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
                        "reset"),
-    "Archives": ("export", "replay", "rrd", "repair", "calibrate-mag", "allan"),
+    "Archives": ("export", "replay", "import", "rrd", "repair", "calibrate-mag", "allan"),
     "Bytes and protocol": ("decode", "commands"),
 }
 
@@ -52,5 +53,5 @@ def _arrange() -> None:
 _arrange()
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "magcal", "noise", "operate",
-           "record", "router", "sim", "viz"]
+__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "importlog", "magcal",
+           "noise", "operate", "record", "router", "sim", "viz"]

@@ -299,7 +299,15 @@ class _UnitReplay:
             self._samples(Batch.concatenate(pending), emit, prefix)
 
     def _batch(self, batch: Batch, emit: Emit, prefix: str) -> None:
-        if batch.code in DATA_CODES and batch.code == self.settings.record:
+        if batch.code in DATA_CODES and batch.code != self.settings.record:
+            # the unit was switched to another record with no 0xC4 reply in the capture
+            # (a logger's commands, not the bridge's): its records are kept and timed as
+            # they are, the timer running on
+            self._flush(emit, prefix)
+            self.settings = replace(self.settings, record=batch.code)
+            if self.timing.timeline is not None:
+                self.timing.configure(self.settings, restarted=False)
+        if batch.code in DATA_CODES:
             if self.timing.timeline is None:  # the capture began mid-stream
                 self.timing.configure(self.settings, restarted=False)
             self._pending.append(batch)

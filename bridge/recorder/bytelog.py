@@ -1,0 +1,340 @@
+"""`gx3 import`: byte logs with no receive times into an archive, timed by the unit's timer.
+
+A byte log (a data logger's, ``cat /dev/ttyUSB0``) holds what the unit sent and nothing
+of when it arrived, so the unit's timer is the only clock: each record's ``time_ns`` is
+the log's start plus the unit's time since its first record, less the filter delay (the
+instant its values describe, as everywhere else). Rollovers are unwrapped; a jump
+forward is a gap (the records between were lost); a timer that goes back is a reset,
+whose time since the start no byte can tell, so it starts a new epoch at the start of
+the file it begins, or the import is refused. Every record of every data type is kept,
+in order; the float byte order follows 0xDB replies as ``gx3 decode`` does. The archive
+says that no host clock timed it (its ``gx3.archive`` metadata, and Info with no link
+and no baud rate), so that nobody takes it for a live-timed recording; ``gx3 export``
+keeps its times.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from bridge._text import counted
+from bridge.bus.codec import encode_batch
+from bridge.bus.gx3_pb2 import Event, Info
+from bridge.exceptions import LogImportError
+from bridge.protocol.codec import Batch
+from bridge.protocol.framer import Framer, FramerStats
+from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
+from bridge.recorder.writer import ArchiveWriter
+from bridge.timing.unwrap import NS_PER_TICK
+
+__all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
+
+SAMPLING = 0xDB  # the sampling settings reply: decimation, filter width, byte order
+_EXPECT = frozenset(DATA_CODES | {SAMPLING})
+FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 0xDB reply
+FACTORY_DECIMATION = 10
+_ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
+_READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
+
+
+@dataclass(frozen=True)
+class LogFile:
+    """One byte log and, where known, the instant of its first record (ns since the epoch).
+
+    Attributes:
+        path: The file.
+        start_ns: When its first record was sampled; None: it continues the one before.
+    """
+
+    path: Path
+    start_ns: int | None = None
+
+
+@dataclass
+class Imported:
+    """What an import wrote.
+
+    Attributes:
+        unit: The unit's name.
+        samples: Samples archived, by record type.
+        events: Gaps, rollovers and resets found, by kind.
+        missing: Records lost in the gaps.
+        stats: The framer's counts (checksum failures, bytes skipped, ...).
+        filter_width: The filter width whose delay was taken out.
+        filter_from_log: Whether a 0xDB reply in the log gave it (else the factory's).
+        first_ns: The first sample's ``time_ns``.
+        last_ns: The last sample's ``time_ns``.
+    """
+
+    unit: str
+    samples: Counter[int] = field(default_factory=Counter)
+    events: Counter[str] = field(default_factory=Counter)
+    missing: int = 0
+    stats: FramerStats = field(default_factory=FramerStats)
+    filter_width: int = FACTORY_FILTER_WIDTH
+    filter_from_log: bool = False
+    first_ns: int = 0
+    last_ns: int = 0
+
+    def text(self) -> str:
+        """What was imported, in a line or two for a person.
+
+        Returns:
+            The lines.
+        """
+        by_type = ", ".join(f"0x{code:02X}×{n:,}" for code, n in sorted(self.samples.items()))
+        span = (self.last_ns - self.first_ns) / 1e9
+        events = ", ".join(f"{counted(n, kind)}" for kind, n in sorted(self.events.items()))
+        lost = f" ({counted(self.missing, 'record')} lost)" if self.missing else ""
+        delay = (f"filter width {self.filter_width} from the log" if self.filter_from_log
+                 else f"filter width {self.filter_width} assumed (the factory's; no 0xDB "
+                      "reply in the log)")
+        total = counted(sum(self.samples.values()), "sample")
+        return (f"{self.unit}: {total} ({by_type or 'none'}) over {span:,.1f} s; "
+                f"{events or 'no gap'}{lost}; {delay}\n"
+                f"checksum failures: {self.stats.checksum_failures}; bytes skipped: "
+                f"{self.stats.bytes_skipped:,} of {self.stats.bytes_fed:,}")
+
+
+def parse_start(text: str) -> int:
+    """An ISO 8601 instant with its zone, as ns since the epoch.
+
+    Args:
+        text: ``2026-11-28T06:00:00Z``, ``2026-11-28 08:00:00+02:00``, ...
+
+    Returns:
+        The instant.
+
+    Raises:
+        LogImportError: Not an ISO time, or one without a zone (a logger's clock is
+            often local time: say which).
+    """
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise LogImportError(f"--start {text!r} is not an ISO 8601 time; give one such as "
+                             "2026-11-28T06:00:00Z") from None
+    if when.tzinfo is None:
+        raise LogImportError(f"--start {text!r} has no zone; add Z for UTC or the "
+                             "logger's offset (+02:00)")
+    return _ns(when)
+
+
+def name_time(path: Path, pattern: str) -> int:
+    """The instant a logger wrote into a file's name, as ns since the epoch.
+
+    It is UTC unless the pattern has %z.
+
+    Args:
+        path: The file; its name without the extension is matched whole.
+        pattern: A ``strptime`` pattern, e.g. ``log_%Y%m%d_%H%M%S``.
+
+    Returns:
+        The instant.
+
+    Raises:
+        LogImportError: The name does not match the pattern.
+    """
+    try:
+        when = datetime.strptime(path.stem, pattern)
+    except ValueError:
+        raise LogImportError(f"{path.name}: its name does not match --start-from-name "
+                             f"{pattern!r} (the name without its extension is matched "
+                             "whole)") from None
+    return _ns(when if when.tzinfo is not None else when.replace(tzinfo=UTC))
+
+
+def _ns(when: datetime) -> int:
+    return round(when.timestamp() * 1e6) * 1000
+
+
+class _Timeline:
+    """The unit's timer as ticks on one timeline, epoch by epoch, with what it shows."""
+
+    def __init__(self, unit: str, result: Imported) -> None:
+        self.unit, self.result = unit, result
+        self.decimation = FACTORY_DECIMATION
+        self.last_timer: int | None = None
+        self.last_ticks = 0
+        self.last_code = 0
+        self.epoch_ns = 0  # the epoch's first record's instant, before the filter delay
+        self.epoch_ticks = 0
+        self.events: list[Event] = []
+
+    @property
+    def period(self) -> int:
+        return round(TICKS_PER_SECOND * self.decimation / 1000)
+
+    def ticks(self, batch: Batch, log: LogFile, first_in_file: bool) -> np.ndarray:
+        """The batch's records on the timeline; its rollovers, gaps and resets noted.
+
+        Raises:
+            LogImportError: A start is missing, or a reset comes inside a file.
+        """
+        timers = batch["timer"].astype(np.int64).tolist()
+        ticks = np.empty(len(timers), np.int64)
+        for i, timer in enumerate(timers):
+            if self.last_timer is None:
+                self._new_epoch(log, timer, first=True, at_ticks=0)
+            else:
+                back = timer < self.last_timer
+                step = (timer - self.last_timer) % (1 << 32)
+                if back and step > _ROLLOVER_TICKS:  # a reset: the timer began again
+                    self._new_epoch(log, timer, first=first_in_file and i == 0,
+                                    at_ticks=self.last_ticks + self.period)
+                else:
+                    if back:
+                        self._event(Event.ROLLOVER, "rollover", self.last_ticks + step, 1,
+                                    "the 32-bit timer wrapped")
+                    lost = round(step / self.period) - 1
+                    if lost > 0 and batch.code == self.last_code:  # not at a mode switch
+                        self.result.missing += lost
+                        self._event(Event.GAP, "gap", self.last_ticks + step, lost, "")
+                    self.last_ticks += step
+            ticks[i] = self.last_ticks
+            self.last_timer, self.last_code = timer, batch.code
+        return ticks
+
+    def _new_epoch(self, log: LogFile, timer: int, first: bool, at_ticks: int) -> None:
+        if not first or log.start_ns is None:
+            if self.last_timer is None:
+                raise LogImportError(f"{log.path}: give the instant of its first record "
+                                     "(--start, or --start-from-name for loggers that name "
+                                     "their files by time)")
+            where = "at its first record" if first else "inside it"
+            raise LogImportError(
+                f"{log.path}: the unit's timer began again {where} (a reset, at timer "
+                f"{timer}), and no byte tells how long after the start that was; give each "
+                "log its start (--start-from-name), splitting a log at its reset")
+        self.epoch_ns, self.epoch_ticks = log.start_ns, at_ticks
+        self.last_ticks = at_ticks
+        if self.last_timer is not None:
+            self._event(Event.RESET, "reset", at_ticks, 1,
+                        f"the timer began again at {timer}; {log.path.name} starts a new epoch")
+
+    def _event(self, kind: Event.Kind, name: str, ticks: int, count: int, detail: str) -> None:
+        self.result.events[name] += 1
+        at = int(self.instants(np.array([ticks]))[0])
+        self.events.append(Event(unit=self.unit, time_ns=at, ticks=ticks, kind=kind,
+                                 count=count, detail=detail))
+
+    def instants(self, ticks: np.ndarray) -> np.ndarray:
+        """Each record's instant: the epoch's start plus device time, less the filter delay."""
+        delay = (self.result.filter_width - 1) * 500_000
+        return self.epoch_ns + (ticks - self.epoch_ticks) * NS_PER_TICK - delay
+
+
+def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx3",
+                little_endian: bool = False,
+                on_bytes: Callable[[int], None] | None = None) -> Imported:
+    """Frame one unit's byte logs, in order, into an archive timed by its timer.
+
+    Args:
+        logs: The logs in the order they were written; the first has its start.
+        out: The archive to write (a command's temporary file: it is written whole).
+        unit: The unit's name in the archive's keys.
+        prefix: The keys' first chunk.
+        little_endian: Floats start little-endian (0xDB replies switch it).
+        on_bytes: Hears how many bytes were read, read by read.
+
+    Returns:
+        What was imported.
+
+    Raises:
+        LogImportError: No record in the logs, a start missing, or a reset whose time
+            the logs cannot tell.
+        OSError: A log cannot be read.
+        ArchiveError: The archive cannot be written.
+    """
+    result = Imported(unit)
+    framer = Framer(_EXPECT, little_endian=little_endian)
+    timeline = _Timeline(unit, result)
+    starts = {str(log.path): log.start_ns for log in logs}
+    writer = ArchiveWriter(out, prefix=prefix, reorder_s=None, metadata={
+        "host_clock": "none", "timed_by": "the unit's timer (gx3 import)",
+        "logs": json.dumps([str(log.path) for log in logs]),
+        "starts_ns": json.dumps(starts)})
+    info_code = 0
+    try:
+        for log in logs:
+            first_in_file = True
+            with log.path.open("rb") as stream:
+                while chunk := stream.read(_READ_BYTES):
+                    for batch in framer.feed(chunk):
+                        if batch.code == SAMPLING:
+                            timeline.decimation = max(1, int(batch["decimation"][-1]))
+                            result.filter_width = max(1, int(batch["filter_width"][-1]))
+                            result.filter_from_log = True
+                            continue
+                        if batch.code != info_code:
+                            info_code = batch.code
+                            pending_info = True
+                        else:
+                            pending_info = False
+                        ticks = timeline.ticks(batch, log, first_in_file)
+                        first_in_file = False
+                        time_ns = timeline.instants(ticks)
+                        if pending_info:
+                            _info(writer, prefix, unit, log, batch, timeline, result,
+                                  int(time_ns[0]))
+                        _samples(writer, prefix, unit, batch, ticks, time_ns, result)
+                        _events(writer, prefix, timeline)
+                    if on_bytes is not None:
+                        on_bytes(len(chunk))
+        for batch in framer.flush():
+            if batch.code in DATA_CODES:
+                ticks = timeline.ticks(batch, logs[-1], False)
+                _samples(writer, prefix, unit, batch, ticks,
+                         timeline.instants(ticks), result)
+                _events(writer, prefix, timeline)
+        result.stats = framer.stats
+        if not result.samples:
+            raise LogImportError(
+                f"no record found in {', '.join(str(log.path) for log in logs)}: not a "
+                "3DM-GX3 byte log" + ("" if little_endian else
+                                      " (or its floats are little-endian: --little-endian)"))
+        writer.add_metadata("gx3.import", {
+            "unit": unit, "filter_width": str(result.filter_width),
+            "filter_width_from": "log" if result.filter_from_log else "factory",
+            "checksum_failures": str(framer.stats.checksum_failures),
+            "bytes_skipped": str(framer.stats.bytes_skipped)})
+    except BaseException:
+        writer.abandon()
+        raise
+    writer.close()
+    return result
+
+
+def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
+          timeline: _Timeline, result: Imported, at_ns: int) -> None:
+    """The unit's Info as the log shows it: no link, no baud rate (no host timed it)."""
+    info = Info(unit=unit, port=str(log.path), command=batch.code,
+                decimation=timeline.decimation, filter_width=result.filter_width,
+                flags=0x10 if batch.little_endian else 0,
+                output_rate_hz=1000 / timeline.decimation, bring_up_time_ns=at_ns)
+    writer.write(f"{prefix}/{unit}/info", info.SerializeToString(), at_ns)
+
+
+def _samples(writer: ArchiveWriter, prefix: str, unit: str, batch: Batch, ticks: np.ndarray,
+             time_ns: np.ndarray, result: Imported) -> None:
+    if not len(batch):
+        return
+    none = np.zeros(len(batch), np.int64)  # no receive time: nothing received it live
+    writer.write_many(f"{prefix}/{unit}/imu", encode_batch(unit, batch, ticks, time_ns, none),
+                      time_ns)
+    result.samples[batch.code] += len(batch)
+    result.first_ns = result.first_ns or int(time_ns[0])
+    result.last_ns = int(time_ns[-1])
+
+
+def _events(writer: ArchiveWriter, prefix: str, timeline: _Timeline) -> None:
+    for event in timeline.events:
+        writer.write(f"{prefix}/{event.unit}/event", event.SerializeToString(), event.time_ns)
+    timeline.events.clear()

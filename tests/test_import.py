@@ -1,0 +1,166 @@
+"""`gx3 import`: byte logs as a mooring's data logger writes them, against the emulator's truth.
+
+A unit streams 0xCB for ten minutes, is switched to 0xCF and streams it ten more (both
+at 10 Hz, its timer crossing the 32-bit rollover in the first); the logger keeps only
+the bytes, in two files. The same reads with receive times make a raw capture, which
+`gx3 replay` must also keep whole.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.recorder.rawcapture import RawCaptureWriter
+from bridge.recorder.reader import read_archive
+from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
+from bridge.sim.motion import MotionConfig, tumbling
+from bridge.sim.unit import UnitConfig
+from bridge.sim.usb import UartDelivery
+from tests.helpers.processes import gx3
+
+SEGMENT_S = 600.0
+SWITCH_S = 0.5  # the logger's commands between the two modes
+TIMER_START = 2**32 - 300 * 62_500  # the rollover 5 minutes in
+
+
+@dataclass
+class Logged:
+    segments: list[SyntheticCapture]
+    logs: list[Path]
+    start: str  # the first record's instant, as the logger knows it
+
+    def truth(self, key: str) -> np.ndarray:
+        return np.concatenate([s.truth[key] for s in self.segments])
+
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory: pytest.TempPathFactory) -> Logged:
+    folder = tmp_path_factory.mktemp("logger")
+    segments = []
+    for i, code in enumerate((0xCB, 0xCF)):
+        offset = i * (SEGMENT_S + SWITCH_S)
+        # tumbling, so that the magnetometer calibration has every side of the field
+        unit = UnitConfig(serial="MOOR0001", clock_ppm=0.0,
+                          motion=tumbling(MotionConfig(seed=4)),
+                          timer_start=(TIMER_START + round(offset * 62_500)) % 2**32)
+        config = streaming_config(unit, code=code, decimation=100, baud=115_200)
+        segments.append(synthesize(config, UartDelivery(), SEGMENT_S, start=offset))
+    logs = []
+    for i, segment in enumerate(segments):
+        logs.append(folder / f"mooring_{i}.bin")
+        logs[-1].write_bytes(b"".join(segment.data))
+    first_ns = int(segments[0].truth["time_ns"][0])
+    start = datetime.fromtimestamp(first_ns // 1000 / 1e6, UTC).isoformat()
+    return Logged(segments, logs, start)
+
+
+def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
+                                                          tmp_path: Path) -> None:
+    out = tmp_path / "mooring.mcap"
+    done = gx3("import", *logged.logs, "--unit", "moor", "--start", logged.start, "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "1 rollover" in done.stderr and "filter width 15 assumed" in done.stderr
+    archive = read_archive(out)
+    blocks = archive.samples(["moor"])
+    codes = np.concatenate([np.full(len(b), b.code) for b in blocks])
+    time_ns = np.concatenate([b.columns["time_ns"] for b in blocks])
+    order = np.argsort(time_ns, kind="stable")
+    codes, time_ns = codes[order], time_ns[order]
+    # every record of both modes, in the order they were sent
+    np.testing.assert_array_equal(codes, logged.truth("code"))
+    # the instant its values describe: start + device time - filter delay, to a µs (the
+    # start is given to the µs)
+    error = time_ns - logged.truth("value_ns")
+    assert np.abs(error).max() <= 1_000, np.abs(error).max()
+    meta = {m.name: dict(m.metadata) for m in archive.metadata}
+    assert meta["gx3.archive"]["host_clock"] == "none"
+    assert meta["gx3.import"]["filter_width_from"] == "factory"
+
+
+def test_imported_archives_work_with_every_archive_command(logged: Logged,
+                                                           tmp_path: Path) -> None:
+    out = tmp_path / "mooring.mcap"
+    assert gx3("import", *logged.logs, "-u", "moor", "--start", logged.start,
+               "-o", out).returncode == 0
+    total = len(logged.truth("code"))
+    table = gx3("export", out, "-o", tmp_path / "mooring.csv")
+    assert table.returncode == 0 and f"wrote {total:,} samples of 1 unit" in table.stderr, \
+        table.stderr
+    with (tmp_path / "mooring.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    exported = np.array([int(r["time_ns"]) for r in rows])
+    # export keeps the imported times: no host clock to re-estimate them against
+    assert np.abs(np.sort(exported) - logged.truth("value_ns")).max() <= 1_000
+    bag = gx3("export", out, "--format", "ros2", "-o", tmp_path / "bag.mcap")
+    assert bag.returncode == 0, bag.stderr
+    rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
+    assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
+    iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
+    assert iron.returncode == 0, iron.stderr
+
+
+def test_a_capture_that_switches_record_type_replays_whole(logged: Logged,
+                                                           tmp_path: Path) -> None:
+    """The same stream with receive times: a replay keeps the 0xCB records too."""
+    capture = tmp_path / "raw.mcap"
+    writer = RawCaptureWriter(capture, "gx3", "moor")
+    for segment in logged.segments:
+        for rx, data in zip(segment.rx_ns.tolist(), segment.data, strict=True):
+            writer.write(data, rx)
+    writer.close()
+    done = gx3("replay", capture, "-o", tmp_path / "again.mcap")
+    assert done.returncode == 0, done.stderr
+    blocks = read_archive(tmp_path / "again.mcap").samples(["moor"])
+    by_code = {code: sum(len(b) for b in blocks if b.code == code) for code in (0xCB, 0xCF)}
+    assert by_code == {code: int((logged.truth("code") == code).sum())
+                       for code in (0xCB, 0xCF)}
+
+
+def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: Path) -> None:
+    out = tmp_path / "x.mcap"
+    garbage = tmp_path / "noise.bin"
+    garbage.write_bytes(np.random.default_rng(1).integers(0, 256, 20_000, np.uint8).tobytes())
+    cases: list[tuple[list[str | Path], str]] = [
+        ([garbage, "-u", "x", "--start", "2026-01-01T00:00:00Z"], "no record found"),
+        ([logged.logs[0], "-u", "x"], "--start"),
+        ([logged.logs[0], "-u", "x", "--start", "2026-01-01T00:00:00"], "has no zone"),
+        ([logged.logs[0], "-u", "x", "--start-from-name", "log_%Y%m%d"],
+         "does not match --start-from-name"),
+        # a log whose unit was reset before it: its own start is needed
+        ([logged.logs[1], logged.logs[1], "-u", "x", "--start", "2026-01-01T00:00:00Z"],
+         "timer began again at its first record"),
+    ]
+    for args, says in cases:
+        done = gx3("import", *args, "-o", out)
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
+        assert says in done.stderr and "Traceback" not in done.stderr, done.stderr
+        assert not out.exists()
+    out.write_text("mine\n")
+    done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
+    assert done.returncode == 2 and "--force" in done.stderr and out.read_text() == "mine\n"
+
+
+def test_a_reset_between_logs_named_by_time_starts_a_new_epoch(logged: Logged,
+                                                                tmp_path: Path) -> None:
+    """Two logs of a unit reset in between: each named by when it began, each epoch
+    starts there (the filter delay taken out)."""
+    names = [tmp_path / "log_20260101_000000.bin", tmp_path / "log_20260101_010000.bin"]
+    for name in names:
+        name.write_bytes(logged.logs[1].read_bytes())
+    out = tmp_path / "reset.mcap"
+    done = gx3("import", *names, "-u", "u", "--start-from-name", "log_%Y%m%d_%H%M%S",
+               "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "1 reset" in done.stderr
+    blocks = read_archive(out).samples(["u"])
+    time_ns = np.sort(np.concatenate([b.columns["time_ns"] for b in blocks]))
+    half = len(time_ns) // 2
+    hour = 3600 * 10**9
+    first = int(datetime(2026, 1, 1, tzinfo=UTC).timestamp()) * 10**9 - 7_000_000
+    assert (int(time_ns[0]), int(time_ns[half])) == (first, first + hour)
