@@ -178,6 +178,9 @@ class _Timeline:
         Raises:
             LogImportError: A start is missing, or a reset comes inside a file.
         """
+        fast = self._ticks_at_once(batch)
+        if fast is not None:
+            return fast
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
         for i, timer in enumerate(timers):
@@ -200,6 +203,29 @@ class _Timeline:
                     self.last_ticks += step
             ticks[i] = self.last_ticks
             self.last_timer, self.last_code = timer, batch.code
+        return ticks
+
+    def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
+        """``ticks`` of a batch with no reset in it (nearly all), in array operations."""
+        if self.last_timer is None or not len(batch):
+            return None
+        timers = batch["timer"].astype(np.int64)
+        raw = np.diff(timers, prepend=self.last_timer)
+        step = raw % (1 << 32)
+        back = raw < 0
+        if (back & (step > _ROLLOVER_TICKS)).any():
+            return None  # a reset: record by record
+        ticks = self.last_ticks + np.cumsum(step)
+        for i in np.flatnonzero(back).tolist():
+            self._event(Event.ROLLOVER, "rollover", int(ticks[i]), 1, "the 32-bit timer wrapped")
+        lost = np.rint(step / self.period).astype(np.int64) - 1
+        if batch.code != self.last_code:
+            lost[0] = 0  # not at a mode switch
+        for i in np.flatnonzero(lost > 0).tolist():
+            self.result.missing += int(lost[i])
+            self._event(Event.GAP, "gap", int(ticks[i]), int(lost[i]), "")
+        self.last_timer, self.last_ticks = int(timers[-1]), int(ticks[-1])
+        self.last_code = batch.code
         return ticks
 
     def _new_epoch(self, log: LogFile, timer: int, first: bool, at_ticks: int) -> None:
@@ -257,7 +283,7 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
     framer = Framer(_EXPECT, little_endian=little_endian)
     timeline = _Timeline(unit, result)
     starts = {str(log.path): log.start_ns for log in logs}
-    writer = ArchiveWriter(out, prefix=prefix, reorder_s=None, metadata={
+    writer = ArchiveWriter(out, prefix=prefix, metadata={
         "host_clock": "none", "timed_by": "the unit's timer (gx3 import)",
         "logs": json.dumps([str(log.path) for log in logs]),
         "starts_ns": json.dumps(starts)})
@@ -284,16 +310,16 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
                         if pending_info:
                             _info(writer, prefix, unit, log, batch, timeline, result,
                                   int(time_ns[0]))
-                        _samples(writer, prefix, unit, batch, ticks, time_ns, result)
+                        # events first: the writer keeps log-time order over a window
                         _events(writer, prefix, timeline)
+                        _samples(writer, prefix, unit, batch, ticks, time_ns, result)
                     if on_bytes is not None:
                         on_bytes(len(chunk))
         for batch in framer.flush():
             if batch.code in DATA_CODES:
                 ticks = timeline.ticks(batch, logs[-1], False)
-                _samples(writer, prefix, unit, batch, ticks,
-                         timeline.instants(ticks), result)
                 _events(writer, prefix, timeline)
+                _samples(writer, prefix, unit, batch, ticks, timeline.instants(ticks), result)
         result.stats = framer.stats
         if not result.samples:
             raise LogImportError(
