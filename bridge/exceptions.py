@@ -17,7 +17,8 @@ an ``OSError``, a bad name a ``ValueError``)::
     │   ├── SessionError (RuntimeError)   a config or session that cannot be used
     │   ├── RemoteError (RuntimeError)    no bridge could be asked, or none answered
     │   ├── NameTaken (RuntimeError)      a running bridge holds the unit's name
-    │   └── BadName (ValueError)          a unit name or prefix that cannot be a key
+    │   ├── BadName (ValueError)          a unit name or prefix that cannot be a key
+    │   └── MetricsError (OSError)        a --metrics address that cannot be served
     ├── OutputRefused                     writing there would destroy data
     ├── ArchiveError (OSError)            an archive that cannot be written
     ├── ArchiveReadError (ValueError)     a file that cannot be read as an archive
@@ -39,10 +40,10 @@ from __future__ import annotations
 __all__ = [
     "ArchiveError", "ArchiveReadError", "BadName", "BusError", "CalibrationError",
     "CaptureError", "CommandRejected", "CommandTimeout", "DemoError", "DeviceError",
-    "EmulatorError", "Gx3Error", "LinkPathError", "LogImportError", "NameTaken",
-    "NoiseFileError", "OptionError", "OutputRefused", "PersistRefused", "PortError",
-    "ProtocolError", "RemoteError",
-    "ReplayError", "SessionError", "StateFileError", "UnsupportedUnit", "UnusableCapture",
+    "EmulatorError", "Gx3Error", "LinkPathError", "LogImportError", "MetricsError",
+    "NameTaken", "NoiseFileError", "OptionError", "OutputRefused", "PersistRefused",
+    "PortError", "ProtocolError", "RemoteError", "ReplayError", "SessionError",
+    "StateFileError", "UnsupportedUnit", "UnusableCapture",
 ]
 
 
@@ -114,6 +115,10 @@ class NameTaken(BusError, RuntimeError):
 
 class BadName(BusError, ValueError):
     """A unit name or prefix that cannot be a chunk of a Zenoh key."""
+
+
+class MetricsError(BusError, OSError):
+    """A ``--metrics`` address that cannot be served: not ADDR:PORT, or a busy port."""
 
 
 class OutputRefused(Gx3Error):

@@ -16,6 +16,7 @@ from bridge.cli.common import (
     LogFormatOpt,
     LogLevel,
     LogLevelOpt,
+    MetricsOpt,
     app,
     err,
     fail,
@@ -95,6 +96,7 @@ def run_bridge(
         metavar="FILE.mcap", help="Also record every read raw, with its receive time "
                                   "(an existing file is refused unless --force).")] = None,
     force: ForceOpt = False,
+    metrics: MetricsOpt = None,
     publish_raw: Annotated[bool, typer.Option(
         "--publish-raw", help="Also publish every read on PREFIX/UNIT/raw with its receive "
                               "time, for gx3 record --raw.")] = False,
@@ -219,7 +221,7 @@ def run_bridge(
     bridge = UnitBridge(
         options, prefix, unit, ZenohOptions(zenoh_config, connect or [], listen or [], mode),
         allow_commands, cache, quiet=quiet, publish_raw=publish_raw,
-        ros2=ros2_options, capture=capture, force=force,
+        ros2=ros2_options, capture=capture, force=force, metrics=metrics,
         on_capture_error=lambda exc: err.print(f"[red]error:[/] {exc}"),
         on_capture_stopped=lambda exc: err.print(f"[yellow]capture stopped:[/] {exc}"))
     outcome = bridge.run(stop, duration, give_up_after)

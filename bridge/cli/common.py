@@ -130,6 +130,11 @@ StartOpt = Annotated[str | None, typer.Option(
          "from the first sample.")]
 EndOpt = Annotated[str | None, typer.Option(
     metavar="TIME", help="End instant (exclusive), as --start.")]
+MetricsOpt = Annotated[str | None, typer.Option(
+    "--metrics", metavar="ADDR:PORT",
+    help="Serve health to Prometheus here (/metrics), e.g. 127.0.0.1:9464, or :9464 on "
+         "every interface: each unit's counters, rate, state, clock and its host's sync "
+         "(docs: monitoring).")]
 ForceOpt = Annotated[bool, typer.Option(
     "--force", help="Replace an output file that exists (never an input, nor a file "
                     "another process is writing).")]

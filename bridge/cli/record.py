@@ -25,6 +25,7 @@ from bridge.cli.common import (
     LogFormatOpt,
     LogLevel,
     LogLevelOpt,
+    MetricsOpt,
     app,
     duration_text,
     err,
@@ -151,6 +152,7 @@ def record(
                                         help="No live view; errors and warnings only.")]
     = False,
     force: ForceOpt = False,
+    metrics: MetricsOpt = None,
     zenoh_config: ZenohConfigOpt = None,
     connect: ConnectOpt = None,
     listen: ListenOpt = None,
@@ -213,7 +215,7 @@ def record(
         units=units, raw=raw, history=history, max_host_offset_ms=max_host_offset_ms,
         split_bytes=None if split_mb is None else int(split_mb * 1e6),
         split_seconds=None if split_minutes is None else split_minutes * 60, force=force,
-        rrd=rrd, on_unit=announce, on_event=lambda unit, event: err.print(
+        rrd=rrd, metrics=metrics, on_unit=announce, on_event=lambda unit, event: err.print(
             f"[yellow]warning:[/] {event.detail}", highlight=False, soft_wrap=True))
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())

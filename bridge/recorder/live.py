@@ -763,6 +763,15 @@ class Recorder:
             kept.append(payload)
         return kept
 
+    def statuses(self) -> list[Status]:
+        """Each unit's latest Status, as archived (for ``bridge.bus.metrics``).
+
+        Returns:
+            One message per unit that has sent one.
+        """
+        with self._lock:
+            return [v.status for v in self.views.values() if v.status is not None]
+
     def snapshot(self) -> list[dict[str, Any]]:
         """What the terminal shows of the units.
 

@@ -23,7 +23,7 @@ order that loses nothing, whatever ended the block (Ctrl-C included)::
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, suppress
 from pathlib import Path
 from types import TracebackType
@@ -38,8 +38,10 @@ if TYPE_CHECKING:
     import threading
 
     import zenoh
+    from prometheus_client.core import Metric
 
     from bridge.bus.gx3_pb2 import Event
+    from bridge.bus.metrics import MetricsServer
     from bridge.bus.subscribe import RawMessage
     from bridge.viz.logger import RerunLogger
 
@@ -81,6 +83,8 @@ class Recording:
             stay the caller's to close.
         on_unit: Hears ``(unit, joined)`` as units appear and leave.
         on_event: Hears ``(unit, event)`` of each event the recorder itself archives.
+        metrics: Serve the fleet's health to Prometheus at this ``ADDR:PORT`` (each
+            unit's latest Status, what was archived); None: not.
 
     Attributes:
         writer: The archive's writer (once entered).
@@ -99,7 +103,8 @@ class Recording:
                  metadata: Mapping[str, str] | None = None, rrd: Path | None = None,
                  rerun: Sequence[RerunLogger] = (),
                  on_unit: Callable[[str, bool], None] | None = None,
-                 on_event: Callable[[str, Event], None] | None = None) -> None:
+                 on_event: Callable[[str, Event], None] | None = None,
+                 metrics: str | None = None) -> None:
         host_tolerance_ns(max_host_offset_ms)  # refused before anything opens
         self._archive = archive
         self._session_from = ZenohOptions() if session is None else session
@@ -115,6 +120,8 @@ class Recording:
         self._own_session = False
         self._logger: RerunLogger | None = None
         self._recorder: Recorder | None = None
+        self.metrics = metrics
+        self._metrics: MetricsServer | None = None
         self.started = 0.0
 
     @property
@@ -177,6 +184,12 @@ class Recording:
         from bridge.device import clock
         from bridge.recorder.outputs import refuse
 
+        if self.metrics is not None:  # a busy port is said before any file is made
+            from bridge.bus.metrics import Health, MetricsServer
+
+            self._metrics = MetricsServer(self.metrics, Health(
+                pull=lambda: self._recorder.statuses() if self._recorder else [],
+                extra=self._archived_metrics))
         if self.rrd is not None:
             if self.rrd.absolute() == self.path.absolute():
                 raise OutputRefused(f"--rrd {self.rrd} is the archive's own file; give the "
@@ -237,6 +250,21 @@ class Recording:
             steps.callback(self._close_archive, discard)
             steps.callback(self._close_logger)
             steps.callback(self._close_recorder)
+            steps.callback(self._close_metrics)
+
+    def _archived_metrics(self) -> Iterator[Metric]:
+        """What the recorder archived, for Prometheus (nothing before it starts)."""
+        from bridge.bus.metrics import recorder_metrics
+
+        recorder = self._recorder
+        if recorder is not None:
+            yield from recorder_metrics(recorder.snapshot(), recorder.written,
+                                        recorder.misses)
+
+    def _close_metrics(self) -> None:
+        server, self._metrics = self._metrics, None
+        if server is not None:
+            server.close()
 
     def _close_recorder(self) -> None:
         if self._recorder is not None:

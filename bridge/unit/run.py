@@ -21,6 +21,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,6 +33,9 @@ from bridge.unit.pipeline import Options, Pipeline
 
 if TYPE_CHECKING:  # its module reads message definitions: loaded only with --ros2
     from bridge.ros2.options import Ros2Options
+
+if TYPE_CHECKING:
+    from bridge.bus.metrics import Health
 
 __all__ = ["BridgeOutcome", "UnitBridge"]
 
@@ -90,6 +94,7 @@ class UnitBridge:
             without it); by default, the log.
         on_capture_stopped: Hears why writing the capture failed (it stops there, the
             run goes on); by default, the log.
+        metrics: Serve the unit's health to Prometheus at this ``ADDR:PORT``; None: not.
     """
 
     options: Options
@@ -105,6 +110,7 @@ class UnitBridge:
     force: bool = False
     on_capture_error: Callable[[CaptureError], None] = _log_capture_error
     on_capture_stopped: Callable[[CaptureError], None] = _log_capture_stopped
+    metrics: str | None = None
 
     def run(self, stop: threading.Event | None = None, duration_s: float | None = None,
             give_up_after_s: float | None = None) -> BridgeOutcome:
@@ -125,13 +131,25 @@ class UnitBridge:
             How the run ended, and the unit's summary.
 
         Raises:
+            MetricsError: The metrics' address cannot be served.
             SessionError: The Zenoh session cannot be opened.
             NameTaken: A running bridge already publishes the unit's name.
             UnsupportedUnit: The unit on the port is not a 3DM-GX3.
         """
+        stop = threading.Event() if stop is None else stop
+        with ExitStack() as closing:
+            health = None
+            if self.metrics is not None:
+                from bridge.bus.metrics import Health, MetricsServer
+
+                health = Health()
+                closing.enter_context(MetricsServer(self.metrics, health))
+            return self._run(stop, duration_s, give_up_after_s, health)
+
+    def _run(self, stop: threading.Event, duration_s: float | None,
+             give_up_after_s: float | None, health: Health | None) -> BridgeOutcome:
         from bridge.unit.service import BusSink, claim_name
 
-        stop = threading.Event() if stop is None else stop
         session = self.zenoh.open()
         if self.unit is not None:
             try:
@@ -156,6 +174,8 @@ class UnitBridge:
                            raw=self.publish_raw, ros2=self.ros2)
             pipeline = Pipeline(self.options, sink, on_read=sink.read)
             sink.attach(pipeline)
+            if health is not None:
+                sink.on_status(health.status)
             if self.capture is not None:
                 capture = self.capture
                 sink.on_unit(lambda name, meta: self._open_capture(writer, capture, name, meta))

@@ -195,6 +195,7 @@ class BusSink:
         self.pipeline: Pipeline | None = None
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
+        self._status_listeners: list[Callable[[Status], None]] = []
         self._lines = _EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
@@ -327,8 +328,18 @@ class BusSink:
         """
         self._lines.flush(time.monotonic())
         if self.publisher is not None and self.unit is not None:
-            self.publisher.publish_status(_status_message(self.unit, self.port, self._info,
-                                                         status))
+            message = _status_message(self.unit, self.port, self._info, status)
+            self.publisher.publish_status(message)
+            for listener in self._status_listeners:
+                listener(message)
+
+    def on_status(self, listener: Callable[[Status], None]) -> None:
+        """Tell ``listener`` each Status as it is published (once a second).
+
+        Args:
+            listener: Hears the message (``bridge.bus.metrics.Health.status``).
+        """
+        self._status_listeners.append(listener)
 
     def close(self) -> None:
         """Log the gaps held back, and undeclare the publishers."""
