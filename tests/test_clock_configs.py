@@ -6,35 +6,18 @@ host's clock (``-x`` on the server, ``-Q`` on the bridge side). linuxptp: ptp4l 
 the config to the end and only then finds that loopback has no hardware timestamps.
 
 The daemons come from Debian's chrony and linuxptp packages: on PATH or /usr/sbin, or
-unpacked where GX3_CLOCK_TOOLS points (.ci/run unpacks them there, installing nothing).
+unpacked where GX3_TOOLS points (.ci/run unpacks them there, installing nothing).
 """
 
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
 from pathlib import Path
 
-import pytest
-
+from tests.helpers.tools import tool
 from tests.helpers.waiting import free_port
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs" / "clock"
-
-
-def tool(name: str) -> str:
-    """A daemon's path; without it the test is skipped, except in CI, where it fails."""
-    tools = os.environ.get("GX3_CLOCK_TOOLS")
-    for where in ([str(Path(tools) / "usr" / "sbin")] if tools else []) + \
-            [os.environ.get("PATH", ""), "/usr/sbin"]:
-        found = shutil.which(name, path=where)
-        if found:
-            return found
-    if os.environ.get("CI"):
-        pytest.fail(f"{name} is missing: .ci/run unpacks Debian's chrony and linuxptp into "
-                    "GX3_CLOCK_TOOLS")
-    pytest.skip(f"{name} is not installed (Debian's chrony / linuxptp)")
 
 
 def local(config: str, tmp: Path, drop: tuple[str, ...], add: list[str],
@@ -56,7 +39,7 @@ def local(config: str, tmp: Path, drop: tuple[str, ...], add: list[str],
 
 
 def test_a_bridge_host_follows_the_fleets_time_server(tmp_path: Path) -> None:
-    chronyd = tool("chronyd")
+    chronyd = tool("chronyd", "chrony")
     port = free_port()
     server = local("chrony-server.conf", tmp_path, ("pool", "driftfile"),
                    [f"port {port}", "bindaddress 127.0.0.1", "allow 127.0.0.1"])
@@ -76,7 +59,7 @@ def test_a_bridge_host_follows_the_fleets_time_server(tmp_path: Path) -> None:
 
 
 def test_ptp4l_takes_the_whole_config(tmp_path: Path) -> None:
-    ptp4l = tool("ptp4l")
+    ptp4l = tool("ptp4l", "linuxptp")
     bad = tmp_path / "bad.conf"
     bad.write_text("[global]\nno_such_option 1\n")
     for config, parsed in ((CONFIGS / "ptp4l.conf", True), (bad, False)):

@@ -193,8 +193,8 @@ def parse_address(text: str) -> tuple[str, int]:
     Raises:
         MetricsError: Not an address and a port.
     """
-    host, _, port = text.rpartition(":")
-    if not port.isdigit() or not 0 < int(port) < 65_536:
+    host, colon, port = text.rpartition(":")
+    if not colon or not port.isdigit() or not 0 < int(port) < 65_536:
         raise MetricsError(f"--metrics {text!r}: give ADDR:PORT, such as 127.0.0.1:9464, or "
                            ":9464 for every interface")
     return host.strip("[]") or "0.0.0.0", int(port)

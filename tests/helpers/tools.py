@@ -1,0 +1,33 @@
+"""Debian's daemons some tests run (chrony, linuxptp, Prometheus), unpacked, not installed."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+
+def tool(name: str, package: str) -> str:
+    """A daemon's path; without it the test is skipped, except in CI, where it fails.
+
+    .ci/run unpacks Debian's packages into the folder GX3_TOOLS names (installing and
+    starting nothing); elsewhere the system's are used where they are installed.
+
+    Args:
+        name: The program (chronyd, ptp4l, prometheus).
+        package: Its Debian package, named in the skip.
+
+    Returns:
+        Its path.
+    """
+    tools = os.environ.get("GX3_TOOLS")
+    unpacked = [str(Path(tools) / "usr" / sub) for sub in ("sbin", "bin")] if tools else []
+    for where in [*unpacked, os.environ.get("PATH", ""), "/usr/sbin"]:
+        found = shutil.which(name, path=where)
+        if found:
+            return found
+    if os.environ.get("CI"):
+        pytest.fail(f"{name} is missing: .ci/run unpacks Debian's {package} into GX3_TOOLS")
+    pytest.skip(f"{name} is not installed (Debian's {package})")
