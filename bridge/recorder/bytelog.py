@@ -287,39 +287,35 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         "host_clock": "none", "timed_by": "the unit's timer (gx3 import)",
         "logs": json.dumps([str(log.path) for log in logs]),
         "starts_ns": json.dumps(starts)})
-    info_code = 0
+    info_code = [0]  # the record type of the last Info written
+
+    def take(batch: Batch, log: LogFile, first_in_file: bool) -> None:
+        """One batch the framer found: settings kept, records timed and written."""
+        if batch.code == SAMPLING:
+            timeline.decimation = max(1, int(batch["decimation"][-1]))
+            result.filter_width = max(1, int(batch["filter_width"][-1]))
+            result.filter_from_log = True
+            return
+        ticks = timeline.ticks(batch, log, first_in_file)
+        time_ns = timeline.instants(ticks)
+        if batch.code != info_code[0]:  # the first records, or the unit switched type
+            info_code[0] = batch.code
+            _info(writer, prefix, unit, log, batch, timeline, result, int(time_ns[0]))
+        _events(writer, prefix, timeline)  # first: the writer orders over a window
+        _samples(writer, prefix, unit, batch, ticks, time_ns, result)
+
     try:
         for log in logs:
             first_in_file = True
             with log.path.open("rb") as stream:
                 while chunk := stream.read(_READ_BYTES):
                     for batch in framer.feed(chunk):
-                        if batch.code == SAMPLING:
-                            timeline.decimation = max(1, int(batch["decimation"][-1]))
-                            result.filter_width = max(1, int(batch["filter_width"][-1]))
-                            result.filter_from_log = True
-                            continue
-                        if batch.code != info_code:
-                            info_code = batch.code
-                            pending_info = True
-                        else:
-                            pending_info = False
-                        ticks = timeline.ticks(batch, log, first_in_file)
-                        first_in_file = False
-                        time_ns = timeline.instants(ticks)
-                        if pending_info:
-                            _info(writer, prefix, unit, log, batch, timeline, result,
-                                  int(time_ns[0]))
-                        # events first: the writer keeps log-time order over a window
-                        _events(writer, prefix, timeline)
-                        _samples(writer, prefix, unit, batch, ticks, time_ns, result)
+                        take(batch, log, first_in_file)
+                        first_in_file = first_in_file and batch.code == SAMPLING
                     if on_bytes is not None:
                         on_bytes(len(chunk))
         for batch in framer.flush():
-            if batch.code in DATA_CODES:
-                ticks = timeline.ticks(batch, logs[-1], False)
-                _events(writer, prefix, timeline)
-                _samples(writer, prefix, unit, batch, ticks, timeline.instants(ticks), result)
+            take(batch, logs[-1], False)
         result.stats = framer.stats
         if not result.samples:
             raise LogImportError(
