@@ -32,7 +32,7 @@ from bridge.sim.state import Stored
 from bridge.sim.unit import UnitConfig
 from bridge.unit.pipeline import Options, Pipeline
 from bridge.unit.service import GAP_LINE_S
-from tests.helpers.archives import samples_in
+from tests.helpers.archives import events_in, samples_in
 from tests.helpers.pipeline import ListSink
 from tests.helpers.processes import GX3, bridge_process, recorder
 from tests.helpers.units import FIVE_HUNDRED_HZ, STATIC_UNIT
@@ -41,13 +41,6 @@ from tests.helpers.zenoh import zenoh_config
 
 SLOW_LINE = UnitConfig(serial="SLOWLINE", motion=MotionConfig(seed=8),
                        stored=Stored(mode_preset=2, continuous_preset=0xCC))
-
-
-def _events(archive_path: Path, unit: str) -> list[Event]:
-    """A unit's events in an archive (one being written: none before it exists)."""
-    if not archive_path.exists():
-        return []
-    return [e for _, e in read_archive(archive_path).events([unit])]
 
 
 def _finish(proc: subprocess.Popen[bytes]) -> str:
@@ -87,14 +80,14 @@ def test_a_stalled_bridge_reports_the_records_lost_as_a_gap(tmp_path: Path) -> N
         wait_for(lambda: samples_in(out, "a") >= resumed + 1000, what="2 s after the stall")
         done = _gx3("set-timer", "--value", "0", "--unit", "a", "--zenoh-config", str(cli_cfg))
         assert done.returncode == 0, done.stderr
-        wait_for(lambda: any(e.kind == Event.RESET for e in _events(out, "a")),
+        wait_for(lambda: any(e.kind == Event.RESET for e in events_in(out, "a")),
                  what="the timer set to be reported")
         _finish(bridge)
         truth = sim.units[0].truth.arrays()
     _finish(rec)
 
     archive = read_archive(out)
-    events = _events(out, "a")
+    events = events_in(out, "a")
     resets = [e for e in events if e.kind == Event.RESET]
     assert len(resets) == 1, "only the timer set is a reset"
     table = sample_table(archive, ["a"], re_estimate=offline_times(archive))
@@ -133,7 +126,7 @@ def test_a_line_too_slow_for_its_rate_is_named_and_its_gaps_summed(tmp_path: Pat
         with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a",
                             "--allow-commands") as bridge:
             started = time.monotonic()
-            wait_for(lambda: sum(e.kind == Event.GAP for e in _events(out, "a")) >= 300,
+            wait_for(lambda: sum(e.kind == Event.GAP for e in events_in(out, "a")) >= 300,
                      what="the gaps of a line too slow")
             remote = _gx3("configure", "--unit", "a", "--decimation", "5", "--json",
                           "--zenoh-config", str(cli_cfg))
@@ -142,7 +135,7 @@ def test_a_line_too_slow_for_its_rate_is_named_and_its_gaps_summed(tmp_path: Pat
             stderr = _finish(bridge)
             ran = time.monotonic() - started
         _finish(rec)
-    events = _events(out, "a")
+    events = events_in(out, "a")
     bring_up = [e for e in events if e.kind == Event.BRING_UP]
     assert fix in bring_up[0].detail and fix in stderr
     gaps = [e for e in events if e.kind == Event.GAP]

@@ -11,7 +11,7 @@ from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol.codec import Batch
 from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
+from bridge.recorder.reader import ArchiveReader, read_archive
 from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.records import T0, synthetic_batch
 
@@ -119,18 +119,29 @@ def write_capture(path: Path, reads: list[tuple[int, bytes]],
     return path
 
 
+def so_far(path: Path) -> ArchiveReader | None:
+    """An archive being written, as read now; None before its header is written."""
+    if not path.exists() or not path.stat().st_size:
+        return None
+    return read_archive(path)
+
+
 def samples_in(path: Path, unit: str) -> int:
     """Samples of ``unit`` in an archive being written (flushed every second)."""
-    if not path.exists() or not path.stat().st_size:  # created, its header not yet written
-        return 0
-    return sum(len(b) for b in read_archive(path).samples([unit]))
+    archive = so_far(path)
+    return 0 if archive is None else sum(len(b) for b in archive.samples([unit]))
 
 
 def topics_in(path: Path) -> list[str]:
     """The topics of an archive being written (none before its header is written)."""
-    if not path.exists() or not path.stat().st_size:
-        return []
-    return read_archive(path).topics()
+    archive = so_far(path)
+    return [] if archive is None else archive.topics()
+
+
+def events_in(path: Path, unit: str) -> list[Event]:
+    """``unit``'s events in an archive being written (none before its header is written)."""
+    archive = so_far(path)
+    return [] if archive is None else [e for _, e in archive.events([unit])]
 
 
 def sample_columns(path: Path, unit: str) -> dict[str, np.ndarray]:
