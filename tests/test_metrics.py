@@ -196,5 +196,12 @@ def test_the_dashboard_shows_only_metrics_we_export() -> None:
     for expr in expressions:
         for name in re.findall(r"\bgx3_\w+", expr):
             assert name in exported, f"{expr}: {name} is not exported"
+    # what is wrong shows in red: losses, checksum failures, a unit not streaming, an
+    # unsynchronised host clock, messages the recorder could not archive
+    for name in ("gx3_records_lost_total", "gx3_checksum_failures_total", "gx3_unit_state",
+                 "gx3_host_clock_synchronised", "gx3_recorder_messages_unarchived_total"):
+        assert any(name in t["expr"] and "red" in {
+            step["color"] for step in p["fieldConfig"]["defaults"]["thresholds"]["steps"]}
+            for p in panels for t in p.get("targets", [])), f"{name}: no panel in red"
     assert "unit" in {v["name"] for v in dashboard["templating"]["list"]}
     assert any(p.get("repeat") == "unit" for p in panels), "no row per unit"
