@@ -22,7 +22,14 @@ import zenoh
 from prometheus_client.parser import text_string_to_metric_families
 
 from bridge.bus.gx3_pb2 import HostClock, Status
-from bridge.bus.metrics import recorder_metrics, status_metrics
+from bridge.bus.metrics import (
+    Health,
+    MetricsServer,
+    parse_address,
+    recorder_metrics,
+    status_metrics,
+)
+from bridge.exceptions import MetricsError
 from bridge.sim.serve import Simulator
 from tests.helpers.processes import GX3, bridge_process, recorder
 from tests.helpers.tools import tool
@@ -142,6 +149,31 @@ def test_a_busy_port_is_one_line_and_nothing_is_made(tmp_path: Path) -> None:
     bad = subprocess.run([GX3, "bridge", "--port", "/dev/null-gx3", "--metrics", "9464"],
                          capture_output=True, text=True, timeout=60, check=False)
     assert bad.returncode == 2 and "give ADDR:PORT" in bad.stderr
+
+
+def test_the_server_lets_its_port_go_when_closed() -> None:
+    """In a process that goes on (a library's caller), closing frees the port."""
+    port = free_port()
+    health = Health()
+    health.status(Status(unit="c1", samples=7, state=Status.STREAMING))
+    with MetricsServer(f"127.0.0.1:{port}", health):
+        assert scrape(port)["gx3_samples_total"][(("unit", "c1"),)] == 7.0
+        try:
+            MetricsServer(f"127.0.0.1:{port}", health)
+            raise AssertionError("a second server took a busy port")
+        except MetricsError as exc:
+            assert "cannot listen there" in str(exc)
+    assert scrape(port) == {}
+    with MetricsServer(f"127.0.0.1:{port}", health):  # free again
+        assert scrape(port)["gx3_samples_total"][(("unit", "c1"),)] == 7.0
+    for bad in ("9464", "host:", "host:99999", "127.0.0.1:x"):
+        try:
+            parse_address(bad)
+            raise AssertionError(f"{bad!r} was taken")
+        except MetricsError:
+            pass
+    assert parse_address(":9464") == ("0.0.0.0", 9464)
+    assert parse_address("[::1]:9464") == ("::1", 9464)
 
 
 def test_prometheus_scrapes_a_bridge_and_queries_its_rate(tmp_path: Path) -> None:
