@@ -18,10 +18,18 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
+import zenoh
 from prometheus_client.parser import text_string_to_metric_families
 
 from bridge.bus.gx3_pb2 import HostClock, Status
-from bridge.bus.metrics import recorder_metrics, status_metrics
+from bridge.bus.metrics import (
+    Health,
+    MetricsServer,
+    parse_address,
+    recorder_metrics,
+    status_metrics,
+)
+from bridge.exceptions import MetricsError
 from bridge.sim.serve import Simulator
 from tests.helpers.processes import GX3, bridge_process, recorder
 from tests.helpers.tools import tool
@@ -46,42 +54,84 @@ def scrape(port: int) -> dict[str, dict[tuple[tuple[str, str], ...], float]]:
     return out
 
 
+COUNTERS = ("samples", "dropped", "checksum_failures", "resyncs", "reconnects")
+SCRAPED = ("gx3_samples_total", "gx3_records_lost_total", "gx3_checksum_failures_total",
+           "gx3_resyncs_total", "gx3_reconnects_total")
+
+
 def test_a_bridge_and_a_recorder_serve_the_units_health(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    """The bridge's numbers are those of the Status it publishes; the recorder's, what
+    it wrote."""
+    endpoint, watch = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
     bridge_port, recorder_port = free_port(), free_port()
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
-    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
+    watch_cfg = zenoh_config(tmp_path / "watch.json5", listen=[watch])
+    bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint, watch])
     proc = recorder(tmp_path / "fleet.mcap", rec_cfg, "--metrics",
                     f"127.0.0.1:{recorder_port}")
     unit = (("unit", "m1"),)
+    statuses: list[Status] = []
+
+    def counters() -> tuple[float, ...] | None:
+        """The scraped counters, if they are those of a Status seen on Zenoh."""
+        got = scrape(bridge_port)
+        scraped = tuple(got.get(name, {}).get(unit, -1.0) for name in SCRAPED)
+        published = {tuple(float(getattr(s, c)) for c in COUNTERS) for s in list(statuses)}
+        return scraped if scraped in published else None
+
     try:
         with Simulator([STATIC_UNIT], "pty") as sim, \
-                bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "m1", "--metrics",
-                               f"127.0.0.1:{bridge_port}"):
-            wait_for(lambda: scrape(bridge_port).get("gx3_samples_total", {}).get(unit, 0)
-                     >= 200, what="the bridge's samples on /metrics")
-            first = scrape(bridge_port)["gx3_samples_total"][unit]
-            wait_for(lambda: scrape(bridge_port)["gx3_samples_total"][unit] > first,
-                     what="the counter to rise")
-            wait_for(lambda: scrape(recorder_port).get("gx3_recorder_samples_total", {})
-                     .get(unit, 0) >= 200, what="the recorder's archived samples")
-            bridge, archived = scrape(bridge_port), scrape(recorder_port)
+                zenoh.open(zenoh.Config.from_file(str(watch_cfg))) as session:
+            sub = session.declare_subscriber(
+                "gx3/m1/status",
+                lambda sample: statuses.append(Status.FromString(sample.payload.to_bytes())))
+            with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "m1", "--metrics",
+                                f"127.0.0.1:{bridge_port}"):
+                wait_for(lambda: scrape(bridge_port).get("gx3_samples_total", {})
+                         .get(unit, 0) >= 200, what="the bridge's samples on /metrics")
+                first = scrape(bridge_port)["gx3_samples_total"][unit]
+                wait_for(lambda: scrape(bridge_port)["gx3_samples_total"][unit] > first,
+                         what="the counter to rise")
+                # the same numbers as a Status the bridge published (a scrape between
+                # two Status messages can be one behind those seen: retried)
+                wait_for(lambda: counters() is not None,
+                         what="the scraped counters to be those of a published Status")
+                bridge, latest = scrape(bridge_port), statuses[-1]
+                wait_for(lambda: scrape(recorder_port).get("gx3_recorder_samples_total", {})
+                         .get(unit, 0) >= 200, what="the recorder's archived samples")
+                size = scrape(recorder_port)["gx3_recorder_written_bytes_total"][()]
+                wait_for(lambda: scrape(recorder_port)["gx3_recorder_written_bytes_total"][()]
+                         > size, what="the archive's bytes to grow")
+                archived = scrape(recorder_port)
+            sub.undeclare()
     finally:
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
     assert proc.returncode == 0
+    # within a few Status messages (one a second) of the last one seen on Zenoh
+    assert abs(bridge["gx3_samples_total"][unit] - latest.samples) <= 500
+    assert abs(bridge["gx3_sample_rate_hertz"][unit] - latest.samples_per_s) <= 30
+    assert abs(bridge["gx3_clock_offset_seconds"][unit] - latest.clock_offset_ns / 1e9) < 0.1
     assert bridge["gx3_unit_state"][(("state", "streaming"), *unit)] == 1.0
+    assert sum(v for k, v in bridge["gx3_unit_state"].items() if ("unit", "m1") in k) == 1.0
     assert bridge["gx3_unit_connected"][unit] == 1.0
     assert 80 <= bridge["gx3_sample_rate_hertz"][unit] <= 120  # a 100 Hz unit
     assert bridge["gx3_records_lost_total"][unit] == 0.0
     assert unit in bridge["gx3_clock_spread_seconds"]
-    assert any(dict(k)["unit"] == "m1" for k in bridge["gx3_host_clock_synchronised"])
+    assert unit in bridge["gx3_clock_drift_ppm"]
+    synced = {dict(k)["unit"]: v for k, v in bridge["gx3_host_clock_synchronised"].items()}
+    assert synced["m1"] in (0.0, 1.0)
     # the recorder serves the same names from the Status it archived, and what it wrote
     assert archived["gx3_samples_total"][unit] <= bridge["gx3_samples_total"][unit]
     assert archived["gx3_recorder_samples_total"][unit] >= 200
     assert archived["gx3_recorder_unit_alive"][unit] == 1.0
     assert archived["gx3_recorder_messages_written_total"][()] >= 200
     assert archived["gx3_recorder_bytes_total"][unit] > 0
+    assert archived["gx3_recorder_written_bytes_total"][()] > 1000
+    unarchived = {dict(k)["reason"]: v
+                  for k, v in archived["gx3_recorder_messages_unarchived_total"].items()}
+    assert unarchived == {"lost": 0.0, "rejected": 0.0, "shed": 0.0}
+    assert archived["gx3_recorder_samples_lost_in_transit_total"][()] == 0.0
 
 
 def test_a_busy_port_is_one_line_and_nothing_is_made(tmp_path: Path) -> None:
@@ -99,6 +149,31 @@ def test_a_busy_port_is_one_line_and_nothing_is_made(tmp_path: Path) -> None:
     bad = subprocess.run([GX3, "bridge", "--port", "/dev/null-gx3", "--metrics", "9464"],
                          capture_output=True, text=True, timeout=60, check=False)
     assert bad.returncode == 2 and "give ADDR:PORT" in bad.stderr
+
+
+def test_the_server_lets_its_port_go_when_closed() -> None:
+    """In a process that goes on (a library's caller), closing frees the port."""
+    port = free_port()
+    health = Health()
+    health.status(Status(unit="c1", samples=7, state=Status.STREAMING))
+    with MetricsServer(f"127.0.0.1:{port}", health):
+        assert scrape(port)["gx3_samples_total"][(("unit", "c1"),)] == 7.0
+        try:
+            MetricsServer(f"127.0.0.1:{port}", health)
+            raise AssertionError("a second server took a busy port")
+        except MetricsError as exc:
+            assert "cannot listen there" in str(exc)
+    assert scrape(port) == {}
+    with MetricsServer(f"127.0.0.1:{port}", health):  # free again
+        assert scrape(port)["gx3_samples_total"][(("unit", "c1"),)] == 7.0
+    for bad in ("9464", "host:", "host:99999", "127.0.0.1:x"):
+        try:
+            parse_address(bad)
+            raise AssertionError(f"{bad!r} was taken")
+        except MetricsError:
+            pass
+    assert parse_address(":9464") == ("0.0.0.0", 9464)
+    assert parse_address("[::1]:9464") == ("::1", 9464)
 
 
 def test_prometheus_scrapes_a_bridge_and_queries_its_rate(tmp_path: Path) -> None:
@@ -143,7 +218,8 @@ def test_the_dashboard_shows_only_metrics_we_export() -> None:
     status = Status(unit="u", clock_offset_ns=1, clock_drift_ppm=1.0,
                     host_clock=HostClock(known=True, host="h"))
     families = [*status_metrics([status]), *recorder_metrics(
-        [{"unit": "u", "samples": 1, "bytes": 1, "alive": True}], 1, 0)]
+        [{"unit": "u", "samples": 1, "bytes": 1, "alive": True}], 1, 0, archive_bytes=1,
+        unarchived={"shed": 0})]
     exported = {sample.name for family in families for sample in family.samples}
     dashboard = json.loads(DASHBOARD.read_text())
     panels = [p for top in dashboard["panels"] for p in [top, *top.get("panels", [])]]
@@ -152,5 +228,12 @@ def test_the_dashboard_shows_only_metrics_we_export() -> None:
     for expr in expressions:
         for name in re.findall(r"\bgx3_\w+", expr):
             assert name in exported, f"{expr}: {name} is not exported"
+    # what is wrong shows in red: losses, checksum failures, a unit not streaming, an
+    # unsynchronised host clock, messages the recorder could not archive
+    for name in ("gx3_records_lost_total", "gx3_checksum_failures_total", "gx3_unit_state",
+                 "gx3_host_clock_synchronised", "gx3_recorder_messages_unarchived_total"):
+        assert any(name in t["expr"] and "red" in {
+            step["color"] for step in p["fieldConfig"]["defaults"]["thresholds"]["steps"]}
+            for p in panels for t in p.get("targets", [])), f"{name}: no panel in red"
     assert "unit" in {v["name"] for v in dashboard["templating"]["list"]}
     assert any(p.get("repeat") == "unit" for p in panels), "no row per unit"

@@ -12,7 +12,7 @@ in seconds, every per-unit series has a ``unit`` label.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 from prometheus_client import start_http_server
@@ -70,6 +70,9 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
             f"{prefix}_status_timestamp_seconds",
             "When the unit's latest status was sent (its age tells a silent bridge).",
             labels=["unit"]),
+        "offset": GaugeMetricFamily(
+            f"{prefix}_clock_offset_seconds", "The unit's clock model: host time (Unix "
+            "seconds) at its timer's zero; absent until modelled.", labels=["unit"]),
         "drift": GaugeMetricFamily(
             f"{prefix}_clock_drift_ppm", "The unit's clock rate error against the host's "
             "(positive: fast); absent until the model has measured it.", labels=["unit"]),
@@ -92,9 +95,11 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
             gauges["state"].add_metric([s.unit, state.removeprefix("STATE_").lower()],
                                        float(state == current))
         gauges["status_time"].add_metric([s.unit], s.time_ns / 1e9)
-        if s.clock_offset_ns and s.clock_drift_ppm:  # exactly 0 until measured
-            gauges["drift"].add_metric([s.unit], s.clock_drift_ppm)
+        if s.clock_offset_ns:  # 0 until the unit's clock is modelled
+            gauges["offset"].add_metric([s.unit], s.clock_offset_ns / 1e9)
             gauges["spread"].add_metric([s.unit], s.clock_spread_ns / 1e9)
+            if s.clock_drift_ppm:  # exactly 0 until the rate is measured
+                gauges["drift"].add_metric([s.unit], s.clock_drift_ppm)
         if s.host_clock.known:
             host = s.host_clock.host
             gauges["synchronised"].add_metric([s.unit, host], float(s.host_clock.synchronised))
@@ -103,7 +108,8 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
 
 
 def recorder_metrics(rows: Iterable[dict[str, Any]], written: int, lost: int,
-                     prefix: str = "gx3") -> Iterator[Metric]:
+                     prefix: str = "gx3", *, archive_bytes: int | None = None,
+                     unarchived: Mapping[str, int] | None = None) -> Iterator[Metric]:
     """The metric families of what a recorder archived.
 
     Args:
@@ -111,6 +117,9 @@ def recorder_metrics(rows: Iterable[dict[str, Any]], written: int, lost: int,
         written: Messages written into the archive.
         lost: Samples Zenoh reported lost in transit.
         prefix: The first part of every metric's name.
+        archive_bytes: Bytes in the archive's files so far (every part); None: not known.
+        unarchived: Messages not archived, by reason (``lost``, ``rejected``, ``shed``:
+            the events that account for them); None: not known.
 
     Yields:
         One family per number.
@@ -131,6 +140,18 @@ def recorder_metrics(rows: Iterable[dict[str, Any]], written: int, lost: int,
     yield CounterMetricFamily(f"{prefix}_recorder_samples_lost_in_transit",
                               "Samples Zenoh reported lost before they reached the recorder.",
                               value=float(lost))
+    if archive_bytes is not None:
+        yield CounterMetricFamily(f"{prefix}_recorder_written_bytes", "Bytes written into "
+                                  "the archive's files (every part; compressed, as on disk).",
+                                  value=float(archive_bytes))
+    if unarchived is not None:
+        family = CounterMetricFamily(
+            f"{prefix}_recorder_messages_unarchived", "Messages not archived, by reason: "
+            "lost (a gap in a sequence), rejected (not a gx3 message), shed (the buffer was "
+            "full).", labels=["reason"])
+        for reason, count in sorted(unarchived.items()):
+            family.add_metric([reason], float(count))
+        yield family
 
 
 class Health(Collector):

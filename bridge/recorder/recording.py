@@ -254,12 +254,24 @@ class Recording:
 
     def _archived_metrics(self) -> Iterator[Metric]:
         """What the recorder archived, for Prometheus (nothing before it starts)."""
+        from bridge.bus.gx3_pb2 import Event
         from bridge.bus.metrics import recorder_metrics
 
         recorder = self._recorder
         if recorder is not None:
+            unarchived = {Event.Kind.Name(kind).lower(): count
+                          for kind, count in dict(recorder.losses).items()}
             yield from recorder_metrics(recorder.snapshot(), recorder.written,
-                                        recorder.misses)
+                                        recorder.misses, archive_bytes=self._archive_bytes(),
+                                        unarchived=unarchived)
+
+    def _archive_bytes(self) -> int:
+        """Bytes in the archive's files so far, as the disk has them (a scrape's thread)."""
+        total = 0
+        for part in self.paths:
+            with suppress(OSError):  # a part moved away: not counted
+                total += part.stat().st_size
+        return total
 
     def _close_metrics(self) -> None:
         server, self._metrics = self._metrics, None
