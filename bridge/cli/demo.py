@@ -39,7 +39,7 @@ def _summary(rows: list[dict[str, Any]]) -> Table:
     return table
 
 
-def runnable(name: str) -> str:
+def _runnable(name: str) -> str:
     """``name`` (gx3, rerun) as a shell runs this installation's: bare where the PATH
     finds it, else its path (relative where that is shorter), so a suggestion printed
     with it runs as printed in the user's shell."""
@@ -143,7 +143,7 @@ def demo(
     console.print(f"{ended} {time.monotonic() - started:,.0f} s; results in {output}/ (the "
                   "archive, the Rerun recording, each bridge's log and the Zenoh configs "
                   "they used). Open them with:", highlight=False)
-    gx3, rerun = runnable("gx3"), runnable("rerun")
+    gx3, rerun = _runnable("gx3"), _runnable("rerun")
     folder = shlex.quote(str(output))
     for command, what in ((f"{rerun} {shlex.quote(str(run.rrd))}",
                            "the recording: attitude and signals"),
