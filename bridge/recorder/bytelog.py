@@ -4,19 +4,20 @@ A byte log (a data logger's, ``cat /dev/ttyUSB0``) holds what the unit sent and 
 of when it arrived, so the unit's timer is the only clock: each record's ``time_ns`` is
 the log's start plus the unit's time since its first record, less the filter delay (the
 instant its values describe, as everywhere else). Rollovers are unwrapped; a jump
-forward is a gap (the records between were lost); a timer that goes back is a reset,
-whose time since the start no byte can tell, so it starts a new epoch at the start of
-the file it begins, or the import is refused. Every record of every data type is kept,
-in order; the float byte order follows 0xDB replies as ``gx3 decode`` does. The archive
-says that no host clock timed it (its ``gx3.archive`` metadata, and Info with no link
-and no baud rate), so that nobody takes it for a live-timed recording; ``gx3 export``
-keeps its times.
+forward by more than the output period (from a 0xDB reply, else the timer's own steps)
+is a gap (the records between were lost); a timer that goes back is a reset, whose time
+since the start no byte can tell, so it starts a new epoch at the next start given
+(``restarts``) or at the start of the file it begins, or the import is refused. Every
+record of every data type is kept, in order; the float byte order follows 0xDB replies
+as ``gx3 decode`` does. The archive says that no host clock timed it (its
+``gx3.archive`` metadata, and Info with no link and no baud rate), so that nobody takes
+it for a live-timed recording; ``gx3 export`` keeps its times.
 """
 
 from __future__ import annotations
 
 import json
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -32,6 +33,7 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
 from bridge.recorder.writer import ArchiveWriter
+from bridge.timing.stream import filter_delay_ns
 from bridge.timing.unwrap import NS_PER_TICK
 
 __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
@@ -39,7 +41,7 @@ __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
 SAMPLING = 0xDB  # the sampling settings reply: decimation, filter width, byte order
 _EXPECT = frozenset(DATA_CODES | {SAMPLING})
 FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 0xDB reply
-FACTORY_DECIMATION = 10
+FACTORY_DECIMATION = 10  # until a 0xDB reply or the timer's steps tell the rate
 _ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
 _READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
 
@@ -69,6 +71,8 @@ class Imported:
         stats: The framer's counts (checksum failures, bytes skipped, ...).
         filter_width: The filter width whose delay was taken out.
         filter_from_log: Whether a 0xDB reply in the log gave it (else the factory's).
+        decimation: The output period in ms (1000 / rate) the gaps were counted against.
+        decimation_from_log: Whether a 0xDB reply gave it (else the timer's steps).
         first_ns: The first sample's ``time_ns``.
         last_ns: The last sample's ``time_ns``.
     """
@@ -80,6 +84,8 @@ class Imported:
     stats: FramerStats = field(default_factory=FramerStats)
     filter_width: int = FACTORY_FILTER_WIDTH
     filter_from_log: bool = False
+    decimation: int = FACTORY_DECIMATION
+    decimation_from_log: bool = False
     first_ns: int = 0
     last_ns: int = 0
 
@@ -97,7 +103,9 @@ class Imported:
                  else f"filter width {self.filter_width} assumed (the factory's; no 0xDB "
                       "reply in the log)")
         total = counted(sum(self.samples.values()), "sample")
-        return (f"{self.unit}: {total} ({by_type or 'none'}) over {span:,.1f} s; "
+        rate = (f"{1000 / self.decimation:g} Hz "
+                f"{'from the log' if self.decimation_from_log else 'by the timer'}")
+        return (f"{self.unit}: {total} ({by_type or 'none'}) at {rate} over {span:,.1f} s; "
                 f"{events or 'no gap'}{lost}; {delay}\n"
                 f"checksum failures: {self.stats.checksum_failures}; bytes skipped: "
                 f"{self.stats.bytes_skipped:,} of {self.stats.bytes_fed:,}")
@@ -158,9 +166,9 @@ def _ns(when: datetime) -> int:
 class _Timeline:
     """The unit's timer as ticks on one timeline, epoch by epoch, with what it shows."""
 
-    def __init__(self, unit: str, result: Imported) -> None:
+    def __init__(self, unit: str, result: Imported, restarts: Sequence[int]) -> None:
         self.unit, self.result = unit, result
-        self.decimation = FACTORY_DECIMATION
+        self.restarts = deque(restarts)  # the instants of the resets' first records
         self.last_timer: int | None = None
         self.last_ticks = 0
         self.last_code = 0
@@ -170,14 +178,35 @@ class _Timeline:
 
     @property
     def period(self) -> int:
-        return round(TICKS_PER_SECOND * self.decimation / 1000)
+        return round(TICKS_PER_SECOND * self.result.decimation / 1000)
+
+    def sampling(self, batch: Batch) -> None:
+        """A 0xDB reply: the output period and filter width from here on."""
+        self.result.decimation = max(1, int(batch["decimation"][-1]))
+        self.result.decimation_from_log = True
+        self.result.filter_width = max(1, int(batch["filter_width"][-1]))
+        self.result.filter_from_log = True
+
+    def _learn_period(self, timers: np.ndarray) -> None:
+        """The output period from the timer's own steps, where no 0xDB reply gave it.
+
+        Without it a log at any rate but the factory's 100 Hz would be all gaps. The
+        median step is the period however many records the gaps lost.
+        """
+        steps = np.diff(timers.astype(np.int64)) % (1 << 32)
+        steps = steps[(steps > 0) & (steps <= _ROLLOVER_TICKS)]
+        if len(steps):
+            ms = float(np.median(steps)) * 1000 / TICKS_PER_SECOND
+            self.result.decimation = max(1, round(ms))
 
     def ticks(self, batch: Batch, log: LogFile, first_in_file: bool) -> np.ndarray:
         """The batch's records on the timeline; its rollovers, gaps and resets noted.
 
         Raises:
-            LogImportError: A start is missing, or a reset comes inside a file.
+            LogImportError: A start is missing, or a reset has no start.
         """
+        if not self.result.decimation_from_log:
+            self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
             return fast
@@ -229,21 +258,31 @@ class _Timeline:
         return ticks
 
     def _new_epoch(self, log: LogFile, timer: int, first: bool, at_ticks: int) -> None:
-        if not first or log.start_ns is None:
-            if self.last_timer is None:
-                raise LogImportError(f"{log.path}: give the instant of its first record "
-                                     "(--start, or --start-from-name for loggers that name "
-                                     "their files by time)")
+        """An epoch from its first record's instant.
+
+        The log's own start where the epoch begins the log, else the next of
+        ``restarts``; with neither, an error that says what to give.
+        """
+        if first and log.start_ns is not None:
+            start, source = log.start_ns, f"{log.path.name} starts"
+        elif self.last_timer is None:
+            raise LogImportError(f"{log.path}: give the instant of its first record "
+                                 "(--start, or --start-from-name for loggers that name "
+                                 "their files by time)")
+        elif self.restarts:
+            start, source = self.restarts.popleft(), "the next --start gives"
+        else:
             where = "at its first record" if first else "inside it"
             raise LogImportError(
-                f"{log.path}: the unit's timer began again {where} (a reset, at timer "
-                f"{timer}), and no byte tells how long after the start that was; give each "
-                "log its start (--start-from-name), splitting a log at its reset")
-        self.epoch_ns, self.epoch_ticks = log.start_ns, at_ticks
+                f"{log.path}: the unit's timer began again {where} (reset "
+                f"{self.result.events['reset'] + 1}, at timer {timer}), and no byte tells "
+                "when; give that record's instant as a further --start (one per reset, in "
+                "order), or name each log by its start (--start-from-name)")
+        self.epoch_ns, self.epoch_ticks = start, at_ticks
         self.last_ticks = at_ticks
         if self.last_timer is not None:
             self._event(Event.RESET, "reset", at_ticks, 1,
-                        f"the timer began again at {timer}; {log.path.name} starts a new epoch")
+                        f"the timer began again at {timer}; {source} a new epoch")
 
     def _event(self, kind: Event.Kind, name: str, ticks: int, count: int, detail: str) -> None:
         self.result.events[name] += 1
@@ -253,13 +292,14 @@ class _Timeline:
 
     def instants(self, ticks: np.ndarray) -> np.ndarray:
         """Each record's instant: the epoch's start plus device time, less the filter delay."""
-        delay = (self.result.filter_width - 1) * 500_000
+        delay = filter_delay_ns(self.result.filter_width)
         return self.epoch_ns + (ticks - self.epoch_ticks) * NS_PER_TICK - delay
 
 
 def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx3",
                 little_endian: bool = False,
-                on_bytes: Callable[[int], None] | None = None) -> Imported:
+                on_bytes: Callable[[int], None] | None = None,
+                restarts: Sequence[int] = ()) -> Imported:
     """Frame one unit's byte logs, in order, into an archive timed by its timer.
 
     Args:
@@ -269,38 +309,38 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         prefix: The keys' first chunk.
         little_endian: Floats start little-endian (0xDB replies switch it).
         on_bytes: Hears how many bytes were read, read by read.
+        restarts: The instant of each reset's first record, in order (ns since the
+            epoch), for resets that do not begin a log with its own start.
 
     Returns:
         What was imported.
 
     Raises:
-        LogImportError: No record in the logs, a start missing, or a reset whose time
-            the logs cannot tell.
+        LogImportError: No record in the logs, a start missing, a reset whose time
+            the logs cannot tell, or more restarts than resets.
         OSError: A log cannot be read.
         ArchiveError: The archive cannot be written.
     """
     result = Imported(unit)
     framer = Framer(_EXPECT, little_endian=little_endian)
-    timeline = _Timeline(unit, result)
+    timeline = _Timeline(unit, result, restarts)
     starts = {str(log.path): log.start_ns for log in logs}
     writer = ArchiveWriter(out, prefix=prefix, metadata={
         "host_clock": "none", "timed_by": "the unit's timer (gx3 import)",
         "logs": json.dumps([str(log.path) for log in logs]),
-        "starts_ns": json.dumps(starts)})
+        "starts_ns": json.dumps(starts), "restarts_ns": json.dumps(list(restarts))})
     info_code = [0]  # the record type of the last Info written
 
     def take(batch: Batch, log: LogFile, first_in_file: bool) -> None:
         """One batch the framer found: settings kept, records timed and written."""
         if batch.code == SAMPLING:
-            timeline.decimation = max(1, int(batch["decimation"][-1]))
-            result.filter_width = max(1, int(batch["filter_width"][-1]))
-            result.filter_from_log = True
+            timeline.sampling(batch)
             return
         ticks = timeline.ticks(batch, log, first_in_file)
         time_ns = timeline.instants(ticks)
         if batch.code != info_code[0]:  # the first records, or the unit switched type
             info_code[0] = batch.code
-            _info(writer, prefix, unit, log, batch, timeline, result, int(time_ns[0]))
+            _info(writer, prefix, unit, log, batch, result, int(time_ns[0]))
         _events(writer, prefix, timeline)  # first: the writer orders over a window
         _samples(writer, prefix, unit, batch, ticks, time_ns, result)
 
@@ -322,9 +362,16 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
                 f"no record found in {', '.join(str(log.path) for log in logs)}: not a "
                 "3DM-GX3 byte log" + ("" if little_endian else
                                       " (or its floats are little-endian: --little-endian)"))
+        if timeline.restarts:
+            raise LogImportError(
+                f"{len(restarts) + 1} --start given, but the logs hold "
+                f"{counted(len(restarts) - len(timeline.restarts) + 1, 'epoch')}: give "
+                "one --start per epoch (the first record's, then one per reset)")
         writer.add_metadata("gx3.import", {
             "unit": unit, "filter_width": str(result.filter_width),
             "filter_width_from": "log" if result.filter_from_log else "factory",
+            "decimation": str(result.decimation),
+            "decimation_from": "log" if result.decimation_from_log else "timer",
             "checksum_failures": str(framer.stats.checksum_failures),
             "bytes_skipped": str(framer.stats.bytes_skipped)})
     except BaseException:
@@ -335,12 +382,12 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
 
 
 def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
-          timeline: _Timeline, result: Imported, at_ns: int) -> None:
+          result: Imported, at_ns: int) -> None:
     """The unit's Info as the log shows it: no link, no baud rate (no host timed it)."""
     info = Info(unit=unit, port=str(log.path), command=batch.code,
-                decimation=timeline.decimation, filter_width=result.filter_width,
+                decimation=result.decimation, filter_width=result.filter_width,
                 flags=0x10 if batch.little_endian else 0,
-                output_rate_hz=1000 / timeline.decimation, bring_up_time_ns=at_ns)
+                output_rate_hz=1000 / result.decimation, bring_up_time_ns=at_ns)
     writer.write(f"{prefix}/{unit}/info", info.SerializeToString(), at_ns)
 
 
