@@ -24,6 +24,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from bridge._text import counted
 from bridge.bus.codec import encode_batch
@@ -187,13 +188,13 @@ class _Timeline:
         self.result.filter_width = max(1, int(batch["filter_width"][-1]))
         self.result.filter_from_log = True
 
-    def _learn_period(self, timers: np.ndarray) -> None:
+    def _learn_period(self, timers: npt.NDArray[np.integer]) -> None:
         """The output period from the timer's own steps, where no 0xDB reply gave it.
 
         Without it a log at any rate but the factory's 100 Hz would be all gaps. The
         median step is the period however many records the gaps lost.
         """
-        steps = np.diff(timers.astype(np.int64)) % (1 << 32)
+        steps = np.mod(np.diff(timers.astype(np.int64)), 1 << 32)
         steps = steps[(steps > 0) & (steps <= _ROLLOVER_TICKS)]
         if len(steps):
             ms = float(np.median(steps)) * 1000 / TICKS_PER_SECOND
