@@ -200,8 +200,12 @@ class _Timeline:
             ms = float(np.median(steps)) * 1000 / TICKS_PER_SECOND
             self.result.decimation = max(1, round(ms))
 
-    def ticks(self, batch: Batch, log: LogFile, first_in_file: bool) -> np.ndarray:
+    def timed(self, batch: Batch, log: LogFile,
+              first_in_file: bool) -> tuple[np.ndarray, np.ndarray]:
         """The batch's records on the timeline; its rollovers, gaps and resets noted.
+
+        Returns:
+            Each record's ticks and its instant (``time_ns``), each in its own epoch.
 
         Raises:
             LogImportError: A start is missing, or a reset has no start.
@@ -210,9 +214,10 @@ class _Timeline:
             self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
-            return fast
+            return fast, self.origin_ns + fast * NS_PER_TICK
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
+        origins = np.empty(len(timers), np.int64)  # a reset in the batch changes it
         for i, timer in enumerate(timers):
             if self.last_timer is None:
                 self._new_epoch(log, timer, first=True, at_ticks=0)
@@ -231,9 +236,9 @@ class _Timeline:
                         self.result.missing += lost
                         self._event(Event.GAP, "gap", self.last_ticks + step, lost, "")
                     self.last_ticks += step
-            ticks[i] = self.last_ticks
+            ticks[i], origins[i] = self.last_ticks, self.origin_ns
             self.last_timer, self.last_code = timer, batch.code
-        return ticks
+        return ticks, origins + ticks * NS_PER_TICK
 
     def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
         """``ticks`` of a batch with no reset in it (nearly all), in array operations."""
@@ -287,14 +292,18 @@ class _Timeline:
 
     def _event(self, kind: Event.Kind, name: str, ticks: int, count: int, detail: str) -> None:
         self.result.events[name] += 1
-        at = int(self.instants(np.array([ticks]))[0])
+        at = self.origin_ns + ticks * NS_PER_TICK
         self.events.append(Event(unit=self.unit, time_ns=at, ticks=ticks, kind=kind,
                                  count=count, detail=detail))
 
-    def instants(self, ticks: np.ndarray) -> np.ndarray:
-        """Each record's instant: the epoch's start plus device time, less the filter delay."""
+    @property
+    def origin_ns(self) -> int:
+        """The instant of ticks 0 in this epoch: a record's instant is this plus its ticks.
+
+        The epoch's start plus device time since its first record, less the filter delay.
+        """
         delay = filter_delay_ns(self.result.filter_width)
-        return self.epoch_ns + (ticks - self.epoch_ticks) * NS_PER_TICK - delay
+        return self.epoch_ns - self.epoch_ticks * NS_PER_TICK - delay
 
 
 def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx3",
@@ -337,8 +346,7 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         if batch.code == SAMPLING:
             timeline.sampling(batch)
             return
-        ticks = timeline.ticks(batch, log, first_in_file)
-        time_ns = timeline.instants(ticks)
+        ticks, time_ns = timeline.timed(batch, log, first_in_file)
         if batch.code != info_code[0]:  # the first records, or the unit switched type
             info_code[0] = batch.code
             _info(writer, prefix, unit, log, batch, result, int(time_ns[0]))
