@@ -23,7 +23,9 @@ from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery
+from bridge.viz import layout
 from tests.helpers.processes import gx3
+from tests.helpers.rrd import rerun_rows
 
 SEGMENT_S = 600.0
 SWITCH_S = 0.5  # the logger's commands between the two modes
@@ -115,6 +117,10 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert bag.returncode == 0, bag.stderr
     rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
     assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
+    # every sample plotted; no host clock plot, since no host received them
+    assert rerun_rows(tmp_path / "mooring.rrd", layout.plot_paths("ang_rate", "moor")[0]) == total
+    host_clock = layout.plot_paths("host_clock", "moor")[0]
+    assert rerun_rows(tmp_path / "mooring.rrd", host_clock) == 0
     iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
     assert iron.returncode == 0, iron.stderr
 
