@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from bridge.bus.gx3_pb2 import Event, Info
+from bridge.protocol import Framer, checksum
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
@@ -218,3 +219,32 @@ def test_a_reset_between_logs_named_by_time_starts_a_new_epoch(logged: Logged,
     hour = 3600 * 10**9
     first = int(datetime(2026, 1, 1, tzinfo=UTC).timestamp()) * 10**9 - 7_000_000
     assert (int(time_ns[0]), int(time_ns[half])) == (first, first + hour)
+
+
+def test_a_record_with_a_corrupt_timer_is_dropped_as_live(tmp_path: Path) -> None:
+    """Two records whose timers were corrupted with their checksums still right (one a
+    little ahead, off the lattice; one far back, as a reset would be): each is a glitch,
+    dropped and said, and every other record keeps its time."""
+    segment = synthesize(streaming_config(_unit(5_000_000), code=0xCB, decimation=100,
+                                          baud=115_200), UartDelivery(), 60.0)
+    data = bytearray(b"".join(segment.data))
+    framer = Framer({0xCB})
+    offsets = np.concatenate([b.offsets for b in framer.feed(bytes(data)) + framer.flush()])
+    for k, change in ((100, 1_000), (400, -3_000_000)):
+        end = int(offsets[k]) + 43  # a 0xCB record: ..., timer (4 bytes), checksum (2)
+        timer = int.from_bytes(data[end - 6:end - 2], "big") + change
+        data[end - 6:end - 2] = timer.to_bytes(4, "big")
+        data[end - 2:end] = checksum(data[end - 43:end - 2]).to_bytes(2, "big")
+    log = tmp_path / "noisy.bin"
+    log.write_bytes(bytes(data))
+    out = tmp_path / "noisy.mcap"
+    start = _iso(int(segment.truth["time_ns"][0]))
+    done = gx3("import", log, "-u", "u", "--start", start, "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "2 glitches" in done.stderr, done.stderr
+    assert "gap" not in done.stderr and "reset" not in done.stderr, done.stderr
+    archive = read_archive(out)
+    assert [e.kind for _, e in archive.events(["u"])] == [Event.GLITCH, Event.GLITCH]
+    time_ns = np.concatenate([b.columns["time_ns"] for b in archive.samples(["u"])])
+    truth = np.delete(segment.truth["value_ns"], [100, 400])
+    assert np.abs(np.sort(time_ns) - truth).max() <= 1_000

@@ -45,6 +45,7 @@ FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 
 FACTORY_DECIMATION = 10  # until a 0xDB reply or the timer's steps tell the rate
 _ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
 _READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
+_LATTICE_TOLERANCE = 0.5  # ticks: a step is whole output periods to within rounding
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,8 @@ class Imported:
         """
         by_type = ", ".join(f"0x{code:02X}×{n:,}" for code, n in sorted(self.samples.items()))
         span = (self.last_ns - self.first_ns) / 1e9
-        events = ", ".join(f"{counted(n, kind)}" for kind, n in sorted(self.events.items()))
+        events = ", ".join(counted(n, kind, "glitches" if kind == "glitch" else None)
+                           for kind, n in sorted(self.events.items()))
         lost = f" ({counted(self.missing, 'record')} lost)" if self.missing else ""
         delay = (f"filter width {self.filter_width} from the log" if self.filter_from_log
                  else f"filter width {self.filter_width} assumed (the factory's; no 0xDB "
@@ -178,8 +180,26 @@ class _Timeline:
         self.events: list[Event] = []
 
     @property
-    def period(self) -> int:
-        return round(TICKS_PER_SECOND * self.result.decimation / 1000)
+    def period(self) -> float:
+        """The output period in ticks (62.5 a ms: 187.5 at 3 ms)."""
+        return TICKS_PER_SECOND * self.result.decimation / 1000
+
+    def _off_lattice(self, step: np.ndarray) -> np.ndarray:
+        """Steps that are not whole output periods: a corrupt timer, or a new phase."""
+        periods = np.rint(step / self.period)
+        return np.asarray((np.abs(step - periods * self.period) > _LATTICE_TOLERANCE)
+                          | (periods < 1))
+
+    def _glitch(self, timers: list[int], i: int) -> bool:
+        """Whether record ``i``, doubtful (off the lattice, or back as at a reset), is corrupt.
+
+        Its checksum and plausibility passed, but the record after it runs on from the one
+        before it, as the live path judges (``TimerUnwrapper``).
+        """
+        if i + 1 >= len(timers) or self.last_timer is None:
+            return False
+        step = (timers[i + 1] - self.last_timer) % (1 << 32)
+        return step <= _ROLLOVER_TICKS and not self._off_lattice(np.array([step]))[0]
 
     def sampling(self, batch: Batch) -> None:
         """A 0xDB reply: the output period and filter width from here on."""
@@ -201,11 +221,12 @@ class _Timeline:
             self.result.decimation = max(1, round(ms))
 
     def timed(self, batch: Batch, log: LogFile,
-              first_in_file: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The batch's records on the timeline; its rollovers, gaps and resets noted.
+              first_in_file: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The batch's records on the timeline; its rollovers, gaps, resets, glitches noted.
 
         Returns:
-            Each record's ticks and its instant (``time_ns``), each in its own epoch.
+            Each record's ticks and its instant (``time_ns``), each in its own epoch, and
+            which records to keep (None: all; the others' timers were corrupt).
 
         Raises:
             LogImportError: A start is missing, or a reset has no start.
@@ -214,42 +235,55 @@ class _Timeline:
             self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
-            return fast, self.origin_ns + fast * NS_PER_TICK
+            return fast, self.origin_ns + fast * NS_PER_TICK, None
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
         origins = np.empty(len(timers), np.int64)  # a reset in the batch changes it
+        keep = np.ones(len(timers), bool)
         for i, timer in enumerate(timers):
             if self.last_timer is None:
                 self._new_epoch(log, timer, first=True, at_ticks=0)
             else:
                 back = timer < self.last_timer
                 step = (timer - self.last_timer) % (1 << 32)
-                if back and step > _ROLLOVER_TICKS:  # a reset: the timer began again
+                reset = back and step > _ROLLOVER_TICKS
+                doubtful = reset or self._off_lattice(np.array([step]))[0]
+                if doubtful and batch.code == self.last_code and self._glitch(timers, i):
+                    keep[i] = False
+                    self._event(Event.GLITCH, "glitch", self.last_ticks, 1,
+                                f"a corrupt timer ({timer}): the record is dropped")
+                    ticks[i], origins[i] = self.last_ticks, self.origin_ns
+                    continue
+                if reset:  # the timer began again
                     self._new_epoch(log, timer, first=first_in_file and i == 0,
-                                    at_ticks=self.last_ticks + self.period)
+                                    at_ticks=self.last_ticks + round(self.period))
                 else:
                     if back:
                         self._event(Event.ROLLOVER, "rollover", self.last_ticks + step, 1,
                                     "the 32-bit timer wrapped")
-                    lost = round(step / self.period) - 1
+                    # a record dropped for its timer arrived: it is not missing
+                    lost = round(step / self.period) - 1 - int(i > 0 and not keep[i - 1])
                     if lost > 0 and batch.code == self.last_code:  # not at a mode switch
                         self.result.missing += lost
                         self._event(Event.GAP, "gap", self.last_ticks + step, lost, "")
                     self.last_ticks += step
             ticks[i], origins[i] = self.last_ticks, self.origin_ns
             self.last_timer, self.last_code = timer, batch.code
-        return ticks, origins + ticks * NS_PER_TICK
+        return ticks, origins + ticks * NS_PER_TICK, None if keep.all() else keep
 
     def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
-        """``ticks`` of a batch with no reset in it (nearly all), in array operations."""
+        """``ticks`` of a batch with no reset or glitch in it (nearly all), at once."""
         if self.last_timer is None or not len(batch):
             return None
         timers = batch["timer"].astype(np.int64)
         raw = np.diff(timers, prepend=self.last_timer)
         step = raw % (1 << 32)
         back = raw < 0
-        if (back & (step > _ROLLOVER_TICKS)).any():
-            return None  # a reset: record by record
+        off = self._off_lattice(step)
+        if batch.code != self.last_code:
+            off[0] = False  # a new record type may start on a new phase
+        if (back & (step > _ROLLOVER_TICKS)).any() or off.any():
+            return None  # a reset or a corrupt timer: record by record
         ticks = self.last_ticks + np.cumsum(step)
         for i in np.flatnonzero(back).tolist():
             self._event(Event.ROLLOVER, "rollover", int(ticks[i]), 1, "the 32-bit timer wrapped")
@@ -346,7 +380,9 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         if batch.code == SAMPLING:
             timeline.sampling(batch)
             return
-        ticks, time_ns = timeline.timed(batch, log, first_in_file)
+        ticks, time_ns, keep = timeline.timed(batch, log, first_in_file)
+        if keep is not None:
+            batch, ticks, time_ns = batch.select(keep), ticks[keep], time_ns[keep]
         if batch.code != info_code[0]:  # the first records, or the unit switched type
             info_code[0] = batch.code
             _info(writer, prefix, unit, log, batch, result, int(time_ns[0]))
