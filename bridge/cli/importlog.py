@@ -45,11 +45,12 @@ def import_command(
     logs, else the factory's width 15), as everywhere else. Every record of every data
     type is kept; rollovers are unwrapped, a jump forward by more than the output period
     (from a 0xDB reply, else the timer's own steps) is a gap (GAP event, with the records
-    lost), and a timer that goes back is a reset: it starts a new epoch at the next
-    --start, or at the start of the log it begins (--start-from-name); with neither it is
-    refused, since no byte tells when it came. The archive's metadata says that no host
-    clock timed it (host_clock none), and gx3 export, rrd, calibrate-mag, allan and
-    --format ros2 read it as any archive.
+    lost), a record whose corrupt timer the next one belies is dropped (GLITCH), and a
+    timer that goes back is a reset: it starts a new epoch at the next --start, or at the
+    start of the log it begins (--start-from-name); with neither it is refused, since no
+    byte tells when it came. The archive's metadata says that no host clock timed it
+    (host_clock none), and gx3 export, rrd, calibrate-mag, allan and --format ros2 read
+    it as any archive.
     """
     from bridge.exceptions import LogImportError
     from bridge.recorder.bytelog import LogFile, import_logs, name_time, parse_start
