@@ -16,17 +16,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.bus.gx3_pb2 import Event, Info
+from bridge.protocol import Framer, checksum
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery
+from bridge.viz import layout
 from tests.helpers.processes import gx3
+from tests.helpers.rrd import rerun_rows
 
 SEGMENT_S = 600.0
 SWITCH_S = 0.5  # the logger's commands between the two modes
 TIMER_START = 2**32 - 300 * 62_500  # the rollover 5 minutes in
+
+
+def _iso(time_ns: int) -> str:
+    """An instant as a logger's operator writes it: ISO 8601, to the µs, in UTC."""
+    return datetime.fromtimestamp(time_ns // 1000 / 1e6, UTC).isoformat()
+
+
+def _unit(timer_start: int) -> UnitConfig:
+    # tumbling, so that the magnetometer calibration has every side of the field
+    return UnitConfig(serial="MOOR0001", clock_ppm=0.0, motion=tumbling(MotionConfig(seed=4)),
+                      timer_start=timer_start)
 
 
 @dataclass
@@ -45,19 +60,14 @@ def logged(tmp_path_factory: pytest.TempPathFactory) -> Logged:
     segments = []
     for i, code in enumerate((0xCB, 0xCF)):
         offset = i * (SEGMENT_S + SWITCH_S)
-        # tumbling, so that the magnetometer calibration has every side of the field
-        unit = UnitConfig(serial="MOOR0001", clock_ppm=0.0,
-                          motion=tumbling(MotionConfig(seed=4)),
-                          timer_start=(TIMER_START + round(offset * 62_500)) % 2**32)
+        unit = _unit((TIMER_START + round(offset * 62_500)) % 2**32)
         config = streaming_config(unit, code=code, decimation=100, baud=115_200)
         segments.append(synthesize(config, UartDelivery(), SEGMENT_S, start=offset))
     logs = []
     for i, segment in enumerate(segments):
         logs.append(folder / f"mooring_{i}.bin")
         logs[-1].write_bytes(b"".join(segment.data))
-    first_ns = int(segments[0].truth["time_ns"][0])
-    start = datetime.fromtimestamp(first_ns // 1000 / 1e6, UTC).isoformat()
-    return Logged(segments, logs, start)
+    return Logged(segments, logs, _iso(int(segments[0].truth["time_ns"][0])))
 
 
 def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
@@ -65,8 +75,15 @@ def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
     out = tmp_path / "mooring.mcap"
     done = gx3("import", *logged.logs, "--unit", "moor", "--start", logged.start, "-o", out)
     assert done.returncode == 0, done.stderr
-    assert "1 rollover" in done.stderr and "filter width 15 assumed" in done.stderr
+    # no 0xDB reply in the logs: the rate from the timer's steps, so no false gaps
+    assert "at 10 Hz by the timer" in done.stderr and "1 rollover;" in done.stderr
+    assert "gap" not in done.stderr
+    assert "filter width 15 assumed" in done.stderr
     archive = read_archive(out)
+    assert [e.kind for _, e in archive.events(["moor"])] == [Event.ROLLOVER]
+    infos = [info for _, info in archive.decoded("gx3/moor/info", Info)]
+    assert [(i.command, i.output_rate_hz, i.baud) for i in infos] == [(0xCB, 10, 0),
+                                                                     (0xCF, 10, 0)]
     blocks = archive.samples(["moor"])
     codes = np.concatenate([np.full(len(b), b.code) for b in blocks])
     time_ns = np.concatenate([b.columns["time_ns"] for b in blocks])
@@ -101,6 +118,10 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert bag.returncode == 0, bag.stderr
     rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
     assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
+    # every sample plotted; no host clock plot, since no host received them
+    assert rerun_rows(tmp_path / "mooring.rrd", layout.plot_paths("ang_rate", "moor")[0]) == total
+    host_clock = layout.plot_paths("host_clock", "moor")[0]
+    assert rerun_rows(tmp_path / "mooring.rrd", host_clock) == 0
     iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
     assert iron.returncode == 0, iron.stderr
 
@@ -136,6 +157,11 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
         ([logged.logs[1], logged.logs[1], "-u", "x", "--start", "2026-01-01T00:00:00Z"],
          "timer began again at its first record"),
     ]
+    both = ["--start", logged.start, "--start-from-name", "log_%Y%m%d"]
+    cases += [([logged.logs[0], "-u", "x", *both], "not both"),
+              # one epoch, two starts: the second would be used for nothing
+              ([logged.logs[0], "-u", "x", "--start", logged.start, "--start", logged.start],
+               "one --start per epoch")]
     for args, says in cases:
         done = gx3("import", *args, "-o", out)
         assert done.returncode == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
@@ -144,6 +170,35 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
     out.write_text("mine\n")
     done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
     assert done.returncode == 2 and "--force" in done.stderr and out.read_text() == "mine\n"
+    # a log named as the output is refused, whatever --force says
+    kept = logged.logs[0].read_bytes()
+    done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start,
+               "-o", logged.logs[0], "--force")
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert logged.logs[0].read_bytes() == kept
+
+
+def test_a_reset_inside_a_log_takes_the_next_start(tmp_path: Path) -> None:
+    """A logger that power-cycled its unit mid-file: each epoch from its own --start."""
+    off_s = 1000.0  # the unit was off for a while: the timer tells nothing of it
+    segments = [synthesize(streaming_config(_unit(start), code=0xCB,
+                                            decimation=100, baud=115_200),
+                           UartDelivery(), 60.0, start=at)
+                for start, at in ((3_000_000_000, 0.0), (0, 60.0 + off_s))]
+    log = tmp_path / "cycled.bin"
+    log.write_bytes(b"".join(b"".join(s.data) for s in segments))
+    starts = [_iso(int(s.truth["time_ns"][0])) for s in segments]
+    out = tmp_path / "cycled.mcap"
+    done = gx3("import", log, "-u", "u", "--start", starts[0], "-o", out)
+    assert done.returncode == 2 and "reset 1, at timer" in done.stderr, done.stderr
+    assert "further --start" in done.stderr and not out.exists()
+    done = gx3("import", log, "-u", "u", "--start", starts[0], "--start", starts[1], "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "1 reset; " in done.stderr and "gap" not in done.stderr
+    blocks = read_archive(out).samples(["u"])
+    time_ns = np.sort(np.concatenate([b.columns["time_ns"] for b in blocks]))
+    truth = np.concatenate([s.truth["value_ns"] for s in segments])
+    assert np.abs(time_ns - truth).max() <= 1_000
 
 
 def test_a_reset_between_logs_named_by_time_starts_a_new_epoch(logged: Logged,
@@ -164,3 +219,32 @@ def test_a_reset_between_logs_named_by_time_starts_a_new_epoch(logged: Logged,
     hour = 3600 * 10**9
     first = int(datetime(2026, 1, 1, tzinfo=UTC).timestamp()) * 10**9 - 7_000_000
     assert (int(time_ns[0]), int(time_ns[half])) == (first, first + hour)
+
+
+def test_a_record_with_a_corrupt_timer_is_dropped_as_live(tmp_path: Path) -> None:
+    """Two records whose timers were corrupted with their checksums still right (one a
+    little ahead, off the lattice; one far back, as a reset would be): each is a glitch,
+    dropped and said, and every other record keeps its time."""
+    segment = synthesize(streaming_config(_unit(5_000_000), code=0xCB, decimation=100,
+                                          baud=115_200), UartDelivery(), 60.0)
+    data = bytearray(b"".join(segment.data))
+    framer = Framer({0xCB})
+    offsets = np.concatenate([b.offsets for b in framer.feed(bytes(data)) + framer.flush()])
+    for k, change in ((100, 1_000), (400, -3_000_000)):
+        end = int(offsets[k]) + 43  # a 0xCB record: ..., timer (4 bytes), checksum (2)
+        timer = int.from_bytes(data[end - 6:end - 2], "big") + change
+        data[end - 6:end - 2] = timer.to_bytes(4, "big")
+        data[end - 2:end] = checksum(data[end - 43:end - 2]).to_bytes(2, "big")
+    log = tmp_path / "noisy.bin"
+    log.write_bytes(bytes(data))
+    out = tmp_path / "noisy.mcap"
+    start = _iso(int(segment.truth["time_ns"][0]))
+    done = gx3("import", log, "-u", "u", "--start", start, "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "2 glitches" in done.stderr, done.stderr
+    assert "gap" not in done.stderr and "reset" not in done.stderr, done.stderr
+    archive = read_archive(out)
+    assert [e.kind for _, e in archive.events(["u"])] == [Event.GLITCH, Event.GLITCH]
+    time_ns = np.concatenate([b.columns["time_ns"] for b in archive.samples(["u"])])
+    truth = np.delete(segment.truth["value_ns"], [100, 400])
+    assert np.abs(np.sort(time_ns) - truth).max() <= 1_000

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
 from bridge.recorder.allan import AllanSums, NoiseFit, averaging_factors, read_off
+from bridge.recorder.bytelog import Imported, LogFile, import_logs, name_time, parse_start
 from bridge.recorder.describe import About
 from bridge.recorder.magcal import IronCalibration, UnitIron, fit, read_document
 from bridge.recorder.noise import (
@@ -68,7 +69,9 @@ __all__ = [
     "ChannelInfo",
     "Damage",
     "HostView",
+    "Imported",
     "IronCalibration",
+    "LogFile",
     "Messages",
     "NoiseFit",
     "RawCaptureWriter",
@@ -89,8 +92,11 @@ __all__ = [
     "describe_problem",
     "event_table",
     "fit",
+    "import_logs",
     "kalibr_yaml",
+    "name_time",
     "offline_times",
+    "parse_start",
     "read_archive",
     "read_document",
     "read_off",

@@ -4,25 +4,27 @@ A byte log (a data logger's, ``cat /dev/ttyUSB0``) holds what the unit sent and 
 of when it arrived, so the unit's timer is the only clock: each record's ``time_ns`` is
 the log's start plus the unit's time since its first record, less the filter delay (the
 instant its values describe, as everywhere else). Rollovers are unwrapped; a jump
-forward is a gap (the records between were lost); a timer that goes back is a reset,
-whose time since the start no byte can tell, so it starts a new epoch at the start of
-the file it begins, or the import is refused. Every record of every data type is kept,
-in order; the float byte order follows 0xDB replies as ``gx3 decode`` does. The archive
-says that no host clock timed it (its ``gx3.archive`` metadata, and Info with no link
-and no baud rate), so that nobody takes it for a live-timed recording; ``gx3 export``
-keeps its times.
+forward by more than the output period (from a 0xDB reply, else the timer's own steps)
+is a gap (the records between were lost); a timer that goes back is a reset, whose time
+since the start no byte can tell, so it starts a new epoch at the next start given
+(``restarts``) or at the start of the file it begins, or the import is refused. Every
+record of every data type is kept, in order; the float byte order follows 0xDB replies
+as ``gx3 decode`` does. The archive says that no host clock timed it (its
+``gx3.archive`` metadata, and Info with no link and no baud rate), so that nobody takes
+it for a live-timed recording; ``gx3 export`` keeps its times.
 """
 
 from __future__ import annotations
 
 import json
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from bridge._text import counted
 from bridge.bus.codec import encode_batch
@@ -32,6 +34,7 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
 from bridge.recorder.writer import ArchiveWriter
+from bridge.timing.stream import filter_delay_ns
 from bridge.timing.unwrap import NS_PER_TICK
 
 __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
@@ -39,9 +42,10 @@ __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
 SAMPLING = 0xDB  # the sampling settings reply: decimation, filter width, byte order
 _EXPECT = frozenset(DATA_CODES | {SAMPLING})
 FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 0xDB reply
-FACTORY_DECIMATION = 10
+FACTORY_DECIMATION = 10  # until a 0xDB reply or the timer's steps tell the rate
 _ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
 _READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
+_LATTICE_TOLERANCE = 0.5  # ticks: a step is whole output periods to within rounding
 
 
 @dataclass(frozen=True)
@@ -69,6 +73,8 @@ class Imported:
         stats: The framer's counts (checksum failures, bytes skipped, ...).
         filter_width: The filter width whose delay was taken out.
         filter_from_log: Whether a 0xDB reply in the log gave it (else the factory's).
+        decimation: The output period in ms (1000 / rate) the gaps were counted against.
+        decimation_from_log: Whether a 0xDB reply gave it (else the timer's steps).
         first_ns: The first sample's ``time_ns``.
         last_ns: The last sample's ``time_ns``.
     """
@@ -80,6 +86,8 @@ class Imported:
     stats: FramerStats = field(default_factory=FramerStats)
     filter_width: int = FACTORY_FILTER_WIDTH
     filter_from_log: bool = False
+    decimation: int = FACTORY_DECIMATION
+    decimation_from_log: bool = False
     first_ns: int = 0
     last_ns: int = 0
 
@@ -91,13 +99,16 @@ class Imported:
         """
         by_type = ", ".join(f"0x{code:02X}×{n:,}" for code, n in sorted(self.samples.items()))
         span = (self.last_ns - self.first_ns) / 1e9
-        events = ", ".join(f"{counted(n, kind)}" for kind, n in sorted(self.events.items()))
+        events = ", ".join(counted(n, kind, "glitches" if kind == "glitch" else None)
+                           for kind, n in sorted(self.events.items()))
         lost = f" ({counted(self.missing, 'record')} lost)" if self.missing else ""
         delay = (f"filter width {self.filter_width} from the log" if self.filter_from_log
                  else f"filter width {self.filter_width} assumed (the factory's; no 0xDB "
                       "reply in the log)")
         total = counted(sum(self.samples.values()), "sample")
-        return (f"{self.unit}: {total} ({by_type or 'none'}) over {span:,.1f} s; "
+        rate = (f"{1000 / self.decimation:g} Hz "
+                f"{'from the log' if self.decimation_from_log else 'by the timer'}")
+        return (f"{self.unit}: {total} ({by_type or 'none'}) at {rate} over {span:,.1f} s; "
                 f"{events or 'no gap'}{lost}; {delay}\n"
                 f"checksum failures: {self.stats.checksum_failures}; bytes skipped: "
                 f"{self.stats.bytes_skipped:,} of {self.stats.bytes_fed:,}")
@@ -158,9 +169,9 @@ def _ns(when: datetime) -> int:
 class _Timeline:
     """The unit's timer as ticks on one timeline, epoch by epoch, with what it shows."""
 
-    def __init__(self, unit: str, result: Imported) -> None:
+    def __init__(self, unit: str, result: Imported, restarts: Sequence[int]) -> None:
         self.unit, self.result = unit, result
-        self.decimation = FACTORY_DECIMATION
+        self.restarts = deque(restarts)  # the instants of the resets' first records
         self.last_timer: int | None = None
         self.last_ticks = 0
         self.last_code = 0
@@ -169,52 +180,110 @@ class _Timeline:
         self.events: list[Event] = []
 
     @property
-    def period(self) -> int:
-        return round(TICKS_PER_SECOND * self.decimation / 1000)
+    def period(self) -> float:
+        """The output period in ticks (62.5 a ms: 187.5 at 3 ms)."""
+        return TICKS_PER_SECOND * self.result.decimation / 1000
 
-    def ticks(self, batch: Batch, log: LogFile, first_in_file: bool) -> np.ndarray:
-        """The batch's records on the timeline; its rollovers, gaps and resets noted.
+    def _off_lattice(self, step: np.ndarray) -> np.ndarray:
+        """Steps that are not whole output periods: a corrupt timer, or a new phase."""
+        periods = np.rint(step / self.period)
+        return np.asarray((np.abs(step - periods * self.period) > _LATTICE_TOLERANCE)
+                          | (periods < 1))
+
+    def _glitch(self, timers: list[int], i: int) -> bool:
+        """Whether record ``i``, doubtful (off the lattice, or back as at a reset), is corrupt.
+
+        Its checksum and plausibility passed, but the record after it runs on from the one
+        before it, as the live path judges (``TimerUnwrapper``).
+        """
+        if i + 1 >= len(timers) or self.last_timer is None:
+            return False
+        step = (timers[i + 1] - self.last_timer) % (1 << 32)
+        return step <= _ROLLOVER_TICKS and not self._off_lattice(np.array([step]))[0]
+
+    def sampling(self, batch: Batch) -> None:
+        """A 0xDB reply: the output period and filter width from here on."""
+        self.result.decimation = max(1, int(batch["decimation"][-1]))
+        self.result.decimation_from_log = True
+        self.result.filter_width = max(1, int(batch["filter_width"][-1]))
+        self.result.filter_from_log = True
+
+    def _learn_period(self, timers: npt.NDArray[np.integer]) -> None:
+        """The output period from the timer's own steps, where no 0xDB reply gave it.
+
+        Without it a log at any rate but the factory's 100 Hz would be all gaps. The
+        median step is the period however many records the gaps lost.
+        """
+        steps = np.mod(np.diff(timers.astype(np.int64)), 1 << 32)
+        steps = steps[(steps > 0) & (steps <= _ROLLOVER_TICKS)]
+        if len(steps):
+            ms = float(np.median(steps)) * 1000 / TICKS_PER_SECOND
+            self.result.decimation = max(1, round(ms))
+
+    def timed(self, batch: Batch, log: LogFile,
+              first_in_file: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The batch's records on the timeline; its rollovers, gaps, resets, glitches noted.
+
+        Returns:
+            Each record's ticks and its instant (``time_ns``), each in its own epoch, and
+            which records to keep (None: all; the others' timers were corrupt).
 
         Raises:
-            LogImportError: A start is missing, or a reset comes inside a file.
+            LogImportError: A start is missing, or a reset has no start.
         """
+        if not self.result.decimation_from_log:
+            self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
-            return fast
+            return fast, self.origin_ns + fast * NS_PER_TICK, None
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
+        origins = np.empty(len(timers), np.int64)  # a reset in the batch changes it
+        keep = np.ones(len(timers), bool)
         for i, timer in enumerate(timers):
             if self.last_timer is None:
                 self._new_epoch(log, timer, first=True, at_ticks=0)
             else:
                 back = timer < self.last_timer
                 step = (timer - self.last_timer) % (1 << 32)
-                if back and step > _ROLLOVER_TICKS:  # a reset: the timer began again
+                reset = back and step > _ROLLOVER_TICKS
+                doubtful = reset or self._off_lattice(np.array([step]))[0]
+                if doubtful and batch.code == self.last_code and self._glitch(timers, i):
+                    keep[i] = False
+                    self._event(Event.GLITCH, "glitch", self.last_ticks, 1,
+                                f"a corrupt timer ({timer}): the record is dropped")
+                    ticks[i], origins[i] = self.last_ticks, self.origin_ns
+                    continue
+                if reset:  # the timer began again
                     self._new_epoch(log, timer, first=first_in_file and i == 0,
-                                    at_ticks=self.last_ticks + self.period)
+                                    at_ticks=self.last_ticks + round(self.period))
                 else:
                     if back:
                         self._event(Event.ROLLOVER, "rollover", self.last_ticks + step, 1,
                                     "the 32-bit timer wrapped")
-                    lost = round(step / self.period) - 1
+                    # a record dropped for its timer arrived: it is not missing
+                    lost = round(step / self.period) - 1 - int(i > 0 and not keep[i - 1])
                     if lost > 0 and batch.code == self.last_code:  # not at a mode switch
                         self.result.missing += lost
                         self._event(Event.GAP, "gap", self.last_ticks + step, lost, "")
                     self.last_ticks += step
-            ticks[i] = self.last_ticks
+            ticks[i], origins[i] = self.last_ticks, self.origin_ns
             self.last_timer, self.last_code = timer, batch.code
-        return ticks
+        return ticks, origins + ticks * NS_PER_TICK, None if keep.all() else keep
 
     def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
-        """``ticks`` of a batch with no reset in it (nearly all), in array operations."""
+        """``ticks`` of a batch with no reset or glitch in it (nearly all), at once."""
         if self.last_timer is None or not len(batch):
             return None
         timers = batch["timer"].astype(np.int64)
         raw = np.diff(timers, prepend=self.last_timer)
         step = raw % (1 << 32)
         back = raw < 0
-        if (back & (step > _ROLLOVER_TICKS)).any():
-            return None  # a reset: record by record
+        off = self._off_lattice(step)
+        if batch.code != self.last_code:
+            off[0] = False  # a new record type may start on a new phase
+        if (back & (step > _ROLLOVER_TICKS)).any() or off.any():
+            return None  # a reset or a corrupt timer: record by record
         ticks = self.last_ticks + np.cumsum(step)
         for i in np.flatnonzero(back).tolist():
             self._event(Event.ROLLOVER, "rollover", int(ticks[i]), 1, "the 32-bit timer wrapped")
@@ -229,37 +298,52 @@ class _Timeline:
         return ticks
 
     def _new_epoch(self, log: LogFile, timer: int, first: bool, at_ticks: int) -> None:
-        if not first or log.start_ns is None:
-            if self.last_timer is None:
-                raise LogImportError(f"{log.path}: give the instant of its first record "
-                                     "(--start, or --start-from-name for loggers that name "
-                                     "their files by time)")
+        """An epoch from its first record's instant.
+
+        The log's own start where the epoch begins the log, else the next of
+        ``restarts``; with neither, an error that says what to give.
+        """
+        if first and log.start_ns is not None:
+            start, source = log.start_ns, f"{log.path.name} starts"
+        elif self.last_timer is None:
+            raise LogImportError(f"{log.path}: give the instant of its first record "
+                                 "(--start, or --start-from-name for loggers that name "
+                                 "their files by time)")
+        elif self.restarts:
+            start, source = self.restarts.popleft(), "the next --start gives"
+        else:
             where = "at its first record" if first else "inside it"
             raise LogImportError(
-                f"{log.path}: the unit's timer began again {where} (a reset, at timer "
-                f"{timer}), and no byte tells how long after the start that was; give each "
-                "log its start (--start-from-name), splitting a log at its reset")
-        self.epoch_ns, self.epoch_ticks = log.start_ns, at_ticks
+                f"{log.path}: the unit's timer began again {where} (reset "
+                f"{self.result.events['reset'] + 1}, at timer {timer}), and no byte tells "
+                "when; give that record's instant as a further --start (one per reset, in "
+                "order), or name each log by its start (--start-from-name)")
+        self.epoch_ns, self.epoch_ticks = start, at_ticks
         self.last_ticks = at_ticks
         if self.last_timer is not None:
             self._event(Event.RESET, "reset", at_ticks, 1,
-                        f"the timer began again at {timer}; {log.path.name} starts a new epoch")
+                        f"the timer began again at {timer}; {source} a new epoch")
 
     def _event(self, kind: Event.Kind, name: str, ticks: int, count: int, detail: str) -> None:
         self.result.events[name] += 1
-        at = int(self.instants(np.array([ticks]))[0])
+        at = self.origin_ns + ticks * NS_PER_TICK
         self.events.append(Event(unit=self.unit, time_ns=at, ticks=ticks, kind=kind,
                                  count=count, detail=detail))
 
-    def instants(self, ticks: np.ndarray) -> np.ndarray:
-        """Each record's instant: the epoch's start plus device time, less the filter delay."""
-        delay = (self.result.filter_width - 1) * 500_000
-        return self.epoch_ns + (ticks - self.epoch_ticks) * NS_PER_TICK - delay
+    @property
+    def origin_ns(self) -> int:
+        """The instant of ticks 0 in this epoch: a record's instant is this plus its ticks.
+
+        The epoch's start plus device time since its first record, less the filter delay.
+        """
+        delay = filter_delay_ns(self.result.filter_width)
+        return self.epoch_ns - self.epoch_ticks * NS_PER_TICK - delay
 
 
 def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx3",
                 little_endian: bool = False,
-                on_bytes: Callable[[int], None] | None = None) -> Imported:
+                on_bytes: Callable[[int], None] | None = None,
+                restarts: Sequence[int] = ()) -> Imported:
     """Frame one unit's byte logs, in order, into an archive timed by its timer.
 
     Args:
@@ -269,38 +353,39 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         prefix: The keys' first chunk.
         little_endian: Floats start little-endian (0xDB replies switch it).
         on_bytes: Hears how many bytes were read, read by read.
+        restarts: The instant of each reset's first record, in order (ns since the
+            epoch), for resets that do not begin a log with its own start.
 
     Returns:
         What was imported.
 
     Raises:
-        LogImportError: No record in the logs, a start missing, or a reset whose time
-            the logs cannot tell.
+        LogImportError: No record in the logs, a start missing, a reset whose time
+            the logs cannot tell, or more restarts than resets.
         OSError: A log cannot be read.
         ArchiveError: The archive cannot be written.
     """
     result = Imported(unit)
     framer = Framer(_EXPECT, little_endian=little_endian)
-    timeline = _Timeline(unit, result)
+    timeline = _Timeline(unit, result, restarts)
     starts = {str(log.path): log.start_ns for log in logs}
     writer = ArchiveWriter(out, prefix=prefix, metadata={
         "host_clock": "none", "timed_by": "the unit's timer (gx3 import)",
         "logs": json.dumps([str(log.path) for log in logs]),
-        "starts_ns": json.dumps(starts)})
+        "starts_ns": json.dumps(starts), "restarts_ns": json.dumps(list(restarts))})
     info_code = [0]  # the record type of the last Info written
 
     def take(batch: Batch, log: LogFile, first_in_file: bool) -> None:
         """One batch the framer found: settings kept, records timed and written."""
         if batch.code == SAMPLING:
-            timeline.decimation = max(1, int(batch["decimation"][-1]))
-            result.filter_width = max(1, int(batch["filter_width"][-1]))
-            result.filter_from_log = True
+            timeline.sampling(batch)
             return
-        ticks = timeline.ticks(batch, log, first_in_file)
-        time_ns = timeline.instants(ticks)
+        ticks, time_ns, keep = timeline.timed(batch, log, first_in_file)
+        if keep is not None:
+            batch, ticks, time_ns = batch.select(keep), ticks[keep], time_ns[keep]
         if batch.code != info_code[0]:  # the first records, or the unit switched type
             info_code[0] = batch.code
-            _info(writer, prefix, unit, log, batch, timeline, result, int(time_ns[0]))
+            _info(writer, prefix, unit, log, batch, result, int(time_ns[0]))
         _events(writer, prefix, timeline)  # first: the writer orders over a window
         _samples(writer, prefix, unit, batch, ticks, time_ns, result)
 
@@ -322,9 +407,16 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
                 f"no record found in {', '.join(str(log.path) for log in logs)}: not a "
                 "3DM-GX3 byte log" + ("" if little_endian else
                                       " (or its floats are little-endian: --little-endian)"))
+        if timeline.restarts:
+            raise LogImportError(
+                f"{len(restarts) + 1} --start given, but the logs hold "
+                f"{counted(len(restarts) - len(timeline.restarts) + 1, 'epoch')}: give "
+                "one --start per epoch (the first record's, then one per reset)")
         writer.add_metadata("gx3.import", {
             "unit": unit, "filter_width": str(result.filter_width),
             "filter_width_from": "log" if result.filter_from_log else "factory",
+            "decimation": str(result.decimation),
+            "decimation_from": "log" if result.decimation_from_log else "timer",
             "checksum_failures": str(framer.stats.checksum_failures),
             "bytes_skipped": str(framer.stats.bytes_skipped)})
     except BaseException:
@@ -335,12 +427,12 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
 
 
 def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
-          timeline: _Timeline, result: Imported, at_ns: int) -> None:
+          result: Imported, at_ns: int) -> None:
     """The unit's Info as the log shows it: no link, no baud rate (no host timed it)."""
     info = Info(unit=unit, port=str(log.path), command=batch.code,
-                decimation=timeline.decimation, filter_width=result.filter_width,
+                decimation=result.decimation, filter_width=result.filter_width,
                 flags=0x10 if batch.little_endian else 0,
-                output_rate_hz=1000 / timeline.decimation, bring_up_time_ns=at_ns)
+                output_rate_hz=1000 / result.decimation, bring_up_time_ns=at_ns)
     writer.write(f"{prefix}/{unit}/info", info.SerializeToString(), at_ns)
 
 

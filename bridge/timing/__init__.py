@@ -26,11 +26,18 @@ from bridge.timing.links import Inferred, infer_transport
 from bridge.timing.offline import OfflineClock
 from bridge.timing.rate import RateWindow
 from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads, RealtimeTrack
-from bridge.timing.stream import TRANSPORTS, Settings, StreamTiming, Timed, TimedFew
+from bridge.timing.stream import (
+    TRANSPORTS,
+    Settings,
+    StreamTiming,
+    Timed,
+    TimedFew,
+    filter_delay_ns,
+)
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrapped
 
 __all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Inferred", "OfflineClock",
            "OnlineClock", "RateWindow", "RealtimeReads", "RealtimeTrack", "Settings",
            "StreamTiming", "Timed", "TimedFew", "Timeline", "TimelineBatch", "TimerUnwrapper",
-           "TimingEvent", "TimingKind", "Unwrapped", "infer_transport"]
+           "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport"]

@@ -28,6 +28,18 @@ USB_BYTE_NS = 1_000  # full-speed USB moves about 1 MB/s of payload
 TRANSPORTS = ("uart", "usb", "usb-serial")
 
 
+def filter_delay_ns(filter_width: int) -> int:
+    """The moving average of width M delays the values by (M-1)/2 ms (Equations 2-5).
+
+    Args:
+        filter_width: The accel and gyro filter's width M (0xDB ``filter_width``).
+
+    Returns:
+        The delay, which every ``time_ns`` has taken out: the instant the values describe.
+    """
+    return (filter_width - 1) * 500_000
+
+
 @dataclass(frozen=True)
 class Settings:
     """What decides a record's timing: its type, the unit's 0xDB settings, the link.
@@ -59,8 +71,8 @@ class Settings:
 
     @property
     def filter_delay_ns(self) -> int:
-        """The moving average of width M delays the values by (M-1)/2 ms (Equations 2-5)."""
-        return (self.filter_width - 1) * 500_000
+        """How long the values lag the record's timer (``filter_delay_ns``)."""
+        return filter_delay_ns(self.filter_width)
 
     @property
     def floor_ns(self) -> int:

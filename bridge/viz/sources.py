@@ -40,7 +40,11 @@ def log_archive(archive: ArchiveReader, logger: RerunLogger,
     logged = 0
     for block in archive.samples():
         logger.log_samples(block.unit, block.code, block.columns)
-        came = np.argsort(block.receive_ns, kind="stable")  # blocks are in sample-time order
+        # blocks are in sample-time order; samples nothing received live (an import's,
+        # rx_ns 0) have no arrival, and plotting their log time would show a host clock
+        # in perfect agreement
+        came = np.argsort(block.receive_ns, kind="stable")
+        came = came[block.columns["rx_ns"][came] != 0]
         logger.log_arrivals(block.unit, block.receive_ns[came], block.columns["time_ns"][came])
         logged += len(block)
         if progress is not None:
