@@ -123,18 +123,21 @@ def test_a_line_too_slow_for_its_rate_is_named_and_its_gaps_summed(tmp_path: Pat
         assert local.returncode == 0, local.stderr
         assert fix in json.loads(local.stdout)["warning"]
         rec = recorder(out, rec_cfg)
-        with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a",
-                            "--allow-commands") as bridge:
-            started = time.monotonic()
-            wait_for(lambda: sum(e.kind == Event.GAP for e in events_in(out, "a")) >= 300,
-                     what="the gaps of a line too slow")
-            remote = _gx3("configure", "--unit", "a", "--decimation", "5", "--json",
-                          "--zenoh-config", str(cli_cfg))
-            assert remote.returncode == 0, remote.stderr
-            assert "--new-baud 230400 or --decimation 7" in json.loads(remote.stdout)["warning"]
-            stderr = _finish(bridge)
-            ran = time.monotonic() - started
-        _finish(rec)
+        try:  # the recorder is stopped whatever fails: no process is left behind
+            with bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a",
+                                "--allow-commands") as bridge:
+                started = time.monotonic()
+                wait_for(lambda: sum(e.kind == Event.GAP for e in events_in(out, "a")) >= 300,
+                         what="the gaps of a line too slow")
+                remote = _gx3("configure", "--unit", "a", "--decimation", "5", "--json",
+                              "--zenoh-config", str(cli_cfg))
+                assert remote.returncode == 0, remote.stderr
+                assert "--new-baud 230400 or --decimation 7" in \
+                    json.loads(remote.stdout)["warning"]
+                stderr = _finish(bridge)
+                ran = time.monotonic() - started
+        finally:
+            _finish(rec)
     events = events_in(out, "a")
     bring_up = [e for e in events if e.kind == Event.BRING_UP]
     assert fix in bring_up[0].detail and fix in stderr
