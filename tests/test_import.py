@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bridge.bus.gx3_pb2 import Event, Info
-from bridge.protocol import Framer, checksum
+from bridge.protocol import Framer, checksum, encode_reply
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
@@ -147,8 +147,16 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
     out = tmp_path / "x.mcap"
     garbage = tmp_path / "noise.bin"
     garbage.write_bytes(np.random.default_rng(1).integers(0, 256, 20_000, np.uint8).tobytes())
+    little = tmp_path / "little.bin"  # a unit set to little-endian floats before the log
+    little.write_bytes(b"".join(
+        encode_reply(0xCB, little_endian=True, accel=(0.1, -0.2, 0.3), ang_rate=(1.1, 2.2, 3.3),
+                     mag=(0.3, 0.1, -0.4), timer=6250 * k) for k in range(50)))
     cases: list[tuple[list[str | Path], str]] = [
-        ([garbage, "-u", "x", "--start", "2026-01-01T00:00:00Z"], "no record found"),
+        ([garbage, "-u", "x", "--start", "2026-01-01T00:00:00Z"],
+         f"no record found in {garbage}: not a 3DM-GX3 byte log"),
+        ([little, "-u", "x", "--start", "2026-01-01T00:00:00Z"],
+         f"no record found in {little}, but 50 in its first 2,150 bytes with floats "
+         "little-endian: try --little-endian"),
         ([logged.logs[0], "-u", "x"], "--start"),
         ([logged.logs[0], "-u", "x", "--start", "2026-01-01T00:00:00"], "has no zone"),
         ([logged.logs[0], "-u", "x", "--start-from-name", "log_%Y%m%d"],
@@ -167,6 +175,10 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
         assert done.returncode == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
         assert says in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert not out.exists()
+    done = gx3("import", little, "-u", "x", "--start", logged.start, "--little-endian",
+               "-o", out)
+    assert done.returncode == 0 and "50 samples" in done.stderr, done.stderr
+    out.unlink()
     out.write_text("mine\n")
     done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
     assert done.returncode == 2 and "--force" in done.stderr and out.read_text() == "mine\n"

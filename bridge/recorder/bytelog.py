@@ -31,7 +31,7 @@ from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
-from bridge.protocol.framer import Framer, FramerStats
+from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
 from bridge.recorder.writer import ArchiveWriter
 from bridge.timing.stream import filter_delay_ns
@@ -45,6 +45,7 @@ FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 
 FACTORY_DECIMATION = 10  # until a 0xDB reply or the timer's steps tell the rate
 _ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
 _READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
+_HEAD_BYTES = 1 << 22  # of the first log, tried in the other byte order if none decoded
 _LATTICE_TOLERANCE = 0.5  # ticks: a step is whole output periods to within rounding
 
 
@@ -403,10 +404,7 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
             take(batch, logs[-1], False)
         result.stats = framer.stats
         if not result.samples:
-            raise LogImportError(
-                f"no record found in {', '.join(str(log.path) for log in logs)}: not a "
-                "3DM-GX3 byte log" + ("" if little_endian else
-                                      " (or its floats are little-endian: --little-endian)"))
+            raise LogImportError(_nothing_found(logs, little_endian))
         if timeline.restarts:
             raise LogImportError(
                 f"{len(restarts) + 1} --start given, but the logs hold "
@@ -424,6 +422,20 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         raise
     writer.close()
     return result
+
+
+def _nothing_found(logs: Sequence[LogFile], little_endian: bool) -> str:
+    """Why no record came out, with the option to change where the other byte order works."""
+    names = ", ".join(str(log.path) for log in logs)
+    with logs[0].path.open("rb") as stream:
+        head = stream.read(_HEAD_BYTES)
+    found = other_byte_order(head, _EXPECT, little_endian)
+    if found:
+        fix = "--little-endian" if not little_endian else "without --little-endian"
+        return (f"no record found in {names}, but {found:,} in its first "
+                f"{len(head):,} bytes with floats {'big' if little_endian else 'little'}"
+                f"-endian: try {fix}")
+    return f"no record found in {names}: not a 3DM-GX3 byte log"
 
 
 def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
