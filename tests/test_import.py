@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.bus.gx3_pb2 import Event, Info
+from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol import Framer, checksum, encode_reply
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
@@ -84,6 +84,11 @@ def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
     infos = [info for _, info in archive.decoded("gx3/moor/info", Info)]
     assert [(i.command, i.output_rate_hz, i.baud) for i in infos] == [(0xCB, 10, 0),
                                                                      (0xCF, 10, 0)]
+    # the totals as a bridge's last Status, with no host clock and no clock model
+    (status,) = [status for _, status in archive.decoded("gx3/moor/status", Status)]
+    assert (status.samples, status.dropped, status.checksum_failures) == (
+        len(logged.truth("code")), 0, 0)
+    assert not status.HasField("host_clock") and status.clock_offset_ns == 0
     blocks = archive.samples(["moor"])
     codes = np.concatenate([np.full(len(b), b.code) for b in blocks])
     time_ns = np.concatenate([b.columns["time_ns"] for b in blocks])

@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from bridge._text import counted
 from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Event, Info
+from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats, other_byte_order
@@ -410,6 +410,7 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
                 f"{len(restarts) + 1} --start given, but the logs hold "
                 f"{counted(len(restarts) - len(timeline.restarts) + 1, 'epoch')}: give "
                 "one --start per epoch (the first record's, then one per reset)")
+        _status(writer, prefix, unit, logs[-1], result, info_code[0])
         writer.add_metadata("gx3.import", {
             "unit": unit, "filter_width": str(result.filter_width),
             "filter_width_from": "log" if result.filter_from_log else "factory",
@@ -436,6 +437,22 @@ def _nothing_found(logs: Sequence[LogFile], little_endian: bool) -> str:
                 f"{len(head):,} bytes with floats {'big' if little_endian else 'little'}"
                 f"-endian: try {fix}")
     return f"no record found in {names}: not a 3DM-GX3 byte log"
+
+
+def _status(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, result: Imported,
+            code: int) -> None:
+    """The import's totals as the unit's Status at its last sample, as a bridge's at its end.
+
+    It has no host clock (unknown) and no clock model: no host received a byte.
+    """
+    stats = result.stats
+    status = Status(unit=unit, time_ns=result.last_ns, state=Status.STOPPED, port=str(log.path),
+                    command=code, output_rate_hz=1000 / result.decimation,
+                    samples=sum(result.samples.values()), dropped=result.missing,
+                    checksum_failures=stats.checksum_failures, implausible=stats.implausible,
+                    bytes_skipped=stats.bytes_skipped, resyncs=stats.resyncs,
+                    glitches=result.events["glitch"])
+    writer.write(f"{prefix}/{unit}/status", status.SerializeToString(), result.last_ns)
 
 
 def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
