@@ -9,12 +9,15 @@ the bytes, in two files. The same reads with receive times make a raw capture, w
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol import Framer, checksum, encode_reply
@@ -31,6 +34,7 @@ from tests.helpers.rrd import rerun_rows
 SEGMENT_S = 600.0
 SWITCH_S = 0.5  # the logger's commands between the two modes
 TIMER_START = 2**32 - 300 * 62_500  # the rollover 5 minutes in
+HARD_IRON = (0.12, -0.07, 0.2)  # gauss: what gx3 calibrate-mag must find
 
 
 def _iso(time_ns: int) -> str:
@@ -40,8 +44,8 @@ def _iso(time_ns: int) -> str:
 
 def _unit(timer_start: int) -> UnitConfig:
     # tumbling, so that the magnetometer calibration has every side of the field
-    return UnitConfig(serial="MOOR0001", clock_ppm=0.0, motion=tumbling(MotionConfig(seed=4)),
-                      timer_start=timer_start)
+    motion = tumbling(MotionConfig(seed=4, hard_iron_gauss=HARD_IRON))
+    return UnitConfig(serial="MOOR0001", clock_ppm=0.0, motion=motion, timer_start=timer_start)
 
 
 @dataclass
@@ -121,6 +125,15 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert np.abs(np.sort(exported) - logged.truth("value_ns")).max() <= 1_000
     bag = gx3("export", out, "--format", "ros2", "-o", tmp_path / "bag.mcap")
     assert bag.returncode == 0, bag.stderr
+    # each Imu stamped with its sample's instant: the start plus device time
+    with (tmp_path / "bag.mcap").open("rb") as f:
+        imu = [m for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()])
+               .iter_decoded_messages() if c.topic.endswith("/imu")]
+    assert f"wrote {total} Imu" in bag.stderr and len(imu) == total, bag.stderr
+    stamps = np.sort([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
+    truth = logged.truth("value_ns")
+    nearest = truth[np.clip(np.searchsorted(truth, stamps), 0, len(truth) - 1)]
+    assert np.abs(stamps - nearest).max() <= 1_000
     rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
     assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
     # every sample plotted; no host clock plot, since no host received them
@@ -129,6 +142,9 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert rerun_rows(tmp_path / "mooring.rrd", host_clock) == 0
     iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
     assert iron.returncode == 0, iron.stderr
+    # the iron the emulated magnetometer sits among, from the imported readings
+    found = json.loads((tmp_path / "iron.json").read_text())
+    np.testing.assert_allclose(found["hard_iron"], HARD_IRON, atol=1e-3)
 
 
 def test_a_capture_that_switches_record_type_replays_whole(logged: Logged,
