@@ -9,15 +9,18 @@ the bytes, in two files. The same reads with receive times make a raw capture, w
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
-from bridge.bus.gx3_pb2 import Event, Info
-from bridge.protocol import Framer, checksum
+from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.protocol import Framer, checksum, encode_reply
 from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
@@ -31,6 +34,7 @@ from tests.helpers.rrd import rerun_rows
 SEGMENT_S = 600.0
 SWITCH_S = 0.5  # the logger's commands between the two modes
 TIMER_START = 2**32 - 300 * 62_500  # the rollover 5 minutes in
+HARD_IRON = (0.12, -0.07, 0.2)  # gauss: what gx3 calibrate-mag must find
 
 
 def _iso(time_ns: int) -> str:
@@ -40,8 +44,8 @@ def _iso(time_ns: int) -> str:
 
 def _unit(timer_start: int) -> UnitConfig:
     # tumbling, so that the magnetometer calibration has every side of the field
-    return UnitConfig(serial="MOOR0001", clock_ppm=0.0, motion=tumbling(MotionConfig(seed=4)),
-                      timer_start=timer_start)
+    motion = tumbling(MotionConfig(seed=4, hard_iron_gauss=HARD_IRON))
+    return UnitConfig(serial="MOOR0001", clock_ppm=0.0, motion=motion, timer_start=timer_start)
 
 
 @dataclass
@@ -84,6 +88,11 @@ def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
     infos = [info for _, info in archive.decoded("gx3/moor/info", Info)]
     assert [(i.command, i.output_rate_hz, i.baud) for i in infos] == [(0xCB, 10, 0),
                                                                      (0xCF, 10, 0)]
+    # the totals as a bridge's last Status, with no host clock and no clock model
+    (status,) = [status for _, status in archive.decoded("gx3/moor/status", Status)]
+    assert (status.samples, status.dropped, status.checksum_failures) == (
+        len(logged.truth("code")), 0, 0)
+    assert not status.HasField("host_clock") and status.clock_offset_ns == 0
     blocks = archive.samples(["moor"])
     codes = np.concatenate([np.full(len(b), b.code) for b in blocks])
     time_ns = np.concatenate([b.columns["time_ns"] for b in blocks])
@@ -116,6 +125,15 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert np.abs(np.sort(exported) - logged.truth("value_ns")).max() <= 1_000
     bag = gx3("export", out, "--format", "ros2", "-o", tmp_path / "bag.mcap")
     assert bag.returncode == 0, bag.stderr
+    # each Imu stamped with its sample's instant: the start plus device time
+    with (tmp_path / "bag.mcap").open("rb") as f:
+        imu = [m for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()])
+               .iter_decoded_messages() if c.topic.endswith("/imu")]
+    assert f"wrote {total} Imu" in bag.stderr and len(imu) == total, bag.stderr
+    stamps = np.sort([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
+    truth = logged.truth("value_ns")
+    nearest = truth[np.clip(np.searchsorted(truth, stamps), 0, len(truth) - 1)]
+    assert np.abs(stamps - nearest).max() <= 1_000
     rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
     assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
     # every sample plotted; no host clock plot, since no host received them
@@ -124,6 +142,9 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     assert rerun_rows(tmp_path / "mooring.rrd", host_clock) == 0
     iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
     assert iron.returncode == 0, iron.stderr
+    # the iron the emulated magnetometer sits among, from the imported readings
+    found = json.loads((tmp_path / "iron.json").read_text())
+    np.testing.assert_allclose(found["hard_iron"], HARD_IRON, atol=1e-3)
 
 
 def test_a_capture_that_switches_record_type_replays_whole(logged: Logged,
@@ -147,8 +168,16 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
     out = tmp_path / "x.mcap"
     garbage = tmp_path / "noise.bin"
     garbage.write_bytes(np.random.default_rng(1).integers(0, 256, 20_000, np.uint8).tobytes())
+    little = tmp_path / "little.bin"  # a unit set to little-endian floats before the log
+    little.write_bytes(b"".join(
+        encode_reply(0xCB, little_endian=True, accel=(0.1, -0.2, 0.3), ang_rate=(1.1, 2.2, 3.3),
+                     mag=(0.3, 0.1, -0.4), timer=6250 * k) for k in range(50)))
     cases: list[tuple[list[str | Path], str]] = [
-        ([garbage, "-u", "x", "--start", "2026-01-01T00:00:00Z"], "no record found"),
+        ([garbage, "-u", "x", "--start", "2026-01-01T00:00:00Z"],
+         f"no record found in {garbage}: not a 3DM-GX3 byte log"),
+        ([little, "-u", "x", "--start", "2026-01-01T00:00:00Z"],
+         f"no record found in {little}, but 50 in its first 2,150 bytes with floats "
+         "little-endian: try --little-endian"),
         ([logged.logs[0], "-u", "x"], "--start"),
         ([logged.logs[0], "-u", "x", "--start", "2026-01-01T00:00:00"], "has no zone"),
         ([logged.logs[0], "-u", "x", "--start-from-name", "log_%Y%m%d"],
@@ -167,6 +196,10 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
         assert done.returncode == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
         assert says in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert not out.exists()
+    done = gx3("import", little, "-u", "x", "--start", logged.start, "--little-endian",
+               "-o", out)
+    assert done.returncode == 0 and "50 samples" in done.stderr, done.stderr
+    out.unlink()
     out.write_text("mine\n")
     done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
     assert done.returncode == 2 and "--force" in done.stderr and out.read_text() == "mine\n"

@@ -14,7 +14,7 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, Trans
 
 from bridge.cli.common import INTERRUPTED, app, err, fail, reply_code
 from bridge.protocol.codec import Batch
-from bridge.protocol.framer import Framer
+from bridge.protocol.framer import Framer, other_byte_order
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
 from bridge.recorder.mcap_writer import MAGIC
 
@@ -134,9 +134,8 @@ def _nothing_decoded(kept: bytes, codes: set[int], little_endian: bool) -> str:
     its records must make up most of the input, not be a chance match in garbage."""
     if not kept:
         return "no record decoded: the input is empty"
-    other = Framer(codes, little_endian=not little_endian)
-    found = sum(len(b) for b in other.feed(kept) + other.flush())
-    if found and other.stats.bytes_skipped <= len(kept) // 2:
+    found = other_byte_order(kept, codes, little_endian)
+    if found:
         fix = "--little-endian" if not little_endian else "without --little-endian"
         return (f"no record decoded, but {found} did with floats "
                 f"{'little' if not little_endian else 'big'}-endian: try {fix}")

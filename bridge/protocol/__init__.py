@@ -53,7 +53,7 @@ from bridge.protocol.convert import (
     wake_time_seconds,
 )
 from bridge.protocol.docs import command_table_markdown, reply_schemas
-from bridge.protocol.framer import Framer, FramerStats
+from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import (
     BAUD_RATES,
     CALCULATION_CYCLE_S,
@@ -115,6 +115,7 @@ __all__ = [
     "mag_low_power_fir_response",
     "mag_temperature_celsius",
     "mag_temperature_celsius_linear",
+    "other_byte_order",
     "parse_command",
     "plausible",
     "quaternion_to_euler",

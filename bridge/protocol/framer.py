@@ -430,3 +430,23 @@ class Framer:
                      self._base + pos)
             self.stats.records[code] += good
         return good, good == len(ok)
+
+
+def other_byte_order(data: bytes, expect: Iterable[int], little_endian: bool) -> int:
+    """Records ``data`` holds with floats in the other byte order, where nothing decoded.
+
+    ``gx3 decode`` and ``gx3 import`` say so with the option to change, but only when
+    those records make up most of the bytes: a few checksum matches in garbage are not a
+    byte order.
+
+    Args:
+        data: The bytes that gave no record (the start of a file is enough).
+        expect: The reply codes looked for.
+        little_endian: The byte order they were read with.
+
+    Returns:
+        How many records the other order gives, or 0 when they are too few to count.
+    """
+    other = Framer(expect, little_endian=not little_endian)
+    found = sum(len(b) for b in other.feed(data) + other.flush())
+    return found if found and other.stats.bytes_skipped <= len(data) // 2 else 0

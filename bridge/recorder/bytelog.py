@@ -28,10 +28,10 @@ import numpy.typing as npt
 
 from bridge._text import counted
 from bridge.bus.codec import encode_batch
-from bridge.bus.gx3_pb2 import Event, Info
+from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
-from bridge.protocol.framer import Framer, FramerStats
+from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
 from bridge.recorder.writer import ArchiveWriter
 from bridge.timing.stream import filter_delay_ns
@@ -45,6 +45,7 @@ FACTORY_FILTER_WIDTH = 15  # the manual's factory setting, where the log has no 
 FACTORY_DECIMATION = 10  # until a 0xDB reply or the timer's steps tell the rate
 _ROLLOVER_TICKS = 10 * 60 * TICKS_PER_SECOND  # a timer that goes back less than this far
 _READ_BYTES = 1 << 20  # (mod 2^32) crossed its rollover; further back, it was reset
+_HEAD_BYTES = 1 << 22  # of the first log, tried in the other byte order if none decoded
 _LATTICE_TOLERANCE = 0.5  # ticks: a step is whole output periods to within rounding
 
 
@@ -403,15 +404,13 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
             take(batch, logs[-1], False)
         result.stats = framer.stats
         if not result.samples:
-            raise LogImportError(
-                f"no record found in {', '.join(str(log.path) for log in logs)}: not a "
-                "3DM-GX3 byte log" + ("" if little_endian else
-                                      " (or its floats are little-endian: --little-endian)"))
+            raise LogImportError(_nothing_found(logs, little_endian))
         if timeline.restarts:
             raise LogImportError(
                 f"{len(restarts) + 1} --start given, but the logs hold "
                 f"{counted(len(restarts) - len(timeline.restarts) + 1, 'epoch')}: give "
                 "one --start per epoch (the first record's, then one per reset)")
+        _status(writer, prefix, unit, logs[-1], result, info_code[0])
         writer.add_metadata("gx3.import", {
             "unit": unit, "filter_width": str(result.filter_width),
             "filter_width_from": "log" if result.filter_from_log else "factory",
@@ -424,6 +423,36 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         raise
     writer.close()
     return result
+
+
+def _nothing_found(logs: Sequence[LogFile], little_endian: bool) -> str:
+    """Why no record came out, with the option to change where the other byte order works."""
+    names = ", ".join(str(log.path) for log in logs)
+    with logs[0].path.open("rb") as stream:
+        head = stream.read(_HEAD_BYTES)
+    found = other_byte_order(head, _EXPECT, little_endian)
+    if found:
+        fix = "--little-endian" if not little_endian else "without --little-endian"
+        return (f"no record found in {names}, but {found:,} in its first "
+                f"{len(head):,} bytes with floats {'big' if little_endian else 'little'}"
+                f"-endian: try {fix}")
+    return f"no record found in {names}: not a 3DM-GX3 byte log"
+
+
+def _status(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, result: Imported,
+            code: int) -> None:
+    """The import's totals as the unit's Status at its last sample, as a bridge's at its end.
+
+    It has no host clock (unknown) and no clock model: no host received a byte.
+    """
+    stats = result.stats
+    status = Status(unit=unit, time_ns=result.last_ns, state=Status.STOPPED, port=str(log.path),
+                    command=code, output_rate_hz=1000 / result.decimation,
+                    samples=sum(result.samples.values()), dropped=result.missing,
+                    checksum_failures=stats.checksum_failures, implausible=stats.implausible,
+                    bytes_skipped=stats.bytes_skipped, resyncs=stats.resyncs,
+                    glitches=result.events["glitch"])
+    writer.write(f"{prefix}/{unit}/status", status.SerializeToString(), result.last_ns)
 
 
 def _info(writer: ArchiveWriter, prefix: str, unit: str, log: LogFile, batch: Batch,
