@@ -1,6 +1,8 @@
-"""Counts in the words a person reads: 1 unit, 2 units."""
+"""Numbers as a person reads them: counts (1 unit, 2 units), instants (UTC, ISO 8601)."""
 
 from __future__ import annotations
+
+from datetime import UTC, datetime
 
 
 def counted(n: int, noun: str, plural: str | None = None) -> str:
@@ -15,3 +17,17 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
         The count with thousands separators, and the noun.
     """
     return f"{n:,} {noun if n == 1 else plural or noun + 's'}"
+
+
+def utc_text(ns: int, timespec: str = "seconds") -> str:
+    """An instant as ISO 8601 in UTC, with Z: ``2026-11-28T06:00:00Z``.
+
+    Args:
+        ns: Nanoseconds since the epoch.
+        timespec: How much of the time to give (``seconds``, ``milliseconds``, ...).
+
+    Returns:
+        The text.
+    """
+    return datetime.fromtimestamp(ns / 1e9, UTC).isoformat(timespec=timespec).replace(
+        "+00:00", "Z")

@@ -16,12 +16,12 @@ import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
+from bridge._text import utc_text
 from bridge.exceptions import CalibrationError
 
 FloatArray = npt.NDArray[np.float64]
@@ -263,16 +263,14 @@ def document(cal: IronCalibration, unit: str, quantity: str, span_ns: tuple[int,
         "coverage": round(cal.coverage, 3),
         "readings": cal.readings,
         "quantity": quantity,
-        "span": {"start_ns": start, "end_ns": end, "start_utc": _utc(start),
-                 "end_utc": _utc(end), "seconds": round((end - start) / 1e9, 3)},
+        "span": {"start_ns": start, "end_ns": end,
+                 "start_utc": utc_text(start, "milliseconds"),
+                 "end_utc": utc_text(end, "milliseconds"),
+                 "seconds": round((end - start) / 1e9, 3)},
         "source": source,
         "warnings": list(cal.warnings),
     }
 
-
-def _utc(ns: int) -> str:
-    return datetime.fromtimestamp(ns / 1e9, UTC).isoformat(timespec="milliseconds").replace(
-        "+00:00", "Z")
 
 
 @dataclass(frozen=True)

@@ -21,11 +21,10 @@ import multiprocessing
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 
 import numpy as np
 
-from bridge._text import counted
+from bridge._text import counted, utc_text
 from bridge.exceptions import CalibrationError
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.protocol.table import TICKS_PER_SECOND
@@ -178,10 +177,6 @@ class UnitNoise:
         return self.used_samples / self.rate_hz
 
 
-def _utc(ns: int) -> str:
-    return datetime.fromtimestamp(ns / 1e9, UTC).isoformat(timespec="seconds").replace(
-        "+00:00", "Z")
-
 
 def _sample_step(timer: np.ndarray) -> tuple[np.ndarray, float]:
     """Each sample-to-sample timer step (mod 2**32) and the unit's step, in ticks.
@@ -245,7 +240,8 @@ def _moved(time_ns: np.ndarray, force: np.ndarray, rate: np.ndarray, unit: str) 
     first_s = (time_ns[start] - time_ns[0]) / 1e9
     last_s = (time_ns[end] - time_ns[0]) / 1e9
     raise CalibrationError(
-        f"unit {unit} moved from {_utc(int(time_ns[start]))} to {_utc(int(time_ns[end]))} "
+        f"unit {unit} moved from {utc_text(int(time_ns[start]))} to "
+        f"{utc_text(int(time_ns[end]))} "
         f"({first_s:.0f} s to {last_s:.0f} s into the span, {len(seconds)} s with motion: "
         f"|specific force| up to {float(f_off.max()):.3g} m/s² off its still value, rate "
         f"{float(r_off.max()):.3g} rad/s); the noise needs a unit that stays still: "
@@ -436,7 +432,7 @@ def kalibr_yaml(noise: UnitNoise, topic: str, source: str) -> str:
     first, last = noise.stretches[0][0], noise.stretches[-1][1]
     lines += [
         f"  tau_s: [{_number(float(finite[0]))}, {_number(float(finite[-1]))}]",
-        f"  span: {{start: {_utc(first)}, end: {_utc(last)}}}",
+        f"  span: {{start: {utc_text(first)}, end: {utc_text(last)}}}",
         f"  samples_used: {noise.used_samples}",
         f"  samples_in_span: {noise.samples}",
         f"  seconds_used: {noise.used_seconds:.1f}",
