@@ -11,7 +11,7 @@ units for --fleet-hours each. Prints, with the load average (other work slows it
 - `gx3 allan` of the one unit as a user runs it (start-up included): wall seconds and
   the peak resident memory of the process;
 - the overlapping Allan deviation alone of its six axes on the same taus: this
-  project's cumulative-sum version (``bridge.recorder.allan``) against allantools'
+  project's cumulative-sum version (``bridge.analysis.allan``) against allantools'
   ``oadev`` (``pip install allantools==2024.6``; skipped when it is not installed),
   seconds and peak memory (tracemalloc) of each;
 - `gx3 allan` of every unit of the fleet archive, with one process per core and with one.
@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.analysis.allan import AllanSums, averaging_factors
+from bridge.analysis.noise import collect_samples
+from bridge.archive.writer import ArchiveWriter
+from bridge.export.run import read_samples_archive
 from bridge.protocol.convert import STANDARD_GRAVITY
-from bridge.recorder.allan import AllanSums, averaging_factors
-from bridge.recorder.export import read_samples_archive
-from bridge.recorder.noise import collect_samples
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
 

@@ -26,9 +26,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bridge.ingest.replay import frame_reads
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.recorder.replay import frame_reads
 from bridge.sim.capture import USB_BAUD, SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
+from bridge.analysis.allan import AllanSums, averaging_factors
+from bridge.analysis.noise import NOISE_KEYS, UnitNoise, collect_samples, unit_noise
+from bridge.archive.writer import ArchiveWriter
 from bridge.exceptions import OptionError
-from bridge.recorder.allan import AllanSums, averaging_factors
-from bridge.recorder.export import read_samples_archive
-from bridge.recorder.noise import NOISE_KEYS, UnitNoise, collect_samples, unit_noise
-from bridge.recorder.writer import ArchiveWriter
+from bridge.export.run import read_samples_archive
 from bridge.ros2.noise import imu_covariance, read_noise
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig

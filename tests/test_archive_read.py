@@ -12,13 +12,13 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import MAGIC, read_archive
+from bridge.archive.repair import repair
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import HEADER, encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.exceptions import ArchiveReadError
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import MAGIC, read_archive
-from bridge.recorder.repair import repair
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, write_fleet
 from tests.helpers.records import T0, synthetic_batch
 

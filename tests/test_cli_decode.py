@@ -15,8 +15,8 @@ from typing import IO, Any
 
 import pytest
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.protocol.table import COMMANDS
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.archives import write_capture
 from tests.helpers.processes import GX3
 

@@ -13,9 +13,9 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.recorder.describe import flat_names
-from bridge.recorder.reader import MAGIC, read_archive
-from bridge.recorder.tables import sample_table
+from bridge.archive.reader import MAGIC, read_archive
+from bridge.export.describe import flat_names
+from bridge.export.tables import sample_table
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, Written, write_fleet
 from tests.helpers.processes import GX3, gx3
 from tests.helpers.records import T0

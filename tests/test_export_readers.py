@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from bridge.bus.gx3_pb2 import Info
-from bridge.recorder.describe import SCHEMA_VERSION, column_metadata, unit_labels
+from bridge.export.describe import SCHEMA_VERSION, column_metadata, unit_labels
 from tests.helpers.archives import write_two_units
 from tests.helpers.processes import GX3
 

@@ -31,6 +31,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from bridge.archive.reader import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
@@ -40,8 +42,6 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder import live
 from bridge.recorder.live import HOST_MARGIN_NS, HOSTS_METADATA, HostView, Recorder
-from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.archives import archived_events
 from tests.helpers.processes import GX3
 from tests.helpers.waiting import free_port, wait_for

@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import ArchiveReader, read_archive
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import ArchiveReader, read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.tables import offline_times, sample_table
+from bridge.export.tables import offline_times, sample_table
+from bridge.ingest.replay import replay
 from bridge.sim.capture import WALL_NS, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator

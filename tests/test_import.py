@@ -19,10 +19,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol import Framer, checksum, encode_reply
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig

@@ -1,7 +1,7 @@
 """No command destroys a file: outputs that exist, are an input, or are being written.
 
 Real `gx3` processes on real files; each case is judged by what is in the files
-afterwards (bridge/recorder/outputs.py holds the rules every command follows).
+afterwards (bridge/archive/outputs.py holds the rules every command follows).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.archive.outputs import create_locked, free_folder, lock_holder, staged
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import read_archive
+from bridge.archive.writer import numbered
 from bridge.exceptions import OutputRefused
-from bridge.recorder.outputs import create_locked, free_folder, lock_holder, staged
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.writer import numbered
+from bridge.ingest.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator

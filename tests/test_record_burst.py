@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import parse
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.subscribe import subscribe
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.records import CODE, T0
 from tests.helpers.zenoh import peer_sessions
 

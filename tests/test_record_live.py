@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.recorder.reader import read_archive
+from bridge.archive.reader import read_archive
 from bridge.sim.serve import Simulator
 from tests.helpers.archives import sample_columns, samples_in
 from tests.helpers.mcap_order import order_problems
@@ -212,10 +212,10 @@ def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
 
 def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
     """A killed recorder's file: `gx3 rrd` renders what is readable and says so."""
+    from bridge.archive.writer import ArchiveWriter
     from bridge.bus.codec import encode_batch
     from bridge.protocol.codec import Batch
     from bridge.protocol.table import REPLIES
-    from bridge.recorder.writer import ArchiveWriter
 
     path = tmp_path / "cut.mcap"
     with ArchiveWriter(path, chunk_size=4096) as writer:

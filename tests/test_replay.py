@@ -18,12 +18,12 @@ import numpy as np
 import psutil
 import pytest
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event
+from bridge.ingest.replay import captures, replay
 from bridge.protocol.codec import encode_reply
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import captures, replay
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
@@ -247,7 +247,7 @@ def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None
     """What a worker sends goes through pickle; an error that does not pickle is sent as
     its words (the queue would drop it, and the replay would end short, saying nothing)."""
     from bridge.exceptions import ReplayError
-    from bridge.recorder.replay import _sendable
+    from bridge.ingest.replay import _sendable
 
     class Unsendable(Exception):
         def __init__(self, what: str, where: int) -> None:

@@ -8,9 +8,9 @@ from functools import cache
 import numpy as np
 import pytest
 
+from bridge.ingest.replay import frame_reads
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
-from bridge.recorder.replay import frame_reads
 from bridge.sim.capture import USB_BAUD, SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery

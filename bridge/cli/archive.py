@@ -25,10 +25,10 @@ from bridge.cli.common import (
 )
 
 if TYPE_CHECKING:
-    from bridge.recorder.reader import ArchiveReader
+    from bridge.archive.reader import ArchiveReader
 
-# The recorder modules (pyarrow, protobuf schemas) load only when these commands run, so
-# every other gx3 command starts as fast as before.
+# The archive and export modules (pyarrow, protobuf schemas) load only when these commands
+# run, so every other gx3 command starts as fast as before.
 
 
 def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | None = None
@@ -36,7 +36,7 @@ def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | 
     """Read an archive with progress on a terminal; warn once when it was cut short.
 
     ``on_blocks`` streams it (``read_archive``)."""
-    from bridge.recorder.export import read_samples_archive
+    from bridge.export.run import read_samples_archive
 
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
@@ -71,9 +71,9 @@ def repair(
     said (time span, messages per topic). Exits 2 when nothing can be recovered. The
     input is never overwritten.
     """
+    from bridge.archive.repair import default_output
+    from bridge.archive.repair import repair as repair_archive
     from bridge.exceptions import ArchiveError
-    from bridge.recorder.repair import default_output
-    from bridge.recorder.repair import repair as repair_archive
 
     output = default_output(file) if output is None else output
     with written(output, [file], force) as temp, failing(ArchiveError, temp=temp, path=output):
@@ -169,7 +169,7 @@ def export(
     unless --noise gives them. header.stamp and the log time are the time_ns a table
     export with the same options gives.
     """
-    from bridge.recorder.export import Export
+    from bridge.export.run import Export
 
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,

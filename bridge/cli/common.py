@@ -146,10 +146,10 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 @contextmanager
 def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
-    """The temporary file a batch command writes ``path`` through (bridge/recorder/outputs.py
+    """The temporary file a batch command writes ``path`` through (bridge/archive/outputs.py
     ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
     130, and like any failure leave nothing under ``path``."""
-    from bridge.recorder.outputs import staged
+    from bridge.archive.outputs import staged
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
@@ -162,8 +162,8 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
 
 
 def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """bridge/recorder/outputs.py ``refuse`` for a live output (OutputRefused: exit 2)."""
-    from bridge.recorder.outputs import refuse
+    """bridge/archive/outputs.py ``refuse`` for a live output (OutputRefused: exit 2)."""
+    from bridge.archive.outputs import refuse
 
     refuse(path, inputs, force)
 

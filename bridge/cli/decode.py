@@ -12,11 +12,11 @@ import orjson
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
+from bridge.archive.mcap_writer import MAGIC
 from bridge.cli.common import INTERRUPTED, app, err, fail, reply_code
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, other_byte_order
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
-from bridge.recorder.mcap_writer import MAGIC
 
 _READ_SIZE = 1 << 20  # at most; a pipe gives what it holds, so records leave as they arrive
 _KEPT = 1 << 22  # input kept to try the other byte order when nothing decodes
@@ -109,7 +109,7 @@ def _is_mcap(path: Path) -> bool:
 
 def _decode_capture(path: Path, codes: set[int], little_endian: bool) -> None:
     """Each unit's raw reads in an MCAP capture, decoded as the bytes off its line."""
-    from bridge.recorder.replay import captures
+    from bridge.ingest.replay import captures
 
     found = 0
     try:

@@ -96,10 +96,10 @@ def demo(
     dashboard shows each unit; at the end a summary compares what the bridges found
     with the truth, and says how to open the results.
     """
+    from bridge.archive.outputs import free_folder
     from bridge.cli.viz import _display, live_recording
     from bridge.exceptions import DemoError
     from bridge.fleet.demo import Demo, fleet
-    from bridge.recorder.outputs import free_folder
 
     if viewer not in (None, "spawn", "serve"):
         raise fail(f"--viewer {viewer!r}: use spawn or serve")

@@ -53,7 +53,7 @@ def import_command(
     it as any archive.
     """
     from bridge.exceptions import LogImportError
-    from bridge.recorder.bytelog import LogFile, import_logs, name_time, parse_start
+    from bridge.ingest.bytelog import LogFile, import_logs, name_time, parse_start
 
     if start and start_from_name is not None:
         raise fail("give --start or --start-from-name, not both")

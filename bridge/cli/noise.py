@@ -71,16 +71,16 @@ def allan(
     a recording too short for the random walks gives them with a warning saying how
     long to record.
     """
-    from bridge.cli.archive import read_with_progress
-    from bridge.exceptions import CalibrationError
-    from bridge.recorder.noise import (
+    from bridge.analysis.noise import (
         UnitSamples,
         collect_samples,
         kalibr_yaml,
         stretch_text,
         units_noise,
     )
-    from bridge.recorder.tables import archive_prefix, parse_time
+    from bridge.cli.archive import read_with_progress
+    from bridge.exceptions import CalibrationError
+    from bridge.export.tables import archive_prefix, parse_time
     from bridge.ros2.messages import ros_topic
 
     try:

@@ -279,7 +279,7 @@ def replay_command(
     unit's samples are the same as replayed alone.
     """
     from bridge.exceptions import ArchiveError, ReplayError, UnusableCapture
-    from bridge.recorder.replay import Replayed, replay
+    from bridge.ingest.replay import Replayed, replay
     from bridge.timing.stream import TRANSPORTS
 
     if transport is not None and transport not in TRANSPORTS:

@@ -30,7 +30,7 @@ from bridge.cli.common import (
 )
 
 if TYPE_CHECKING:
-    from bridge.recorder.magcal import UnitIron
+    from bridge.analysis.magcal import UnitIron
 
 MagCalOpt = Annotated[list[Path] | None, typer.Option(
     "--mag-cal", metavar="FILE",
@@ -41,7 +41,7 @@ MagCalOpt = Annotated[list[Path] | None, typer.Option(
 
 def _irons(files: list[Path] | None) -> list[UnitIron]:
     """The calibrations given, or a one-line error."""
-    from bridge.recorder.magcal import read_document
+    from bridge.analysis.magcal import read_document
 
     try:
         return [read_document(path) for path in files or ()]
@@ -66,7 +66,7 @@ def rrd(
     killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
     message that is not what its topic says is left out with a warning.
     """
-    from bridge.recorder.reader import describe_problem, read_archive
+    from bridge.archive.reader import describe_problem, read_archive
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import log_archive
 

@@ -185,10 +185,10 @@ class Demo:
                 could not be written; it says where the logs are.
             ArchiveError: The archive could not be created.
         """
+        from bridge.archive.writer import ArchiveWriter
         from bridge.bus.session import open_session
         from bridge.exceptions import ArchiveError
         from bridge.recorder.live import Recorder
-        from bridge.recorder.writer import ArchiveWriter
         from bridge.viz.logger import RerunLogger
         from bridge.viz.sources import log_messages
 

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
+from bridge.archive.reader import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.fleet.loopback import free_port
-from bridge.recorder.reader import read_archive
 from bridge.viz.layout import TIME
 
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from bridge.archive.writer import ArchiveWriter, stamps
 from bridge.bus.codec import parse
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.bus.integrity import read_raw_time, read_time
@@ -31,7 +32,6 @@ from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
 from bridge.device import clock
 from bridge.exceptions import ArchiveError
-from bridge.recorder.writer import ArchiveWriter, stamps
 from bridge.timing.rate import RateWindow
 
 LEAVES = ("imu", "status", "event")

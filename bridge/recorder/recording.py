@@ -29,10 +29,10 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import ArchiveError, OutputRefused
 from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
-from bridge.recorder.writer import ArchiveWriter
 
 if TYPE_CHECKING:
     import threading
@@ -181,8 +181,8 @@ class Recording:
         return self
 
     def _open(self) -> None:
+        from bridge.archive.outputs import refuse
         from bridge.device import clock
-        from bridge.recorder.outputs import refuse
 
         if self.metrics is not None:  # a busy port is said before any file is made
             from bridge.bus.metrics import Health, MetricsServer

@@ -20,7 +20,7 @@ from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.sim.motion import Motion
 
 if TYPE_CHECKING:
-    from bridge.recorder.writer import ArchiveWriter
+    from bridge.archive.writer import ArchiveWriter
 
 __all__ = ["archive_samples"]
 

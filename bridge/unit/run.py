@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import CaptureError, NameTaken, UnsupportedUnit
-from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.unit.pipeline import Options, Pipeline
 
 if TYPE_CHECKING:  # its module reads message definitions: loaded only with --ros2

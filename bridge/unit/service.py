@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
 from bridge._text import counted
+from bridge.archive.rawcapture import capture_metadata
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.device import clock
@@ -32,7 +33,6 @@ from bridge.device.session import Session, UnitInfo
 from bridge.exceptions import DeviceError, NameTaken
 from bridge.protocol.codec import Records
 from bridge.protocol.table import Mode
-from bridge.recorder.rawcapture import capture_metadata
 from bridge.unit.pipeline import EventKind, Pipeline, TimedSamples, UnitEvent, UnitState
 
 if TYPE_CHECKING:  # Zenoh is imported once a unit is up: the CLI's help stays quick

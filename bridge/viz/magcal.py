@@ -15,7 +15,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bridge.recorder.magcal import IRONED, IronCalibration, UnitIron
+from bridge.analysis.magcal import IRONED, IronCalibration, UnitIron
 from bridge.viz.logger import RerunLogger
 
 #: Points drawn at most: enough to see the shape, few enough to stay quick.

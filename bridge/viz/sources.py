@@ -16,12 +16,12 @@ import numpy as np
 import zenoh
 from google.protobuf.message import DecodeError
 
+from bridge.archive.reader import ArchiveReader
 from bridge.bus.codec import decode_batch, peek
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.keys import unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.device import clock
-from bridge.recorder.reader import ArchiveReader
 from bridge.viz.logger import RerunLogger
 
 

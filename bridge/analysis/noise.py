@@ -6,7 +6,7 @@ times are kept, as float32 and integer columns (36 bytes a sample, never a Pytho
 object each), and the file's chunks are dropped as they are decoded. Each unit's
 samples are then cut into contiguous stretches wherever its timer does not step by one
 sample period (a gap, a reset, a rollover: never bridged), checked for motion, and
-handed to ``bridge.recorder.allan``; several units share the cores, a unit a process.
+handed to ``bridge.analysis.allan``; several units share the cores, a unit a process.
 
 A Kalibr ``imu.yaml`` (``kalibr_yaml``) holds the worst axis of each sensor, in
 Kalibr's units (m/s², rad/s; densities per √Hz, random walks per s per √Hz), with the
@@ -25,17 +25,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bridge._text import counted, utc_text
-from bridge.exceptions import CalibrationError
-from bridge.protocol.convert import STANDARD_GRAVITY
-from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.recorder.allan import (
+from bridge.analysis.allan import (
     MIN_FACTOR,
     AllanSums,
     NoiseFit,
     averaging_factors,
     read_off,
 )
-from bridge.recorder.reader import ArchiveReader
+from bridge.archive.reader import ArchiveReader
+from bridge.exceptions import CalibrationError
+from bridge.protocol.convert import STANDARD_GRAVITY
+from bridge.protocol.table import TICKS_PER_SECOND
 
 __all__ = ["NOISE_KEYS", "SensorNoise", "UnitNoise", "UnitSamples", "collect_samples",
            "kalibr_yaml", "stretch_text", "unit_noise", "units_noise"]

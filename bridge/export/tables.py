@@ -20,15 +20,10 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from bridge.archive.reader import ArchivedSamples, ArchiveReader
 from bridge.bus.codec import elements
 from bridge.bus.gx3_pb2 import Event, Info
-from bridge.protocol.convert import (
-    euler_to_quaternion,
-    m_to_quaternion,
-    quaternion_to_euler,
-    quaternion_to_m,
-)
-from bridge.recorder.describe import (
+from bridge.export.describe import (
     ALIGNED_SEPARATOR,
     QUANTITY_ORDER,
     About,
@@ -36,7 +31,12 @@ from bridge.recorder.describe import (
     flat_names,
     unit_labels,
 )
-from bridge.recorder.reader import ArchivedSamples, ArchiveReader
+from bridge.protocol.convert import (
+    euler_to_quaternion,
+    m_to_quaternion,
+    quaternion_to_euler,
+    quaternion_to_m,
+)
 from bridge.timing.offline import OfflineClock
 from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings

@@ -3,7 +3,7 @@
 A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
 half-written chunk at the end; a damaged disk leaves a finished file with a corrupt
 chunk. Tools that seek (``make_reader``, most viewers) refuse both. Repair copies what
-``bridge.recorder.reader`` can read (schemas, channels, every message of every intact
+``bridge.archive.reader`` can read (schemas, channels, every message of every intact
 chunk, metadata, attachments) into a new file with chunk index and summary, and says
 what was lost.
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+from bridge.archive.reader import ArchiveReader, describe_damage, read_archive
 from bridge.exceptions import ArchiveError, ArchiveReadError
-from bridge.recorder.reader import ArchiveReader, describe_damage, read_archive
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ The file is MCAP as rosbag2's MCAP storage writes it (profile ``ros2``, schema e
 ``ros2msg`` with the message definitions embedded, message encoding ``cdr``): per unit
 ``/<prefix>/<unit>/imu`` (``sensor_msgs/msg/Imu``) and, for records with a magnetometer,
 ``/<prefix>/<unit>/mag`` (``sensor_msgs/msg/MagneticField``). It is built from the rows
-of :func:`bridge.recorder.tables.sample_table`, so it holds exactly the samples a table
+of :func:`bridge.export.tables.sample_table`, so it holds exactly the samples a table
 export with the same options holds, stamped with the same ``time_ns``; each message is
 logged and published at its stamp, and messages are in log-time order.
 
@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from bridge.archive.mcap_writer import McapWriter
+from bridge.archive.writer import LIBRARY
 from bridge.bus.codec import elements
-from bridge.recorder.describe import QUANTITY_ORDER, flat_names
-from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.writer import LIBRARY
+from bridge.export.describe import QUANTITY_ORDER, flat_names
 from bridge.ros2 import messages
 from bridge.ros2.noise import ImuCovariance
 

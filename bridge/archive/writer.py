@@ -28,15 +28,8 @@ from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError, Message
 
 from bridge import __version__
-from bridge.bus.codec import decode_batch, parse, record_quantities
-from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
-from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
-from bridge.bus.schema import file_descriptor_set
-from bridge.device import clock
-from bridge.exceptions import ArchiveError, OutputRefused
-from bridge.protocol.table import DATA_CODES
-from bridge.recorder.eventlog import LOG_CLASS, log_message
-from bridge.recorder.frames import (
+from bridge.archive.eventlog import LOG_CLASS, log_message
+from bridge.archive.frames import (
     FRAME_CLASS,
     MARKER_CLASS,
     frame_messages,
@@ -45,9 +38,16 @@ from bridge.recorder.frames import (
     root_message,
     sensor_to_earth,
 )
-from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.outputs import create_locked, refuse_if_written
-from bridge.recorder.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
+from bridge.archive.mcap_writer import McapWriter
+from bridge.archive.outputs import create_locked, refuse_if_written
+from bridge.archive.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
+from bridge.bus.codec import decode_batch, parse, record_quantities
+from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
+from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
+from bridge.bus.schema import file_descriptor_set
+from bridge.device import clock
+from bridge.exceptions import ArchiveError, OutputRefused
+from bridge.protocol.table import DATA_CODES
 
 T = TypeVar("T")
 PROTOBUF = "protobuf"
@@ -322,7 +322,7 @@ class ArchiveWriter:
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        """Create the next file exclusively and lock it (``bridge.recorder.outputs``).
+        """Create the next file exclusively and lock it (``bridge.archive.outputs``).
 
         An existing one is never truncated; split parts continue after those already there.
         """
@@ -517,7 +517,7 @@ class ArchiveWriter:
             payloads: Their bytes, as published.
             receive_ns: When they were received, host ns: one time for all, or one each.
             publish_ns: Raw reads' stamps on the raw monotonic clock, their publish times
-                (``bridge.recorder.rawcapture``); by default the receive times are.
+                (``bridge.archive.rawcapture``); by default the receive times are.
 
         Raises:
             ValueError: The key is not one the archive has a channel for, a payload is

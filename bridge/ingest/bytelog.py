@@ -27,13 +27,13 @@ import numpy as np
 import numpy.typing as npt
 
 from bridge._text import counted
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
-from bridge.recorder.writer import ArchiveWriter
 from bridge.timing.stream import filter_delay_ns
 from bridge.timing.unwrap import NS_PER_TICK
 

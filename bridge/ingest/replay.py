@@ -28,15 +28,15 @@ from typing import Any
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from bridge.archive.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
+from bridge.archive.reader import ArchiveReader, Messages, read_archive, summary_counts
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.exceptions import ArchiveReadError, ReplayError, UnusableCapture
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
-from bridge.recorder.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
-from bridge.recorder.reader import ArchiveReader, Messages, read_archive, summary_counts
-from bridge.recorder.writer import ArchiveWriter
 from bridge.timing.links import infer_transport
 from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads
 from bridge.timing.steps import find_steps, raw_like, unwrap_timer

@@ -4,11 +4,11 @@
 with what, the span, the record types, the calibration files), then ``write`` turns
 an archive, read with ``read_samples_archive``, into the output and the events table;
 ``run`` does all of it with safe outputs (each appears when complete, nothing is left
-if it fails). The tables and their writers are ``bridge.recorder.tables``'s::
+if it fails). The tables and their writers are ``bridge.export.tables``'s::
 
     from pathlib import Path
 
-    from bridge.recorder.export import Export
+    from bridge.export.run import Export
 
     done = Export(Path("fleet.mcap"), Path("fleet.parquet"), align_hz=100).run()
     print(done.text())
@@ -24,11 +24,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bridge._text import counted
-from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
-from bridge.recorder.magcal import UnitIron, apply, read_document, with_heading
-from bridge.recorder.reader import ArchiveReader, describe_problem, read_archive
-from bridge.recorder.ros2_export import Ros2Written, write_ros2
-from bridge.recorder.tables import (
+from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
+from bridge.archive.reader import ArchiveReader, describe_problem, read_archive
+from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
+from bridge.export.ros2_bag import Ros2Written, write_ros2
+from bridge.export.tables import (
     TimeBound,
     align_table,
     archive_prefix,
@@ -354,7 +354,7 @@ class Export:
             ValueError: Nothing matches, or what matches cannot be exported as asked.
             OSError: An output cannot be written.
         """
-        from bridge.recorder.outputs import staged
+        from bridge.archive.outputs import staged
 
         with ExitStack() as outputs:
             table_file = outputs.enter_context(staged(self.output, [self.archive], force))
