@@ -33,8 +33,8 @@ import numpy as np
 
 from bridge.analysis.allan import AllanSums, averaging_factors
 from bridge.analysis.noise import collect_samples
+from bridge.archive.walk import read_samples_archive
 from bridge.archive.writer import ArchiveWriter
-from bridge.export.run import read_samples_archive
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from bench_archive import PERIOD_NS, T0, unit_batch
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.device.clock import SCRIPT_ENV, ClockScript
 from bridge.export.tables import offline_times, sample_table

@@ -112,7 +112,7 @@ def receive_app(args: argparse.Namespace) -> None:
 def receive_recorder(args: argparse.Namespace) -> None:
     import zenoh
 
-    from bridge.archive.reader import read_archive
+    from bridge.archive.walk import read_archive
     from bridge.archive.writer import ArchiveWriter
     from bridge.bus.gx3_pb2 import Event
     from bridge.recorder.live import Recorder

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.export.tables import offline_times, sample_table
 from bridge.fleet.loopback import free_port, loopback_config

@@ -15,9 +15,9 @@ from ruamel.yaml import YAML
 
 from bridge.analysis.allan import AllanSums, averaging_factors
 from bridge.analysis.noise import NOISE_KEYS, UnitNoise, collect_samples, unit_noise
+from bridge.archive.walk import read_samples_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.exceptions import OptionError
-from bridge.export.run import read_samples_archive
 from bridge.ros2.noise import imu_covariance, read_noise
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.archive.reader import read_archive
 from bridge.archive.repair import repair
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import FLUSH_EVERY_S, REORDER_S, ArchiveWriter
 from bridge.bus.codec import encode_batch
 

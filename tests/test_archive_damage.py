@@ -15,7 +15,8 @@ from mcap.records import Chunk, ChunkIndex, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.summary import Summary
 
-from bridge.archive.reader import ArchiveReader, read_archive
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Status

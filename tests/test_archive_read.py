@@ -12,9 +12,10 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
+from bridge.archive.mcap_writer import MAGIC
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import MAGIC, read_archive
 from bridge.archive.repair import repair
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import HEADER, encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status

@@ -15,7 +15,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.ingest.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import Motion, MotionConfig, tumbling

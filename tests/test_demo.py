@@ -10,7 +10,7 @@ from pathlib import Path
 
 import psutil
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3
 from tests.helpers.rrd import rerun_rows

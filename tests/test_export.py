@@ -13,7 +13,8 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.archive.reader import MAGIC, read_archive
+from bridge.archive.mcap_writer import MAGIC
+from bridge.archive.walk import read_archive
 from bridge.export.describe import flat_names
 from bridge.export.tables import sample_table
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, Written, write_fleet

@@ -10,7 +10,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.export.tables import align_table, sample_table
 from bridge.protocol.convert import euler_to_m
 from tests.helpers.archives import ACCEL_RATE, YAW_RATE, write_two_units

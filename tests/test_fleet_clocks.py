@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.bus.publish import UnitPublisher

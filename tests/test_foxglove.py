@@ -16,7 +16,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import ArchiveReader, read_archive
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript

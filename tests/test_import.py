@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol import Framer, checksum, encode_reply
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize

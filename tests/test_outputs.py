@@ -17,7 +17,7 @@ import pytest
 
 from bridge.archive.outputs import create_locked, free_folder, lock_holder, staged
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import numbered
 from bridge.exceptions import OutputRefused
 from bridge.ingest.replay import replay

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.sim.serve import Simulator
 from tests.helpers.archives import sample_columns, samples_in
 from tests.helpers.mcap_order import order_problems

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.publish import UnitPublisher
 from bridge.protocol.codec import Batch

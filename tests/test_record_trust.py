@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.bus.integrity import seal

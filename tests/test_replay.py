@@ -19,7 +19,7 @@ import psutil
 import pytest
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event
 from bridge.ingest.replay import captures, replay

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Info
 from bridge.ingest.replay import captures, replay
 from bridge.sim.capture import streaming_config, synthesize

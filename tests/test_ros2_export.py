@@ -19,7 +19,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.export import ros2_bag
 from bridge.export.ros2_bag import write_ros2
 from bridge.export.tables import sample_table

@@ -15,7 +15,9 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from bridge.archive.reader import ArchiveReader, describe_damage, read_archive
+from bridge.archive.explain import describe_damage
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.exceptions import ArchiveError, ArchiveReadError
 
 

@@ -36,7 +36,7 @@ def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | 
     """Read an archive with progress on a terminal; warn once when it was cut short.
 
     ``on_blocks`` streams it (``read_archive``)."""
-    from bridge.export.run import read_samples_archive
+    from bridge.archive.walk import read_samples_archive
 
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,

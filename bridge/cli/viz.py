@@ -66,7 +66,8 @@ def rrd(
     killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
     message that is not what its topic says is left out with a warning.
     """
-    from bridge.archive.reader import describe_problem, read_archive
+    from bridge.archive.explain import describe_problem
+    from bridge.archive.walk import read_archive
     from bridge.viz.magcal import IronedLogger
     from bridge.viz.sources import log_archive
 

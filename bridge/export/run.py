@@ -2,7 +2,7 @@
 
 ``Export`` checks a request before anything is read or written (the formats, what goes
 with what, the span, the record types, the calibration files), then ``write`` turns
-an archive, read with ``read_samples_archive``, into the output and the events table;
+an archive, read with ``bridge.archive.read_samples_archive``, into the output and the events table;
 ``run`` does all of it with safe outputs (each appears when complete, nothing is left
 if it fails). The tables and their writers are ``bridge.export.tables``'s::
 
@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING
 
 from bridge._text import counted
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
-from bridge.archive.reader import ArchiveReader, describe_problem, read_archive
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import (
@@ -46,40 +47,12 @@ from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance, read_nois
 if TYPE_CHECKING:
     from bridge.bus.gx3_pb2 import Info
 
-__all__ = ["Export", "Exported", "read_samples_archive"]
+__all__ = ["Export", "Exported"]
 
 #: What ``--format`` takes.
 FORMATS = ("parquet", "csv", "ros2")
 
 
-def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = None,
-                         on_problem: Callable[[str], None] | None = None,
-                         on_blocks: Callable[[ArchiveReader], None] | None = None
-                         ) -> ArchiveReader:
-    """Read an archive to take samples from; one with nothing readable is refused.
-
-    Args:
-        path: The archive.
-        on_read: Hears the bytes read so far, as the reading goes (a progress bar).
-        on_problem: Hears, once, what is wrong with an archive that was cut short or
-            damaged, and what to do about it; the readable rest is read.
-        on_blocks: Streams it chunk by chunk instead of keeping it (``read_archive``).
-
-    Returns:
-        Everything readable in the archive.
-
-    Raises:
-        ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
-        ValueError: Nothing in it can be read as messages.
-    """
-    archive = read_archive(path, on_read, on_blocks=on_blocks)
-    if not archive.message_count:
-        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
-                         "; is it an archive written by gx3?")
-    problem = describe_problem(archive)
-    if problem and on_problem is not None:
-        on_problem(f"{problem}; `gx3 repair` makes a finished copy")
-    return archive
 
 
 def _code(code: int | str) -> int:

@@ -20,7 +20,8 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from bridge.archive.reader import ArchivedSamples, ArchiveReader
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.samples import ArchivedSamples
 from bridge.bus.codec import elements
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.export.describe import (

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
-from bridge.archive.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.fleet.loopback import free_port
 from bridge.viz.layout import TIME

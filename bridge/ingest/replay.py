@@ -29,7 +29,8 @@ import numpy as np
 from google.protobuf.message import DecodeError
 
 from bridge.archive.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
-from bridge.archive.reader import ArchiveReader, Messages, read_archive, summary_counts
+from bridge.archive.reader import ArchiveReader, Messages
+from bridge.archive.walk import read_archive, summary_counts
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info

@@ -31,19 +31,21 @@ if TYPE_CHECKING:
         unit_noise,
         units_noise,
     )
-    from bridge.archive.rawcapture import RawCaptureWriter, capture_metadata
-    from bridge.archive.reader import (
+    from bridge.archive import (
         ArchivedSamples,
         ArchiveReader,
+        ArchiveWriter,
         ChannelInfo,
         Damage,
         Messages,
+        RawCaptureWriter,
         Record,
+        RepairReport,
+        capture_metadata,
         describe_problem,
         read_archive,
+        repair,
     )
-    from bridge.archive.repair import RepairReport, repair
-    from bridge.archive.writer import ArchiveWriter
     from bridge.export.describe import About
     from bridge.export.ros2_bag import Ros2Written, write_ros2
     from bridge.export.tables import (

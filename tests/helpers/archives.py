@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from bridge.archive.rawcapture import RawCaptureWriter
-from bridge.archive.reader import ArchiveReader, read_archive
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
