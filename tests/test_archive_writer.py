@@ -19,9 +19,10 @@ from hypothesis import strategies as st
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 
+from bridge.archive.frames import frame_picks
 from bridge.archive.repair import repair
 from bridge.archive.walk import read_archive
-from bridge.archive.writer import ArchiveWriter, frame_picks, numbered
+from bridge.archive.writer import ArchiveWriter, numbered
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import ImuSample, Info, Status
 from bridge.exceptions import ArchiveError
