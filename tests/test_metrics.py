@@ -30,6 +30,7 @@ from bridge.bus.metrics import (
     status_metrics,
 )
 from bridge.exceptions import MetricsError
+from bridge.recorder.units import UnitRow
 from bridge.sim.serve import Simulator
 from tests.helpers.processes import GX3, bridge_process, recorder
 from tests.helpers.tools import tool
@@ -218,8 +219,9 @@ def test_the_dashboard_shows_only_metrics_we_export() -> None:
     status = Status(unit="u", clock_offset_ns=1, clock_drift_ppm=1.0,
                     host_clock=HostClock(known=True, host="h"))
     families = [*status_metrics([status]), *recorder_metrics(
-        [{"unit": "u", "samples": 1, "bytes": 1, "alive": True}], 1, 0, archive_bytes=1,
-        unarchived={"shed": 0})]
+        [UnitRow(unit="u", alive=True, rate=1.0, samples=1, dropped=0, checksum_failures=0,
+                 resyncs=0, reconnects=0, offset_ms=None, drift_ppm=None, recorded_s=1.0,
+                 bytes=1, joined=1)], 1, 0, archive_bytes=1, unarchived={"shed": 0})]
     exported = {sample.name for family in families for sample in family.samples}
     dashboard = json.loads(DASHBOARD.read_text())
     panels = [p for top in dashboard["panels"] for p in [top, *top.get("panels", [])]]

@@ -69,7 +69,7 @@ def test_a_burst_on_many_keys_is_archived_completely_and_in_order(tmp_path: Path
         pub_session.close()
         rec_session.close()
     assert recorder.error is None and recorder.misses == 0
-    assert [r["samples"] for r in rows] == [PER_UNIT] * UNITS
+    assert [r.samples for r in rows] == [PER_UNIT] * UNITS
     with out.open("rb") as f:
         reader = make_reader(f)
         for i in range(UNITS):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol
 
 from prometheus_client import start_http_server
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
@@ -25,7 +25,8 @@ from bridge.exceptions import MetricsError
 if TYPE_CHECKING:
     from wsgiref.simple_server import WSGIServer
 
-__all__ = ["Health", "MetricsServer", "parse_address", "recorder_metrics", "status_metrics"]
+__all__ = ["ArchivedUnit", "Health", "MetricsServer", "parse_address", "recorder_metrics",
+           "status_metrics"]
 
 #: Counters of a unit's Status: (metric name without the prefix, Status field, help).
 _COUNTERS = (
@@ -107,7 +108,31 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
     yield from gauges.values()
 
 
-def recorder_metrics(rows: Iterable[dict[str, Any]], written: int, lost: int,
+class ArchivedUnit(Protocol):
+    """What ``recorder_metrics`` reads of each unit a recorder archives.
+
+    A recorder's rows (``bridge.recorder.UnitRow``) are such; ``bus`` sits below the
+    recorder, so it names what it reads instead of importing the row.
+    """
+
+    @property
+    def unit(self) -> str:
+        """The unit's name."""
+
+    @property
+    def samples(self) -> int:
+        """Samples archived."""
+
+    @property
+    def bytes(self) -> int:
+        """Bytes of its messages archived."""
+
+    @property
+    def alive(self) -> bool:
+        """Whether its bridge is on the network."""
+
+
+def recorder_metrics(rows: Iterable[ArchivedUnit], written: int, lost: int,
                      prefix: str = "gx3", *, archive_bytes: int | None = None,
                      unarchived: Mapping[str, int] | None = None) -> Iterator[Metric]:
     """The metric families of what a recorder archived.
@@ -131,9 +156,9 @@ def recorder_metrics(rows: Iterable[dict[str, Any]], written: int, lost: int,
     alive = GaugeMetricFamily(f"{prefix}_recorder_unit_alive", "1 while the unit's bridge "
                               "is on the network.", labels=["unit"])
     for row in rows:
-        samples.add_metric([row["unit"]], float(row["samples"]))
-        size.add_metric([row["unit"]], float(row["bytes"]))
-        alive.add_metric([row["unit"]], float(row["alive"]))
+        samples.add_metric([row.unit], float(row.samples))
+        size.add_metric([row.unit], float(row.bytes))
+        alive.add_metric([row.unit], float(row.alive))
     yield from (samples, size, alive)
     yield CounterMetricFamily(f"{prefix}_recorder_messages_written",
                               "Messages written into the archive.", value=float(written))

@@ -9,7 +9,7 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -20,11 +20,15 @@ from bridge._text import counted
 from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
 from bridge.cli.record import unit_table
 
+if TYPE_CHECKING:
+    from bridge.fleet.demo import UnitOutcome
+    from bridge.recorder.units import UnitRow
+
 #: Off a terminal (a CI log, a pipe), a line of progress this often, seconds.
 LOG_EVERY_S = 5.0
 
 
-def _summary(rows: list[dict[str, Any]]) -> Table:
+def _summary(rows: list[UnitOutcome]) -> Table:
     table = Table(title="summary (drift: found by the bridge, true in brackets)",
                   title_justify="left", box=None, pad_edge=False)
     for name in ("unit", "samples", "drops", "checksum", "resyncs", "reconn.", "drift ppm",
@@ -32,10 +36,10 @@ def _summary(rows: list[dict[str, Any]]) -> Table:
         table.add_column(name, justify="left" if name in ("unit", "what happened") else "right",
                          no_wrap=name != "what happened")
     for r in rows:
-        found = "not yet known" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}"
-        table.add_row(r["unit"], f"{r['samples']:,}", str(r["dropped"]),
-                      str(r["checksum_failures"]), str(r["resyncs"]), str(r["reconnects"]),
-                      f"{found} ({r['true_ppm']:+.0f})", r["notes"])
+        found = "not yet known" if r.drift_ppm is None else f"{r.drift_ppm:+.1f}"
+        table.add_row(r.unit, f"{r.samples:,}", str(r.dropped), str(r.checksum_failures),
+                      str(r.resyncs), str(r.reconnects), f"{found} ({r.true_ppm:+.0f})",
+                      r.notes)
     return table
 
 
@@ -53,13 +57,13 @@ def _runnable(name: str) -> str:
     return shlex.quote(relative if len(relative) < len(str(here)) else str(here))
 
 
-def _progress_line(rows: list[dict[str, Any]], elapsed: float, duration: float,
+def _progress_line(rows: list[UnitRow], elapsed: float, duration: float,
                    units: int) -> str:
     """The demo's progress as one line, for a log."""
-    streaming = sum(1 for r in rows if r["samples"])
+    streaming = sum(1 for r in rows if r.samples)
     if not elapsed:
         return f"demo: starting the bridges, {streaming} of {counted(units, 'unit')} streaming"
-    samples = sum(r["samples"] for r in rows)
+    samples = sum(r.samples for r in rows)
     return (f"demo: {elapsed:,.0f} of {duration:g} s, {counted(samples, 'sample')} from "
             f"{streaming} of {counted(units, 'unit')}")
 
@@ -112,7 +116,7 @@ def demo(
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
     logged = [-LOG_EVERY_S]  # when the last progress line went out, off a terminal
 
-    def show(rows: list[dict[str, Any]], elapsed: float) -> None:
+    def show(rows: list[UnitRow], elapsed: float) -> None:
         if not console.is_terminal:
             now = time.monotonic()
             if now - logged[0] >= LOG_EVERY_S:

@@ -7,7 +7,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Group
@@ -37,10 +37,11 @@ from bridge.cli.common import (
 
 if TYPE_CHECKING:
     from bridge.bus.gx3_pb2 import HostClock
-    from bridge.recorder.live import HostView
+    from bridge.recorder.hosts import HostView
+    from bridge.recorder.units import UnitRow
 
 
-def unit_table(rows: list[dict[str, Any]], title: str) -> Table:
+def unit_table(rows: Sequence[UnitRow], title: str) -> Table:
     """The units as a recorder sees them (``Recorder.snapshot``), in 80 columns: offset
     is how far each unit's clock offset moved since its first clock model (the offset
     itself is an instant)."""
@@ -54,11 +55,11 @@ def unit_table(rows: list[dict[str, Any]], title: str) -> Table:
                          overflow="ellipsis" if name == "unit" else "fold")
     for r in rows:
         table.add_row(
-            r["unit"], "[green]live[/]" if r["alive"] else "[red]gone[/]", f"{r['rate']:,.0f}",
-            f"{r['samples']:,}", f"{r['dropped']:,}", f"{r['checksum_failures']:,}",
-            "–" if r["offset_ms"] is None else f"{r['offset_ms']:+.2f}",
-            "–" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}",
-            duration_text(r["recorded_s"]), f"{r['bytes'] / 1e6:,.1f}")
+            r.unit, "[green]live[/]" if r.alive else "[red]gone[/]", f"{r.rate:,.0f}",
+            f"{r.samples:,}", f"{r.dropped:,}", f"{r.checksum_failures:,}",
+            "–" if r.offset_ms is None else f"{r.offset_ms:+.2f}",
+            "–" if r.drift_ppm is None else f"{r.drift_ppm:+.1f}",
+            duration_text(r.recorded_s), f"{r.bytes / 1e6:,.1f}")
     if not rows:
         table.add_row("[dim]waiting for units…[/]", *[""] * 9)
     return table
@@ -74,7 +75,7 @@ def _ms(ns: float) -> str:
 def _bound(bound_ns: int | None, tolerance_ns: int | None) -> str:
     """What a host's clock bound says: how far behind the recorder it can be at most, or
     (red) how far ahead it is at least; yellow beyond the tolerance."""
-    from bridge.recorder.live import ahead
+    from bridge.recorder.hosts import ahead
 
     if bound_ns is None:
         return "[dim]no samples yet[/]"
@@ -96,7 +97,7 @@ def _sync(state: HostClock | None) -> str:
 def _hosts_table(hosts: Sequence[HostView], tolerance_ns: int | None, whole: bool) -> Table:
     """Each bridge host's clock against the recorder's: over the last seconds while
     recording, over the whole recording at the end. Fits 80 columns."""
-    from bridge.recorder.live import HOST_WINDOW_S
+    from bridge.recorder.hosts import HOST_WINDOW_S
 
     over = "over the recording" if whole else f"last {HOST_WINDOW_S} s"
     table = Table(title=f"bridge hosts' clocks against the recorder's ({over})",
@@ -194,7 +195,7 @@ def record(
     log_to(log_level, log_format)
     from bridge.bus.keys import check_prefix
     from bridge.bus.session import ZenohOptions
-    from bridge.recorder.live import host_tolerance_ns
+    from bridge.recorder.hosts import host_tolerance_ns
     from bridge.recorder.recording import Recording
 
     check_prefix(prefix)

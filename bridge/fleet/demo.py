@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from bridge.exceptions import DemoError
 from bridge.fleet.loopback import free_port, interrupt, loopback_config
@@ -27,6 +27,9 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
+
+if TYPE_CHECKING:
+    from bridge.recorder.units import UnitRow
 
 CLOCK_PPM = (42.0, -27.0, 85.0, -63.0, 12.0, -95.0, 55.0, -8.0)
 ORIENTATION_RECORDS = frozenset({0xC5, 0xC6, 0xC8, 0xCC, 0xCE, 0xCF, 0xD2, 0xDF})
@@ -140,6 +143,33 @@ class _Processes:
             out.close()
 
 
+@dataclass(frozen=True)
+class UnitOutcome:
+    """What one unit's run gave, beside the truth the emulator knows (the demo's summary).
+
+    Attributes:
+        unit: Its name.
+        samples: Samples archived.
+        dropped: Records its bridge found missing.
+        checksum_failures: Records its bridge's framer refused.
+        resyncs: Times its bridge's framer lost the records' boundaries.
+        reconnects: Times its bridge reopened the port.
+        drift_ppm: The drift its bridge found; None if it found none yet.
+        true_ppm: The drift the emulator gave its clock.
+        notes: What it shows, in words (``DemoUnit.notes``).
+    """
+
+    unit: str
+    samples: int
+    dropped: int
+    checksum_failures: int
+    resyncs: int
+    reconnects: int
+    drift_ppm: float | None
+    true_ppm: float
+    notes: str
+
+
 @dataclass
 class Demo:
     """Runs the demo; ``show(rows, elapsed)`` draws the dashboard.
@@ -162,10 +192,10 @@ class Demo:
     duration_s: float
     router: bool = False
     viewer: Any = None  # a Rerun recording to mirror the live data into
-    show: Callable[[list[dict[str, Any]], float], None] = lambda rows, elapsed: None
+    show: Callable[[list[UnitRow], float], None] = lambda rows, elapsed: None
     force: bool = False  # replace an earlier run's archive in ``output``
     stop: threading.Event = field(default_factory=threading.Event)
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    rows: list[UnitRow] = field(default_factory=list)
 
     @property
     def archive(self) -> Path:
@@ -266,7 +296,7 @@ class Demo:
                 raise DemoError(f"{', '.join(broken)} stopped; see its log in {self.output}")
             self.rows = recorder.snapshot()
             now = time.monotonic()
-            live = {r["unit"] for r in self.rows if r["samples"] > 0}
+            live = {r.unit for r in self.rows if r.samples > 0}
             if streaming_since is None:
                 if live >= {u.name for u in self.units}:
                     streaming_since = now
@@ -284,21 +314,21 @@ class Demo:
                     break
             self.show(self.rows, 0.0 if streaming_since is None else now - streaming_since)
 
-    def summary(self) -> list[dict[str, Any]]:
+    def summary(self) -> list[UnitOutcome]:
         """What the run gave, unit by unit.
 
         Returns:
             Per unit: what arrived, what went wrong, and the drift found against the
             truth.
         """
-        by_name = {r["unit"]: r for r in self.rows}
+        by_name = {r.unit: r for r in self.rows}
         out = []
         for unit in self.units:
-            r = by_name.get(unit.name, {})
-            out.append({"unit": unit.name, "samples": r.get("samples", 0),
-                        "dropped": r.get("dropped", 0),
-                        "checksum_failures": r.get("checksum_failures", 0),
-                        "resyncs": r.get("resyncs", 0), "reconnects": r.get("reconnects", 0),
-                        "drift_ppm": r.get("drift_ppm"), "true_ppm": unit.config.clock_ppm,
-                        "notes": ", ".join(unit.notes)})
+            r = by_name.get(unit.name)
+            out.append(UnitOutcome(
+                unit=unit.name, samples=r.samples if r else 0, dropped=r.dropped if r else 0,
+                checksum_failures=r.checksum_failures if r else 0,
+                resyncs=r.resyncs if r else 0, reconnects=r.reconnects if r else 0,
+                drift_ppm=r.drift_ppm if r else None, true_ppm=unit.config.clock_ppm,
+                notes=", ".join(unit.notes)))
         return out

@@ -57,8 +57,10 @@ if TYPE_CHECKING:
     )
     from bridge.ingest.bytelog import Imported, LogFile, import_logs, name_time, parse_start
     from bridge.ingest.replay import CapturedReads, Replayed, captures, replay
-    from bridge.recorder.live import HostView, Recorder
+    from bridge.recorder.hosts import HostView
+    from bridge.recorder.live import Recorder
     from bridge.recorder.recording import Recording
+    from bridge.recorder.units import UnitRow
 
 __all__ = [
     "NOISE_KEYS",
@@ -86,6 +88,7 @@ __all__ = [
     "SensorNoise",
     "UnitIron",
     "UnitNoise",
+    "UnitRow",
     "UnitSamples",
     "align_table",
     "averaging_factors",
@@ -115,8 +118,10 @@ __all__ = [
 
 #: The package each name comes from, imported when the name is first asked for.
 _HOMES = {
-    **dict.fromkeys(("HostView", "Recorder"), "bridge.recorder.live"),
+    "HostView": "bridge.recorder.hosts",
+    "Recorder": "bridge.recorder.live",
     "Recording": "bridge.recorder.recording",
+    "UnitRow": "bridge.recorder.units",
     **dict.fromkeys(("ArchiveReader", "ArchiveWriter", "ArchivedSamples", "ChannelInfo",
                      "Damage", "Messages", "RawCaptureWriter", "Record", "RepairReport",
                      "capture_metadata", "describe_problem", "read_archive", "repair"),

@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import ArchiveError, OutputRefused
-from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
+from bridge.recorder.hosts import host_tolerance_ns, recorder_metadata
+from bridge.recorder.live import Recorder
 
 if TYPE_CHECKING:
     import threading
