@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import signal
 import threading
 import time
@@ -205,6 +206,11 @@ def record(
         raise fail(f"--max-host-offset-ms {exc}") from None
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
+    rrd_writer = None
+    if rrd is not None:  # Rerun loads only for a recording that writes one
+        from bridge.viz.sources import RrdWriter
+
+        rrd_writer = functools.partial(RrdWriter, prefix=prefix)
 
     def announce(unit: str, joined: bool) -> None:
         if not quiet:
@@ -216,7 +222,8 @@ def record(
         units=units, raw=raw, history=history, max_host_offset_ms=max_host_offset_ms,
         split_bytes=None if split_mb is None else int(split_mb * 1e6),
         split_seconds=None if split_minutes is None else split_minutes * 60, force=force,
-        rrd=rrd, metrics=metrics, on_unit=announce, on_event=lambda unit, event: err.print(
+        rrd=rrd, rrd_writer=rrd_writer, metrics=metrics, on_unit=announce,
+        on_event=lambda unit, event: err.print(
             f"[yellow]warning:[/] {event.detail}", highlight=False, soft_wrap=True))
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -2,7 +2,9 @@
 
 ``log_archive`` renders an MCAP archive with the same layout a live view has;
 ``LiveFeed`` subscribes to units' samples, status and events on Zenoh and logs them
-as they arrive. Both hand the logger whole columns, never one call per sample.
+as they arrive; ``RrdWriter`` writes what a recording archives into a Rerun file as it
+is archived (``gx3 record --rrd``). Each hands the logger whole columns, never one call
+per sample.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import contextlib
 import threading
 from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import zenoh
@@ -22,6 +25,7 @@ from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.keys import unit_of
 from bridge.bus.subscribe import RawMessage, Subscription, subscribe
 from bridge.device import clock
+from bridge.exceptions import OutputRefused
 from bridge.viz.logger import RerunLogger
 
 
@@ -105,6 +109,44 @@ def log_messages(logger: RerunLogger, messages: list[RawMessage], prefix: str,
             logger.log_arrivals(unit, np.full(len(payloads), arrival_ns), columns["time_ns"])
         logged += len(payloads)
     return logged
+
+
+class RrdWriter:
+    """What a recording archives, written into a Rerun recording file as it is archived.
+
+    What ``bridge.recorder.Recording`` opens for its ``rrd`` (``gx3 record --rrd``): it
+    hears each batch written (``log``) and is closed after the recorder. Long
+    recordings get bigger chunks, and no index of every chunk held in memory.
+
+    Args:
+        path: The file to write.
+        recording_id: Rerun's id of the recording (the archive's name, say).
+        prefix: The key prefix of the messages.
+
+    Raises:
+        OutputRefused: Rerun cannot create the file.
+    """
+
+    def __init__(self, path: Path, recording_id: str, prefix: str = "gx3") -> None:
+        self.prefix = prefix
+        try:
+            self.logger = RerunLogger(path, recording_id=recording_id, latency_s=2.0,
+                                      write_footer=False)
+        except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise OutputRefused(f"--rrd {path}: cannot write ({why})") from None
+
+    def log(self, messages: list[RawMessage]) -> None:
+        """Log a batch of messages as written (``log_messages``).
+
+        Args:
+            messages: The batch.
+        """
+        log_messages(self.logger, messages, self.prefix)
+
+    def close(self) -> None:
+        """Finish the file."""
+        self.logger.close()
 
 
 class LiveFeed:
