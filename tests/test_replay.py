@@ -245,18 +245,20 @@ def running_process(process: psutil.Process) -> bool:
 
 def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None:
     """What a worker sends goes through pickle; an error that does not pickle is sent as
-    its words (the queue would drop it, and the replay would end short, saying nothing)."""
-    from bridge.exceptions import ReplayError
-    from bridge.ingest.replay import _sendable
+    its words (the queue would drop it, and the replay would end short, saying nothing),
+    in a ReplayError, which gx3 says in one line as it does every Gx3Error."""
+    from bridge._workers import sendable
+    from bridge.exceptions import Gx3Error, ReplayError
 
     class Unsendable(Exception):
         def __init__(self, what: str, where: int) -> None:
             super().__init__(f"{what} at {where}")
 
-    said = _sendable(Unsendable("odd bytes", 12))
-    assert isinstance(said, RuntimeError) and str(said) == "Unsendable: odd bytes at 12"
+    said = sendable(Unsendable("odd bytes", 12), ReplayError)
+    assert isinstance(said, ReplayError) and isinstance(said, Gx3Error)
+    assert str(said) == "Unsendable: odd bytes at 12"
     plain = ReplayError("u1: no record found")
-    assert _sendable(plain) is plain
+    assert sendable(plain, ReplayError) is plain
 
 
 def test_a_raw_read_archived_late_keeps_its_receive_times(tmp_path: Path) -> None:

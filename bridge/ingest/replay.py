@@ -11,23 +11,18 @@ understood from its bytes and receive times. How, and what is inferred from what
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
-import multiprocessing
 import os
-import pickle
-import signal
-import threading
-import time
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from queue import Empty
-from typing import Any
 
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from bridge._workers import Workers, share_out
 from bridge.archive.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
 from bridge.archive.reader import ArchiveReader, Messages
 from bridge.archive.walk import read_archive, summary_counts
@@ -53,8 +48,6 @@ _SNIFF_READS = 400
 _INFER_READS = 500_000  # minutes of reads: plenty to tell the link by
 _GROUP = 4096  # records timed and encoded together
 _FEED_BYTES = 1 << 20  # reads framed together
-_QUEUED = 64  # message groups a worker may have waiting for the writer
-_JOIN_S = 5.0  # a killed worker is gone at once; this only bounds a stuck kernel call
 
 #: Where replayed messages go: key, payloads, receive time (one, or one per payload).
 Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
@@ -494,111 +487,65 @@ def _unit_tasks(paths: list[Path]) -> list[_Task]:
     return tasks
 
 
+@dataclass(frozen=True)
+class _Emitted:
+    """Messages of one key a worker replayed, for the archive (what ``Emit`` takes)."""
+
+    key: str
+    payloads: list[bytes]
+    receive_ns: np.ndarray | int
+
+
+@dataclass(frozen=True)
+class _UnitDone:
+    """A unit a worker replayed: its result, with its file's place and its raw topic.
+
+    Results are put in the order each unit has replayed alone.
+    """
+
+    index: int
+    topic: str
+    result: Replayed
+
+
 def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
                        on_samples: Callable[[int], None] | None,
                        jobs: int, transport: str | None) -> list[Replayed]:
     """``replay`` with the tasks shared out by weight among ``jobs`` processes.
 
-    They start before the archive writer's thread does (a process with threads forks
-    badly). A bounded queue brings their messages here, so memory stays flat.
+    They start before the archive writer's thread does (``Workers``), and their messages
+    are archived here as they come.
     """
-    shares: list[list[_Task]] = [[] for _ in range(jobs)]
-    loads = [0] * jobs
-    for task in sorted(tasks, key=lambda t: -t.weight):
-        least = loads.index(min(loads))
-        shares[least].append(task)
-        loads[least] += task.weight
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("fork" if "fork" in methods else None)
-    queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
-    workers = [context.Process(target=_worker,
-                               args=(share, prefix, queue, os.getpid(), transport), daemon=True)
-               for share in shares]
-    done: list[tuple[int, str, Replayed]] = []
-    try:
-        for w in workers:
-            w.start()
-        with _archive(out, prefix) as writer:
-            emit = _counted(writer.write_many, on_samples)
-            running = len(workers)
-            while running:
-                try:
-                    kind, item = queue.get(timeout=1.0)
-                except Empty:
-                    dead = [w.exitcode for w in workers if w.exitcode not in (None, 0)]
-                    if dead:
-                        raise ReplayError(f"a replay worker stopped (exit code {dead[0]}); "
-                                          "try again with --jobs 1") from None
-                    continue
-                if kind == "emit":
-                    emit(*item)
-                elif kind == "unit":
-                    done.append(item)
-                    if on_unit is not None:
-                        on_unit(item[2])
-                elif kind == "error":
-                    raise item
-                else:
-                    running -= 1
-    finally:
-        # however this ends (Ctrl-C may land anywhere, a start included), no worker is
-        # left behind and none is waited on for ever: those still running are killed
-        started = [w for w in workers if w.pid is not None]
-        for w in started:
-            if w.exitcode is None:
-                w.kill()
-        for w in started:
-            w.join(_JOIN_S)
-        queue.close()
-    return [result for _, _, result in sorted(done, key=lambda d: (d[0], d[1]))]
+    shares = share_out(tasks, [t.weight for t in tasks], jobs)
+    work = functools.partial(_replay_share, prefix=prefix, transport=transport)
+    done: list[_UnitDone] = []
+    with Workers(work, shares, error=ReplayError, what="replay") as sent, \
+            _archive(out, prefix) as writer:
+        emit = _counted(writer.write_many, on_samples)
+        for message in sent:
+            if isinstance(message, _Emitted):
+                emit(message.key, message.payloads, message.receive_ns)
+            else:
+                done.append(message)
+                if on_unit is not None:
+                    on_unit(message.result)
+    return [d.result for d in sorted(done, key=lambda d: (d.index, d.topic))]
 
 
-def _worker(tasks: list[_Task], prefix: str,
-            queue: multiprocessing.Queue[tuple[str, Any]], parent: int,
-            transport: str | None) -> None:
-    """Replay ``tasks`` into ``queue``.
-
-    Each unit's result goes with its file's place and its raw topic, the order it has
-    replayed alone. Ctrl-C is the caller's to handle (it ends the workers and removes
-    its output), and its SIGTERM ends a worker at once.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
+def _replay_share(tasks: list[_Task], send: Callable[[_Emitted | _UnitDone], None],
+                  prefix: str, transport: str | None) -> None:
+    """Replay ``tasks`` in a worker, sending their messages and each unit's result."""
 
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
-        queue.put(("emit", (key, list(payloads), receive_ns)))
+        send(_Emitted(key, list(payloads), receive_ns))
 
     # one read of a file for all of its units this worker has (None: every unit)
     files: dict[tuple[int, Path], list[str] | None] = {}
     for task in tasks:
         key = (task.index, task.path)
         files[key] = None if task.topic is None else [*(files.get(key) or []), task.topic]
-    try:
-        for (index, path), topics in files.items():
-            for capture in captures(path, prefix, topics):
-                result = _UnitReplay(capture, transport).run(emit, prefix)
-                queue.put(("unit", (index, capture.topic, result)))
-    except Exception as exc:  # every error reaches the caller, to say as it would alone
-        queue.put(("error", _sendable(exc)))
-    queue.put(("end", None))
-
-
-def _sendable(exc: Exception) -> Exception:
-    """``exc``, or its words in one that pickles: the queue would drop it otherwise."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-    except Exception:
-        return RuntimeError(f"{type(exc).__name__}: {exc}")
-    return exc
-
-
-def _end_when_orphaned(parent: int) -> None:
-    """End a worker whose caller is gone (killed).
-
-    Nobody will read what it sends, and it would wait on the full queue for ever.
-    """
-    while os.getppid() == parent:
-        time.sleep(1.0)
-    os._exit(1)
+    for (index, path), topics in files.items():
+        for capture in captures(path, prefix, topics):
+            result = _UnitReplay(capture, transport).run(emit, prefix)
+            send(_UnitDone(index, capture.topic, result))
