@@ -271,6 +271,23 @@ def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path:
     assert ran.stdout.split() == [str(target / "bridge" / "__init__.py"), "None"]
 
 
+def test_where_the_core_can_be_built_the_install_built_it() -> None:
+    """The core's tests skip where it is not built; a C file that no longer compiles
+    would make them skip everywhere, and pass. Where a C compiler and Python's headers
+    are at hand the install builds it, so there its absence fails."""
+    compiler = (sysconfig.get_config_var("CC") or "").split()[:1]
+    headers = Path(sysconfig.get_paths()["include"]) / "Python.h"
+    if not compiler or shutil.which(compiler[0]) is None or not headers.is_file():
+        pytest.skip("no C compiler or no Python headers here: the core cannot be built")
+    if os.environ.get("GX3_NATIVE") == "0":
+        pytest.skip("GX3_NATIVE=0 runs the pure-Python paths on purpose")
+    missing = [name for name, core in (("_records", native.records), ("_gather", native.reader))
+               if core is None]
+    assert not missing, (f"bridge.{' and bridge.'.join(missing)} not built although "
+                         f"{compiler[0]} and {headers} are here: reinstall, and read why the "
+                         "build of bridge/*.c failed")
+
+
 @contextmanager
 def pty_port() -> Iterator[tuple[Port, int]]:
     """A Port on a real pseudo-terminal, and the master end that plays the unit."""
