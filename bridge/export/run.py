@@ -1,14 +1,15 @@
 """What ``gx3 export`` runs: an archive's samples to a table or a ROS 2 bag, as one job.
 
 ``Export`` checks a request before anything is read or written (the formats, what goes
-with what, the span, the record types, the calibration files), then ``write`` turns
-an archive, read with ``bridge.archive.read_samples_archive``, into the output and the events table;
-``run`` does all of it with safe outputs (each appears when complete, nothing is left
-if it fails). The tables and their writers are ``bridge.export.tables``'s::
+with what, the span, the record types, the calibration files), then ``write`` turns an
+archive, read with ``bridge.archive.read_samples_archive``, into the output and the
+events table; ``run`` does all of it with safe outputs (each appears when complete,
+nothing is left if it fails). The tables and their writers are
+``bridge.export.tables``'s::
 
     from pathlib import Path
 
-    from bridge.export.run import Export
+    from bridge.export import Export
 
     done = Export(Path("fleet.mcap"), Path("fleet.parquet"), align_hz=100).run()
     print(done.text())

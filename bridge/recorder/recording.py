@@ -69,10 +69,10 @@ class Recording:
 
     Entering opens, in this order: the archive (first, so that a file that is refused is
     said before anything else opens; after a check of ``rrd``), the Zenoh session,
-    ``rrd``, then the ``Recorder``. If a step fails, what was opened is
-    closed, and the archive, with nothing recorded in it, is removed. Leaving closes, in
-    this order: the Recorder (what has arrived is written, and the hosts' clocks), the
-    ``rrd``, the archive (finished with its index), the session.
+    ``rrd``, then the ``Recorder``. If a step fails, what was opened is closed, and the
+    archive, with nothing recorded in it, is removed. Leaving closes, in this order: the
+    Recorder (what has arrived is written, and the hosts' clocks), ``rrd``, the archive
+    (finished with its index), the session.
 
     Args:
         archive: The archive: a path (an ``ArchiveWriter`` is opened on entry with
