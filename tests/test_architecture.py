@@ -10,6 +10,7 @@ architecture page and in ``bridge/exceptions.py`` is the tree of the classes.
 from __future__ import annotations
 
 import ast
+import importlib
 import inspect
 import json
 import re
@@ -210,6 +211,37 @@ def test_importing_a_package_loads_only_what_it_needs(module: str) -> None:
                           check=True)
     loaded = set(json.loads(done.stdout)) & set(HEAVY)
     assert loaded == set(LOADS[module]), f"import {module} loads {sorted(loaded)}"
+
+
+#: What ``bridge.recorder`` declared when it held the archive, ingest, export and analysis.
+DECLARED_BEFORE = [
+    "NOISE_KEYS", "About", "AllanSums", "ArchiveReader", "ArchiveWriter", "ArchivedSamples",
+    "CapturedReads", "ChannelInfo", "Damage", "HostView", "Imported", "IronCalibration",
+    "LogFile", "Messages", "NoiseFit", "RawCaptureWriter", "Record", "Recorder",
+    "RepairReport", "Replayed", "Ros2Written", "SensorNoise", "UnitIron", "UnitNoise",
+    "UnitSamples", "align_table", "averaging_factors", "capture_metadata", "captures",
+    "collect_samples", "describe_problem", "event_table", "fit", "import_logs", "kalibr_yaml",
+    "name_time", "offline_times", "parse_start", "read_archive", "read_document", "read_off",
+    "repair", "replay", "sample_table", "stretch_text", "unit_noise", "units_noise",
+    "write_ros2", "write_table",
+]
+
+
+def test_bridge_recorder_still_declares_what_it_did() -> None:
+    """Code written against ``bridge.recorder`` before the split runs unchanged: each
+    name it declared is still declared, and is what its new home declares (a function,
+    never the module of the same name: ``repair``, ``replay``)."""
+    recorder = importlib.import_module("bridge.recorder")
+    assert set(DECLARED_BEFORE) <= set(recorder.__all__)
+    homes = [importlib.import_module(f"bridge.{p}")
+             for p in ("archive", "ingest", "export", "analysis")]
+    for name in DECLARED_BEFORE:
+        value = getattr(recorder, name)
+        assert not inspect.ismodule(value), f"bridge.recorder.{name} is a module"
+        for home in homes:
+            if name in home.__all__:
+                assert value is getattr(home, name), f"bridge.recorder.{name}"
+    assert sum(name in home.__all__ for home in homes for name in DECLARED_BEFORE) == 47
 
 
 def _drawn(text: str) -> dict[str, tuple[str | None, tuple[str, ...]]]:
