@@ -25,6 +25,10 @@ T = TypeVar("T")
 QUEUED = 64
 _POLL_S = 1.0  # how often a caller waiting for messages looks for a worker that died
 _JOIN_S = 5.0  # a killed worker is gone at once; this only bounds a stuck kernel call
+#: Ctrl-C and SIGTERM: held back while the workers start, so that one that comes then
+#: reaches the caller once they have (a worker half made would print a traceback), and
+#: a worker, which ignores Ctrl-C and ends at SIGTERM, has set that up before either.
+_STOPS = {signal.SIGINT, signal.SIGTERM}
 
 
 def share_out(items: Sequence[T], weights: Sequence[int], jobs: int) -> list[list[T]]:
@@ -97,10 +101,13 @@ class Workers(Generic[S, M]):
             work, share, self._queue, os.getpid(), error)) for share in shares]
 
     def __enter__(self) -> Iterator[M]:
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
         try:
             for process in self._processes:
                 process.start()
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)  # one held back comes now
         except BaseException:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
             self._end()
             raise
         return self._sent()
@@ -144,6 +151,7 @@ def _run(work: Callable[[S, Callable[[Any], None]], None], share: S,
     """One worker: ``work`` on its share, then its error if it failed, then the end."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOPS)  # (held back while it started)
     threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
     try:
         work(share, queue.put)
