@@ -14,7 +14,7 @@ from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming
 from tests.helpers.timing import (
     FLOOR_NS,
     FRAME_NS,
-    filter_delay_ns,
+    delay_ns,
     late_errors,
     online_times,
     usb_capture,
@@ -25,7 +25,7 @@ def _smooth(ppm: float, seconds: float, phase_s: float) -> tuple[np.ndarray, np.
     capture = usb_capture(ppm, 0.0, seconds, phase_s)
     timer, rx = capture.records()
     ticks = TimerUnwrapper(625).update(timer, rx).ticks
-    clock = OfflineClock(filter_delay_ns(capture), FLOOR_NS, FRAME_NS)
+    clock = OfflineClock(delay_ns(capture), FLOOR_NS, FRAME_NS)
     out = clock.smooth(ticks, rx)
     assert np.array_equal(out, clock.smooth(ticks, rx))
     return late_errors(capture, out), late_errors(capture, online_times(capture))
@@ -62,7 +62,7 @@ def test_wander_that_bends_every_window_costs_no_half_frame() -> None:
     ticks = np.concatenate([t.ticks for t in timed])
     live = np.concatenate([t.time_ns for t in timed])
     rx = np.concatenate([t.batch.rx_ns for t in timed])
-    out = OfflineClock(settings.filter_delay_ns, settings.floor_ns, USB_FRAME_NS).smooth(ticks, rx)
+    out = OfflineClock(settings.delay_ns, settings.floor_ns, USB_FRAME_NS).smooth(ticks, rx)
     truth = capture.truth["value_ns"]
     late = truth >= truth[0] + 30_000_000_000
     err, live_err = (out - truth)[late], (live - truth)[late]
@@ -81,5 +81,5 @@ def test_a_unit_slower_than_the_frame_clock_keeps_its_rate() -> None:
     capture = synthesize(config, UsbDelivery(frame_phase_s=0.00055, seed=4), seconds=300.0)
     timer, rx = capture.records()
     ticks = TimerUnwrapper(625).update(timer, rx).ticks
-    out = OfflineClock(filter_delay_ns(capture), FLOOR_NS, FRAME_NS).smooth(ticks, rx)
+    out = OfflineClock(delay_ns(capture), FLOOR_NS, FRAME_NS).smooth(ticks, rx)
     assert np.percentile(late_errors(capture, out), 99) < 250_000

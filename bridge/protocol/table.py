@@ -16,6 +16,12 @@ from typing import Any
 
 TICKS_PER_SECOND = 62_500
 CALCULATION_CYCLE_S = 0.001  # the unit samples, filters and answers once per 1 ms cycle
+#: From the end of a cycle (its timer, the end of its filter window) to a data record's first
+#: byte on the line: the cycle's calculation (steps 2-6 of the manual's Calculation Cycle).
+#: The manual gives no figure; the emulator sends after this long and the timing layer
+#: takes it out, so a unit whose firmware takes longer is late by the difference, as every
+#: unit of that firmware is (docs/design/time.md).
+PROCESSING_DELAY_S = 0.0002
 ERROR_CODE = 0x21
 ERROR_REPLY = bytes((0x21, 0x00, 0x21))
 BAUD_RATES = (115_200, 230_400, 460_800, 921_600)

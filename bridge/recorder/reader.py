@@ -28,7 +28,7 @@ from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Header, Metadat
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.summary import Summary
 
-from bridge.bus.codec import HEADER, LEGACY_HEADER, decode_batch, layout, parse, peek
+from bridge.bus.codec import HEADERS, decode_batch, layout, parse, peek
 from bridge.bus.gx3_pb2 import Event
 from bridge.exceptions import ArchiveReadError
 
@@ -461,7 +461,7 @@ def _decode(unit: str, code: int, parts: list[tuple[_Block, np.ndarray]]
     older bridge's too), else a bytes object each.
     """
     found: np.ndarray | list[bytes] | None = None
-    for header in (HEADER, LEGACY_HEADER):
+    for header in HEADERS:
         size = layout(code, unit, header).size
         if all((b.length[p] == size).all() for b, p in parts):
             found = np.concatenate([b.rows(p, size) for b, p in parts])

@@ -33,6 +33,7 @@ from bridge.timing.stream import (
     Timed,
     TimedFew,
     filter_delay_ns,
+    record_delay_ns,
 )
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrapped
@@ -40,4 +41,5 @@ from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrap
 __all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Inferred", "OfflineClock",
            "OnlineClock", "RateWindow", "RealtimeReads", "RealtimeTrack", "Settings",
            "StreamTiming", "Timed", "TimedFew", "Timeline", "TimelineBatch", "TimerUnwrapper",
-           "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport"]
+           "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport",
+           "record_delay_ns"]

@@ -4,12 +4,14 @@ A capture from another program says nothing of its link, yet the clock model nee
 it: a frame clock to take out on USB, a line time to take out on a serial line. The
 reads tell: on a UART, reads that end mid-record fit the line at one baud rate; over
 USB, reads crowd just after the host's 1 ms frames; an adapter shows in whole 62-byte
-packets, a 16 ms latency timer, or records completed a byte time later per byte still
-to come. The evidence and the order it is weighed in: docs/design/time.md.
+packets, a 16 ms latency timer, or reads that end inside records, which the unit's own
+USB port never gives (it hands over whole records). The evidence and the order it is
+weighed in: docs/design/time.md.
 
-Known blind spot: a 1 ms-timer adapter at 921,600 baud carrying 1 kHz, its unit
-within a few ppm of the host over the capture, reads as the unit's own USB port
-(its records cross the line within a frame, as USB's do).
+Blind spot: an adapter whose frames never once fell inside a record over the whole
+capture (a unit in step with the host's frames, its records shorter than the gaps
+between them) reads as the unit's own USB port; nothing in its reads tells the two
+apart.
 """
 
 from __future__ import annotations
@@ -34,9 +36,10 @@ _TIMER_GAPS = 0.3  # fraction of reads a 16 ms timer's length after the one befo
 _LINE_READS = 50  # neighbouring mid-record reads needed to judge a serial line
 _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
-_MID_RECORD = 0.25  # reads ending mid-record: more than the unit's own USB port gives
-_BEAT_NS = 3_000_000  # the unit's clock beat this far through the frames: splits are fair
-_MANY_PARTS = 0.05  # split records in three reads or more: more than the next frame's worth
+# reads ending mid-record, which the unit's own USB port never gives: more than a damaged
+# byte here and there makes
+_SPLIT_READS = 20
+_SPLIT_SHARE = 0.002
 _PACE_NS = 5_000  # per byte: slower than any USB payload rate, faster than any UART
 _STALL_NS = 20_000_000  # a completion this late waited out a stall
 BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
@@ -143,18 +146,13 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
         return Inferred("usb-serial", DEFAULT_LATENCY_TIMER_MS, f"{why}; {said}; " + (
             f"{packets:.0%} are whole 62-byte packets" if packets > _PACKETS else
             f"{timer_gaps:.0%} come 16 ms after the one before"))
-    pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
-    if pace is not None and pace > _PACE_NS:
-        return Inferred("usb-serial", 1, f"{why}; {said}, the rest of each record "
-                                         f"{pace / 1e3:.0f} us a byte later")
-    # How often a read ends mid-record tells the line's pace only where the unit's clock
-    # beats through the frames; one that stays in step with them may split every record
-    # at one place, which on its own USB port leaves the rest for the next frame alone.
-    drift_ns = abs(rate - 1.0) * (completions[-1] - completions[0])
-    parts = np.bincount(inside[mid], minlength=len(starts)) if mid.any() else np.zeros(1)
-    many = float(np.mean(parts[parts > 0] > 1)) if (parts > 0).any() else 0.0
-    if ends_mid > _MID_RECORD and (drift_ns > _BEAT_NS or many > _MANY_PARTS):
-        return Inferred("usb-serial", 1, f"{why}; {said}")
+    # The unit's own USB port hands over whole records: a read that ends inside one is a
+    # serial line's, behind an adapter.
+    if int(mid.sum()) >= _SPLIT_READS and ends_mid >= _SPLIT_SHARE:
+        pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
+        return Inferred("usb-serial", 1, f"{why}; {said}" + (
+            f", the rest of each record {pace / 1e3:.0f} us a byte later"
+            if pace is not None and pace > _PACE_NS else ""))
     return Inferred("usb", None, f"{why}; {said}")
 
 

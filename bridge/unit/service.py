@@ -304,7 +304,7 @@ class BusSink:
                 self.publisher.publish_records(samples.records, *samples.lists())
             else:
                 self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns,
-                                               samples.rx_ns)
+                                               samples.rx_ns, samples.part)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 
