@@ -63,7 +63,7 @@ class ImuSample(_message.Message):
     def __init__(self, unit: _Optional[str] = ..., command: _Optional[int] = ..., timer: _Optional[int] = ..., ticks: _Optional[int] = ..., time_ns: _Optional[int] = ..., rx_ns: _Optional[int] = ..., rx_mono_raw_ns: _Optional[int] = ..., part_ago_ns: _Optional[int] = ..., part_lead_ns: _Optional[int] = ..., raw_accel: _Optional[_Iterable[float]] = ..., raw_ang_rate: _Optional[_Iterable[float]] = ..., accel: _Optional[_Iterable[float]] = ..., stab_accel: _Optional[_Iterable[float]] = ..., ang_rate: _Optional[_Iterable[float]] = ..., delta_ang: _Optional[_Iterable[float]] = ..., delta_vel: _Optional[_Iterable[float]] = ..., mag: _Optional[_Iterable[float]] = ..., stab_mag: _Optional[_Iterable[float]] = ..., m: _Optional[_Iterable[float]] = ..., c: _Optional[_Iterable[float]] = ..., euler: _Optional[_Iterable[float]] = ..., quaternion: _Optional[_Iterable[float]] = ..., temperature: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class Status(_message.Message):
-    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud", "host_clock")
+    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud", "host_clock", "time_uncertainty_ns")
     class State(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         STATE_UNSPECIFIED: _ClassVar[Status.State]
@@ -99,6 +99,7 @@ class Status(_message.Message):
     PORT_FIELD_NUMBER: _ClassVar[int]
     BAUD_FIELD_NUMBER: _ClassVar[int]
     HOST_CLOCK_FIELD_NUMBER: _ClassVar[int]
+    TIME_UNCERTAINTY_NS_FIELD_NUMBER: _ClassVar[int]
     unit: str
     time_ns: int
     connected: bool
@@ -120,7 +121,8 @@ class Status(_message.Message):
     port: str
     baud: int
     host_clock: HostClock
-    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ...) -> None: ...
+    time_uncertainty_ns: int
+    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ..., time_uncertainty_ns: _Optional[int] = ...) -> None: ...
 
 class HostClock(_message.Message):
     __slots__ = ("host", "synchronised", "known", "estimated_error_ns", "maximum_error_ns", "tai_offset_s", "state", "realtime_minus_raw_ns")

@@ -75,6 +75,8 @@ class Field:
     ``domain_values``; the framer takes a candidate with anything else for garbage
     that matched the checksum. ``shape`` makes a vector or row-major matrix of
     ``kind`` elements. ``pad`` fields are reserved bytes, sent as zero, not decoded.
+    ``integral``: the value is a time integral over the most recent output period (the
+    manual's DeltaAngle and DeltaVelocity), so it describes that period's middle.
     """
 
     name: str
@@ -87,6 +89,7 @@ class Field:
     domain_values: frozenset[int] | None = None
     unit: str = ""
     doc: str = ""
+    integral: bool = False
 
     # cached: the framer asks for these for every record it checks
     @cached_property
@@ -110,8 +113,10 @@ def _pad(n: int) -> Field:
     return Field("reserved", "pad", (n,), doc="reserved, set to 0")
 
 
-def _vec(name: str, bound: float, unit: str, doc: str, shape: tuple[int, ...] = (3,)) -> Field:
-    return Field(name, "f32", shape, domain=(-bound, bound), unit=unit, doc=doc)
+def _vec(name: str, bound: float, unit: str, doc: str, shape: tuple[int, ...] = (3,),
+         integral: bool = False) -> Field:
+    return Field(name, "f32", shape, domain=(-bound, bound), unit=unit, doc=doc,
+                 integral=integral)
 
 
 # Far beyond any sensor range (and any 17-bit raw code); random bytes read as a float
@@ -130,8 +135,10 @@ QUANTITIES: dict[str, Field] = {
         _vec("accel", _PHYSICAL, "g", "specific force, sensor frame"),
         _vec("stab_accel", _PHYSICAL, "g", "gyro-stabilised gravity estimate, sensor frame"),
         _vec("ang_rate", _PHYSICAL, "rad/s", "angular rate, sensor frame"),
-        _vec("delta_ang", _PHYSICAL, "rad", "integral of ang_rate over the sample period"),
-        _vec("delta_vel", _PHYSICAL, "g*s", "integral of accel over the sample period"),
+        _vec("delta_ang", _PHYSICAL, "rad", "integral of ang_rate over the sample period",
+             integral=True),
+        _vec("delta_vel", _PHYSICAL, "g*s", "integral of accel over the sample period",
+             integral=True),
         _vec("mag", _PHYSICAL, "gauss", "magnetic field, sensor frame"),
         _vec("stab_mag", _PHYSICAL, "gauss", "gyro-stabilised field estimate, sensor frame"),
         _vec("m", _UNIT, "", "orientation matrix, v_local = M v_earth (NED)", (3, 3)),
@@ -453,6 +460,15 @@ class ReplySpec:
     def length(self) -> int:
         """Bytes of the reply: echo byte, fields, 16-bit checksum."""
         return 3 + sum(f.size for f in self.fields)
+
+    @cached_property
+    def integral(self) -> bool:
+        """Whether its values are integrals over the output period (0xC3, 0xD3).
+
+        They describe the middle of that period, half a period before an instantaneous
+        record's values; a record's ``time_ns`` is the instant they describe.
+        """
+        return any(f.integral for f in self.fields)
 
     def offset(self, name: str) -> int:
         """Byte position of a field in the reply (the echo byte is at 0).

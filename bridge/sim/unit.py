@@ -120,10 +120,11 @@ class UnitConfig:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
 
 
-#: One record's truth: its cycle's instant (host wall clock, ns), the instant its accel,
-#: gyro and attitude values describe (ns, earlier by the filter delay), device time of
-#: the cycle (s), timer, record type, and the true attitude quaternion at the values'
-#: instant (scalar first, earth to sensor).
+#: One record's truth: its cycle's instant (host wall clock, ns), the instant its values
+#: describe (ns, earlier by the filter delay, and for integrals over the output period
+#: by half that period more), device time of the cycle (s), timer, record type, and the
+#: true attitude quaternion at the end of the filter's delay (scalar first, earth to
+#: sensor).
 TruthRow = tuple[int, int, float, int, int, np.ndarray]
 
 
@@ -191,9 +192,10 @@ class TruthLog:
         Returns:
             Copies of every column, oldest record first: ``time_ns`` (host ns of the
             record's calculation cycle), ``value_ns`` (host ns of the instant its values
-            describe: ``time_ns`` less the filter delay), ``device_s``, ``timer``,
-            ``code`` and ``quaternion`` (the true attitude at ``value_ns``, scalar first,
-            earth to sensor).
+            describe: ``time_ns`` less the filter delay, and for DeltaAngle and
+            DeltaVelocity, integrals over the output period, half that period more),
+            ``device_s``, ``timer``, ``code`` and ``quaternion`` (the true attitude at
+            ``time_ns`` less the filter delay, scalar first, earth to sensor).
         """
         with self._lock:
             if self._rows:
@@ -591,7 +593,10 @@ class SimUnit:
         columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
         wall = self._host_times(device) * 1e9 + self._wall_offset_ns
-        valued = self._host_times(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
+        # integrals over the period (DeltaAngle, DeltaVelocity) describe its middle
+        middle = self.period / 2 if REPLIES[code].integral else 0.0
+        valued = self._host_times(device - self.filter_delays()[0] - middle) * 1e9 \
+            + self._wall_offset_ns
         truths = list(zip(wall.astype(np.int64).tolist(), valued.astype(np.int64).tolist(),
                           device.tolist(), timers.tolist(), [code] * len(cycles),
                           sample["quaternion"], strict=True))

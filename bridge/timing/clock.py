@@ -65,13 +65,17 @@ class ClockState:
 
     ``offset_ns``: host minus nominal device time at the latest record; ``drift_ppm``:
     the device clock's rate error against the host's (positive: the unit's clock runs
-    fast); ``spread_ns``: the median latency above the fit; ``samples``: points used.
+    fast); ``spread_ns``: the median latency above the fit; ``samples``: points used;
+    ``uncertainty_ns``: the most the latest instants can be off by, as the reads bound
+    them (half the spread of the lines they allow; 0: not known, where reads bound
+    records from one side only).
     """
 
     offset_ns: int
     drift_ppm: float
     spread_ns: int
     samples: int
+    uncertainty_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -176,6 +180,7 @@ class OnlineClock:
         self._new_p: list[int] = []
         self._new_lead: list[int] = []
         self._line: _Line | None = None
+        self._uncertainty = 0  # ``ClockState.uncertainty_ns`` of the line
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
         self._edge: int | None = None  # where the frames fall, as the bounds were found
@@ -202,7 +207,7 @@ class OnlineClock:
         latency = self._latency()
         spread = int(np.median(latency)) if len(latency) else 0
         return ClockState(offset, (NS_PER_TICK / line.rate - 1.0) * 1e6, spread,
-                          len(self._x))
+                          len(self._x), self._uncertainty)
 
     def horizon(self, rx_ns: int) -> int | None:
         """The most ticks a record received at ``rx_ns`` can carry by the model.
@@ -373,6 +378,7 @@ class OnlineClock:
         if centre is not None:
             self._rate = centre.rate
             self._line = _Line(centre.at, centre.value, centre.rate, 0.0)
+            self._uncertainty = math.ceil(centre.extent / 2)
             y, x, fit, floor = self._y, self._x, self._line, self.floor_ns
             self._latency = lambda: y - floor - fit.at(x)
             return
@@ -403,6 +409,9 @@ class OnlineClock:
         shift = self.floor_ns if frame else 0
         self._latency = lambda: (y - shift - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
+        # over frames the line is somewhere in the part left uncovered, taken off by half;
+        # on a UART reads bound records from above only: not known
+        self._uncertainty = math.ceil(bias) + FRAME_DOUBT_NS if frame else 0
 
     def _bound(self, fresh: int, dropped: int) -> None:
         """Each record's bounds on its start (``_hi``, ``_lo``), from its reads' frames.

@@ -41,20 +41,25 @@ def filter_delay_ns(filter_width: int) -> int:
     return (filter_width - 1) * 500_000
 
 
-def record_delay_ns(filter_width: int) -> int:
+def record_delay_ns(filter_width: int, record: int | None = None, decimation: int = 1) -> int:
     """From the instant a record's values describe to its first byte on the line.
 
     The filter's delay (``filter_delay_ns``), then the unit's calculation before it sends
     (``PROCESSING_DELAY_S``): the clock model finds when records start on the line, and
-    this is what it takes out.
+    this is what it takes out. A record of integrals over the output period
+    (DeltaAngle, DeltaVelocity: ``ReplySpec.integral``) describes the period's middle,
+    half a period earlier.
 
     Args:
         filter_width: The accel and gyro filter's width M (0xDB ``filter_width``).
+        record: The data record; None: one of instantaneous values.
+        decimation: The output period in 1 ms cycles (0xDB ``decimation``).
 
     Returns:
         The delay, ns.
     """
-    return filter_delay_ns(filter_width) + round(PROCESSING_DELAY_S * 1e9)
+    half = decimation * 500_000 if record is not None and REPLIES[record].integral else 0
+    return filter_delay_ns(filter_width) + round(PROCESSING_DELAY_S * 1e9) + half
 
 
 @dataclass(frozen=True)
@@ -94,7 +99,7 @@ class Settings:
     @property
     def delay_ns(self) -> int:
         """From the instant the values describe to the record's first byte (``record_delay_ns``)."""
-        return record_delay_ns(self.filter_width)
+        return record_delay_ns(self.filter_width, self.record, self.decimation)
 
     @property
     def floor_ns(self) -> int:
