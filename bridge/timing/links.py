@@ -24,8 +24,9 @@ import numpy as np
 from bridge.device.link import ADAPTER_PACKET_BYTES, DEFAULT_LATENCY_TIMER_MS
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+from bridge.timing._fit import frame_after, grid_histogram, grid_phase
 from bridge.timing.stream import USB_FRAME_NS
-from bridge.timing.unwrap import TIMER_MODULUS
+from bridge.timing.unwrap import NS_PER_TICK, TIMER_MODULUS
 
 _BIN_NS = 10_000
 _WINDOW_BINS = 10  # reads counted within 0.1 ms either side of a phase
@@ -36,12 +37,12 @@ _TIMER_GAPS = 0.3  # fraction of reads a 16 ms timer's length after the one befo
 _LINE_READS = 50  # neighbouring mid-record reads needed to judge a serial line
 _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
+_FRAMED_FIT = 1.2  # byte times: reads at their frames lie within one, a wrong rate spreads
+_STRETCH_NS = 10_000_000_000
 # reads ending mid-record, which the unit's own USB port never gives: more than a damaged
 # byte here and there makes
 _SPLIT_READS = 20
 _SPLIT_SHARE = 0.002
-_PACE_NS = 5_000  # per byte: slower than any USB payload rate, faster than any UART
-_STALL_NS = 20_000_000  # a completion this late waited out a stall
 BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 
 
@@ -50,13 +51,14 @@ class Inferred:
     """The link a capture's reads show, with what showed it.
 
     ``transport`` as ``Settings.transport``; ``latency_timer_ms`` an adapter's;
-    ``evidence`` one line; ``baud`` a UART's, where its reads show it.
+    ``evidence`` one line; ``baud`` a serial line's (a UART's or behind an adapter),
+    where its reads show it.
     """
 
     transport: str
     latency_timer_ms: int | None
     evidence: str
-    baud: int | None = None  # a UART's, where its reads show it
+    baud: int | None = None  # a serial line's, where its reads show it
 
     def describe(self) -> str:
         """One line for people.
@@ -126,8 +128,8 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     packets = float(np.mean((sizes % ADAPTER_PACKET_BYTES == 0) & (sizes > 0)))
     period_s = float(np.median(np.diff(ticks))) / TICKS_PER_SECOND if len(ticks) > 1 else 1.0
     rate, against_unit = _unit_fit(ticks, completions)
-    line = _line_fit(ticks, rate, rx_ns[mid], got[mid], inside[mid],
-                     [b for b in BAUD_GUESSES if b / 10 * period_s >= length])
+    bauds = [b for b in BAUD_GUESSES if b / 10 * period_s >= length]
+    line = _line_fit(ticks, rate, rx_ns[mid], got[mid], inside[mid], bauds)
     host = crowding(completions)
     unit = crowding(against_unit)
     noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / USB_FRAME_NS / len(completions))
@@ -147,32 +149,17 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
             f"{packets:.0%} are whole 62-byte packets" if packets > _PACKETS else
             f"{timer_gaps:.0%} come 16 ms after the one before"))
     # The unit's own USB port hands over whole records: a read that ends inside one is a
-    # serial line's, behind an adapter.
+    # serial line's, behind an adapter. Each such read holds every byte that had crossed
+    # the line by its frame, so it fits the line at the adapter's baud rate as a UART's
+    # read does at its own time.
     if int(mid.sum()) >= _SPLIT_READS and ends_mid >= _SPLIT_SHARE:
-        pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
+        edge = grid_phase(grid_histogram(completions, USB_FRAME_NS), USB_FRAME_NS)
+        baud = _framed_baud(ticks[inside[mid]], rate,
+                            frame_after(rx_ns[mid], edge, USB_FRAME_NS), got[mid], bauds)
         return Inferred("usb-serial", 1, f"{why}; {said}" + (
-            f", the rest of each record {pace / 1e3:.0f} us a byte later"
-            if pace is not None and pace > _PACE_NS else ""))
+            f", each holding every byte the line had carried by its frame at {baud} baud"
+            if baud else ""), baud)
     return Inferred("usb", None, f"{why}; {said}")
-
-
-def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
-               mid_record: np.ndarray) -> float | None:
-    """How much later a record split by a read is completed per byte still to come (ns).
-
-    A serial line's byte time behind an adapter, next to nothing on the unit's own USB
-    port (the rest of the record is there at the next frame). None: too few to tell.
-    """
-    inside = mid_record < len(completions)
-    wait = completions[mid_record[inside]] - mid_at[inside]
-    left = left[inside]
-    keep = wait < _STALL_NS
-    if keep.sum() < _LINE_READS or np.ptp(left[keep]) == 0:
-        return None
-    x, y = left[keep].astype(float), wait[keep].astype(float)
-    slope, offset = np.polyfit(x, y, 1)
-    error = np.std(y - (offset + slope * x)) / (np.std(x) * np.sqrt(len(x)))
-    return float(slope) if slope > _SIGMAS * error else None
 
 
 def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
@@ -203,6 +190,44 @@ def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
         spread[baud] = float(np.median(np.abs(np.diff(start)[near])))
     baud = min(spread, key=spread.__getitem__)  # a wrong byte time spreads with the count
     return spread[baud] / (1e10 / baud), baud
+
+
+def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.ndarray,
+                 bauds: Sequence[int]) -> int | None:
+    """The baud rate at which reads that end inside records, at their frames, fit the line.
+
+    A read at frame F holding k bytes of a record says the record began within a byte
+    time before F less k byte times: at the true byte time these instants, less the
+    unit's clock, lie within a byte time (and a tick of its timer) of each other; at
+    another, they spread by the difference times the spread of k. Judged over ten-second
+    stretches in which k takes several values (a unit in step with the frames splits its
+    records at one place); None where no baud rate stands out.
+
+    Args:
+        ticks: The split records' ticks.
+        rate: Host seconds per second of the unit's clock (``_unit_fit``).
+        frames: The frame each read's bytes came at (upper bound).
+        held: The record's bytes each read held.
+        bauds: The baud rates that carry the stream.
+    """
+    at = ticks / TICKS_PER_SECOND * 1e9 * rate
+    stretch = (at // _STRETCH_NS).astype(np.int64)
+    spread = {}
+    for baud in bauds:
+        start = frames - held * (1e10 / baud) - at
+        widths = [float(np.ptp(np.percentile(start[stretch == k], [5, 95])))
+                  for k in np.unique(stretch)
+                  if (stretch == k).sum() >= _LINE_READS and np.ptp(held[stretch == k]) >= 3]
+        if widths:
+            spread[baud] = float(np.median(widths))
+    if not spread:
+        return None
+    ranked = sorted(spread, key=spread.__getitem__)
+    best = ranked[0]
+    clear = len(ranked) == 1 or spread[ranked[1]] > 2 * spread[best]
+    # within a byte time, and the timer's tick: a record's ticks are its cycle's to a tick
+    fits = spread[best] < _FRAMED_FIT * 1e10 / best + NS_PER_TICK
+    return best if fits and clear else None
 
 
 def _unit_fit(ticks: np.ndarray, completions: np.ndarray) -> tuple[float, np.ndarray]:
