@@ -123,7 +123,7 @@ def test_partial_reads_pin_each_record_to_a_byte(transport: str, ppm: float) -> 
     assert live_p99 < 60_000, live_p99
     assert live_p99 < 0.5 * np.percentile(_errors(capture, without), 99)
     offline = _errors(capture, _offline(capture, batches, ticks))
-    assert np.percentile(offline, 99) < 5_000, np.percentile(offline, 99)
+    assert np.percentile(offline, 99) < 20_000, np.percentile(offline, 99)
     assert np.percentile(offline, 99) < 0.5 * np.percentile(
         _errors(capture, _offline(capture, batches, ticks, parts=False)), 99)
 

@@ -6,7 +6,7 @@ from functools import cache
 
 import numpy as np
 
-from bridge.protocol.table import REPLIES
+from bridge.protocol.table import PROCESSING_DELAY_S, REPLIES
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
@@ -29,6 +29,18 @@ def usb_capture(ppm: float, wander: float, seconds: float, phase_s: float,
     usb = UsbDelivery(frame_phase_s=phase_s, os_latency_mean_s=0.0003, stall_every_s=8.0,
                       seed=int(ppm * 10) % 97)
     return synthesize(config, usb, seconds)
+
+
+def phase_for_crossing(ppm: float, first_s: float) -> float:
+    """The USB frame phase (s) at which a 100 Hz unit's records first cross a frame
+    boundary ``first_s`` into a capture, and then every 1 ms / ``ppm`` us a second.
+
+    The unit's own port hands a record over at the first frame after its last byte: its
+    cycle's instant, the processing delay and its transfer on; a fast unit's records come
+    earlier against the frames by ``ppm`` microseconds a second.
+    """
+    done = PROCESSING_DELAY_S + FLOOR_NS / 1e9
+    return (done - ppm * 1e-6 * first_s) % 0.001
 
 
 def delay_ns(capture: SyntheticCapture) -> int:
