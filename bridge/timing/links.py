@@ -38,7 +38,7 @@ _LINE_READS = 50  # neighbouring mid-record reads needed to judge a serial line
 _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
 _FRAMED_FIT = 1.2  # byte times: reads at their frames lie within one, a wrong rate spreads
-_STRETCH_NS = 10_000_000_000
+_STRETCH_NS = 60_000_000_000
 # reads ending mid-record, which the unit's own USB port never gives: more than a damaged
 # byte here and there makes
 _SPLIT_READS = 20
@@ -199,7 +199,7 @@ def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.nd
     A read at frame F holding k bytes of a record says the record began within a byte
     time before F less k byte times: at the true byte time these instants, less the
     unit's clock, lie within a byte time (and a tick of its timer) of each other; at
-    another, they spread by the difference times the spread of k. Judged over ten-second
+    another, they spread by the difference times the spread of k. Judged over minute-long
     stretches in which k takes several values (a unit in step with the frames splits its
     records at one place); None where no baud rate stands out.
 
@@ -215,9 +215,15 @@ def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.nd
     spread = {}
     for baud in bauds:
         start = frames - held * (1e10 / baud) - at
-        widths = [float(np.ptp(np.percentile(start[stretch == k], [5, 95])))
-                  for k in np.unique(stretch)
-                  if (stretch == k).sum() >= _LINE_READS and np.ptp(held[stretch == k]) >= 3]
+        widths = []
+        for k in np.unique(stretch):
+            here = stretch == k
+            if here.sum() < _LINE_READS or np.ptp(held[here]) < 3:
+                continue
+            # less a line: the rate is known only to what frames quantise it to
+            x, y = at[here] - at[here][0], start[here] - start[here][0]
+            slope, offset = np.polyfit(x, y, 1)
+            widths.append(float(np.ptp(np.percentile(y - slope * x - offset, [5, 95]))))
         if widths:
             spread[baud] = float(np.median(widths))
     if not spread:

@@ -11,6 +11,7 @@ windows and anchors are chosen: docs/design/time.md.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -41,6 +42,18 @@ _LINE_S = (20.0, 300.0)
 _SWEEP = 0.125
 _PINNED = 0.25  # of a frame: an extent this narrow means a crossing pinned the line
 _SURER = 0.75  # or this much narrower than live's
+
+
+class Estimate(NamedTuple):
+    """Sample instants and how sure each is.
+
+    ``time_ns``: host ns, the instant each record's values describe; ``uncertainty_ns``:
+    the most each can be off by, as the reads bound it (half the spread of the lines
+    they allow; 0: not known, where reads bound records from one side only).
+    """
+
+    time_ns: npt.NDArray[np.int64]
+    uncertainty_ns: npt.NDArray[np.int64]
 
 
 class OfflineClock:
@@ -77,7 +90,7 @@ class OfflineClock:
     def smooth(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
                part_ns: npt.ArrayLike | None = None,
                part_lead_ns: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
-        """Sample instants of the valid records of one epoch.
+        """Sample instants of the valid records of one epoch (``estimate``'s ``time_ns``).
 
         Args:
             ticks: The records' unwrapped ticks, increasing.
@@ -91,12 +104,31 @@ class OfflineClock:
         Raises:
             ValueError: The arrays differ in length.
         """
+        return self.estimate(ticks, rx_ns, part_ns, part_lead_ns).time_ns
+
+    def estimate(self, ticks: npt.ArrayLike, rx_ns: npt.ArrayLike,
+                 part_ns: npt.ArrayLike | None = None,
+                 part_lead_ns: npt.ArrayLike | None = None) -> Estimate:
+        """Sample instants of the valid records of one epoch, and how sure each is.
+
+        Args:
+            ticks: The records' unwrapped ticks, increasing.
+            rx_ns: The receive time of the read that completed each.
+            part_ns: As ``OnlineClock.update``'s.
+            part_lead_ns: As ``OnlineClock.update``'s.
+
+        Returns:
+            Host ns, filter delay taken out, and the most each can be off by.
+
+        Raises:
+            ValueError: The arrays differ in length.
+        """
         x = np.asarray(ticks, np.int64)
         rx = np.asarray(rx_ns, np.int64)
         if x.shape != rx.shape:
             raise ValueError(f"ticks and rx_ns differ in length: {x.shape} vs {rx.shape}")
         if len(x) == 0:
-            return np.zeros(0, np.int64)
+            return Estimate(np.zeros(0, np.int64), np.zeros(0, np.int64))
         floor = self.floor_ns
         if part_ns is None or part_lead_ns is None:
             p, lead = rx, np.full(len(rx), floor, np.int64)
@@ -127,7 +159,7 @@ class OfflineClock:
         step = np.round(np.interp(dx, (anchors - x0).astype(np.float64), values))
         out: npt.NDArray[np.int64] = y0 + step.astype(np.int64) - self.delay_ns
         if not polygon:
-            return out
+            return Estimate(out, np.zeros(len(out), np.int64))
         # Where the bounds leave the offline pass no surer than live (no frame crossing
         # in any window: neither knows more than the other) the live instant stands,
         # unless no straight line fitted live: offline is never worse than live.
@@ -142,7 +174,9 @@ class OfflineClock:
         fit_doubt = np.array([math.inf] + [d for _, d in clock.fits])
         live_doubt = fit_doubt[np.searchsorted(fit_at, x, side="right")]
         sure = (doubt < _PINNED * self.frame_ns) | (doubt < _SURER * live_doubt)
-        return np.where(sure, out, live)
+        extent = np.where(sure, doubt, live_doubt)
+        return Estimate(np.where(sure, out, live),
+                        np.where(np.isfinite(extent), np.ceil(extent / 2), 0).astype(np.int64))
 
     def _solve(self, x: np.ndarray, y: np.ndarray, bounds: Bounds | None, at: int,
                rate: float, half: int) -> tuple[float, float]:
