@@ -22,9 +22,16 @@ import pytest
 
 from bridge.protocol.framer import Framer
 from bridge.recorder.replay import frame_reads
-from bridge.sim.capture import USB_BAUD, SyntheticCapture, streaming_config, synthesize
-from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import AdapterDelivery, UsbDelivery
+from bridge.sim.capture import (
+    USB_BAUD,
+    WALL_NS,
+    SyntheticCapture,
+    streaming_config,
+    synthesize,
+)
+from bridge.sim.motion import Motion, MotionConfig
+from bridge.sim.unit import SimUnit, UnitConfig
+from bridge.sim.usb import AdapterDelivery, UartDelivery, UsbDelivery
 from bridge.timing import Estimate, Settings, StreamTiming
 from bridge.timing.links import infer_transport
 
@@ -160,3 +167,33 @@ def test_the_link_and_its_baud_rate_are_told_from_the_reads(unit: Unit) -> None:
     assert found.transport == s.transport, found.describe()
     if s.transport == "usb-serial":
         assert found.baud == (None if abs(unit.ppm) < 5 else s.baud), found.describe()
+
+
+@pytest.mark.parametrize("code", [0xC3, 0xD3])
+def test_delta_records_are_timed_at_the_middle_of_their_period(code: int) -> None:
+    """DeltaAngle and DeltaVelocity integrate over the output period (the manual): their
+    values describe its middle, half a period before an instantaneous record's. time_ns
+    is that instant; the integral over the period, divided by it, is the rate there, and
+    not at the period's end."""
+    period = 0.01
+    config = streaming_config(UnitConfig(clock_ppm=25.0, motion=MotionConfig(seed=4)),
+                              code=code, decimation=10, baud=115_200)
+    capture = synthesize(config, UartDelivery(seed=2), 30.0)
+    stream = StreamTiming()
+    stream.configure(Settings(code, 10, 15, 115_200, "uart"), True)
+    timed = [stream.process(b) for found in frame_reads(Framer([code]), capture.rx_ns,
+                                                        capture.data) for b in found]
+    time_ns = np.concatenate([t.time_ns for t in timed])
+    delta = np.concatenate([t.batch["delta_ang"] for t in timed]).astype(np.float64)
+    truth = capture.truth["value_ns"]
+    late = truth >= truth[0] + WARM_NS
+    assert np.percentile(np.abs(time_ns - truth)[late], 99) < 30_000
+    unit = SimUnit(config, now=0.0, wall_ns=WALL_NS)  # its clock, to map time_ns to it
+    device = unit.device_time((time_ns[late] - WALL_NS) / 1e9)
+    motion = Motion(config.motion)
+
+    def off(shift_s: float) -> float:
+        rate = motion.sample(device + shift_s, period, only=["ang_rate"])["ang_rate"]
+        return float(np.sqrt(np.mean((delta[late] / period - rate) ** 2)))
+
+    assert off(0.0) < 0.1 * off(period / 2)
