@@ -130,6 +130,21 @@ class Bounds:
                       self.yl[ll[0]:ll[1]])
 
 
+def framed_bounds(xh: np.ndarray, yh: np.ndarray, xl: np.ndarray, yl: np.ndarray,
+                  frame: int) -> Bounds:
+    """The bounds of records read over frames that carry every byte ready when polled.
+
+    ``xh``, ``yh``: each quarter second's tightest upper bound; ``xl``, ``yl``: its
+    tightest lower bound where it has one. Below each tightest upper bound a frame (and
+    the frames' doubt either side) is a lower bound too: the record read soonest after
+    the frame that carried it came within a frame of it.
+    """
+    xs = np.concatenate([xl, xh])
+    ys = np.concatenate([yl, yh - frame - 2 * FRAME_DOUBT_NS])
+    order = np.argsort(xs, kind="stable")
+    return Bounds(xh, yh, xs[order], ys[order])
+
+
 class Centre(NamedTuple):
     """The middle of every line some bounds allow, judged at ticks ``at``.
 

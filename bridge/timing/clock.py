@@ -36,6 +36,7 @@ from bridge.timing._fit import (
     bucket_lows,
     frame_after,
     frame_before,
+    framed_bounds,
     grid_histogram,
     grid_phase,
     uncovered_half,
@@ -440,12 +441,11 @@ class OnlineClock:
                              self.frame_ns, self.floor_ns, self.byte_ns if self.serial else 0.0)
 
     def _buckets(self) -> Bounds:
-        """Each whole quarter second's tightest bounds, each found once.
+        """Each whole quarter second's tightest bounds (``framed_bounds``), each found once.
 
         A bucket's are found at the first fit after it was complete and kept (with that
         fit's rate) while it stays in the window: the window is minutes long, a fit adds
-        a second. With them, below the tightest upper bound of each, a frame less: the
-        record read soonest after the frame that carried it came within a frame of it.
+        a second.
         """
         x, rate = self._x, self._rate
         first, newest = int(x[0]) // BUCKET_TICKS, int(x[-1]) // BUCKET_TICKS
@@ -468,10 +468,8 @@ class OnlineClock:
         self._highs_x = np.concatenate([self._highs_x[old_high:], xs[known][highs]])
         self._highs_y = np.concatenate([self._highs_y[old_high:], los[known][highs]])
         self._lows_to = newest
-        xl = np.concatenate([self._highs_x, self._lows_x])
-        yl = np.concatenate([self._highs_y, self._lows_y - self.frame_ns - 2 * FRAME_DOUBT_NS])
-        order = np.argsort(xl, kind="stable")
-        return Bounds(self._lows_x, self._lows_y, xl[order], yl[order])
+        return framed_bounds(self._lows_x, self._lows_y, self._highs_x, self._highs_y,
+                             self.frame_ns)
 
     def _centre(self, bounds: Bounds) -> Centre | None:
         """``best_centre`` at the newest record over the last quarter, half or whole window.

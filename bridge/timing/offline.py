@@ -18,11 +18,11 @@ import numpy.typing as npt
 
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.timing._fit import (
-    FRAME_DOUBT_NS,
     NO_BOUND,
     Bounds,
     best_centre,
     bucket_minima,
+    framed_bounds,
     grid_histogram,
     grid_phase,
     support_slope,
@@ -230,15 +230,8 @@ class OfflineClock:
 
 def _bucket_bounds(x: np.ndarray, hi: np.ndarray, lo: np.ndarray, rate: float,
                    frame: int) -> Bounds:
-    """Each whole quarter second's tightest bounds, as ``OnlineClock`` keeps them.
-
-    With, below the tightest upper bound of each, a frame less: the record read soonest
-    after the frame that carried it came within a frame of it.
-    """
+    """Each whole quarter second's tightest bounds, as ``OnlineClock`` keeps them."""
     xh, yh = bucket_minima(x, hi, rate)
     known = lo > NO_BOUND
     xl, neg = bucket_minima(x[known], -lo[known], -rate)
-    xs = np.concatenate([xl, xh])
-    ys = np.concatenate([-neg, yh - frame - 2 * FRAME_DOUBT_NS])
-    order = np.argsort(xs, kind="stable")
-    return Bounds(xh, yh, xs[order], ys[order])
+    return framed_bounds(xh, yh, xl, -neg, frame)
