@@ -39,6 +39,7 @@ _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
 _FRAMED_FIT = 1.2  # byte times: reads at their frames lie within one, a wrong rate spreads
 _STRETCH_NS = 60_000_000_000
+_WRAPS = 2  # times k must jump back within a stretch
 # reads ending mid-record, which the unit's own USB port never gives: more than a damaged
 # byte here and there makes
 _SPLIT_READS = 20
@@ -200,8 +201,9 @@ def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.nd
     time before F less k byte times: at the true byte time these instants, less the
     unit's clock, lie within a byte time (and a tick of its timer) of each other; at
     another, they spread by the difference times the spread of k. Judged over minute-long
-    stretches in which k takes several values (a unit in step with the frames splits its
-    records at one place); None where no baud rate stands out.
+    stretches in which k takes values back and forth (several frames inside a record, or a
+    phase that sweeps the frame); None where no baud rate stands out: a unit crawling
+    against the frames moves k as steadily as a rate error would.
 
     Args:
         ticks: The split records' ticks.
@@ -218,7 +220,10 @@ def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.nd
         widths = []
         for k in np.unique(stretch):
             here = stretch == k
-            if here.sum() < _LINE_READS or np.ptp(held[here]) < 3:
+            # k must jump back here and there: a unit crawling against the frames
+            # splits its records at a byte that moves steadily, and a steady drift of k
+            # is what a rate error does too
+            if here.sum() < _LINE_READS or (np.abs(np.diff(held[here])) >= 3).sum() < _WRAPS:
                 continue
             # less a line: the rate is known only to what frames quantise it to
             x, y = at[here] - at[here][0], start[here] - start[here][0]
