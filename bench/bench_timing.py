@@ -3,7 +3,8 @@
 The matrix a fleet runs at: output rates of 100, 200, 500 and 1000 Hz (0xC2, at 115,200,
 230,400, 460,800 and 921,600 baud: the manual's Table 5), each behind a USB-serial
 adapter that hands the host every byte at each 1 ms frame and on the unit's own USB
-port, with crystals +40, +12, -3 and -55 ppm from the host's (fixed, or wandering with
+port (and, with ``--links``, on a UART and behind an adapter with a 16 ms latency
+timer), with crystals +40, +12, -3 and -55 ppm from the host's (fixed, or wandering with
 ``--wander``), OS latency exponential with a mean of 0.15-0.3 ms and stalls of 5-40 ms
 about every 20 s. Each unit sends its records a fixed processing delay after its filter
 window ends; the emulator keeps every sample's true instant.
@@ -35,7 +36,7 @@ from bridge.recorder import RawCaptureWriter, capture_metadata, read_archive, re
 from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.capture import USB_BAUD, WALL_NS, SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import AdapterDelivery, HostDelivery, UsbDelivery
+from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
 
 CODE = 0xC2
 FILTER_WIDTH = 15
@@ -47,7 +48,7 @@ WARM_NS = 5_000_000_000
 @dataclass(frozen=True)
 class Cell:
     rate: int
-    link: str  # "adapter" or "usb"
+    link: str  # "adapter", "usb", "uart" or "adapter16"
     ppm: float
     index: int  # seeds the cell's latencies, stalls and frame phase
 
@@ -60,8 +61,14 @@ class Cell:
         latency = 0.00015 + 0.00005 * (self.index % 4)
         if self.link == "usb":
             return UsbDelivery(frame_phase_s=phase, os_latency_mean_s=latency, seed=self.index)
+        if self.link == "uart":
+            return UartDelivery(os_latency_mean_s=latency, seed=self.index)
         return AdapterDelivery(frame_phase_s=phase, os_latency_mean_s=latency,
-                               seed=self.index, latency_timer_s=0.001)
+                               seed=self.index, latency_timer_s=self.latency_timer_ms / 1000)
+
+    @property
+    def latency_timer_ms(self) -> int:
+        return 16 if self.link == "adapter16" else 1
 
     def capture(self, seconds: float, wander: float) -> SyntheticCapture:
         config = streaming_config(
@@ -73,10 +80,11 @@ class Cell:
 
     def info(self) -> Info:
         """What the unit's bridge would have said of it (the capture's metadata)."""
+        link = {"usb": "usb", "uart": "uart"}.get(self.link, "usb-serial")
         return Info(unit="u1", port="/dev/ttyUSB0", baud=self.baud, command=CODE,
-                    decimation=1000 // self.rate, filter_width=FILTER_WIDTH,
-                    link="usb" if self.link == "usb" else "usb-serial",
-                    latency_timer_ms=0 if self.link == "usb" else 1, mode=2)
+                    decimation=1000 // self.rate, filter_width=FILTER_WIDTH, link=link,
+                    latency_timer_ms=self.latency_timer_ms if link == "usb-serial" else 0,
+                    mode=2)
 
 
 def exported(capture: SyntheticCapture, folder: Path, metadata: dict[str, str] | None
@@ -103,7 +111,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=600.0, help="capture length")
     parser.add_argument("--rates", default="100,200,500,1000", help="output rates, Hz")
-    parser.add_argument("--links", default="adapter,usb", help="adapter, usb")
+    parser.add_argument("--links", default="adapter,usb",
+                        help="adapter (1 ms latency timer), usb (the unit's own port), uart, "
+                             "adapter16 (a 16 ms latency timer)")
     parser.add_argument("--ppm", default=",".join(f"{p:g}" for p in PPMS),
                         help="the crystals' rate errors against the host's")
     parser.add_argument("--wander", type=float, default=0.0,

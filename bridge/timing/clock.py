@@ -133,7 +133,8 @@ class OnlineClock:
         prompt: Each frame carries every byte (on the unit's own port, every whole
             record) that is ready when it is polled: the unit's own USB port and an
             adapter with a 1 ms latency timer; not one with a longer timer, which holds
-            bytes back.
+            bytes back until a packet fills (there only the records read soonest after a
+            frame bound the line from below, within a frame).
 
     Raises:
         ValueError: A negative delay, floor, frame or byte time, or a window or refit
@@ -368,10 +369,6 @@ class OnlineClock:
         self._lead = np.concatenate([self._lead, np.array(self._new_lead, np.int64)])[keep:]
         self._new_p, self._new_lead = [], []
         self._bound(fresh, keep)
-        if not self.prompt:  # bytes held back: the upper bounds' envelope, as on a line
-            start = int(np.searchsorted(self._x, now - _LINE_WINDOW_S * TICKS_PER_SECOND))
-            self._envelope(self._x[start:], self._hi[start:], True, self.frame_ns)
-            return
         bounds = self._buckets()
         centre = self._centre(bounds)
         if self.fits is not None:
@@ -438,7 +435,8 @@ class OnlineClock:
     def _bounds_of(self, start: int, edge: int) -> tuple[np.ndarray, np.ndarray]:
         """The bounds of the window's records from ``start`` on (see ``record_bounds``)."""
         return record_bounds(self._y[start:], self._p[start:], self._lead[start:], edge,
-                             self.frame_ns, self.floor_ns, self.byte_ns if self.serial else 0.0)
+                             self.frame_ns, self.floor_ns, self.byte_ns if self.serial else 0.0,
+                             self.prompt)
 
     def _buckets(self) -> Bounds:
         """Each whole quarter second's tightest bounds (``framed_bounds``), each found once.
@@ -510,8 +508,8 @@ class OnlineClock:
 
 
 def record_bounds(rx_ns: np.ndarray, part_ns: np.ndarray, part_lead_ns: np.ndarray,
-                  edge: int, frame: int, floor: int,
-                  byte_ns: float) -> tuple[np.ndarray, np.ndarray]:
+                  edge: int, frame: int, floor: int, byte_ns: float,
+                  prompt: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Bounds on when each record's first byte was on the line, from its reads' frames.
 
     A read holds every byte its frame carried (``frame_after``): the record was on the
@@ -532,6 +530,8 @@ def record_bounds(rx_ns: np.ndarray, part_ns: np.ndarray, part_lead_ns: np.ndarr
         frame: The frame, ns.
         floor: The record's line time (its transfer on the unit's own USB port).
         byte_ns: A serial line's byte time; 0 on the unit's own USB port.
+        prompt: Whether frames carry every byte that is ready (else reads give no lower
+            bounds: an adapter with a long latency timer holds bytes back).
 
     Returns:
         The upper and the lower bounds, ns; ``NO_BOUND`` where a record has no lower one.
@@ -542,7 +542,7 @@ def record_bounds(rx_ns: np.ndarray, part_ns: np.ndarray, part_lead_ns: np.ndarr
         hi = np.where(inside, np.minimum(hi, frame_after(part_ns, edge, frame) - part_lead_ns),
                       hi)
     next_ns = round(byte_ns) if byte_ns else floor
-    lo = np.where(part_lead_ns < floor,
+    lo = np.where((part_lead_ns < floor) & prompt,
                   frame_before(part_ns, edge, frame) - part_lead_ns - next_ns, NO_BOUND)
     return np.asarray(hi, np.int64), np.asarray(lo, np.int64)
 

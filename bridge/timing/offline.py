@@ -35,11 +35,6 @@ from bridge.timing.unwrap import NS_PER_TICK
 # and crossed a frame boundary once keep that crossing in view ten minutes later; where
 # reads end inside records, the shortest pins the line to a byte.
 _WINDOWS_S = (20.0, 60.0, 120.0, 300.0, 600.0, 1200.0)
-# Over a serial line the envelope's window is as short as wander wants, and behind an
-# adapter's frames long enough for the unit's phase to sweep this much of a frame (past
-# a byte time at any common baud rate), so that some reads were prompt to a byte.
-_LINE_S = (20.0, 300.0)
-_SWEEP = 0.125
 _PINNED = 0.25  # of a frame: an extent this narrow means a crossing pinned the line
 _SURER = 0.75  # or this much narrower than live's
 
@@ -139,7 +134,7 @@ class OfflineClock:
         if self.frame_ns:
             edge = grid_phase(grid_histogram(rx, self.frame_ns), self.frame_ns)
             y, lo = record_bounds(rx, p, lead, edge, self.frame_ns, floor,
-                                  self.byte_ns if self.serial else 0.0)
+                                  self.byte_ns if self.serial else 0.0, self.prompt)
         else:
             y = np.where(lead > 0, np.minimum(rx - floor, p - lead), rx - floor)
             lo = np.full(len(y), NO_BOUND, np.int64)
@@ -150,10 +145,11 @@ class OfflineClock:
         # edge's, which a staircase can tilt by hundreds of ppm).
         rate = support_slope(dx - dx[-1] / 2, dy, float(NS_PER_TICK))
         anchors = np.arange(x0, int(x[-1]) + self._anchor, self._anchor)
-        polygon = bool(self.frame_ns) and self.prompt
+        polygon = bool(self.frame_ns)
         bounds = _bucket_bounds(x, y, lo, rate, self.frame_ns) if polygon else None
-        half = round(self._line_window(rate) * TICKS_PER_SECOND / 2) if not polygon \
-            else round(_WINDOWS_S[0] * TICKS_PER_SECOND / 2)
+        # the envelope's window (on a UART, or over frames where no straight line meets
+        # every bound) is the shortest: as short as wander wants
+        half = round(_WINDOWS_S[0] * TICKS_PER_SECOND / 2)
         solved = [self._solve(x, y, bounds, int(a), rate, half) for a in anchors.tolist()]
         values = np.array([v for v, _ in solved])
         step = np.round(np.interp(dx, (anchors - x0).astype(np.float64), values))
@@ -198,18 +194,6 @@ class OfflineClock:
         lo, hi = np.searchsorted(x, [middle - half, middle + half])
         lo, hi = max(0, lo - 1), max(hi + 1, lo + 2)
         return self._envelope(x[lo:hi], y[lo:hi], int(y[0]), at, middle, rate), math.inf
-
-    def _line_window(self, rate: float) -> float:
-        """Seconds of envelope.
-
-        The shortest on a UART; behind frames, long enough for the unit's phase to sweep
-        ``_SWEEP`` of a frame at its rate against the host's.
-        """
-        if not self.frame_ns:
-            return _LINE_S[0]
-        ppm = abs(NS_PER_TICK / rate - 1.0) * 1e6
-        sweep_s = _SWEEP * self.frame_ns / 1e3 / max(ppm, 1e-9)  # phase moves ppm us/s
-        return min(_LINE_S[1], max(_LINE_S[0], sweep_s))
 
     def _envelope(self, x: np.ndarray, y: np.ndarray, base: int, at: int, middle: int,
                   rate: float) -> float:
