@@ -13,6 +13,7 @@ import re
 import signal
 import socket
 import subprocess
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -113,6 +114,8 @@ def test_a_bridge_and_a_recorder_serve_the_units_health(tmp_path: Path) -> None:
     assert abs(bridge["gx3_samples_total"][unit] - latest.samples) <= 500
     assert abs(bridge["gx3_sample_rate_hertz"][unit] - latest.samples_per_s) <= 30
     assert abs(bridge["gx3_clock_offset_seconds"][unit] - latest.clock_offset_ns / 1e9) < 0.1
+    # Unix seconds at the unit's timer's zero: the emulated unit powered up in this test
+    assert abs(bridge["gx3_clock_offset_seconds"][unit] - time.time()) < 300
     assert bridge["gx3_unit_state"][(("state", "streaming"), *unit)] == 1.0
     assert sum(v for k, v in bridge["gx3_unit_state"].items() if ("unit", "m1") in k) == 1.0
     assert bridge["gx3_unit_connected"][unit] == 1.0

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bridge.archive.records import Block, ChannelInfo, rows
-from bridge.bus.codec import HEADER, LEGACY_HEADER, decode_batch, layout, parse, peek
+from bridge.bus.codec import HEADERS, decode_batch, layout, parse, peek
 
 #: Hears messages left out: (topic, how many, why in words that follow "skipped N").
 Skip = Callable[[str, int, str], None]
@@ -129,7 +129,7 @@ def _decode(unit: str, code: int, parts: list[tuple[Block, np.ndarray]]
     older bridge's too), else a bytes object each.
     """
     found: np.ndarray | list[bytes] | None = None
-    for header in (HEADER, LEGACY_HEADER):
+    for header in HEADERS:
         size = layout(code, unit, header).size
         if all((b.length[p] == size).all() for b, p in parts):
             found = np.concatenate([b.rows(p, size) for b, p in parts])

@@ -80,6 +80,10 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
         "spread": GaugeMetricFamily(
             f"{prefix}_clock_spread_seconds", "The clock model's quality: median latency "
             "of arrivals above it.", labels=["unit"]),
+        "uncertainty": GaugeMetricFamily(
+            f"{prefix}_time_uncertainty_seconds", "The most the unit's latest time_ns can "
+            "be off by, as its reads bound it; absent where not known (a UART).",
+            labels=["unit"]),
         "synchronised": GaugeMetricFamily(
             f"{prefix}_host_clock_synchronised", "1 if the bridge host's clock is "
             "disciplined (chrony, ntpd, PTP), as its kernel says.", labels=["unit", "host"]),
@@ -101,6 +105,8 @@ def status_metrics(statuses: Iterable[Status], prefix: str = "gx3") -> Iterator[
             gauges["spread"].add_metric([s.unit], s.clock_spread_ns / 1e9)
             if s.clock_drift_ppm:  # exactly 0 until the rate is measured
                 gauges["drift"].add_metric([s.unit], s.clock_drift_ppm)
+            if s.time_uncertainty_ns:  # 0: not known
+                gauges["uncertainty"].add_metric([s.unit], s.time_uncertainty_ns / 1e9)
         if s.host_clock.known:
             host = s.host_clock.host
             gauges["synchronised"].add_metric([s.unit, host], float(s.host_clock.synchronised))

@@ -70,7 +70,8 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
 
 
 def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int],
-                   rx_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
+                   rx_ns: list[int], part_ago_ns: list[int],
+                   part_lead_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
     """The ImuSample payloads of a live read's records and their attachments (``seal``).
 
     In one call of the compiled core where it is built, else ``encode_records`` and
@@ -82,17 +83,20 @@ def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[
         ticks: Each record's unwrapped ticks.
         time_ns: Each record's sample instant.
         rx_ns: The completing reads' realtime stamps.
+        part_ago_ns: How long before the completing read each partial read came (-1).
+        part_lead_ns: The line time of the record's bytes each held.
 
     Returns:
         The payloads and their attachments.
     """
+    times = (ticks, time_ns, rx_ns, records.rx_ns, part_ago_ns, part_lead_ns)
     core = native.records
     if core is None:
         payloads = encode_records(unit, records.code, records.little_endian, records.wire,
-                                  ticks, time_ns, rx_ns, records.rx_ns)
+                                  times)
         return payloads, seals(payloads)
     return core.messages(*native_layout(records.code, unit, records.little_endian),
-                         records.wire, (ticks, time_ns, rx_ns, records.rx_ns))
+                         records.wire, times)
 
 
 class UnitPublisher:
@@ -151,7 +155,8 @@ class UnitPublisher:
         return pub
 
     def publish_samples(self, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
-                        rx_ns: np.ndarray | None = None) -> int:
+                        rx_ns: np.ndarray | None = None,
+                        part: tuple[np.ndarray, np.ndarray] | None = None) -> int:
         """One ImuSample per record of ``batch``, each sealed with its CRC-32.
 
         Args:
@@ -161,17 +166,20 @@ class UnitPublisher:
             rx_ns: The completing reads' realtime stamps, ``batch.rx_ns`` then being
                 their raw-clock ones (a live bridge's); None: ``batch.rx_ns`` are
                 realtime stamps, with no raw ones.
+            part: Each record's partial read (``part_ago_ns``, ``part_lead_ns``).
 
         Returns:
             Samples put.
         """
         if rx_ns is None:
-            return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns))
+            return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns,
+                                              part=part))
         return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, rx_ns,
-                                          batch.rx_ns))
+                                          batch.rx_ns, part))
 
     def publish_records(self, records: Records, ticks: list[int], time_ns: list[int],
-                        rx_ns: list[int]) -> int:
+                        rx_ns: list[int], part_ago_ns: list[int],
+                        part_lead_ns: list[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes.
 
         Args:
@@ -179,11 +187,14 @@ class UnitPublisher:
             ticks: Each record's unwrapped timer.
             time_ns: Each record's host-clock instant.
             rx_ns: The completing reads' realtime stamps.
+            part_ago_ns: Each record's partial read, as ``sealed_records`` takes it.
+            part_lead_ns: The same.
 
         Returns:
             Samples put.
         """
-        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns))
+        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns,
+                                             part_ago_ns, part_lead_ns))
 
     def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
         """Put ImuSample payloads back to back, each sealed with its CRC-32."""

@@ -38,7 +38,6 @@ from bridge.protocol.convert import (
     quaternion_to_euler,
     quaternion_to_m,
 )
-from bridge.timing.offline import OfflineClock
 from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings
 
@@ -87,7 +86,8 @@ def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
     if re_estimate is None:
         return live
     columns = {name: np.concatenate([b.columns[name] for b in blocks])
-               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")}
+               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_ago_ns",
+                            "part_lead_ns")}
     raw = columns["rx_mono_raw_ns"]
     # the raw clock orders reads truly; the realtime clock may have been stepped back
     order = np.argsort(raw if (raw > 0).all() else columns["rx_ns"], kind="stable")
@@ -131,9 +131,10 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     """Each unit's sample instants re-estimated over the whole recording.
 
     The live estimate only had the past. A unit is timed with the settings of its
-    archived Info; units without one keep their live times, and so do units behind a
-    USB-serial adapter: the archive keeps each record's completing read only, not the
-    reads that ended inside it, which timed it live to a byte.
+    archived Info; units without one keep their live times. Each sample carries the read
+    that ended inside its record, or right where it begins, where there was one
+    (``part_ago_ns``): with it the records are bounded as live, to a byte time behind a
+    USB-serial adapter.
 
     Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
     against the raw clock and each instant mapped onto the realtime clock as live
@@ -150,12 +151,16 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
         ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
         settings = _unit_settings(archive, unit)
-        if settings is None or settings.serial or len(ticks) < 2:
+        if settings is None or len(ticks) < 2:
             return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
         on_raw = bool((raw > 0).all())
         order = np.argsort(ticks, kind="stable")
-        instants = clock.smooth(ticks[order], (raw if on_raw else rx_ns)[order])
+        rx = (raw if on_raw else rx_ns)[order]
+        ago, lead = columns["part_ago_ns"][order], columns["part_lead_ns"][order]
+        has = ago >= 0
+        instants = settings.offline_clock().smooth(
+            ticks[order], rx, np.where(has, rx - ago, rx),
+            np.where(has, lead, settings.floor_ns))
         if on_raw:
             reads, first = np.unique(raw, return_index=True)
             track = RealtimeReads(reads, rx_ns[first])

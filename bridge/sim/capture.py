@@ -133,7 +133,8 @@ def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
         data += unit.poll(t)
     device0 = float(unit.truth.arrays()["device_s"][0]) if len(unit.truth) else math.inf
     done = 0
-    while (finished := float(unit.host_time(device0 + done * period)) + size * byte_s) <= end:
+    lead = config.processing_delay_s + size * byte_s  # from a record's cycle to its last byte
+    while (finished := float(unit.host_time(device0 + done * period)) + lead) <= end:
         data += unit.poll(finished)
         if len(data) != size:
             break

@@ -119,10 +119,13 @@ def _status_message(unit: str, port: str, info: UnitInfo | None, status: dict[st
         msg.command = info.record
         msg.output_rate_hz = info.output_hz
         msg.baud = info.baud
-    if model is not None:
-        msg.clock_offset_ns = int(model.offset_ns)
+    if model is not None and model.offset_ns:
+        # the model is fitted on the raw clock: the offset on the realtime clock, as the
+        # samples' time_ns are, at the latest read
+        msg.clock_offset_ns = int(model.offset_ns) + (status.get("host_offset_ns") or 0)
         msg.clock_drift_ppm = float(model.drift_ppm)
         msg.clock_spread_ns = float(model.spread_ns)
+        msg.time_uncertainty_ns = int(model.uncertainty_ns)
     if sync is not None:
         msg.host_clock.CopyFrom(_host_clock_message(sync, status.get("host_offset_ns")))
     return msg
@@ -304,7 +307,7 @@ class BusSink:
                 self.publisher.publish_records(samples.records, *samples.lists())
             else:
                 self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns,
-                                               samples.rx_ns)
+                                               samples.rx_ns, samples.part)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 
