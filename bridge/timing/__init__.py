@@ -33,6 +33,7 @@ from bridge.timing.stream import (
     Timed,
     TimedFew,
     filter_delay_ns,
+    period_middle_ns,
     record_delay_ns,
 )
 from bridge.timing.timeline import Timeline, TimelineBatch
@@ -43,4 +44,4 @@ __all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Estimate", 
            "OnlineClock", "RateWindow", "RealtimeReads", "RealtimeTrack", "Settings",
            "StreamTiming", "Timed", "TimedFew", "Timeline", "TimelineBatch", "TimerUnwrapper",
            "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport",
-           "record_delay_ns"]
+           "period_middle_ns", "record_delay_ns"]
