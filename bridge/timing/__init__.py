@@ -6,7 +6,7 @@
 - ``OnlineClock``: valid (ticks, rx_ns) -> ``time_ns``, the host-clock instant the
   values describe, robust to late delivery, following drift; ``state`` for status.
 - ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns).
-- ``OfflineClock``: the recorder's second pass, one epoch at once, using records on
+- ``OfflineClock``: the export's second pass, one epoch at once, using records on
   both sides of each.
 - ``RealtimeTrack`` / ``RealtimeReads``: each instant from the raw monotonic clock onto
   the host's realtime clock, naming its steps and slews (``ClockChange``).

@@ -135,7 +135,7 @@ class Settings:
         return self.transport == "usb-serial"
 
     def offline_clock(self) -> OfflineClock:
-        """The recorder's second pass for records with these settings.
+        """The export's second pass for records with these settings.
 
         Returns:
             An ``OfflineClock`` told the delay, floor and link these settings decide.
