@@ -70,7 +70,7 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
 
 
 def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int],
-                   rx_ns: list[int], part_ago_ns: list[int],
+                   rx_ns: list[int], part_rx_ns: list[int],
                    part_lead_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
     """The ImuSample payloads of a live read's records and their attachments (``seal``).
 
@@ -83,13 +83,13 @@ def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[
         ticks: Each record's unwrapped ticks.
         time_ns: Each record's sample instant.
         rx_ns: The completing reads' realtime stamps.
-        part_ago_ns: How long before the completing read each partial read came (-1).
+        part_rx_ns: Each partial read's raw-clock stamp, as ``records.rx_ns`` are.
         part_lead_ns: The line time of the record's bytes each held.
 
     Returns:
         The payloads and their attachments.
     """
-    times = (ticks, time_ns, rx_ns, records.rx_ns, part_ago_ns, part_lead_ns)
+    times = (ticks, time_ns, rx_ns, records.rx_ns, part_rx_ns, part_lead_ns)
     core = native.records
     if core is None:
         payloads = encode_records(unit, records.code, records.little_endian, records.wire,
@@ -166,7 +166,7 @@ class UnitPublisher:
             rx_ns: The completing reads' realtime stamps, ``batch.rx_ns`` then being
                 their raw-clock ones (a live bridge's); None: ``batch.rx_ns`` are
                 realtime stamps, with no raw ones.
-            part: Each record's partial read (``part_ago_ns``, ``part_lead_ns``).
+            part: Each record's partial read (``part_rx_mono_raw_ns``, ``part_lead_ns``).
 
         Returns:
             Samples put.
@@ -178,7 +178,7 @@ class UnitPublisher:
                                           batch.rx_ns, part))
 
     def publish_records(self, records: Records, ticks: list[int], time_ns: list[int],
-                        rx_ns: list[int], part_ago_ns: list[int],
+                        rx_ns: list[int], part_rx_ns: list[int],
                         part_lead_ns: list[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes.
 
@@ -187,14 +187,14 @@ class UnitPublisher:
             ticks: Each record's unwrapped timer.
             time_ns: Each record's host-clock instant.
             rx_ns: The completing reads' realtime stamps.
-            part_ago_ns: Each record's partial read, as ``sealed_records`` takes it.
+            part_rx_ns: Each record's partial read, as ``sealed_records`` takes it.
             part_lead_ns: The same.
 
         Returns:
             Samples put.
         """
         return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns,
-                                             part_ago_ns, part_lead_ns))
+                                             part_rx_ns, part_lead_ns))
 
     def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
         """Put ImuSample payloads back to back, each sealed with its CRC-32."""

@@ -90,7 +90,7 @@ def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
     if re_estimate is None:
         return live
     columns = {name: np.concatenate([b.columns[name] for b in blocks])
-               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_ago_ns",
+               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns",
                             "part_lead_ns")}
     raw = columns["rx_mono_raw_ns"]
     # the raw clock orders reads truly; the realtime clock may have been stepped back
@@ -141,8 +141,8 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     The live estimate only had the past. A unit is timed with the settings of its
     archived Info; units without one keep their live times. Each sample carries the read
     that ended inside its record, or right where it begins, where there was one
-    (``part_ago_ns``): with it the records are bounded as live, to a byte time behind a
-    USB-serial adapter.
+    (``part_rx_mono_raw_ns``): with it the records are bounded as live, to a byte time
+    behind a USB-serial adapter.
 
     Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
     against the raw clock and each instant mapped onto the realtime clock as live
@@ -164,11 +164,10 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
         on_raw = bool((raw > 0).all())
         order = np.argsort(ticks, kind="stable")
         rx = (raw if on_raw else rx_ns)[order]
-        ago, lead = columns["part_ago_ns"][order], columns["part_lead_ns"][order]
-        has = ago >= 0
+        part, lead = columns["part_rx_mono_raw_ns"][order], columns["part_lead_ns"][order]
+        has = (part > 0) & on_raw  # recorded, on the raw clock the rest is timed on
         instants, doubt = settings.offline_clock().estimate(
-            ticks[order], rx, np.where(has, rx - ago, rx),
-            np.where(has, lead, settings.floor_ns))
+            ticks[order], rx, np.where(has, part, rx), np.where(has, lead, settings.floor_ns))
         if on_raw:
             reads, first = np.unique(raw, return_index=True)
             track = RealtimeReads(reads, rx_ns[first])
