@@ -113,6 +113,25 @@ class Mounting:
         """The rotation, body to unit, (3, 3)."""
         return np.reshape(np.asarray(self.rotation, np.float64), (3, 3))
 
+    @classmethod
+    def turned(cls, roll_pitch_yaw_deg: tuple[float, float, float],
+               lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+               body_seed: int = 0) -> Mounting:
+        """A mounting given as the unit's axes' roll, pitch and yaw against the body's.
+
+        As a unit's attitude against north-east-down: yaw, then pitch, then roll (ZYX).
+
+        Args:
+            roll_pitch_yaw_deg: The angles, degrees.
+            lever_arm_m: Where the unit sits from the body's origin (body axes, metres).
+            body_seed: The body's seed.
+
+        Returns:
+            The mounting.
+        """
+        rotation = convert.euler_to_m(np.radians(roll_pitch_yaw_deg))
+        return cls(body_seed, tuple(rotation.ravel().tolist()), lever_arm_m)
+
 
 def handheld(config: MotionConfig, mounting: Mounting | None = None) -> MotionConfig:
     """``config`` turned by hand: brisk turns about all three axes, as to align units.
