@@ -102,7 +102,7 @@ def test_the_file_says_how_sure_it_is_and_what_it_used(aligned: Aligned) -> None
         entry = content["units"][unit]
         for key in ("rotation_sigma_deg", "time_shift_sigma_s", "lever_arm_sigma_m",
                     "rate_residual_rad_s", "force_residual_m_s2"):
-            assert all(isinstance(v, float) and 0 < v for v in np.ravel(entry[key])), key
+            assert all(isinstance(v, float) and v > 0 for v in np.ravel(entry[key])), key
         assert max(entry["rotation_sigma_deg"]) < 0.01
         assert entry["time_shift_sigma_s"] < 2e-5
         assert max(entry["lever_arm_sigma_m"]) < 0.002

@@ -46,8 +46,9 @@ FloatArray = npt.NDArray[np.float64]
 MAX_SHIFT_S = 2.0
 #: The shortest stretch two units must share.
 MIN_OVERLAP_S = 10.0
-#: Below this RMS of its strongest turning (rad/s), a body stood still; below this
-#: fraction of it, or MIN_TURN_RAD_S, along a second direction, it turned about one axis.
+#: Below this RMS rate (rad/s), a body stood still; a rate that varies by less than it
+#: (RMS), or along a second direction by less than this fraction of its strongest or
+#: MIN_TURN_RAD_S, turned about one axis.
 STILL_RAD_S = 0.1
 ONE_AXIS_RATIO = 0.1
 MIN_TURN_RAD_S = 0.03
@@ -232,16 +233,22 @@ def _when(origin_ns: int, seconds: float) -> str:
 
 
 def _check_turning(rate: FloatArray, unit: str, span: str) -> None:
-    """Refuse rates that cannot show a rotation: a still body, or turns about one axis."""
+    """Refuse rates that cannot show a rotation: a still body, or turns about one axis.
+
+    The fit takes out a constant rate (the gyros' biases), so a steady spin shows no
+    more than a still body does about the other axes: what counts is how the rate
+    varies, about at least two axes.
+    """
+    size = math.sqrt(float(np.mean(np.sum(rate * rate, axis=1))))
     spread, axes = np.linalg.eigh(np.cov(rate.T))
     strongest, second = (math.sqrt(max(float(v), 0.0)) for v in spread[[2, 1]])
-    if strongest < STILL_RAD_S:
+    if size < STILL_RAD_S:
         raise AlignmentError(
-            f"{unit} hardly turned {span} (its rate varied by {strongest:.3f} rad/s RMS): "
-            "the body stood still; record it turned by hand about all three of its axes, "
-            "a minute of brisk turns back and forth")
-    if second < max(ONE_AXIS_RATIO * strongest, MIN_TURN_RAD_S):
-        axis = axes[:, 2]
+            f"{unit} hardly turned {span} (its rate was {size:.3f} rad/s RMS): the body "
+            "stood still; record it turned by hand about all three of its axes, a minute "
+            "of brisk turns back and forth")
+    if strongest < STILL_RAD_S or second < max(ONE_AXIS_RATIO * strongest, MIN_TURN_RAD_S):
+        axis = axes[:, 2] if strongest >= STILL_RAD_S else rate.mean(axis=0) / size
         i = int(np.argmax(np.abs(axis)))
         named = (f"its {_AXES[i]} axis" if abs(axis[i]) > 0.9 else
                  "an axis near ({:+.2f}, {:+.2f}, {:+.2f})".format(*axis))

@@ -64,7 +64,7 @@ class Body:
     def lever_arm(self, ref: str, unit: str) -> np.ndarray:
         """The true lever arm from ``ref`` to ``unit``, in ``ref``'s axes."""
         a, b = self.unit(ref), self.unit(unit)
-        return a.mounting.matrix @ (np.array(b.lever_arm) - np.array(a.lever_arm))
+        return np.asarray(a.mounting.matrix @ (np.array(b.lever_arm) - np.array(a.lever_arm)))
 
     def errors(self, table: dict[str, np.ndarray], unit: str) -> tuple[np.ndarray, np.ndarray]:
         """Each of a unit's exported samples' true instant, and its time_ns less it (ns)."""
