@@ -14,7 +14,8 @@ smoothed alike over ``SMOOTH_S``, which leaves the linear relation exact and the
 derivative's noise small.
 
 Everything is done on one uniform grid of instants over the stretch both units
-cover, each unit read at them by cubic Hermite interpolation (exact to a few parts in
+cover (at the slower unit's rate, at most ``MAX_GRID_HZ``), each unit read at them by
+cubic Hermite interpolation (exact to a few parts in
 10^5 at 25 Hz for a hand's motion); instants inside a unit's gaps are left out. Each
 result's 1-sigma comes from the fit's residual and the information the motion gave,
 widened by the residual's correlation time. Motion that cannot give a rotation (a
@@ -36,8 +37,8 @@ from bridge.exceptions import AlignmentError
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
 
-__all__ = ["MAX_SHIFT_S", "MIN_OVERLAP_S", "UnitMotion", "align", "fit_mount",
-           "unit_motion"]
+__all__ = ["MAX_GRID_HZ", "MAX_SHIFT_S", "MIN_OVERLAP_S", "UnitMotion", "align",
+           "fit_mount", "unit_motion"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -64,6 +65,9 @@ MIN_LEVER_GAIN = 1.0
 LEVER_SIGMA_M = 0.01
 #: Neighbouring samples further apart than this many periods are a gap.
 GAP_PERIODS = 1.5
+#: The densest grid of instants worked on, Hz: faster units are read at it (a hand's
+#: motion is below 1 Hz, and their filters have made their samples alike anyway).
+MAX_GRID_HZ = 200.0
 _SHIFT_TOLERANCE_S = 1e-9
 _ITERATIONS = 30
 _AXES = "xyz"
@@ -442,7 +446,7 @@ def fit_mount(ref: UnitMotion, unit: UnitMotion) -> Mount:
         return _Signal((motion.time_ns - lo) / 1e9, values)
 
     ref_rate, unit_rate = signal(ref, ref.rate), signal(unit, unit.rate)
-    step = max(ref_rate.period, unit_rate.period)
+    step = max(ref_rate.period, unit_rate.period, 1.0 / MAX_GRID_HZ)
     grid = np.arange(0.0, (hi - lo) / 1e9, step)
     a, _, a_known = ref_rate.at(grid)
     span = f"from {_when(lo, 0.0)} to {_when(hi, 0.0)}"

@@ -99,9 +99,11 @@ def align(
                 raise ValueError(f"{archive} has no unit {missing[0]} (units: "
                                  f"{', '.join(data.units()) or 'none'}); check --unit")
             first = data.first_sample_ns() or 0
-            table = sample_table(data, names, None, lo.resolve(first) if lo else None,
-                                 hi.resolve(first) if hi else None, offline_times(data))
-            motions = [unit_motion(table, u) for u in names]
+            span = (lo.resolve(first) if lo else None, hi.resolve(first) if hi else None)
+            times = offline_times(data)
+            # a unit's table at a time: a fleet's at once would hold every sample twice
+            motions = [unit_motion(sample_table(data, [u], None, *span, times), u)
+                       for u in names]
             progress = Progress(TextColumn("aligning"), BarColumn(), MofNCompleteColumn(),
                                 console=err, transient=True, disable=not err.is_terminal)
             with progress:
