@@ -3,9 +3,9 @@
 ``gx3 export --mounts mounts.yaml`` (a ``gx3 align`` file): each unit the file names has
 its vectors and attitude turned into the reference's axes (``Mount.express``) and its
 instants moved by its time shift. The shift goes in where each unit's instants are
-estimated (``shifted``), so that --start, --end and the rows' order see the shifted
-times; the turn is made on the finished rows (``turn``), after any iron correction,
-which belongs to the unit's own axes.
+estimated (``shift_times``), so that --start, --end and the rows' order see the shifted
+times; the turn is made on the finished rows (``turn_units``), after any iron
+correction, which belongs to the unit's own axes.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from bridge.bus.codec import elements
 from bridge.export.describe import flat_names
 from bridge.export.tables import ReEstimate
 
-__all__ = ["shifted", "turn"]
+__all__ = ["shift_times", "turn_units"]
 
 
-def shifted(re_estimate: ReEstimate, mounts: Mounts) -> ReEstimate:
+def shift_times(re_estimate: ReEstimate, mounts: Mounts) -> ReEstimate:
     """``re_estimate`` with each mounted unit's instants moved by its time shift.
 
     Args:
@@ -43,7 +43,7 @@ def shifted(re_estimate: ReEstimate, mounts: Mounts) -> ReEstimate:
     return estimate
 
 
-def turn(table: dict[str, np.ndarray], mounts: Mounts) -> None:
+def turn_units(table: dict[str, np.ndarray], mounts: Mounts) -> None:
     """Turn, in place, each mounted unit's quantities into the reference's axes.
 
     Args:

@@ -30,7 +30,7 @@ from bridge.analysis.mounts import read_mounts
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
-from bridge.export.mounted import shifted, turn
+from bridge.export.mounted import shift_times, turn_units
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import (
     TimeBound,
@@ -276,7 +276,7 @@ class Export:
         times = offline_times(data)
         if self.mounts is not None:
             self.mounts.check_units(data.units())
-            times = shifted(times, self.mounts)
+            times = shift_times(times, self.mounts)
         table = sample_table(data, self.units, self.types, lo_ns, hi_ns, times)
         rows = len(table["time_ns"])
         if not rows:
@@ -287,7 +287,7 @@ class Export:
         irons = self.irons
         apply(table, irons)
         if self.mounts is not None:
-            turn(table, self.mounts)
+            turn_units(table, self.mounts)
         infos = {u: last_info(data, u) for u in names}
         covariances: dict[str, ImuCovariance] = {}
         noted: dict[str, object] = {}
