@@ -20,13 +20,12 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from procstat import gx3_run
 
 from bridge.analysis.mounts import read_mounts
 from bridge.archive.writer import ArchiveWriter
@@ -74,19 +73,6 @@ def body_archive(path: Path, units: int, minutes: float, rate: float) -> None:
           flush=True)
 
 
-def gx3_align(*args: str | Path) -> tuple[float, float]:
-    """Wall seconds and peak resident MiB of ``gx3 align ARGS``, as a user runs it."""
-    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
-    start = time.perf_counter()
-    proc = subprocess.Popen([gx3, "align", *map(str, args), "--force"],
-                            stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(proc.pid, 0)  # this run's own peak
-    elapsed = time.perf_counter() - start
-    if os.waitstatus_to_exitcode(status):
-        raise SystemExit("gx3 align failed")
-    return elapsed, usage.ru_maxrss / 1024
-
-
 def errors(path: Path, units: int) -> tuple[float, float, float]:
     """The worst rotation (deg), time shift (s) and lever arm (m) error of a mounts file."""
     mounts = read_mounts(path)
@@ -117,7 +103,7 @@ def main() -> None:
     body_archive(archive, args.units, args.minutes, args.rate)
     out = workdir / "mounts.yaml"
     names = [a for u in range(args.units) for a in ("-u", f"imu{u + 1}")]
-    elapsed, peak = gx3_align(archive, *names, "-o", out)
+    elapsed, peak = gx3_run("align", archive, *names, "-o", out)
     print(f"gx3 align, {args.units} units x {args.minutes:g} min at {args.rate:g} Hz: "
           f"{elapsed:.1f} s, peak {peak:.0f} MiB; {load()}", flush=True)
     rotation, shift, arm = errors(out, args.units)
