@@ -139,15 +139,10 @@ def _mountings(body_seed: int, mounts: Sequence[str], arms: Sequence[str],
     at its origin.
 
     Raises:
-        OptionError: A value that is not three numbers in range, or more values than
-            units.
+        OptionError: A value that is not three numbers in range.
     """
     from bridge.sim.motion import Mounting
 
-    for option, given in (("--mount", mounts), ("--lever-arm", arms)):
-        if len(given) > units:
-            raise OptionError(option, f"{len(given)} given for {units} unit(s); give one per "
-                              "unit at most (unit 1's first)")
     out = []
     for i in range(units):
         roll, pitch, yaw = _parse_numbers("--mount", mounts[i] if i < len(mounts) else None,
@@ -338,9 +333,6 @@ class SimOptions:
             configs = [replace(cfg, motion=replace(cfg.motion, mounting=mounting))
                        for cfg, mounting in zip(configs, _mountings(
                            self.seed, self.mount, self.lever_arm, self.units), strict=True)]
-        if len(self.link_latency) > self.units:
-            raise OptionError("--link-latency", f"{len(self.link_latency)} given for "
-                              f"{self.units} unit(s); give one per unit at most")
         configs = [replace(cfg, link_latency_s=self.link_latency[i] / 1000)
                    if i < len(self.link_latency) else cfg for i, cfg in enumerate(configs)]
         for cfg in configs:
@@ -404,6 +396,12 @@ class SimOptions:
         for option, given in (("--mount", self.mount), ("--lever-arm", self.lever_arm)):
             if given and not self.body:
                 raise OptionError(option, "places a unit on the body: it goes with --body")
+        for option, count in (("--mount", len(self.mount)),
+                              ("--lever-arm", len(self.lever_arm)),
+                              ("--link-latency", len(self.link_latency))):
+            if count > self.units:
+                raise OptionError(option, f"{count} given for {self.units} unit(s); give one "
+                                  "per unit at most (unit 1's first)")
         if self.usb and self.usb_serial:
             raise OptionError("--usb/--usb-serial", "choose one: the unit's own USB port or "
                               "its serial port through an adapter")
