@@ -365,4 +365,3 @@ def read_mounts(path: Path) -> Mounts:
                               f"{hint}")
     return Mounts(reference, mounts, str(content.get("source", "")), path,
                   hashlib.sha256(data).hexdigest())
-
