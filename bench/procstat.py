@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -37,3 +41,21 @@ def peak_rss_mb(pid: int) -> float:
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024
     return float("nan")
+
+
+def gx3_run(command: str, *args: str | Path) -> tuple[float, float]:
+    """Wall seconds and peak resident MiB of ``gx3 COMMAND ARGS --force``, as a user runs
+    it (start-up included; the peak from ``wait4``: this run's own, not earlier runs').
+
+    Raises:
+        SystemExit: The command failed.
+    """
+    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
+    start = time.perf_counter()
+    proc = subprocess.Popen([gx3, command, *map(str, args), "--force"],
+                            stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    elapsed = time.perf_counter() - start
+    if os.waitstatus_to_exitcode(status):
+        raise SystemExit(f"gx3 {command} failed")
+    return elapsed, usage.ru_maxrss / 1024

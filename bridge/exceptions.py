@@ -28,6 +28,8 @@ an ``OSError``, a bad name a ``ValueError``)::
     ├── LogImportError (ValueError)       byte logs that cannot be imported as asked
     ├── CalibrationError (ValueError)     readings that cannot give a calibration
     ├── NoiseFileError (ValueError)       a noise file (imu.yaml) that cannot be used
+    ├── AlignmentError (ValueError)       units whose motion cannot give their mounting
+    ├── MountsFileError (ValueError)      a mounts file (mounts.yaml) that cannot be used
     ├── DemoError (RuntimeError)          a demo that cannot run as asked
     └── EmulatorError                     the emulator (gx3 sim)
         ├── OptionError (ValueError)      an option it cannot run with
@@ -38,12 +40,13 @@ an ``OSError``, a bad name a ``ValueError``)::
 from __future__ import annotations
 
 __all__ = [
-    "ArchiveError", "ArchiveReadError", "BadName", "BusError", "CalibrationError",
-    "CaptureError", "CommandRejected", "CommandTimeout", "DemoError", "DeviceError",
-    "EmulatorError", "Gx3Error", "LinkPathError", "LogImportError", "MetricsError",
-    "NameTaken", "NoiseFileError", "OptionError", "OutputRefused", "PersistRefused",
-    "PortError", "ProtocolError", "RemoteError", "ReplayError", "SessionError",
-    "StateFileError", "UnsupportedUnit", "UnusableCapture",
+    "AlignmentError", "ArchiveError", "ArchiveReadError", "BadName", "BusError",
+    "CalibrationError", "CaptureError", "CommandRejected", "CommandTimeout",
+    "DemoError", "DeviceError", "EmulatorError", "Gx3Error", "LinkPathError",
+    "LogImportError", "MetricsError", "MountsFileError", "NameTaken", "NoiseFileError",
+    "OptionError", "OutputRefused", "PersistRefused", "PortError", "ProtocolError",
+    "RemoteError", "ReplayError", "SessionError", "StateFileError", "UnsupportedUnit",
+    "UnusableCapture",
 ]
 
 
@@ -161,6 +164,17 @@ class CalibrationError(Gx3Error, ValueError):
 
 class NoiseFileError(Gx3Error, ValueError):
     """A noise file (Kalibr's imu.yaml) that cannot be used; the message says why."""
+
+
+class AlignmentError(Gx3Error, ValueError):
+    """Units whose motion cannot give their mounting (``gx3 align``).
+
+    The message says what motion to record instead.
+    """
+
+
+class MountsFileError(Gx3Error, ValueError):
+    """A mounts file (``gx3 align``'s mounts.yaml) that cannot be used; says why."""
 
 
 class DemoError(Gx3Error, RuntimeError):

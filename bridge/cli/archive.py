@@ -136,6 +136,18 @@ def export(
              "file. Parquet: the samples are unchanged; gx3.noise metadata records the file "
              "and the covariances it gives. CSV: refused (no metadata to record it in).")
     ] = None,
+    mounts: Annotated[Path | None, typer.Option(
+        "--mounts", metavar="MOUNTS.yaml",
+        help="How units on one body are mounted (gx3 align writes it): each unit it names "
+             "gets its vectors (accel, ang_rate, mag, stab_accel, stab_mag, delta_ang, "
+             "delta_vel; not the raw A/D codes) as rotation^T @ v and its attitude (M, "
+             "quaternion, Euler angles, C) in the reference's axes, and its time_ns moved "
+             "by time_shift_s onto the reference's time; --start and --end see the moved "
+             "times. Lever arms are not applied: accel stays the specific force where the "
+             "unit sits. Parquet: the file, its SHA-256 and what it holds go in the "
+             "gx3.mounts metadata; ROS 2 bag: the same as a gx3.mounts metadata record, "
+             "and those units' messages are in the reference's frame; CSV: refused (no "
+             "metadata to record it in).")] = None,
     ros2_distro: Annotated[str | None, typer.Option(
         "--ros2-distro", metavar="humble|jazzy",
         help="ROS 2 distribution of the bag's message definitions (--format ros2 only); "
@@ -175,7 +187,8 @@ def export(
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
                      types=record_type, start=start, end=end, align_hz=align, events=events,
-                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro)
+                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro,
+                     mounts=mounts)
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:

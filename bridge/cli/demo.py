@@ -21,7 +21,7 @@ from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
 from bridge.cli.record import unit_table
 
 if TYPE_CHECKING:
-    from bridge.fleet.demo import UnitOutcome
+    from bridge.fleet.demo import Demo, UnitOutcome
     from bridge.recorder.units import UnitRow
 
 #: Off a terminal (a CI log, a pipe), a line of progress this often, seconds.
@@ -68,6 +68,18 @@ def _progress_line(rows: list[UnitRow], elapsed: float, duration: float,
             f"{streaming} of {counted(units, 'unit')}")
 
 
+def _align_hints(gx3: str, run: Demo, folder: str, body: bool) -> list[tuple[str, str]]:
+    """With --body, the commands that find the units' mountings and draw them so."""
+    if not body or len(run.units) < 2:
+        return []
+    archive = shlex.quote(str(run.archive))
+    names = " ".join(f"-u {u.name}" for u in run.units)
+    return [(f"{gx3} align {archive} {names} -o {folder}/mounts.yaml",
+             f"each unit's mounting and time shift against {run.units[0].name}"),
+            (f"{gx3} rrd {archive} --mounts {folder}/mounts.yaml -o {folder}/mounted.rrd",
+             f"every unit drawn in {run.units[0].name}'s axes and time")]
+
+
 @app.command("demo")
 def demo(
     output: Annotated[Path | None, typer.Option(
@@ -84,6 +96,11 @@ def demo(
         help="Record every unit streams, e.g. 0xCC (accel, ang_rate, mag, M).")] = "0xCC",
     router: Annotated[bool, typer.Option(
         "--router", help="Route through a gx3 router instead of peer to peer.")] = False,
+    body: Annotated[bool, typer.Option(
+        "--body", help="Fix the units to one body turned by hand, each mounted its own way "
+                       "(upside down and turned 90°, turned 177°, 0.3 m apart, one behind "
+                       "a 3.2 ms link); the summary says how to find it all with gx3 "
+                       "align.")] = False,
     viewer: Annotated[str | None, typer.Option(
         metavar="spawn|serve", help="Also show it live in Rerun: spawn a viewer here, or "
                                     "serve one for a browser.")] = None,
@@ -110,7 +127,7 @@ def demo(
     if viewer == "spawn" and not _display():
         raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
                    "use --viewer serve for a remote or web viewer, or leave --viewer out")
-    members = fleet(units, parse_code(record_type), rate, duration)
+    members = fleet(units, parse_code(record_type), rate, duration, body)
     output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
@@ -156,7 +173,8 @@ def demo(
                           (f"{gx3} export {shlex.quote(str(run.archive))} -o "
                            f"{folder}/demo.parquet", "one row per sample"),
                           (f"{gx3} export {shlex.quote(str(run.archive))} --align 100 -o "
-                           f"{folder}/aligned.csv", "every unit on one 100 Hz grid")):
+                           f"{folder}/aligned.csv", "every unit on one 100 Hz grid"),
+                          *_align_hints(gx3, run, folder, body)):
         # never wrapped: a command is copied as one line
         console.print(f"  {command}", highlight=False, soft_wrap=True, markup=False)
         console.print(f"      [dim]{what}[/]", highlight=False)

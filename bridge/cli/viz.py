@@ -57,6 +57,13 @@ def rrd(
                                          help="Rerun recording to write; it appears when "
                                               "complete.")],
     mag_cal: MagCalOpt = None,
+    mounts: Annotated[Path | None, typer.Option(
+        "--mounts", metavar="MOUNTS.yaml",
+        help="How units on one body are mounted (gx3 align writes it): each unit it names "
+             "is drawn in the reference's axes (its vectors and attitude turned, as gx3 "
+             "export --mounts does) and on the reference's time (its samples moved by "
+             "time_shift_s); the file, its SHA-256 and what it holds are the recording's "
+             "gx3_mounts property.")] = None,
     force: ForceOpt = False,
 ) -> None:
     """Render an archive into a Rerun recording with the live view's layout.
@@ -66,12 +73,14 @@ def rrd(
     killed recorder) is rendered up to its last complete chunk; a corrupt chunk or a
     message that is not what its topic says is left out with a warning.
     """
+    from bridge.analysis.mounts import read_mounts
     from bridge.archive.explain import describe_problem
     from bridge.archive.walk import read_archive
-    from bridge.viz.magcal import IronedLogger
+    from bridge.viz.mounted import MountedLogger
     from bridge.viz.sources import log_archive
 
     irons = _irons(mag_cal)
+    mounted = None if mounts is None else read_mounts(mounts)  # a refusal is exit 2
 
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
@@ -87,10 +96,13 @@ def rrd(
         if missing := [i.unit for i in irons if i.unit not in found.units()]:
             raise fail(f"--mag-cal: the calibration of unit {missing[0]} has no samples in "
                        f"{archive} (units: {', '.join(found.units())})")
+        if mounted is not None:
+            mounted.check_units(found.units())
         progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
                             console=err, transient=True, disable=not err.is_terminal)
         try:
-            logger = IronedLogger(irons, temp, found.units(), recording_id=archive.stem)
+            logger = MountedLogger(mounted, irons, temp, found.units(),
+                                   recording_id=archive.stem)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
             raise fail(f"{output}: cannot write ({exc})", FAILED) from None
         with progress:

@@ -9,6 +9,7 @@ from bridge.export.describe import About
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 
 if TYPE_CHECKING:
+    from bridge.export.mounted import shift_times, turn_units
     from bridge.export.run import Export, Exported
     from bridge.export.tables import (
         align_table,
@@ -27,6 +28,8 @@ __all__ = [
     "event_table",
     "offline_times",
     "sample_table",
+    "shift_times",
+    "turn_units",
     "write_ros2",
     "write_table",
 ]
@@ -34,6 +37,7 @@ __all__ = [
 #: Names whose modules import pyarrow, imported on first use.
 _ON_FIRST_USE = {
     **dict.fromkeys(("Export", "Exported"), "bridge.export.run"),
+    **dict.fromkeys(("shift_times", "turn_units"), "bridge.export.mounted"),
     **dict.fromkeys(("align_table", "event_table", "offline_times", "sample_table",
                      "write_table"), "bridge.export.tables"),
 }

@@ -179,6 +179,7 @@ class About:
     options: Mapping[str, object] = field(default_factory=dict)
     mag_cal: Mapping[str, object] = field(default_factory=dict)  # unit -> calibration file
     noise: Mapping[str, object] = field(default_factory=dict)  # the noise file, covariances
+    mounts: Mapping[str, object] = field(default_factory=dict)  # the mounts file applied
 
     def metadata(self) -> dict[str, str]:
         """Parquet file metadata.
@@ -186,7 +187,8 @@ class About:
         Returns:
             Key-value pairs, values JSON where structured: schema version, product,
             conventions, source archive, export options, the units' Info,
-            calibrations and the noise file with the covariances it gives.
+            calibrations, the noise file with the covariances it gives, and the mounts
+            file applied.
         """
         labels = unit_labels(self.infos)
         units = {u: {"column_prefix": labels[u],
@@ -196,6 +198,8 @@ class About:
         extra = {"gx3.mag_cal": json.dumps(dict(self.mag_cal))} if self.mag_cal else {}
         if self.noise:
             extra["gx3.noise"] = json.dumps(dict(self.noise))
+        if self.mounts:
+            extra["gx3.mounts"] = json.dumps(dict(self.mounts))
         return {
             "gx3.schema": SCHEMA_VERSION,
             "gx3.product": f"gx3-bridge {importlib.metadata.version('gx3-bridge')}",

@@ -80,7 +80,8 @@ def _quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.
 def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                distro: str = messages.DEFAULT_DISTRO,
                covariances: Mapping[str, ImuCovariance] | None = None,
-               metadata: Mapping[str, Mapping[str, str]] | None = None) -> Ros2Written:
+               metadata: Mapping[str, Mapping[str, str]] | None = None,
+               frames: Mapping[str, str] | None = None) -> Ros2Written:
     """Write the samples of an export table as a ROS 2 bag.
 
     Args:
@@ -91,6 +92,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
         covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not
             in it gets 0 (unknown).
         metadata: MCAP metadata records to add, by name (``gx3.noise``).
+        frames: Per unit, the unit whose frame its messages are in (a mounted unit's
+            are in its reference's, ``gx3 export --mounts``); a unit not in it: its own.
 
     Returns:
         How many messages of each type the bag got.
@@ -114,7 +117,7 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
             sent: dict[tuple[str, str], int] = {}  # messages, the next one's sequence number
             for unit in sorted(set(units.tolist())):
                 unit_rows = np.flatnonzero(units == unit)
-                frame = messages.frame_id(unit, prefix)
+                frame = messages.frame_id((frames or {}).get(unit, unit), prefix)
                 for at in range(0, len(unit_rows), SLICE):
                     rows = unit_rows[at : at + SLICE]
                     columns = _quantities(table, rows)

@@ -26,9 +26,11 @@ from typing import TYPE_CHECKING
 
 from bridge._text import counted
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
+from bridge.analysis.mounts import read_mounts
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
+from bridge.export.mounted import shift_times, turn_units
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import (
     TimeBound,
@@ -181,12 +183,16 @@ class Export:
             the file and those covariances in its ``gx3.noise`` metadata. A CSV file has
             nowhere to record it and is refused.
         ros2_distro: The ROS 2 distribution of a bag (``jazzy``, ``humble``); bags only.
+        mounts: A mounts file (``gx3 align``): each unit it names is put in the
+            reference's axes and on its time; a Parquet table or a bag records the file
+            and its SHA-256 (``gx3.mounts``), and a bag's messages of those units are in
+            the reference's frame. A CSV file has nowhere to record it and is refused.
 
     Raises:
-        ValueError: The request cannot be met: a calibration or noise file that cannot
-            be read, a format or extension that does not fit, --align with a bag, the
-            events table on the output's own file, a record type or time that is not
-            one, --noise with a CSV file, --ros2-distro with a table.
+        ValueError: The request cannot be met: a calibration, noise or mounts file that
+            cannot be read, a format or extension that does not fit, --align with a bag,
+            the events table on the output's own file, a record type or time that is not
+            one, --noise or --mounts with a CSV file, --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -194,7 +200,7 @@ class Export:
                  start: str | None = None, end: str | None = None,
                  align_hz: float | None = None, events: Path | None = None,
                  mag_cal: Sequence[Path] = (), noise: Path | None = None,
-                 ros2_distro: str | None = None) -> None:
+                 ros2_distro: str | None = None, mounts: Path | None = None) -> None:
         self.archive, self.output, self.events = archive, output, events
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
@@ -212,8 +218,13 @@ class Export:
                 raise ValueError("--noise is recorded in a Parquet table's metadata or used "
                                  "in a ROS 2 bag; a CSV file has no metadata to record it "
                                  "in (write .parquet, or leave out --noise)")
+            if mounts is not None and output.suffix.lower() == ".csv":
+                raise ValueError("--mounts changes the samples, and a table records which "
+                                 "file did in its metadata; a CSV file has none (write "
+                                 ".parquet, or leave out --mounts)")
         self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
         self.noise = None if noise is None else read_noise(noise)
+        self.mounts = None if mounts is None else read_mounts(mounts)
         if events is not None:
             check_format(events)
             if events.absolute() == output.absolute():
@@ -254,14 +265,19 @@ class Export:
             What was written.
 
         Raises:
-            ValueError: No samples match, a calibration's unit has none, or a sample's
-                time does not fit a ROS time stamp.
+            ValueError: No samples match, a calibration's unit has none, a mounts file
+                names a unit the archive lacks, or a sample's time does not fit a ROS
+                time stamp.
             OSError: An output cannot be written.
         """
         first = data.first_sample_ns() or 0
         lo_ns = self._start.resolve(first) if self._start else None
         hi_ns = self._end.resolve(first) if self._end else None
-        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, offline_times(data))
+        times = offline_times(data)
+        if self.mounts is not None:
+            self.mounts.check_units(data.units())
+            times = shift_times(times, self.mounts)
+        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, times)
         rows = len(table["time_ns"])
         if not rows:
             raise ValueError(f"{self.archive}: no samples match (units: "
@@ -270,6 +286,8 @@ class Export:
         names = sorted(set(table["unit"].tolist()))
         irons = self.irons
         apply(table, irons)
+        if self.mounts is not None:
+            turn_units(table, self.mounts)
         infos = {u: last_info(data, u) for u in names}
         covariances: dict[str, ImuCovariance] = {}
         noted: dict[str, object] = {}
@@ -282,15 +300,20 @@ class Export:
             "units": self.units, "types": self.types, "start": self.start, "end": self.end,
             "start_ns": lo_ns, "end_ns": hi_ns, "align_hz": self.align_hz,
             "time_ns": "re-estimated"},
-            {iron.unit: iron.content for iron in irons}, noted)
+            {iron.unit: iron.content for iron in irons}, noted,
+            {} if self.mounts is None else self.mounts.provenance())
         done = Exported(self.output, rows, len(names), events_path=self.events,
                         notes=tuple(notes))
         if self.ros2:
-            record = {"gx3.noise": {k: v if isinstance(v, str) else json.dumps(v)
-                                    for k, v in noted.items()}} if noted else None
+            records = {name: {k: v if isinstance(v, str) else json.dumps(v)
+                              for k, v in content.items()}
+                       for name, content in (("gx3.noise", noted), ("gx3.mounts",
+                                             about.mounts)) if content}
+            frames = {} if self.mounts is None else dict.fromkeys(self.mounts.units,
+                                                                  self.mounts.reference)
             done = replace(done, bag=write_ros2(
                 table, table_file, archive_prefix(data), distro=self.distro,
-                covariances=covariances, metadata=record))
+                covariances=covariances, metadata=records or None, frames=frames))
         elif self.align_hz is not None:
             table = align_table(table, self.align_hz)
             if irons:

@@ -87,6 +87,8 @@ class UnitConfig:
         usb: On its own USB port: the baud rate has no effect on the line, and a record
             goes to the host whole, once its last byte is in the port's buffer.
         processing_delay_s: From the end of a record's cycle to its first byte on the line.
+        link_latency_s: A constant delay its link adds each way (a long cable, a
+            converter, a wireless serial link): one that no clock model can see.
     """
 
     serial: str = "SIM0001"
@@ -107,6 +109,7 @@ class UnitConfig:
     filter_model: bool = True
     usb: bool = False  # on its own USB port: the baud rate has no effect on the line
     processing_delay_s: float = PROCESSING_DELAY_S
+    link_latency_s: float = 0.0
 
     def id_string(self, selector: int) -> str:
         """The device ID string 0xEA reports.
@@ -407,8 +410,10 @@ class SimUnit:
 
         Args:
             data: The bytes.
-            now: When they arrived, host monotonic seconds.
+            now: When they arrived, host monotonic seconds (its link's latency later
+                they reach the unit).
         """
+        now += self.config.link_latency_s
         if now < self._ready or not data:
             return
         if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
@@ -446,7 +451,8 @@ class SimUnit:
             now: Host monotonic seconds; not before the last call's.
 
         Returns:
-            (baud, bytes) runs, in the order they went out.
+            (baud, bytes) runs, in the order they went out: those that finished crossing
+            the line its link's latency before ``now``.
         """
         while self._queue:
             arrived, raw = self._queue[0]
@@ -459,7 +465,7 @@ class SimUnit:
             self._execute(raw, at)
         if self.planned_until < now + URGENT_S:
             self.plan(now)
-        return self._transmit(now)
+        return self._transmit(now - self.config.link_latency_s)
 
     @property
     def planned_until(self) -> float:
@@ -554,8 +560,9 @@ class SimUnit:
         """Seconds by which accel/gyro-derived and magnetometer values lag their cycle.
 
         A moving average of M samples at 1 kHz delays by exactly (M - 1)/2 ms at every
-        frequency; its amplitude response (Equations 2-5) at the motion model's
-        <= 0.5 Hz is 1 within 1e-4 for any width up to 32, so the filter is modelled
+        frequency; its amplitude response (Equations 2-5, ``convert.fir_response``) at
+        the motion model's <= 0.5 Hz is 1 within 5e-4, and at a hand's <= 0.8 Hz
+        (``handheld``) within 1.1e-3, for any width up to 32, so the filter is modelled
         as that time shift alone, and noise as white noise averaged over M samples.
 
         Returns:
@@ -575,14 +582,25 @@ class SimUnit:
         At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
         if not self.config.filter_model:
-            return self.motion.sample(device, period, only=names)
+            return self.motion.sample(self._motion_time(device), period, only=names)
         delay, mag_delay = self.filter_delays()
         widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
         gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
-        sample = self.motion.sample(device - delay, period, gain, names)
+        sample = self.motion.sample(self._motion_time(device - delay), period, gain, names)
         if "mag" in names and mag_delay != delay:
-            sample["mag"] = self.motion.magnetometer(device - mag_delay, gain[2])
+            sample["mag"] = self.motion.magnetometer(self._motion_time(device - mag_delay),
+                                                     gain[2])
         return sample
+
+    def _motion_time(self, device: np.ndarray) -> np.ndarray:
+        """The motion's time at device times: its own, or a shared body's.
+
+        A body several units share moves in host seconds since power-up: units that
+        power up together see one motion, whatever their clocks.
+        """
+        if self.config.motion.mounting is None:
+            return device
+        return self._host_times(device) - self._t0
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
