@@ -49,8 +49,11 @@ class RepairReport:
 
 
 def default_output(source: Path) -> Path:
-    """Where a repair writes by default: ``run.mcap`` gives ``run.repaired.mcap``."""
-    return source.with_name(f"{source.stem}.repaired{source.suffix or '.mcap'}")
+    """Where a repair writes by default: ``run.mcap`` gives ``run.repaired.mcap``.
+
+    An archive under another name still gives an ``.mcap`` file, the name of what it is.
+    """
+    return source.with_name(f"{source.stem}.repaired.mcap")
 
 
 def repair(source: Path, output: Path | None = None) -> RepairReport:

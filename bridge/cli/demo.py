@@ -100,7 +100,7 @@ def demo(
     dashboard shows each unit; at the end a summary compares what the bridges found
     with the truth, and says how to open the results.
     """
-    from bridge.archive.outputs import free_folder
+    from bridge.archive.outputs import free_folder, named_folder
     from bridge.cli.viz import _display, live_recording
     from bridge.exceptions import DemoError
     from bridge.fleet.demo import Demo, fleet
@@ -111,7 +111,8 @@ def demo(
         raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
                    "use --viewer serve for a remote or web viewer, or leave --viewer out")
     members = fleet(units, parse_code(record_type), rate, duration)
-    output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
+    output = free_folder(named_folder(output) if output else Path("gx3-demo"), force,
+                         next_free=output is None)
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
     logged = [-LOG_EVERY_S]  # when the last progress line went out, off a terminal

@@ -71,8 +71,8 @@ def import_command(
     total = sum(log.stat().st_size for log in logs)
     progress = Progress(TextColumn("importing"), BarColumn(), DownloadColumn(), console=err,
                         transient=True, disable=not err.is_terminal)
-    with written(output, logs, force) as temp, failing(OSError, unless=(LogImportError,),
-                                                       temp=temp, path=output), progress:
+    with written(output, logs, force, suffixes=(".mcap",)) as temp, \
+            failing(OSError, unless=(LogImportError,), temp=temp, path=output), progress:
         task = progress.add_task("import", total=total)
         done = import_logs(files, temp, unit, prefix, little_endian,
                            lambda n: progress.advance(task, n), restarts=starts[1:])

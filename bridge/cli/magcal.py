@@ -62,9 +62,9 @@ def calibrate_mag(
     except ValueError as exc:
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
-        temp = outputs.enter_context(written(output, [archive], force))
+        temp = outputs.enter_context(written(output, [archive], force, suffixes=(".json",)))
         drawing = None if rrd is None else outputs.enter_context(
-            written(rrd, [archive, output], force))
+            written(rrd, [archive, output], force, suffixes=(".rrd",)))
         try:
             data = read_with_progress(archive)
             units = data.units()

@@ -194,6 +194,7 @@ def record(
     whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
+    from bridge.archive.outputs import named_format
     from bridge.bus.keys import check_prefix
     from bridge.bus.session import ZenohOptions
     from bridge.recorder.hosts import host_tolerance_ns
@@ -204,6 +205,9 @@ def record(
         host_tolerance_ns(max_host_offset_ms)
     except ValueError as exc:
         raise fail(f"--max-host-offset-ms {exc}") from None
+    for given, suffix in ((output, ".mcap"), (rrd, ".rrd")):
+        if given is not None:
+            named_format(given, suffix)
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
     rrd_writer = None
@@ -318,7 +322,7 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    with written(output, captures, force) as temp, \
+    with written(output, captures, force, suffixes=(".mcap",)) as temp, \
             failing(ReplayError, ArchiveError, unless=(UnusableCapture,), temp=temp,
                     path=output), progress:
         results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,

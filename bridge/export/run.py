@@ -26,15 +26,16 @@ from typing import TYPE_CHECKING
 
 from bridge._text import counted
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.ros2_bag import Ros2Written, write_ros2
+from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
     TimeBound,
     align_table,
     archive_prefix,
-    check_format,
     event_table,
     last_info,
     offline_times,
@@ -52,6 +53,8 @@ __all__ = ["Export", "Exported"]
 
 #: What ``--format`` takes.
 FORMATS = ("parquet", "csv", "ros2")
+#: The extensions of what an export writes: a table, or a ROS 2 bag (.mcap).
+SUFFIXES = (*TABLES, ".mcap")
 
 
 
@@ -183,10 +186,11 @@ class Export:
         ros2_distro: The ROS 2 distribution of a bag (``jazzy``, ``humble``); bags only.
 
     Raises:
+        OutputRefused: An output's extension names none of the formats it can hold.
         ValueError: The request cannot be met: a calibration or noise file that cannot
-            be read, a format or extension that does not fit, --align with a bag, the
-            events table on the output's own file, a record type or time that is not
-            one, --noise with a CSV file, --ros2-distro with a table.
+            be read, a format that does not fit the output's extension, --align with a
+            bag, the events table on the output's own file, a record type or time that is
+            not one, --noise with a CSV file, --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -199,12 +203,12 @@ class Export:
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
         self.irons: list[UnitIron] = [read_document(path) for path in mag_cal]
+        named_format(output, *SUFFIXES)
         self.ros2 = _wants_ros2(output, output_format)
         if self.ros2 and align_hz is not None:
             raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
                              "own time (leave out --align or --format ros2)")
         if not self.ros2:
-            check_format(output, bag=True)
             if ros2_distro is not None:
                 raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a table "
                                  "is the same for every ROS (leave it out or --format ros2)")
@@ -215,7 +219,7 @@ class Export:
         self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
         self.noise = None if noise is None else read_noise(noise)
         if events is not None:
-            check_format(events)
+            named_format(events, *TABLES)
             if events.absolute() == output.absolute():
                 raise ValueError(f"--events {events} is the table's own file; give it "
                                  "another name")

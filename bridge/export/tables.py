@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.samples import ArchivedSamples
 from bridge.bus.codec import elements
@@ -287,27 +288,6 @@ def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     }
 
 
-def check_format(path: Path, bag: bool = False) -> str:
-    """The table format named by the file's extension, or a one-line error.
-
-    Args:
-        path: The file to write.
-        bag: The error also names .mcap, for a command that writes a ROS 2 bag there.
-
-    Returns:
-        The extension, lower-case.
-
-    Raises:
-        ValueError: The extension names no table format.
-    """
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv"
-                         + (" (a table), or .mcap (a ROS 2 bag)" if bag else ""))
-    return suffix
-
-
 def _arrow(col: np.ndarray) -> pa.Array:
     if col.dtype.kind in "OU":  # names: stored once per file, not once per row
         return pa.array(col.astype(str), pa.string()).dictionary_encode()
@@ -343,9 +323,9 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         about: The file's provenance: archive, units, options.
 
     Raises:
-        ValueError: The extension names no format this writes.
+        OutputRefused: The extension names no format this writes.
     """
-    suffix = check_format(path)
+    suffix = named_format(path, *FORMATS)
     labels = unit_labels(about.infos) if about else {}
     fields, arrays = [], []
     for name, col in columns.items():
