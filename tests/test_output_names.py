@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from bridge.archive.outputs import named_format, named_folder
+from bridge.archive.outputs import named_folder, named_format
 from bridge.cli import app
 from bridge.exceptions import OutputRefused
 

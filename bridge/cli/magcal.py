@@ -54,13 +54,9 @@ def calibrate_mag(
     from bridge.analysis.magcal import document, fit
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import offline_times, parse_time, sample_table
+    from bridge.export.tables import TimeSpan, offline_times, sample_table
 
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
+    span = TimeSpan(start, end)
     with ExitStack() as outputs:
         temp = outputs.enter_context(written(output, [archive], force, suffixes=(".json",)))
         drawing = None if rrd is None else outputs.enter_context(
@@ -72,9 +68,9 @@ def calibrate_mag(
             if name not in units:
                 raise ValueError(f"{archive} has no unit {name!r} (units: "
                                  f"{', '.join(units) or 'none'}); check --unit")
-            first = data.first_sample_ns() or 0
-            table = sample_table(data, [name], None, lo.resolve(first) if lo else None,
-                                 hi.resolve(first) if hi else None, offline_times(data))
+            table = sample_table(data, [name], None,
+                                 *span.resolve(data.first_sample_ns() or 0),
+                                 offline_times(data))
             if not len(table["time_ns"]):
                 raise ValueError(f"{archive}: no samples of unit {name} from --start to "
                                  "--end; check them (seconds from the first sample, or "

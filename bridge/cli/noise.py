@@ -83,14 +83,10 @@ def allan(
     from bridge.archive.outputs import named_format
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import archive_prefix, parse_time
+    from bridge.export.tables import TimeSpan, archive_prefix
     from bridge.ros2.messages import ros_topic
 
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
+    span = TimeSpan(start, end)
     asked = list(dict.fromkeys(unit)) if unit else None
     for option, path, suffixes in (("--output", output, _YAML), ("--plot", plot, _PNG)):
         if path is None:  # refused before hours of reading, not after
@@ -110,10 +106,8 @@ def allan(
                    f"{', '.join(data.units()) or 'none'}); check --unit")
     outputs = _per_unit("--output", output, units)
     plots = _per_unit("--plot", plot, units) if plot is not None else {}
-    origin = first[0] if first else 0
     results = units_noise([kept.get(u, UnitSamples(u)) for u in units],
-                          lo.resolve(origin) if lo else None,
-                          hi.resolve(origin) if hi else None, jobs)
+                          *span.resolve(first[0] if first else 0), jobs)
     prefix = archive_prefix(data)
     refusals = 0
     for name, result in zip(units, results, strict=True):

@@ -33,13 +33,12 @@ from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
-    TimeBound,
+    TimeSpan,
     align_table,
     archive_prefix,
     event_table,
     last_info,
     offline_times,
-    parse_time,
     sample_table,
     write_table,
 )
@@ -190,7 +189,8 @@ class Export:
         ValueError: The request cannot be met: a calibration or noise file that cannot
             be read, a format that does not fit the output's extension, --align with a
             bag, the events table on the output's own file, a record type or time that is
-            not one, --noise with a CSV file, --ros2-distro with a table.
+            not one, an end before the start (TimeSpanError), --noise with a CSV file,
+            --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -224,8 +224,7 @@ class Export:
                 raise ValueError(f"--events {events} is the table's own file; give it "
                                  "another name")
         self.types = [_code(c) for c in types] if types else None
-        self._start: TimeBound | None = parse_time(start) if start else None
-        self._end: TimeBound | None = parse_time(end) if end else None
+        self.span = TimeSpan(start, end)
 
     def read(self, on_read: Callable[[int], None] | None = None,
              on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
@@ -258,13 +257,12 @@ class Export:
             What was written.
 
         Raises:
-            ValueError: No samples match, a calibration's unit has none, or a sample's
-                time does not fit a ROS time stamp.
+            ValueError: No samples match, the end is not after the start
+                (TimeSpanError), a calibration's unit has none, or a sample's time does
+                not fit a ROS time stamp.
             OSError: An output cannot be written.
         """
-        first = data.first_sample_ns() or 0
-        lo_ns = self._start.resolve(first) if self._start else None
-        hi_ns = self._end.resolve(first) if self._end else None
+        lo_ns, hi_ns = self.span.resolve(data.first_sample_ns() or 0)
         table = sample_table(data, self.units, self.types, lo_ns, hi_ns, offline_times(data))
         rows = len(table["time_ns"])
         if not rows:
