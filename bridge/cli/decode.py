@@ -12,7 +12,6 @@ import orjson
 import typer
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-from bridge.archive.mcap_writer import MAGIC
 from bridge.cli.common import INTERRUPTED, app, err, fail, reply_code
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, other_byte_order
@@ -61,9 +60,11 @@ def decode(
     per unit. Exit status 1 when no record decodes (an empty input included), 2 when
     the input cannot be read, 130 on Ctrl-C (after the summary so far).
     """
+    from bridge.archive.walk import is_mcap  # loaded as decode runs, not by every command
+
     codes = {*([reply_code("--expect", c) for c in expect] if expect else DATA_CODES),
              BYTE_ORDER_REPLY}
-    if file != "-" and _is_mcap(Path(file)):
+    if file != "-" and is_mcap(Path(file)):
         _decode_capture(Path(file), codes, little_endian)
         return
     framer = Framer(codes, little_endian=little_endian)
@@ -96,15 +97,6 @@ def decode(
     err.print(stats.summary())
     if not stats.records:
         raise fail(_nothing_decoded(bytes(kept), codes, little_endian), 1)
-
-
-def _is_mcap(path: Path) -> bool:
-    """Whether the file starts as MCAP does (one that cannot be read is left to open)."""
-    try:
-        with path.open("rb") as stream:
-            return stream.read(len(MAGIC)) == MAGIC
-    except OSError:
-        return False
 
 
 def _decode_capture(path: Path, codes: set[int], little_endian: bool) -> None:
