@@ -272,6 +272,23 @@ def test_help_names_only_commands_that_exist() -> None:
         assert set(re.findall(r"gx3 ([\w-]+)", done.output)) <= existing, name
 
 
+def test_usage_lines_name_each_argument_once() -> None:
+    """A repeatable argument reads {LOG}..., not {LOG...}...: Typer adds the ellipsis to
+    the metavar itself."""
+    from typer.testing import CliRunner
+
+    from bridge.cli import app
+
+    runner = CliRunner()
+    top = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
+    names = set(re.findall(r"│ ([a-z][\w-]*)\s{2,}", top.output))
+    usages = {name: next(line for line in runner.invoke(
+        app, [name, "--help"], env={"COLUMNS": "200"}).output.splitlines() if "Usage:" in line)
+        for name in names}
+    assert "{LOG}..." in usages["import"] and "{CAPTURE.mcap}..." in usages["replay"]
+    assert not [u for u in usages.values() if "...}" in u or "......" in u], usages
+
+
 def test_help_paragraphs_fill_an_80_column_terminal() -> None:
     """A command's description wraps at the terminal's width, not at its source's line
     breaks as well (which left lines of a word or two on 80 columns)."""

@@ -15,7 +15,7 @@ from bridge.cli.common import ForceOpt, app, err, fail, failing, written
 @app.command("import")
 def import_command(
     logs: Annotated[list[Path], typer.Argument(
-        metavar="LOG...", show_default=False,
+        metavar="LOG", show_default=False,
         help="Byte logs of one unit, in the order they were written: what the unit sent, "
              "as a data logger, cat /dev/ttyUSB0 or a terminal program saved it.")],
     unit: Annotated[str, typer.Option(

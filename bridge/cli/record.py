@@ -262,7 +262,7 @@ def record(
 @app.command("replay")
 def replay_command(
     captures: Annotated[list[Path], typer.Argument(
-        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+        metavar="CAPTURE.mcap", help="Raw captures (gx3 bridge --capture, or archives "
                                         "recorded with --raw).")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="ARCHIVE.mcap",
