@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
 from bridge.cli.record import unit_table
 
@@ -37,9 +37,9 @@ def _summary(rows: list[UnitOutcome]) -> Table:
                          no_wrap=name != "what happened")
     for r in rows:
         found = "not yet known" if r.drift_ppm is None else f"{r.drift_ppm:+.1f}"
-        table.add_row(r.unit, f"{r.samples:,}", str(r.dropped), str(r.checksum_failures),
-                      str(r.resyncs), str(r.reconnects), f"{found} ({r.true_ppm:+.0f})",
-                      r.notes)
+        table.add_row(r.unit, *map(number, (r.samples, r.dropped, r.checksum_failures,
+                                            r.resyncs, r.reconnects)),
+                      f"{found} ({r.true_ppm:+.0f})", r.notes)
     return table
 
 

@@ -100,7 +100,7 @@ def calibrate_mag(
                        "permissions where it goes", FAILED) from None
     for warning in cal.warnings:
         err.print(f"[yellow]warning:[/] unit {name}: {warning}")
-    err.print(f"wrote {output}: unit {name}, {cal.readings} readings, hard iron "
+    err.print(f"wrote {output}: unit {name}, {counted(cal.readings, 'reading')}, hard iron "
               f"({', '.join(f'{v:+.4f}' for v in cal.hard_iron)}) gauss, field "
               f"{cal.field_gauss:.4f} gauss, spread {cal.residual_before:.2%} before and "
               f"{cal.residual_after:.2%} after, {cal.coverage:.0%} of directions covered")

@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -254,8 +254,8 @@ def record(
         err.print(view(whole=True))
     if not quiet:
         files = ", ".join(str(p) for p in recording.paths)
-        err.print(f"wrote {files}; {recording.recorder.misses} samples reported lost in "
-                  "transit")
+        err.print(f"wrote {files}; {counted(recording.recorder.misses, 'sample')} reported "
+                  "lost in transit")
     err.file.flush()
 
 
@@ -309,9 +309,9 @@ def replay_command(
     shown = [0.0]
 
     def report(result: Replayed) -> None:
-        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        events = ", ".join(f"{number(n)} {kind}" for kind, n in sorted(result.events.items()))
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
-        progress.console.print(f"{result.unit}: {result.samples:,} samples"
+        progress.console.print(f"{result.unit}: {counted(result.samples, 'sample')}"
                                + (f", {events}" if events else "") + guessed)
         units = progress.tasks[0].fields["units"] + 1
         progress.update(task, units=units, done=counted(units, "unit"), refresh=True)

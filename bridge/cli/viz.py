@@ -202,4 +202,4 @@ def view(
         logger.close()
         recording.flush()
         session.close()
-    err.print(f"{feed.samples:,} samples shown" + (f"; saved {save}" if save else ""))
+    err.print(f"{counted(feed.samples, 'sample')} shown" + (f"; saved {save}" if save else ""))

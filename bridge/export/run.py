@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
 from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
@@ -148,13 +148,15 @@ class Exported:
         """
         of = f"{counted(self.samples, 'sample')} of {counted(self.units, 'unit')} to {self.output}"
         if self.bag is not None:
-            text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
+            text = (f"wrote {number(self.bag.imu)} Imu and {number(self.bag.mag)} "
+                    f"MagneticField messages of {of}")
         elif self.align_hz is not None:
-            text = f"wrote {self.instants} instants at {self.align_hz:g} Hz of {of}"
+            text = (f"wrote {counted(self.instants or 0, 'instant')} at {self.align_hz:g} Hz "
+                    f"of {of}")
         else:
             text = f"wrote {of}"
         if self.events_path is not None:
-            text += f"; {self.events} events to {self.events_path}"
+            text += f"; {counted(self.events, 'event')} to {self.events_path}"
         return text
 
 

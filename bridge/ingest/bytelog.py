@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.archive.walk import is_mcap
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
@@ -99,7 +99,8 @@ class Imported:
         Returns:
             The lines.
         """
-        by_type = ", ".join(f"0x{code:02X}×{n:,}" for code, n in sorted(self.samples.items()))
+        by_type = ", ".join(f"0x{code:02X}×{number(n)}"
+                            for code, n in sorted(self.samples.items()))
         span = (self.last_ns - self.first_ns) / 1e9
         events = ", ".join(counted(n, kind, "glitches" if kind == "glitch" else None)
                            for kind, n in sorted(self.events.items()))
@@ -112,8 +113,8 @@ class Imported:
                 f"{'from the log' if self.decimation_from_log else 'by the timer'}")
         return (f"{self.unit}: {total} ({by_type or 'none'}) at {rate} over {span:,.1f} s; "
                 f"{events or 'no gap'}{lost}; {delay}\n"
-                f"checksum failures: {self.stats.checksum_failures}; bytes skipped: "
-                f"{self.stats.bytes_skipped:,} of {self.stats.bytes_fed:,}")
+                f"checksum failures: {number(self.stats.checksum_failures)}; bytes skipped: "
+                f"{number(self.stats.bytes_skipped)} of {number(self.stats.bytes_fed)}")
 
 
 def parse_start(text: str) -> int:
