@@ -58,7 +58,8 @@ def decode(
     An MCAP capture (a bridge's --capture file, or an archive recorded with --raw) is
     decoded unit by unit from its raw reads, each object led by "unit"; a summary line
     per unit. Exit status 1 when no record decodes (an empty input included), 2 when
-    the input cannot be read, 130 on Ctrl-C (after the summary so far).
+    the input cannot be read, 130 on Ctrl-C, which ends it quietly, with the summary so
+    far (in a pipe from a serial reader, Ctrl-C is how the user stops both).
     """
     from bridge.archive.walk import is_mcap  # loaded as decode runs, not by every command
 
@@ -87,9 +88,9 @@ def decode(
                 progress.advance(task, len(chunk))
             out.write(_lines(framer.flush()))
             out.flush()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the user's choice, not an error: the summary so far, quietly
         err.print(framer.stats.summary())
-        raise fail("interrupted", INTERRUPTED) from None
+        raise typer.Exit(INTERRUPTED) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None
@@ -104,16 +105,22 @@ def _decode_capture(path: Path, codes: set[int], little_endian: bool) -> None:
     from bridge.ingest.replay import captures
 
     found = 0
+    unit, framer = "", None
     try:
         for reads in captures(path):
-            framer = Framer(codes, little_endian=little_endian)
+            unit, framer = reads.unit, Framer(codes, little_endian=little_endian)
             lead = f'{{"unit":{orjson.dumps(reads.unit).decode()},'.encode()
             for data in reads.data:
                 sys.stdout.buffer.write(_lines(framer.feed(data), lead))
             sys.stdout.buffer.write(_lines(framer.flush(), lead))
             sys.stdout.buffer.flush()
-            err.print(f"{reads.unit}: {framer.stats.summary()}")
+            err.print(f"{unit}: {framer.stats.summary()}")
             found += sum(framer.stats.records.values())
+            framer = None  # said: not again if the next unit is interrupted
+    except KeyboardInterrupt:  # as from a pipe: the unit's summary so far, quietly
+        if framer is not None:
+            err.print(f"{unit}: {framer.stats.summary()}")
+        raise typer.Exit(INTERRUPTED) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None
