@@ -31,6 +31,7 @@ from bridge.export.describe import (
     QUANTITY_ORDER,
     About,
     column_metadata,
+    csv_header,
     flat_names,
     unit_labels,
 )
@@ -367,7 +368,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
     """Write columns as Parquet (zstd) or CSV, chosen by the file's extension.
 
     A ``time_utc`` timestamp goes beside ``time_ns``; in Parquet, each column's unit and
-    frame and ``about`` go in as metadata.
+    frame and ``about`` go in as metadata, in CSV each column's unit into its header
+    (``csv_header``: ``accel_x [g]``).
 
     Args:
         columns: The table (``sample_table``, ``event_table``, ``align_table``).
@@ -394,7 +396,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         pq.write_table(table, path, compression="zstd", column_encoding=encodings,
                        use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
-        pa_csv.write_csv(table, path)
+        pa_csv.write_csv(table.rename_columns([csv_header(f.name, labels) for f in fields]),
+                         path)
 
 
 # -- aligning units on one time grid ---------------------------------------------------------
