@@ -156,7 +156,8 @@ def export(
     ...), empty (null) where a record lacks a quantity; rows in time order. Body frame
     FRD, earth NED: M maps earth to body; the quaternion is scalar first. A Parquet
     file carries each column's unit and frame, the units' Info, the source archive and
-    these options as metadata (schema gx3.v1).
+    these options as metadata (schema gx3.v1); a CSV file each column's unit in its
+    header, in brackets after its name (accel_x [g]; none after time_ns or time_utc).
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
 
