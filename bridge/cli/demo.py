@@ -8,6 +8,7 @@ import shutil
 import signal
 import sys
 import time
+import urllib.parse
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -26,6 +27,15 @@ if TYPE_CHECKING:
 
 #: Off a terminal (a CI log, a pipe), a line of progress this often, seconds.
 LOG_EVERY_S = 5.0
+#: Where `rerun --serve-web` serves the web viewer and the recording, where there is no
+#: display: Rerun's own defaults, on loopback.
+WEB, WEB_GRPC = 9090, 9876
+
+
+def web_viewer_url() -> str:
+    """The address that opens the served recording in a browser (Rerun 0.41)."""
+    source = urllib.parse.quote(f"rerun+http://127.0.0.1:{WEB_GRPC}/proxy", safe="")
+    return f"http://127.0.0.1:{WEB}/?url={source}"
 
 
 def _summary(rows: list[UnitOutcome]) -> Table:
@@ -149,6 +159,8 @@ def demo(
                   "archive, the Rerun recording, each bridge's log and the Zenoh configs "
                   "they used). Open them with:", highlight=False)
     gx3, rerun = _runnable("gx3"), _runnable("rerun")
+    if not _display():  # Rerun's native viewer needs one: its web viewer, in a browser
+        rerun += f" --serve-web --bind 127.0.0.1 --port {WEB_GRPC} --web-viewer-port {WEB}"
     folder = shlex.quote(str(output))
     for command, what in ((f"{rerun} {shlex.quote(str(run.rrd))}",
                            "the recording: attitude and signals"),
@@ -161,5 +173,11 @@ def demo(
         # never wrapped: a command is copied as one line
         console.print(f"  {command}", highlight=False, soft_wrap=True, markup=False)
         console.print(f"      [dim]{what}[/]", highlight=False)
+    if not _display():
+        console.print("No display here: each rerun line serves Rerun's web viewer until "
+                      f"Ctrl-C; open {web_viewer_url()} in a browser (from another "
+                      f"machine: ssh -L {WEB}:127.0.0.1:{WEB} -L {WEB_GRPC}:127.0.0.1:"
+                      f"{WEB_GRPC} THIS-HOST first)", highlight=False, soft_wrap=True,
+                      markup=False)
     if interrupted:
         raise typer.Exit(INTERRUPTED)
