@@ -11,6 +11,7 @@ from bridge.export.ros2_bag import Ros2Written, write_ros2
 if TYPE_CHECKING:
     from bridge.export.run import Export, Exported
     from bridge.export.tables import (
+        TimeSpan,
         align_table,
         event_table,
         offline_times,
@@ -23,6 +24,7 @@ __all__ = [
     "Export",
     "Exported",
     "Ros2Written",
+    "TimeSpan",
     "align_table",
     "event_table",
     "offline_times",
@@ -34,8 +36,8 @@ __all__ = [
 #: Names whose modules import pyarrow, imported on first use.
 _ON_FIRST_USE = {
     **dict.fromkeys(("Export", "Exported"), "bridge.export.run"),
-    **dict.fromkeys(("align_table", "event_table", "offline_times", "sample_table",
-                     "write_table"), "bridge.export.tables"),
+    **dict.fromkeys(("TimeSpan", "align_table", "event_table", "offline_times",
+                     "sample_table", "write_table"), "bridge.export.tables"),
 }
 
 
