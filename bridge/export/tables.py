@@ -110,7 +110,8 @@ class TimeSpan:
         self.start, self.end = start, end
         self._start = parse_time(start) if start else None
         self._end = parse_time(end) if end else None
-        if self._start and self._end and self._start.relative == self._end.relative:
+        if (self._start is not None and self._end is not None
+                and self._start.relative == self._end.relative):
             self.resolve(0)
 
     def resolve(self, first_ns: int) -> tuple[int | None, int | None]:
