@@ -18,6 +18,8 @@ from bridge.cli import app
 from bridge.exceptions import OutputRefused
 
 START = ["--start", "2026-11-28T06:00:00Z"]
+#: Where a service finds nobody: were a name let through, it would end at once, not wait.
+NOBODY = ["--connect", "tcp/127.0.0.1:9", "--mode", "client", "--duration", "0"]
 
 #: (command line, with {d} for the folder; what the refusal names), an output of each
 #: command that has one, each under a name for another format.
@@ -25,8 +27,8 @@ CASES = [
     (["import", "{d}/log.bin", "-u", "a", *START, "-o", "{d}/run.parquet"],
      "run.parquet: this writes an MCAP archive; name the file .mcap"),
     (["replay", "{d}/cap.mcap", "-o", "{d}/replayed.csv"], "name the file .mcap"),
-    (["record", "-o", "{d}/fleet.parquet", "--duration", "0"], "name the file .mcap"),
-    (["record", "-o", "{d}/fleet.mcap", "--rrd", "{d}/fleet.mcap.rrd2", "--duration", "0"],
+    (["record", "-o", "{d}/fleet.parquet", *NOBODY], "name the file .mcap"),
+    (["record", "-o", "{d}/fleet.mcap", "--rrd", "{d}/fleet.mcap.rrd2", *NOBODY],
      "this writes a Rerun recording; name the file .rrd"),
     (["export", "{d}/a.mcap", "-o", "{d}/table.txt"],
      "this writes a Parquet table, a CSV table or an MCAP archive; name the file .parquet, "
@@ -34,7 +36,7 @@ CASES = [
     (["export", "{d}/a.mcap", "-o", "{d}/t.csv", "--events", "{d}/events.mcap"],
      "name the file .parquet or .csv"),
     (["rrd", "{d}/a.mcap", "-o", "{d}/a.mcap2"], "name the file .rrd"),
-    (["view", "--save", "{d}/live.mcap", "--duration", "0"], "name the file .rrd"),
+    (["view", "--save", "{d}/live.mcap", *NOBODY], "name the file .rrd"),
     (["allan", "{d}/a.mcap", "-o", "{d}/imu.json"],
      "this writes a YAML file; name the file .yaml or .yml"),
     (["allan", "{d}/a.mcap", "-o", "{d}/imu.yaml", "--plot", "{d}/allan.svg"],
@@ -46,9 +48,10 @@ CASES = [
     (["calibrate-mag", "{d}/a.mcap", "-o", "{d}/iron.json", "--rrd", "{d}/fit.png"],
      "name the file .rrd"),
     (["repair", "{d}/a.mcap", "-o", "{d}/fixed.parquet"], "name the file .mcap"),
-    (["bridge", "--port", "{d}/no-such-port", "--capture", "{d}/raw.bin"],
-     "name the file .mcap"),
-    (["demo", "-o", "{d}/demo.mcap"], "this writes a folder of files, and .mcap names a file"),
+    (["bridge", "--port", "{d}/no-such-port", "--capture", "{d}/raw.bin", "--give-up-after",
+      "1"], "name the file .mcap"),
+    (["demo", "-o", "{d}/demo.mcap", "--units", "1", "--duration", "1"],
+     "this writes a folder of files, and .mcap names a file"),
 ]
 
 
