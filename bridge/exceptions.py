@@ -19,9 +19,10 @@ an ``OSError``, a bad name a ``ValueError``)::
     │   ├── NameTaken (RuntimeError)      a running bridge holds the unit's name
     │   ├── BadName (ValueError)          a unit name or prefix that cannot be a key
     │   └── MetricsError (OSError)        a --metrics address that cannot be served
-    ├── OutputRefused                     writing there would destroy data
+    ├── OutputRefused                     writing there would destroy data, or misname it
     ├── ArchiveError (OSError)            an archive that cannot be written
     ├── ArchiveReadError (ValueError)     a file that cannot be read as an archive
+    ├── TimeSpanError (ValueError)        a --start/--end that is no time, or no span
     ├── CaptureError (OSError)            a raw capture that cannot be written
     ├── ReplayError (ValueError)          a replay that failed while working
     │   └── UnusableCapture               an input with nothing to replay
@@ -45,8 +46,8 @@ __all__ = [
     "DemoError", "DeviceError", "EmulatorError", "Gx3Error", "LinkPathError",
     "LogImportError", "MetricsError", "MountsFileError", "NameTaken", "NoiseFileError",
     "OptionError", "OutputRefused", "PersistRefused", "PortError", "ProtocolError",
-    "RemoteError", "ReplayError", "SessionError", "StateFileError", "UnsupportedUnit",
-    "UnusableCapture",
+    "RemoteError", "ReplayError", "SessionError", "StateFileError", "TimeSpanError",
+    "UnsupportedUnit", "UnusableCapture",
 ]
 
 
@@ -125,7 +126,10 @@ class MetricsError(BusError, OSError):
 
 
 class OutputRefused(Gx3Error):
-    """Writing there would destroy data or cannot start; the message says what to do."""
+    """Writing there would destroy data, or cannot start, or the name is another format's.
+
+    The message says what to do.
+    """
 
 
 class ArchiveError(Gx3Error, OSError):
@@ -134,6 +138,14 @@ class ArchiveError(Gx3Error, OSError):
 
 class ArchiveReadError(Gx3Error, ValueError):
     """A file that cannot be read as an archive; the message says what it is instead."""
+
+
+class TimeSpanError(Gx3Error, ValueError):
+    """A --start or --end that is not a time, or an end that is not after the start.
+
+    Said before anything is read where the two can be compared then, else as soon as
+    the first sample's instant is known.
+    """
 
 
 class CaptureError(Gx3Error, OSError):

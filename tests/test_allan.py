@@ -6,6 +6,7 @@ emulator's motion model (``bridge.sim.archive_samples``), so a test takes second
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -152,8 +153,11 @@ def test_outputs_are_never_destroyed(tmp_path: Path) -> None:
     assert "--force" in done.stderr and out.read_text() == "mine\n"
     assert gx3("allan", path, "-o", out, "--force").returncode == 0
     assert "accelerometer_noise_density" in out.read_text()
-    # the archive itself is an input: never an output
-    assert gx3("allan", path, "-u", "u1", "-o", path, "--force").returncode == 2
+    # the archive itself is an input: never an output, whatever its name
+    alias = tmp_path / "alias.yaml"
+    os.link(path, alias)
+    done = gx3("allan", path, "-u", "u1", "-o", alias, "--force")
+    assert done.returncode == 2 and "is the input" in done.stderr, done.stderr
     assert path.read_bytes()[:8] == b"\x89MCAP0\r\n"
 
 

@@ -127,6 +127,18 @@ def _index_offsets(body: bytes) -> np.ndarray:
     return clipped
 
 
+def is_mcap(path: Path) -> bool:
+    """Whether the file starts as MCAP does: an archive or a raw capture, not raw bytes.
+
+    One that cannot be read is left to whoever opens it, to say why.
+    """
+    try:
+        with path.open("rb") as stream:
+            return stream.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
 def _open(path: Path) -> tuple[IO[bytes], int]:
     try:
         stream = path.open("rb")

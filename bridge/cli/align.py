@@ -78,31 +78,24 @@ def align(
     from bridge.analysis.mounts import mounts_yaml
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import AlignmentError
-    from bridge.export.tables import offline_times, parse_time, sample_table
+    from bridge.export.tables import TimeSpan, offline_times, sample_table
 
     names = list(unit)
     if len(names) < 2:
         raise fail("give two units or more: the reference first, then each unit to align "
                    "against it (-u REF -u UNIT ...)")
-    if output.suffix.lower() not in SUFFIXES:
-        raise fail(f"{output}: gx3 align writes YAML; name the output .yaml")
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
-    with written(output, [archive], force) as temp:
+    span = TimeSpan(start, end)
+    with written(output, [archive], force, suffixes=SUFFIXES) as temp:
         try:
             data = read_with_progress(archive)
             missing = [u for u in names if u not in data.units()]
             if missing:
                 raise ValueError(f"{archive} has no unit {missing[0]} (units: "
                                  f"{', '.join(data.units()) or 'none'}); check --unit")
-            first = data.first_sample_ns() or 0
-            span = (lo.resolve(first) if lo else None, hi.resolve(first) if hi else None)
+            window = span.resolve(data.first_sample_ns() or 0)
             times = offline_times(data)
             # a unit's table at a time: a fleet's at once would hold every sample twice
-            motions = [unit_motion(sample_table(data, [u], None, *span, times), u)
+            motions = [unit_motion(sample_table(data, [u], None, *window, times), u)
                        for u in names]
             progress = Progress(TextColumn("aligning"), BarColumn(), MofNCompleteColumn(),
                                 console=err, transient=True, disable=not err.is_terminal)

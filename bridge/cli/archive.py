@@ -76,7 +76,8 @@ def repair(
     from bridge.exceptions import ArchiveError
 
     output = default_output(file) if output is None else output
-    with written(output, [file], force) as temp, failing(ArchiveError, temp=temp, path=output):
+    with written(output, [file], force, suffixes=(".mcap",)) as temp, \
+            failing(ArchiveError, temp=temp, path=output):
         report = repair_archive(file, temp)
     typer.echo(replace(report, output=output).text())
 
@@ -167,7 +168,8 @@ def export(
     ...), empty (null) where a record lacks a quantity; rows in time order. Body frame
     FRD, earth NED: M maps earth to body; the quaternion is scalar first. A Parquet
     file carries each column's unit and frame, the units' Info, the source archive and
-    these options as metadata (schema gx3.v1).
+    these options as metadata (schema gx3.v1); a CSV file each column's unit in its
+    header, in brackets after its name (accel_x [g]; none after time_ns or time_utc).
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
 
@@ -182,7 +184,8 @@ def export(
     unless --noise gives them. header.stamp and the log time are the time_ns a table
     export with the same options gives.
     """
-    from bridge.export.run import Export
+    from bridge.export.run import SUFFIXES, Export
+    from bridge.export.tables import FORMATS as TABLES
 
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
@@ -192,9 +195,10 @@ def export(
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
-        table_file = outputs.enter_context(written(output, [archive], force))
-        events_file = (None if events is None
-                       else outputs.enter_context(written(events, [archive], force)))
+        table_file = outputs.enter_context(written(output, [archive], force,
+                                                   suffixes=SUFFIXES))
+        events_file = (None if events is None else outputs.enter_context(
+            written(events, [archive], force, suffixes=TABLES)))
         try:
             done = job.write(read_with_progress(archive), table_file, events_file)
         except ValueError as exc:  # the archive or the samples cannot give what was asked

@@ -10,7 +10,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -145,12 +145,15 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 
 @contextmanager
-def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
+def written(path: Path, inputs: Iterable[Path] = (), force: bool = False, *,
+            suffixes: Sequence[str]) -> Iterator[Path]:
     """The temporary file a batch command writes ``path`` through (bridge/archive/outputs.py
-    ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
-    130, and like any failure leave nothing under ``path``."""
-    from bridge.archive.outputs import staged
+    ``named_format`` and ``staged``): a refused output (an extension that is none of
+    ``suffixes`` too) is a one-line error (exit 2); Ctrl-C or SIGTERM exit 130, and like
+    any failure leave nothing under ``path``."""
+    from bridge.archive.outputs import named_format, staged
 
+    named_format(path, *suffixes)
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with staged(path, inputs, force) as temp:
@@ -161,10 +164,13 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
         signal.signal(signal.SIGTERM, previous)
 
 
-def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """bridge/archive/outputs.py ``refuse`` for a live output (OutputRefused: exit 2)."""
-    from bridge.archive.outputs import refuse
+def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False, *,
+            suffixes: Sequence[str]) -> None:
+    """bridge/archive/outputs.py ``named_format`` and ``refuse`` for a live output, or one
+    checked before its work begins (OutputRefused: exit 2)."""
+    from bridge.archive.outputs import named_format, refuse
 
+    named_format(path, *suffixes)
     refuse(path, inputs, force)
 
 

@@ -8,6 +8,7 @@ import shutil
 import signal
 import sys
 import time
+import urllib.parse
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -16,7 +17,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.common import INTERRUPTED, app, fail, failing, parse_code
 from bridge.cli.record import unit_table
 
@@ -26,6 +27,15 @@ if TYPE_CHECKING:
 
 #: Off a terminal (a CI log, a pipe), a line of progress this often, seconds.
 LOG_EVERY_S = 5.0
+#: Where `rerun --serve-web` serves the web viewer and the recording, where there is no
+#: display: Rerun's own defaults, on loopback.
+WEB, WEB_GRPC = 9090, 9876
+
+
+def web_viewer_url() -> str:
+    """The address that opens the served recording in a browser (Rerun 0.41)."""
+    source = urllib.parse.quote(f"rerun+http://127.0.0.1:{WEB_GRPC}/proxy", safe="")
+    return f"http://127.0.0.1:{WEB}/?url={source}"
 
 
 def _summary(rows: list[UnitOutcome]) -> Table:
@@ -37,9 +47,9 @@ def _summary(rows: list[UnitOutcome]) -> Table:
                          no_wrap=name != "what happened")
     for r in rows:
         found = "not yet known" if r.drift_ppm is None else f"{r.drift_ppm:+.1f}"
-        table.add_row(r.unit, f"{r.samples:,}", str(r.dropped), str(r.checksum_failures),
-                      str(r.resyncs), str(r.reconnects), f"{found} ({r.true_ppm:+.0f})",
-                      r.notes)
+        table.add_row(r.unit, *map(number, (r.samples, r.dropped, r.checksum_failures,
+                                            r.resyncs, r.reconnects)),
+                      f"{found} ({r.true_ppm:+.0f})", r.notes)
     return table
 
 
@@ -117,7 +127,7 @@ def demo(
     dashboard shows each unit; at the end a summary compares what the bridges found
     with the truth, and says how to open the results.
     """
-    from bridge.archive.outputs import free_folder
+    from bridge.archive.outputs import free_folder, named_folder
     from bridge.cli.viz import _display, live_recording
     from bridge.exceptions import DemoError
     from bridge.fleet.demo import Demo, fleet
@@ -128,7 +138,8 @@ def demo(
         raise fail("--viewer spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset); "
                    "use --viewer serve for a remote or web viewer, or leave --viewer out")
     members = fleet(units, parse_code(record_type), rate, duration, body)
-    output = free_folder(output or Path("gx3-demo"), force, next_free=output is None)
+    output = free_folder(named_folder(output) if output else Path("gx3-demo"), force,
+                         next_free=output is None)
     console = Console(stderr=True)
     live = Live(console=console, refresh_per_second=2, transient=True, auto_refresh=False)
     logged = [-LOG_EVERY_S]  # when the last progress line went out, off a terminal
@@ -165,6 +176,8 @@ def demo(
                   "archive, the Rerun recording, each bridge's log and the Zenoh configs "
                   "they used). Open them with:", highlight=False)
     gx3, rerun = _runnable("gx3"), _runnable("rerun")
+    if not _display():  # Rerun's native viewer needs one: its web viewer, in a browser
+        rerun += f" --serve-web --bind 127.0.0.1 --port {WEB_GRPC} --web-viewer-port {WEB}"
     folder = shlex.quote(str(output))
     for command, what in ((f"{rerun} {shlex.quote(str(run.rrd))}",
                            "the recording: attitude and signals"),
@@ -178,5 +191,11 @@ def demo(
         # never wrapped: a command is copied as one line
         console.print(f"  {command}", highlight=False, soft_wrap=True, markup=False)
         console.print(f"      [dim]{what}[/]", highlight=False)
+    if not _display():
+        console.print("No display here: each rerun line serves Rerun's web viewer until "
+                      f"Ctrl-C; open {web_viewer_url()} in a browser (from another "
+                      f"machine: ssh -L {WEB}:127.0.0.1:{WEB} -L {WEB_GRPC}:127.0.0.1:"
+                      f"{WEB_GRPC} THIS-HOST first)", highlight=False, soft_wrap=True,
+                      markup=False)
     if interrupted:
         raise typer.Exit(INTERRUPTED)

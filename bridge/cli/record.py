@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -194,6 +194,7 @@ def record(
     whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
+    from bridge.archive.outputs import named_format
     from bridge.bus.keys import check_prefix
     from bridge.bus.session import ZenohOptions
     from bridge.recorder.hosts import host_tolerance_ns
@@ -204,6 +205,9 @@ def record(
         host_tolerance_ns(max_host_offset_ms)
     except ValueError as exc:
         raise fail(f"--max-host-offset-ms {exc}") from None
+    for given, suffix in ((output, ".mcap"), (rrd, ".rrd")):
+        if given is not None:
+            named_format(given, suffix)
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
     rrd_writer = None
@@ -250,15 +254,15 @@ def record(
         err.print(view(whole=True))
     if not quiet:
         files = ", ".join(str(p) for p in recording.paths)
-        err.print(f"wrote {files}; {recording.recorder.misses} samples reported lost in "
-                  "transit")
+        err.print(f"wrote {files}; {counted(recording.recorder.misses, 'sample')} reported "
+                  "lost in transit")
     err.file.flush()
 
 
 @app.command("replay")
 def replay_command(
     captures: Annotated[list[Path], typer.Argument(
-        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+        metavar="CAPTURE.mcap", help="Raw captures (gx3 bridge --capture, or archives "
                                         "recorded with --raw).")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="ARCHIVE.mcap",
@@ -305,9 +309,9 @@ def replay_command(
     shown = [0.0]
 
     def report(result: Replayed) -> None:
-        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        events = ", ".join(f"{number(n)} {kind}" for kind, n in sorted(result.events.items()))
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
-        progress.console.print(f"{result.unit}: {result.samples:,} samples"
+        progress.console.print(f"{result.unit}: {counted(result.samples, 'sample')}"
                                + (f", {events}" if events else "") + guessed)
         units = progress.tasks[0].fields["units"] + 1
         progress.update(task, units=units, done=counted(units, "unit"), refresh=True)
@@ -318,7 +322,7 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    with written(output, captures, force) as temp, \
+    with written(output, captures, force, suffixes=(".mcap",)) as temp, \
             failing(ReplayError, ArchiveError, unless=(UnusableCapture,), temp=temp,
                     path=output), progress:
         results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
+from bridge._text import counted, number
 from bridge.cli.common import (
     FAILED,
     LogFormat,
@@ -225,6 +226,7 @@ def sim(
         raise fail(f"emulator stopped: {simulator.error}", FAILED)
     for slot in simulator.slots:
         u = slot.unit
-        err.print(f"{escape(u.config.serial)}: {u.records_sent} records sent, "
-                  f"{u.records_skipped} skipped (line busy), {slot.lost} bytes not delivered "
-                  "(no host connected, or host not reading)")
+        err.print(f"{escape(u.config.serial)}: {counted(u.records_sent, 'record')} sent, "
+                  f"{number(u.records_skipped)} skipped (line busy), "
+                  f"{counted(slot.lost, 'byte')} not delivered (no host connected, or host "
+                  "not reading)")

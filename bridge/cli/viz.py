@@ -84,7 +84,7 @@ def rrd(
 
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
-    with written(output, [archive], force) as temp:
+    with written(output, [archive], force, suffixes=(".rrd",)) as temp:
         found = read_archive(archive)
         if not found.complete:
             err.print(f"[yellow]{describe_problem(found)}[/]")
@@ -192,7 +192,7 @@ def view(
         raise fail("no display here to spawn a viewer: use --serve (remote or web viewer) "
                    "and/or --save FILE.rrd")
     if save is not None:
-        refused(save, force=force)
+        refused(save, force=force, suffixes=(".rrd",))
     # before anything is made: a stop while it starts (systemd's SIGTERM) ends it cleanly
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -214,4 +214,4 @@ def view(
         logger.close()
         recording.flush()
         session.close()
-    err.print(f"{feed.samples:,} samples shown" + (f"; saved {save}" if save else ""))
+    err.print(f"{counted(feed.samples, 'sample')} shown" + (f"; saved {save}" if save else ""))

@@ -12,6 +12,7 @@ if TYPE_CHECKING:
     from bridge.export.mounted import shift_times, turn_units
     from bridge.export.run import Export, Exported
     from bridge.export.tables import (
+        TimeSpan,
         align_table,
         event_table,
         offline_times,
@@ -24,6 +25,7 @@ __all__ = [
     "Export",
     "Exported",
     "Ros2Written",
+    "TimeSpan",
     "align_table",
     "event_table",
     "offline_times",
@@ -38,8 +40,8 @@ __all__ = [
 _ON_FIRST_USE = {
     **dict.fromkeys(("Export", "Exported"), "bridge.export.run"),
     **dict.fromkeys(("shift_times", "turn_units"), "bridge.export.mounted"),
-    **dict.fromkeys(("align_table", "event_table", "offline_times", "sample_table",
-                     "write_table"), "bridge.export.tables"),
+    **dict.fromkeys(("TimeSpan", "align_table", "event_table", "offline_times",
+                     "sample_table", "write_table"), "bridge.export.tables"),
 }
 
 

@@ -5,7 +5,9 @@ Its column names, each column's physical unit and frame, and the file's provenan
 later, or by someone who never saw this project, explains itself.
 
 Column names are lower-case identifiers that no DuckDB keyword and no pandas DataFrame
-attribute takes, so they work unquoted in SQL and with pandas attribute access.
+attribute takes, so they work unquoted in SQL and with pandas attribute access. A CSV
+file, which has no metadata, carries each column's unit in its header instead
+(``csv_header``).
 """
 
 from __future__ import annotations
@@ -168,6 +170,29 @@ def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
         return about
     about |= {"physical_unit": physical, "frame": frame, "description": description}
     return {k: v for k, v in about.items() if v}
+
+
+def csv_header(name: str, labels: Mapping[str, str]) -> str:
+    """A CSV column's header: its name, and its physical unit in brackets, ``accel_x [g]``.
+
+    A CSV file has no metadata to hold the units, so they go where a spreadsheet shows
+    them and where every reader (pandas, polars, DuckDB, pyarrow) takes them with no
+    option: the one header line. A column with no unit keeps its bare name (``unit``,
+    ``m11``, ``q0``), as does one whose name ends in its unit already (``time_ns``) and
+    ``time_utc``, whose values carry their zone and which readers then parse as
+    timestamps by themselves.
+
+    Args:
+        name: The column's name (as in Parquet).
+        labels: Each unit's column prefix in aligned output (``unit_labels``).
+
+    Returns:
+        The header.
+    """
+    unit = column_metadata(name, labels).get("physical_unit", "unitless")
+    if unit == "unitless" or name == "time_utc" or name.endswith(f"_{unit}"):
+        return name
+    return f"{name} [{unit}]"
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from bridge.analysis.mounts import TURNS, Mounts
 from bridge.bus.codec import elements
 from bridge.export.describe import flat_names
 from bridge.export.tables import ReEstimate
+from bridge.timing.offline import Estimate
 
 __all__ = ["shift_times", "turn_units"]
 
@@ -33,12 +34,15 @@ def shift_times(re_estimate: ReEstimate, mounts: Mounts) -> ReEstimate:
         The same, shifted: t_ref = t_unit + time_shift_s (a unit left with its live
         times gets them shifted too).
     """
-    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> Estimate | None:
         found = re_estimate(unit, columns)
         mount = mounts.units.get(unit)
         if mount is None:
             return found
-        return (columns["time_ns"] if found is None else np.asarray(found)) + mount.shift_ns
+        if found is None:  # live times, whose uncertainty the archive does not hold
+            return Estimate(columns["time_ns"] + mount.shift_ns,
+                            np.zeros(len(columns["time_ns"]), np.int64))
+        return Estimate(found.time_ns + mount.shift_ns, found.uncertainty_ns)
 
     return estimate
 

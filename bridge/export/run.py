@@ -24,23 +24,23 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
 from bridge.analysis.mounts import read_mounts
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.mounted import shift_times, turn_units
 from bridge.export.ros2_bag import Ros2Written, write_ros2
+from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
-    TimeBound,
+    TimeSpan,
     align_table,
     archive_prefix,
-    check_format,
     event_table,
     last_info,
     offline_times,
-    parse_time,
     sample_table,
     write_table,
 )
@@ -54,6 +54,8 @@ __all__ = ["Export", "Exported"]
 
 #: What ``--format`` takes.
 FORMATS = ("parquet", "csv", "ros2")
+#: The extensions of what an export writes: a table, or a ROS 2 bag (.mcap).
+SUFFIXES = (*TABLES, ".mcap")
 
 
 
@@ -148,13 +150,15 @@ class Exported:
         """
         of = f"{counted(self.samples, 'sample')} of {counted(self.units, 'unit')} to {self.output}"
         if self.bag is not None:
-            text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
+            text = (f"wrote {number(self.bag.imu)} Imu and {number(self.bag.mag)} "
+                    f"MagneticField messages of {of}")
         elif self.align_hz is not None:
-            text = f"wrote {self.instants} instants at {self.align_hz:g} Hz of {of}"
+            text = (f"wrote {counted(self.instants or 0, 'instant')} at {self.align_hz:g} Hz "
+                    f"of {of}")
         else:
             text = f"wrote {of}"
         if self.events_path is not None:
-            text += f"; {self.events} events to {self.events_path}"
+            text += f"; {counted(self.events, 'event')} to {self.events_path}"
         return text
 
 
@@ -189,10 +193,12 @@ class Export:
             the reference's frame. A CSV file has nowhere to record it and is refused.
 
     Raises:
+        OutputRefused: An output's extension names none of the formats it can hold.
         ValueError: The request cannot be met: a calibration, noise or mounts file that
-            cannot be read, a format or extension that does not fit, --align with a bag,
-            the events table on the output's own file, a record type or time that is not
-            one, --noise or --mounts with a CSV file, --ros2-distro with a table.
+            cannot be read, a format that does not fit the output's extension, --align
+            with a bag, the events table on the output's own file, a record type or time
+            that is not one, an end before the start (TimeSpanError), --noise or --mounts
+            with a CSV file, --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -205,12 +211,12 @@ class Export:
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
         self.irons: list[UnitIron] = [read_document(path) for path in mag_cal]
+        named_format(output, *SUFFIXES)
         self.ros2 = _wants_ros2(output, output_format)
         if self.ros2 and align_hz is not None:
             raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
                              "own time (leave out --align or --format ros2)")
         if not self.ros2:
-            check_format(output, bag=True)
             if ros2_distro is not None:
                 raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a table "
                                  "is the same for every ROS (leave it out or --format ros2)")
@@ -226,13 +232,12 @@ class Export:
         self.noise = None if noise is None else read_noise(noise)
         self.mounts = None if mounts is None else read_mounts(mounts)
         if events is not None:
-            check_format(events)
+            named_format(events, *TABLES)
             if events.absolute() == output.absolute():
                 raise ValueError(f"--events {events} is the table's own file; give it "
                                  "another name")
         self.types = [_code(c) for c in types] if types else None
-        self._start: TimeBound | None = parse_time(start) if start else None
-        self._end: TimeBound | None = parse_time(end) if end else None
+        self.span = TimeSpan(start, end)
 
     def read(self, on_read: Callable[[int], None] | None = None,
              on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
@@ -265,14 +270,12 @@ class Export:
             What was written.
 
         Raises:
-            ValueError: No samples match, a calibration's unit has none, a mounts file
-                names a unit the archive lacks, or a sample's time does not fit a ROS
-                time stamp.
+            ValueError: No samples match, the end is not after the start
+                (TimeSpanError), a calibration's unit has none, a mounts file names a unit
+                the archive lacks, or a sample's time does not fit a ROS time stamp.
             OSError: An output cannot be written.
         """
-        first = data.first_sample_ns() or 0
-        lo_ns = self._start.resolve(first) if self._start else None
-        hi_ns = self._end.resolve(first) if self._end else None
+        lo_ns, hi_ns = self.span.resolve(data.first_sample_ns() or 0)
         times = offline_times(data)
         if self.mounts is not None:
             self.mounts.check_units(data.units())

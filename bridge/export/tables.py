@@ -20,15 +20,18 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.samples import ArchivedSamples
 from bridge.bus.codec import elements
 from bridge.bus.gx3_pb2 import Event, Info
+from bridge.exceptions import TimeSpanError
 from bridge.export.describe import (
     ALIGNED_SEPARATOR,
     QUANTITY_ORDER,
     About,
     column_metadata,
+    csv_header,
     flat_names,
     unit_labels,
 )
@@ -63,7 +66,11 @@ class TimeBound:
 
 
 def parse_time(text: str) -> TimeBound:
-    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start)."""
+    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start).
+
+    Raises:
+        TimeSpanError: It is neither.
+    """
     try:
         return TimeBound(round(float(text) * 1e9), relative=True)
     except ValueError:
@@ -71,13 +78,61 @@ def parse_time(text: str) -> TimeBound:
     try:
         when = datetime.fromisoformat(text)
     except ValueError:
-        raise ValueError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z nor "
-                         "seconds from the start such as 12.5") from None
+        raise TimeSpanError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z "
+                            "nor seconds from the start such as 12.5") from None
     if when.tzinfo is None:
         when = when.replace(tzinfo=UTC)
     delta = when - datetime(1970, 1, 1, tzinfo=UTC)
     return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
                      + delta.microseconds * 1000, relative=False)
+
+
+class TimeSpan:
+    """A command's --start and --end: the samples it takes, from the start up to the end.
+
+    Every command with --start and --end reads them through this one class, so that each
+    refuses the same spans in the same words. An end that is not after the start is
+    refused when the span is made where the two are of one kind (two ISO times, or two
+    offsets from the first sample), before anything is read; else by ``resolve``, once
+    the first sample's instant is known. Either way the user is told what is wrong, not
+    that no sample matched.
+
+    Args:
+        start: The first instant: an ISO time, or seconds from the first sample; None:
+            from the first sample.
+        end: The end instant (exclusive), as ``start``; None: to the last sample.
+
+    Raises:
+        TimeSpanError: Either is not a time, or the end is not after the start.
+    """
+
+    def __init__(self, start: str | None = None, end: str | None = None) -> None:
+        self.start, self.end = start, end
+        self._start = parse_time(start) if start else None
+        self._end = parse_time(end) if end else None
+        if (self._start is not None and self._end is not None
+                and self._start.relative == self._end.relative):
+            self.resolve(0)
+
+    def resolve(self, first_ns: int) -> tuple[int | None, int | None]:
+        """The span in host ns, for a recording whose first sample is at ``first_ns``.
+
+        Args:
+            first_ns: The instant of the first sample (ns since the epoch).
+
+        Returns:
+            The start and the end (exclusive), None where not given.
+
+        Raises:
+            TimeSpanError: The end is not after the start.
+        """
+        lo = None if self._start is None else self._start.resolve(first_ns)
+        hi = None if self._end is None else self._end.resolve(first_ns)
+        if lo is not None and hi is not None and hi <= lo:
+            where = "the same instant as" if hi == lo else "before"
+            raise TimeSpanError(f"--end {self.end} is {where} --start {self.start}, so no "
+                                "sample can lie between them; give an --end after the start")
+        return lo, hi
 
 
 def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
@@ -286,27 +341,6 @@ def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     }
 
 
-def check_format(path: Path, bag: bool = False) -> str:
-    """The table format named by the file's extension, or a one-line error.
-
-    Args:
-        path: The file to write.
-        bag: The error also names .mcap, for a command that writes a ROS 2 bag there.
-
-    Returns:
-        The extension, lower-case.
-
-    Raises:
-        ValueError: The extension names no table format.
-    """
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv"
-                         + (" (a table), or .mcap (a ROS 2 bag)" if bag else ""))
-    return suffix
-
-
 def _arrow(col: np.ndarray) -> pa.Array:
     if col.dtype.kind in "OU":  # names: stored once per file, not once per row
         return pa.array(col.astype(str), pa.string()).dictionary_encode()
@@ -334,7 +368,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
     """Write columns as Parquet (zstd) or CSV, chosen by the file's extension.
 
     A ``time_utc`` timestamp goes beside ``time_ns``; in Parquet, each column's unit and
-    frame and ``about`` go in as metadata.
+    frame and ``about`` go in as metadata, in CSV each column's unit into its header
+    (``csv_header``: ``accel_x [g]``).
 
     Args:
         columns: The table (``sample_table``, ``event_table``, ``align_table``).
@@ -342,9 +377,9 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         about: The file's provenance: archive, units, options.
 
     Raises:
-        ValueError: The extension names no format this writes.
+        OutputRefused: The extension names no format this writes.
     """
-    suffix = check_format(path)
+    suffix = named_format(path, *FORMATS)
     labels = unit_labels(about.infos) if about else {}
     fields, arrays = [], []
     for name, col in columns.items():
@@ -361,7 +396,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         pq.write_table(table, path, compression="zstd", column_encoding=encodings,
                        use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
-        pa_csv.write_csv(table, path)
+        pa_csv.write_csv(table.rename_columns([csv_header(f.name, labels) for f in fields]),
+                         path)
 
 
 # -- aligning units on one time grid ---------------------------------------------------------

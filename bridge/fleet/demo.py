@@ -290,7 +290,7 @@ class Demo:
                 for unit, link in zip(self.units, links, strict=True):
                     procs.start(unit.name, ["bridge", "--port", str(link), "--baud",
                                             str(unit.config.stored.baud), "--unit", unit.name,
-                                            "--zenoh-config", str(bridge_cfg), "--quiet"],
+                                            "--zenoh-config", str(bridge_cfg)],
                                 self.output / f"{unit.name}.log")
                 self._stream(sim, recorder, procs)
                 procs.stop()

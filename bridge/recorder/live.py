@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from bridge._text import counted
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import parse
 from bridge.bus.gx3_pb2 import Event, Info, Status
@@ -410,7 +411,7 @@ class Recorder:
             span.add(loss.count, loss.missed_ns, loss.missed_ns)
         where = f" after ticks {k0}" if k0 else ""
         return self._unarchived(loss.key, Event.LOST, span,
-                                f"{loss.count} message(s) lost in transit{where} (not "
+                                f"{counted(loss.count, 'message')} lost in transit{where} (not "
                                 "recoverable from the publisher's cache)")
 
     def _unarchived(self, key: str, kind: int, span: _Span, detail: str

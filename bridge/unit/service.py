@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.archive.rawcapture import capture_metadata
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
@@ -363,8 +363,9 @@ class BusSink:
         if self.pipeline is None or self.unit is None:
             return f"{self.port}: no unit brought up"
         c = self.pipeline.counters
-        return (f"{self.unit}: {c.samples} samples, {c.dropped} dropped, "
-                f"{c.reconnects} reconnects, {c.checksum_failures} checksum failures")
+        return (f"{self.unit}: {counted(c.samples, 'sample')}, {number(c.dropped)} dropped, "
+                f"{counted(c.reconnects, 'reconnect')}, "
+                f"{counted(c.checksum_failures, 'checksum failure')}")
 
 
 def _name_from_serial(serial: str) -> str:
