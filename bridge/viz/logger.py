@@ -29,7 +29,7 @@ from bridge.bus.gx3_pb2 import Event, HostClock, Status
 from bridge.device.clock import HostSync
 from bridge.protocol import convert
 from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.viz import layout
+from bridge.viz import layout, thin
 from bridge.viz.layout import DEVICE_TIME, PLOT, TIME
 
 NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
@@ -111,6 +111,11 @@ def _sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.nd
     return series
 
 
+def _parts(rows: np.ndarray, size: int) -> list[np.ndarray]:
+    """``rows`` in pieces of ``size`` at most (none when there are none)."""
+    return [rows[at:at + size] for at in range(0, len(rows), size)]
+
+
 @dataclass
 class _Pending:
     """Batches of one unit and record type gathered since ``since`` (monotonic seconds)."""
@@ -131,6 +136,12 @@ class RerunLogger:
     (bigger chunks: a smaller file) and ``write_footer=False`` (Rerun otherwise keeps an
     index entry per chunk in memory until the file is closed).
 
+    With ``max_rate_hz``, samples are thinned for a recording of any length
+    (``bridge.viz.thin``): each plotted line keeps the least and the greatest value of
+    each 1/max_rate_hz s bin, at the instants they happened, and the scene each bin's
+    first attitude and arrows; status and events are kept whole. A bin is sent once a
+    later sample closes it, or on ``flush``.
+
     Args:
         target: A RecordingStream the caller set up (spawned viewer, gRPC connection,
             file), or a path, for which the logger opens an .rrd file of its own and
@@ -144,13 +155,18 @@ class RerunLogger:
         latency_s: The longest a sample waits before it is sent.
         max_rows: Rows of one unit and record type sent at once, at most.
         write_footer: Whether a file the logger opens gets Rerun's footer.
+        max_rate_hz: Thin samples to bins this many a second; None: every sample.
+
+    Raises:
+        ValueError: ``max_rate_hz`` is not above 0.
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
                  units: Iterable[str] = (), *, application_id: str = "gx3",
                  recording_id: str | None = None, window_s: float | None = None,
                  latency_s: float = 0.25, max_rows: int = 4096,
-                 write_footer: bool = True) -> None:
+                 write_footer: bool = True, max_rate_hz: float | None = None) -> None:
+        self.bin_ns = None if max_rate_hz is None else thin.bin_width_ns(max_rate_hz)
         if isinstance(target, rr.RecordingStream):
             self.recording, self._owned = target, False
         else:
@@ -375,13 +391,21 @@ class RerunLogger:
             due = [key for key, p in self._pending.items() if now is None
                    or p.rows >= self.max_rows or now - p.since >= self.latency_s]
             taken = [(key, self._pending.pop(key)) for key in due]
-        for (unit, _), pending in taken:
+        for key, pending in taken:
             parts = pending.parts
             record = parts[0] if len(parts) == 1 else {
                 c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
-            for start in range(0, pending.rows, self.max_rows):
-                self._send_samples(unit, {c: v[start:start + self.max_rows]
-                                          for c, v in record.items()})
+            if self.bin_ns is None:
+                for start in range(0, pending.rows, self.max_rows):
+                    self._send_samples(key[0], {c: v[start:start + self.max_rows]
+                                                for c, v in record.items()})
+                continue
+            carried = self._send_thinned(key[0], record, hold_last=now is not None)
+            if now is not None and len(carried["ticks"]):
+                with self._lock:  # first among what came since: the bin it ends is open
+                    pending = self._pending.setdefault(key, _Pending(now))
+                    pending.parts.insert(0, carried)
+                    pending.rows += len(carried["ticks"])
         if taken:
             self._send_blueprint()
 
@@ -395,7 +419,12 @@ class RerunLogger:
             self._style(plot, unit, index)
             for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
                 rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=line))
-        body = layout.body_path(unit)
+        self._send_scene(unit, record, time_ns, device_ns, indexes)
+
+    def _send_scene(self, unit: str, record: Mapping[str, np.ndarray], time_ns: np.ndarray,
+                    device_ns: np.ndarray, indexes: list[rr.TimeColumn]) -> None:
+        """The attitude and the arrows of rows (``indexes``: their timelines)."""
+        rec, body = self.recording, layout.body_path(unit)
         xyzw = _sensor_to_earth(record)
         if xyzw is not None:
             ok = np.isfinite(xyzw).all(axis=1)
@@ -407,6 +436,36 @@ class RerunLogger:
                 vectors = np.asarray(record[name], np.float32) * np.float32(scale)
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
                                  columns=rr.Arrows3D.columns(vectors=vectors))
+
+    def _send_thinned(self, unit: str, record: dict[str, np.ndarray], hold_last: bool
+                      ) -> dict[str, np.ndarray]:
+        """Each bin's extremes of every line, and its first attitude and arrows.
+
+        With ``hold_last`` the last bin stays open: the rows it still needs are returned,
+        to go first in the next send; else nothing is.
+        """
+        index, rec = self._units[unit], self.recording
+        if (np.diff(record["time_ns"]) < 0).any():  # a late batch: bins need time order
+            order = np.argsort(record["time_ns"], kind="stable")
+            record = {c: v[order] for c, v in record.items()}
+        time_ns = np.asarray(record["time_ns"], np.int64)
+        device_ns = np.asarray(record["ticks"], np.int64) * NS_PER_TICK
+        assert self.bin_ns is not None
+        bins = thin.Bins.of(time_ns, self.bin_ns, hold_last)
+        kept = []
+        for plot, values in _sample_series(record, len(time_ns)).items():
+            self._style(plot, unit, index)
+            for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
+                rows = bins.extremes(line)
+                kept.append(rows)
+                for part in _parts(rows[rows < bins.cut], self.max_rows):
+                    rec.send_columns(path, indexes=_indexes(time_ns[part], device_ns[part]),
+                                     columns=rr.Scalars.columns(scalars=line[part]))
+        for part in _parts(bins.firsts, self.max_rows):
+            self._send_scene(unit, {c: v[part] for c, v in record.items()}, time_ns[part],
+                             device_ns[part], _indexes(time_ns[part], device_ns[part]))
+        carried = bins.carried(kept)
+        return {c: v[carried] for c, v in record.items()}
 
     def _log_host_clock(self, unit: str, items: Sequence[Status]) -> None:
         """The statuses where the unit's host clock state changed, as text log entries."""
