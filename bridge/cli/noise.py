@@ -78,9 +78,10 @@ def allan(
         stretch_text,
         units_noise,
     )
+    from bridge.archive.times import parse_time
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import archive_prefix, parse_time
+    from bridge.export.tables import archive_prefix
     from bridge.ros2.messages import ros_topic
 
     try:

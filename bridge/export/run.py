@@ -27,18 +27,17 @@ from typing import TYPE_CHECKING
 from bridge._text import counted
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
 from bridge.archive.reader import ArchiveReader
+from bridge.archive.times import TimeBound, parse_time
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import (
-    TimeBound,
     align_table,
     archive_prefix,
     check_format,
     event_table,
     last_info,
     offline_times,
-    parse_time,
     sample_table,
     write_table,
 )
