@@ -12,7 +12,7 @@ record. How it follows the manual, and where it had to choose:
 Importing it needs neither Zenoh nor Rerun.
 """
 
-from bridge.sim.archived import archive_samples
+from bridge.sim.archived import archive_samples, fleet_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import Motion, MotionConfig, tumbling
@@ -37,6 +37,7 @@ __all__ = [
     "UnitConfig",
     "UsbDelivery",
     "archive_samples",
+    "fleet_archive",
     "streaming_config",
     "synthesize",
     "tumbling",
