@@ -197,22 +197,26 @@ class RrdWriter:
 
     What ``bridge.recorder.Recording`` opens for its ``rrd`` (``gx3 record --rrd``): it
     hears each batch written (``log``) and is closed after the recorder. Long
-    recordings get bigger chunks, and no index of every chunk held in memory.
+    recordings get bigger chunks, and no index of every chunk held in memory; one that
+    runs for days, ``max_rate_hz`` (``RerunLogger``'s thinning).
 
     Args:
         path: The file to write.
         recording_id: Rerun's id of the recording (the archive's name, say).
         prefix: The key prefix of the messages.
+        max_rate_hz: Thin the samples to this many bins a second; None: every sample.
 
     Raises:
         OutputRefused: Rerun cannot create the file.
+        ValueError: ``max_rate_hz`` is not above 0.
     """
 
-    def __init__(self, path: Path, recording_id: str, prefix: str = "gx3") -> None:
+    def __init__(self, path: Path, recording_id: str, prefix: str = "gx3",
+                 max_rate_hz: float | None = None) -> None:
         self.prefix = prefix
         try:
             self.logger = RerunLogger(path, recording_id=recording_id, latency_s=2.0,
-                                      write_footer=False)
+                                      write_footer=False, max_rate_hz=max_rate_hz)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
             raise OutputRefused(f"--rrd {path}: cannot write ({why})") from None
