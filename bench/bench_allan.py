@@ -20,16 +20,14 @@ units for --fleet-hours each. Prints, with the load average (other work slows it
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
+from procstat import gx3_measured, load
 
 from bridge.analysis.allan import AllanSums, averaging_factors
 from bridge.analysis.noise import collect_samples
@@ -38,10 +36,6 @@ from bridge.archive.writer import ArchiveWriter
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
-
-
-def load() -> str:
-    return f"load average {os.getloadavg()[0]:.2f}"
 
 
 def still_archive(path: Path, units: int, hours: float, rate: float) -> None:
@@ -62,16 +56,8 @@ def still_archive(path: Path, units: int, hours: float, rate: float) -> None:
 
 def gx3_allan(*args: str | Path) -> tuple[float, float]:
     """Wall seconds and peak resident MiB of ``gx3 allan ARGS``, as a user runs it."""
-    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
-    start = time.perf_counter()
-    proc = subprocess.Popen([gx3, "allan", *map(str, args), "--force"],
-                            stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(proc.pid, 0)  # this run's own peak, not earlier runs'
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    elapsed = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"gx3 allan failed ({proc.returncode})")
-    return elapsed, usage.ru_maxrss / 1024
+    elapsed, peak, _ = gx3_measured("allan", *args, "--force")
+    return elapsed, peak
 
 
 def core(path: Path) -> None:
