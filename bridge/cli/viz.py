@@ -81,12 +81,12 @@ def rrd(
     layout.
 
     Every unit's attitude in a north-east-down scene, its signals by quantity, status
-    and events, on the timelines `time` and `device_time`. A recording the viewer can
-    hold: a window of up to 1,000,000 samples at full rate, a longer one as an overview
-    (--max-rate), saying so with the command for full rate on a window. Only the chunks
-    of the window are read. An archive cut short (a killed recorder) is rendered up to
-    its last complete chunk; a corrupt chunk or a message that is not what its topic says
-    is left out with a warning.
+    and events, on the timelines `time` and `device_time`. Always a recording the viewer
+    can hold: a window small enough at full rate, a longer one as an overview (see
+    --max-rate), said so with the command for full rate on a window. Only the chunks of
+    the window are read. An archive cut short (a killed recorder) is rendered up to its
+    last complete chunk; a corrupt chunk or a message that is not what its topic says is
+    left out with a warning.
     """
     from bridge.archive.times import parse_time
     from bridge.archive.walk import sample_span
