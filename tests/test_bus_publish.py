@@ -127,19 +127,19 @@ def test_one_put_in_sixteen_carries_when_it_was_put(session: zenoh.Session) -> N
     sub = session.declare_subscriber("gx3/imu0/imu", lambda s: got.append(
         (s.payload.to_bytes(), s.attachment.to_bytes() if s.attachment else b"")))
     stamped: list[tuple[int, int]] = []
-    batch = wire_batch(0xC2, 2, 1)
-    ticks, time_ns, rx_ns = wire_times(2)
+    batch = wire_batch(0xC2, 4, 1)
+    ticks, time_ns, rx_ns = wire_times(4)
     before = time.time_ns()
     with UnitPublisher(session, "imu0", on_stamped=lambda rx, put: stamped.append((rx, put))
                        ) as pub:
-        for _ in range(40):  # two records a put
+        for _ in range(40):  # four records a put
             pub.publish_samples(batch, ticks, time_ns, rx_ns)
         after = time.time_ns()
-    wait_for(lambda: len(got) == 80, what="every sample")
+    wait_for(lambda: len(got) == 160, what="every sample")
     sub.undeclare()
     assert all(intact(payload, attachment) for payload, attachment in got)
     longer = [i for i, (_, attachment) in enumerate(got) if len(attachment) > 4]
-    assert longer == [1, 33, 65]  # the last of puts 0, 16 and 32
+    assert longer == [3, 67, 131]  # the last of puts 0, 16 and 32
     put_at = [read_time(got[i][1]) or 0 for i in longer]
     assert before <= put_at[0] <= put_at[1] <= put_at[2] <= after
     assert [rx for rx, _ in stamped] == [int(rx_ns[-1])] * 3

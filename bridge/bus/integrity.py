@@ -45,8 +45,9 @@ NOT_OF_KEY = "key"
 
 
 def seal(payload: bytes, rx_ns: int | None = None, raw_ns: int | None = None) -> bytes:
-    """The attachment of a payload: its CRC-32, then a raw read's receive times (or a
-    stamped put's time).
+    """The attachment of a payload: its CRC-32, then a raw read's receive times.
+
+    Or, for one imu put in 16, the instant it was put.
 
     Args:
         payload: The message's bytes.
