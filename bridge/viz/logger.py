@@ -391,16 +391,17 @@ class RerunLogger:
             due = [key for key, p in self._pending.items() if now is None
                    or p.rows >= self.max_rows or now - p.since >= self.latency_s]
             taken = [(key, self._pending.pop(key)) for key in due]
+        width_ns = self.bin_ns
         for key, pending in taken:
             parts = pending.parts
             record = parts[0] if len(parts) == 1 else {
                 c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
-            if self.bin_ns is None:
+            if width_ns is None:
                 for start in range(0, pending.rows, self.max_rows):
                     self._send_samples(key[0], {c: v[start:start + self.max_rows]
                                                 for c, v in record.items()})
                 continue
-            carried = self._send_thinned(key[0], record, hold_last=now is not None)
+            carried = self._send_thinned(key[0], record, width_ns, hold_last=now is not None)
             if now is not None and len(carried["ticks"]):
                 with self._lock:  # first among what came since: the bin it ends is open
                     pending = self._pending.setdefault(key, _Pending(now))
@@ -437,9 +438,9 @@ class RerunLogger:
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
                                  columns=rr.Arrows3D.columns(vectors=vectors))
 
-    def _send_thinned(self, unit: str, record: dict[str, np.ndarray], hold_last: bool
-                      ) -> dict[str, np.ndarray]:
-        """Each bin's extremes of every line, and its first attitude and arrows.
+    def _send_thinned(self, unit: str, record: dict[str, np.ndarray], width_ns: int,
+                      hold_last: bool) -> dict[str, np.ndarray]:
+        """Each ``width_ns`` bin's extremes of every line, and its first attitude and arrows.
 
         With ``hold_last`` the last bin stays open: the rows it still needs are returned,
         to go first in the next send; else nothing is.
@@ -450,8 +451,7 @@ class RerunLogger:
             record = {c: v[order] for c, v in record.items()}
         time_ns = np.asarray(record["time_ns"], np.int64)
         device_ns = np.asarray(record["ticks"], np.int64) * NS_PER_TICK
-        assert self.bin_ns is not None
-        bins = thin.Bins.of(time_ns, self.bin_ns, hold_last)
+        bins = thin.Bins.of(time_ns, width_ns, hold_last)
         kept = []
         for plot, values in _sample_series(record, len(time_ns)).items():
             self._style(plot, unit, index)
