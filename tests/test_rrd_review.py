@@ -145,7 +145,8 @@ def test_what_cannot_be_rendered_is_one_line(archive: Path, tmp_path: Path) -> N
                          "imu3); check --unit"),
                         (["--start", "700"], "no samples from --start to --end"),
                         (["--start", "yesterday"], "'yesterday' is neither an ISO time"),
-                        (["--max-rate", "0"], "give a rate above 0 Hz")):
+                        (["--max-rate", "0"], "--max-rate: a rate of 0.0 Hz: give one "
+                         "above 0")):
         done = gx3("rrd", archive, "-o", tmp_path / "x.rrd", *args)
         assert done.returncode == 2 and words in done.stderr, (args, done.stderr)
         assert done.stderr.count("\n") == 1 and not (tmp_path / "x.rrd").exists()

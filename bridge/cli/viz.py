@@ -90,17 +90,31 @@ def rrd(
     """
     from bridge.archive.times import parse_time
     from bridge.archive.walk import sample_span
+    from bridge.exceptions import ArchiveReadError
     from bridge.viz.review import plan
+    from bridge.viz.thin import bin_width_ns
 
     irons = _irons(mag_cal)
     if not archive.is_file():
         raise fail(f"{archive}: no such file; give an archive (gx3 record -o FILE.mcap)")
+    if max_rate is not None:
+        try:
+            bin_width_ns(max_rate)
+        except ValueError as exc:
+            raise fail(f"--max-rate: {exc}") from None
     try:
-        review = plan(sample_span(archive), unit, parse_time(start) if start else None,
-                      parse_time(end) if end else None, max_rate)
-    except ValueError as exc:  # an ArchiveReadError too: what cannot be read, exit 2
-        raise fail(f"{archive}: {exc}" if not str(exc).startswith(str(archive))
-                   else str(exc)) from None
+        first = None if start is None else parse_time(start)
+        after = None if end is None else parse_time(end)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    try:
+        span = sample_span(archive)
+    except ArchiveReadError as exc:
+        raise fail(str(exc)) from None
+    try:
+        review = plan(span, unit, first, after, max_rate)
+    except ValueError as exc:
+        raise fail(f"{archive}: {exc}") from None
     if missing := [i.unit for i in irons if i.unit not in review.units]:
         raise fail(f"--mag-cal: the calibration of unit {missing[0]} has no samples in "
                    f"{archive} (units shown: {', '.join(review.units)})")

@@ -83,20 +83,17 @@ def plan(span: SampleSpan, units: Sequence[str] | None = None, start: TimeBound 
         units: The units asked for; None: every unit with samples.
         start: The window's first instant; None: the first sample.
         end: The instant after the window's last; None: after the last sample.
-        max_rate_hz: The overview's rate asked for; None: full rate if the window holds
-            at most ``bound`` samples, else the highest of ``OVERVIEW_RATES_HZ`` that keeps
-            each line within it.
+        max_rate_hz: The overview's rate asked for (``RerunLogger`` checks it); None:
+            full rate if the window holds at most ``bound`` samples, else the highest of
+            ``OVERVIEW_RATES_HZ`` that keeps each line within it.
         bound: The most samples rendered at full rate (and rows a line gets) by default.
 
     Returns:
         The plan.
 
     Raises:
-        ValueError: The archive has no samples, a unit has none, the window holds none, or
-            the rate is not above 0.
+        ValueError: The archive has no samples, a unit has none, or the window holds none.
     """
-    if max_rate_hz is not None and not max_rate_hz > 0:
-        raise ValueError(f"--max-rate {max_rate_hz:g}: give a rate above 0 Hz")
     if not span.counts or span.first_ns is None or span.last_ns is None:
         raise ValueError("no samples in it; give an archive gx3 recorded units into")
     chosen = tuple(dict.fromkeys(units)) if units else tuple(sorted(span.counts))

@@ -130,11 +130,11 @@ class _ArchiveFeed:
             if self.progress is not None:
                 self.progress(len(receive_ns))
         wanted = None if self.units is None else set(self.units)
-        for topic in archive.topics("status"):
-            unit = archive.messages(topic).unit
-            if wanted is None or unit in wanted:
-                self.statuses.add(unit, [s for t, s in archive.decoded(topic, Status)
-                                         if self.lo <= t < self.hi])
+        statuses = {c.topic: c.unit for c in archive.channels.values() if c.kind == "status"
+                    and (wanted is None or c.unit in wanted)}
+        for topic, unit in statuses.items():
+            self.statuses.add(unit, [s for t, s in archive.decoded(topic, Status)
+                                     if self.lo <= t < self.hi])
         for unit, event in archive.events(self.units):
             if self.lo <= event.time_ns < self.hi:
                 self.events.add(unit, [event])
