@@ -19,6 +19,8 @@ all):
   it than an empty one, and the smallest of 256 MB, 512 MB, 1 GB, 2 GB, 4 GB and 8 GB
   that `rerun --memory-limit` can be given without the viewer freeing data ("Reached
   memory limit" in its log).
+
+With --picture PNG, the overview's accel tab is also pictured (the Rerun guide's).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from procstat import gx3_measured, load, peak_rss_mb
 from rerun.experimental import ViewerClient
 
 from bridge.archive.walk import sample_span
-from bridge.fleet.snapshot import headless_viewer, open_recording
+from bridge.fleet.snapshot import headless_viewer, open_recording, render
 from bridge.sim.archived import fleet_archive
 
 WINDOW_S = 600
@@ -106,6 +108,8 @@ def main() -> None:
                         help="seconds from the first sample")
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: tmp)")
     parser.add_argument("--no-viewer", action="store_true", help="skip the viewer's memory")
+    parser.add_argument("--picture", type=Path, metavar="PNG",
+                        help="also picture the overview's accel tab here")
     args = parser.parse_args()
     workdir = args.dir or Path(tempfile.mkdtemp(prefix="bench_rrd_"))
     workdir.mkdir(parents=True, exist_ok=True)
@@ -127,6 +131,9 @@ def main() -> None:
     per_sample = sizes["window"] * 1e6 / (args.units * args.rate * WINDOW_S)
     print(f"full rate: {per_sample:.0f} bytes a sample, {samples * per_sample / 1e9:,.1f} GB "
           "for the whole archive", flush=True)
+    if args.picture is not None:
+        render(workdir / "overview.rrd", args.picture, tab="accel [g]", timeout_s=600)
+        print(f"pictured the overview: {args.picture}", flush=True)
     if args.no_viewer:
         return
     for name in runs:

@@ -98,16 +98,19 @@ def open_recording(client: ViewerClient, rrd: str | os.PathLike[str],
 
 def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: int | None = None,
            before_end_s: float | None = None, size: tuple[int, int] = (1600, 1000),
-           timeout_s: float = 60.0) -> ViewerState:
+           timeout_s: float = 60.0, tab: str | None = None) -> ViewerState:
     """Open ``rrd`` in a headless viewer and save what it shows to ``png``.
 
     The time cursor is paused at ``at_ns`` on the ``time`` timeline, else
-    ``before_end_s`` seconds before its end, else where the viewer puts it. Returns the
-    viewer's own account of what it showed: recordings, timelines, views and what each
-    view failed to show.
+    ``before_end_s`` seconds before its end, else where the viewer puts it; ``tab``
+    names the tab shown (``accel [g]``), else the first is. Returns the viewer's own
+    account of what it showed: recordings, timelines, views and what each view failed
+    to show.
     """
     with headless_viewer(size, timeout_s) as (client, _):
         state = open_recording(client, rrd, timeout_s)
+        if tab is not None:
+            _show_tab(client, tab)
         if at_ns is None and before_end_s is not None:
             (end,) = [t.end for r in state.recordings for t in r.timelines if t.name == TIME]
             at_ns = None if end is None else end - round(before_end_s * 1e9)
@@ -116,6 +119,20 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
         time.sleep(1.0)  # let the views catch up with the cursor before the shot
         client.save_screenshot(os.fspath(png))
         return client.get_state()
+
+
+def _show_tab(client: ViewerClient, name: str) -> None:
+    """Make the tab of that name the one shown, in the recording's blueprint."""
+    blueprint = client.get_blueprint(of="recording").blueprint
+    tabs = {parts["ContainerBlueprint"]["display_name"]: path.lstrip("/")
+            for path, parts in blueprint.items()
+            if "display_name" in parts.get("ContainerBlueprint", {})}
+    if name not in tabs:
+        raise ValueError(f"no tab {name!r} in the recording (tabs: {', '.join(tabs)})")
+    for parts in blueprint.values():
+        if parts.get("ContainerBlueprint", {}).get("container_kind") == "Tabs":
+            parts["ContainerBlueprint"]["active_tab"] = tabs[name]
+    client.set_blueprint(blueprint, of="recording")
 
 
 def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> ViewerClient:
