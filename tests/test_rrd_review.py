@@ -20,7 +20,7 @@ from bridge.viz.logger import RerunLogger
 from bridge.viz.review import FULL_RATE_SAMPLES, plan
 from bridge.viz.sources import log_archive
 from tests.helpers.processes import gx3
-from tests.helpers.rrd import scalar_lines, table
+from tests.helpers.rrd import blueprint_views, scalar_lines, table
 
 UNITS = ("imu1", "imu2", "imu3")
 SECONDS, RATE_HZ = 600, 100.0
@@ -99,6 +99,11 @@ def test_an_overview_keeps_every_minutes_extremes_in_a_quarter_of_the_rows(
         assert len(thin[f"/plots/samples_per_s/{unit}"][0]) == SECONDS
         assert table(store, f"/events/{unit}").num_rows == 1
     assert kept <= rows / 4, (kept, rows)
+    # the live view's layout and timelines: a window and an overview read the same
+    assert max(blueprint_views(overview), key=len) == max(blueprint_views(full[0]), key=len)
+    assert {tuple(c.timeline_names) for c in RrdReader(overview).stream()
+            if c.entity_path.startswith("/plots/accel/") and c.timeline_names
+            } == {("device_time", "time")}
     command = said.splitlines()[-1].removeprefix("full rate on a window: ")
     assert shlex.split(command) == ["gx3", "rrd", str(archive), "-o",
                                     str(overview.with_name("overview-window.rrd")),
