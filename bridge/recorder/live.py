@@ -399,7 +399,7 @@ class Recorder:
             if note.kind in self.losses:
                 self.losses[note.kind] += note.count
             self._write(f"{self.prefix}/{unit}/event", [note.SerializeToString()], now,
-                        written)
+                        written, heard=False)
             if self._on_event is not None:
                 self._on_event(unit, note)
         if written and self._on_written is not None:
@@ -436,11 +436,13 @@ class Recorder:
                            detail=f"{key}: {detail}")
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
-               written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
+               written: list[RawMessage] | None, published: np.ndarray | None = None,
+               heard: bool = True) -> None:
         """Archive messages of one key, and count them in their unit's view.
 
         ``received``: host ns, one for all or one each; ``published``: raw reads'
-        raw-clock stamps. Samples also go into the unit's clock bound.
+        raw-clock stamps; ``heard``: they came from the unit's bridge (not the recorder's
+        own events). Samples also go into the unit's clock bound.
         """
         if self.error is not None:
             return
@@ -464,7 +466,8 @@ class Recorder:
             if view is None:
                 view = self.views[unit] = UnitView(unit)
             view.bytes += sum(map(len, payloads))
-            view.heard_ns = max(view.heard_ns, int(np.max(received)))
+            if heard:
+                view.heard_ns = max(view.heard_ns, int(np.max(received)))
             if leaf == "imu":
                 now = int(np.max(received))
                 view.samples += len(payloads)
