@@ -146,7 +146,8 @@ def record(
         help="Thin --rrd for a recording that runs for days: each plotted line as the least "
              "and the greatest value of each 1/HZ s bin, at the instants they happened, "
              "attitude at HZ; status and events whole (the archive keeps every sample). "
-             "Default: every sample.")] = None,
+             "Lines reach the file 128 bins at a time (2 min at 1 Hz). Default: every "
+             "sample.")] = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
                       "one reaches this size, MB. Numbers go on after the parts already "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import shlex
 import signal
@@ -125,8 +126,9 @@ def rrd(
         progress = Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(),
                             console=err, transient=True, disable=not err.is_terminal)
         try:
+            # nobody waits for a row of an archive: sends of max_rows, the fewest chunks
             logger = IronedLogger(irons, temp, review.units, recording_id=archive.stem,
-                                  max_rate_hz=review.max_rate_hz)
+                                  max_rate_hz=review.max_rate_hz, latency_s=math.inf)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
             raise fail(f"{output}: cannot write ({exc})", FAILED) from None
         with progress:

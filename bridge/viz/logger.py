@@ -125,6 +125,22 @@ class _Pending:
     rows: int = 0
 
 
+@dataclass
+class _Kept:
+    """What thinning kept of one unit and record type since ``since``, not sent yet.
+
+    Gathered into sends of up to ``max_rows`` rows, as full-rate samples are: a send per
+    batch of a few bins would make chunks of a few rows, mostly overhead.
+    """
+
+    since: float
+    #: each line's entity -> pieces of (time_ns, device_ns, value) of its rows
+    lines: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = field(
+        default_factory=dict)
+    scene: list[dict[str, np.ndarray]] = field(default_factory=list)  # the bins' first rows
+    rows: int = 0  # of the line with the most
+
+
 class RerunLogger:
     """Writes a fleet's samples, status and events to one Rerun recording.
 
@@ -139,8 +155,9 @@ class RerunLogger:
     With ``max_rate_hz``, samples are thinned for a recording of any length
     (``bridge.viz.thin``): each plotted line keeps the least and the greatest value of
     each 1/max_rate_hz s bin, at the instants they happened, and the scene each bin's
-    first attitude and arrows; status and events are kept whole. A bin is sent once a
-    later sample closes it, or on ``flush``.
+    first attitude and arrows; status and events are kept whole. A bin is kept once a
+    later sample closes it (or on ``flush``), and what is kept is sent as samples are:
+    ``max_rows`` rows or ``latency_s`` after the first, at most.
 
     Args:
         target: A RecordingStream the caller set up (spawned viewer, gRPC connection,
@@ -177,6 +194,7 @@ class RerunLogger:
         self.latency_s = latency_s
         self.max_rows = max_rows
         self._pending: dict[tuple[str, int], _Pending] = {}
+        self._kept: dict[tuple[str, int], _Kept] = {}
         self._lock = threading.Lock()
         self._blueprint_lock = threading.Lock()
         self._units: dict[str, int] = {}
@@ -401,12 +419,14 @@ class RerunLogger:
                     self._send_samples(key[0], {c: v[start:start + self.max_rows]
                                                 for c, v in record.items()})
                 continue
-            carried = self._send_thinned(key[0], record, width_ns, hold_last=now is not None)
+            carried = self._thin(key, record, width_ns, now)
             if now is not None and len(carried["ticks"]):
                 with self._lock:  # first among what came since: the bin it ends is open
                     pending = self._pending.setdefault(key, _Pending(now))
                     pending.parts.insert(0, carried)
                     pending.rows += len(carried["ticks"])
+        if width_ns is not None:
+            self._send_kept(now)
         if taken:
             self._send_blueprint()
 
@@ -438,34 +458,59 @@ class RerunLogger:
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
                                  columns=rr.Arrows3D.columns(vectors=vectors))
 
-    def _send_thinned(self, unit: str, record: dict[str, np.ndarray], width_ns: int,
-                      hold_last: bool) -> dict[str, np.ndarray]:
-        """Each ``width_ns`` bin's extremes of every line, and its first attitude and arrows.
+    def _thin(self, key: tuple[str, int], record: dict[str, np.ndarray], width_ns: int,
+              now: float | None) -> dict[str, np.ndarray]:
+        """Keep each ``width_ns`` bin's extremes of every line, and its first row.
 
-        With ``hold_last`` the last bin stays open: the rows it still needs are returned,
-        to go first in the next send; else nothing is.
+        Unless ``now`` is None (a flush), the last bin stays open: the rows it still needs
+        are returned, to go first in the next batch; else nothing is.
         """
-        index, rec = self._units[unit], self.recording
+        unit = key[0]
+        index = self._units[unit]
         if (np.diff(record["time_ns"]) < 0).any():  # a late batch: bins need time order
             order = np.argsort(record["time_ns"], kind="stable")
             record = {c: v[order] for c, v in record.items()}
         time_ns = np.asarray(record["time_ns"], np.int64)
         device_ns = np.asarray(record["ticks"], np.int64) * NS_PER_TICK
-        bins = thin.Bins.of(time_ns, width_ns, hold_last)
-        kept = []
+        bins = thin.Bins.of(time_ns, width_ns, hold_last=now is not None)
+        extremes, lines = [], {}
         for plot, values in _sample_series(record, len(time_ns)).items():
             self._style(plot, unit, index)
             for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
                 rows = bins.extremes(line)
-                kept.append(rows)
-                for part in _parts(rows[rows < bins.cut], self.max_rows):
-                    rec.send_columns(path, indexes=_indexes(time_ns[part], device_ns[part]),
-                                     columns=rr.Scalars.columns(scalars=line[part]))
-        for part in _parts(bins.firsts, self.max_rows):
-            self._send_scene(unit, {c: v[part] for c, v in record.items()}, time_ns[part],
-                             device_ns[part], _indexes(time_ns[part], device_ns[part]))
-        carried = bins.carried(kept)
+                extremes.append(rows)
+                rows = rows[rows < bins.cut]
+                lines[path] = (time_ns[rows], device_ns[rows], line[rows])
+        firsts = bins.firsts
+        with self._lock:
+            kept = self._kept.setdefault(key, _Kept(time.monotonic() if now is None else now))
+            for path, piece in lines.items():
+                kept.lines.setdefault(path, []).append(piece)
+            kept.scene.append({c: v[firsts] for c, v in record.items()})
+            kept.rows += max((len(t) for t, _, _ in lines.values()), default=len(firsts))
+        carried = bins.carried(extremes)
         return {c: v[carried] for c, v in record.items()}
+
+    def _send_kept(self, now: float | None) -> None:
+        """Send what thinning kept that is due at ``now`` (all of it for None)."""
+        with self._lock:
+            due = [key for key, k in self._kept.items() if now is None
+                   or k.rows >= self.max_rows or now - k.since >= self.latency_s]
+            taken = [(key, self._kept.pop(key)) for key in due]
+        rec = self.recording
+        for (unit, _), kept in taken:
+            for path, pieces in kept.lines.items():
+                time_ns, device_ns, values = (np.concatenate([p[i] for p in pieces])
+                                              for i in range(3))
+                for part in _parts(np.arange(len(time_ns)), self.max_rows):
+                    rec.send_columns(path, indexes=_indexes(time_ns[part], device_ns[part]),
+                                     columns=rr.Scalars.columns(scalars=values[part]))
+            scene = {c: np.concatenate([p[c] for p in kept.scene]) for c in kept.scene[0]}
+            time_ns = np.asarray(scene["time_ns"], np.int64)
+            device_ns = np.asarray(scene["ticks"], np.int64) * NS_PER_TICK
+            for part in _parts(np.arange(len(time_ns)), self.max_rows):
+                self._send_scene(unit, {c: v[part] for c, v in scene.items()}, time_ns[part],
+                                 device_ns[part], _indexes(time_ns[part], device_ns[part]))
 
     def _log_host_clock(self, unit: str, items: Sequence[Status]) -> None:
         """The statuses where the unit's host clock state changed, as text log entries."""

@@ -33,6 +33,9 @@ from bridge.viz.logger import RerunLogger
 M = TypeVar("M", Status, Event)
 
 
+#: Bins a thinned ``RrdWriter`` gathers before it writes them (about 2 minutes at 1 Hz):
+#: each send makes a chunk of Rerun's, whose overhead a few rows would not repay.
+TEE_BINS = 128
 #: Statuses or events of a unit gathered before they are logged together: a day's are a
 #: few hundred thousand, one send each chunk of an archive would make a tiny Rerun chunk.
 _GATHER = 4096
@@ -214,8 +217,10 @@ class RrdWriter:
     def __init__(self, path: Path, recording_id: str, prefix: str = "gx3",
                  max_rate_hz: float | None = None) -> None:
         self.prefix = prefix
+        # thinned: a line's rows written TEE_BINS bins at a time, not two every 2 s
+        latency_s = 2.0 if max_rate_hz is None else max(2.0, TEE_BINS / max_rate_hz)
         try:
-            self.logger = RerunLogger(path, recording_id=recording_id, latency_s=2.0,
+            self.logger = RerunLogger(path, recording_id=recording_id, latency_s=latency_s,
                                       write_footer=False, max_rate_hz=max_rate_hz)
         except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
