@@ -20,7 +20,6 @@ units for --fleet-hours each. Prints, with the load average (other work slows it
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import tempfile
 import time
@@ -28,7 +27,7 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
-from procstat import gx3_run
+from procstat import gx3_run, load
 
 from bridge.analysis.allan import AllanSums, averaging_factors
 from bridge.analysis.noise import collect_samples
@@ -37,10 +36,6 @@ from bridge.archive.writer import ArchiveWriter
 from bridge.protocol.convert import STANDARD_GRAVITY
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
-
-
-def load() -> str:
-    return f"load average {os.getloadavg()[0]:.2f}"
 
 
 def still_archive(path: Path, units: int, hours: float, rate: float) -> None:

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from bridge.archive.times import TimeSpan
 from bridge.cli import app
 from bridge.exceptions import TimeSpanError
-from bridge.export.tables import TimeSpan
 from tests.helpers.archives import write_two_units
 from tests.helpers.records import T0
 

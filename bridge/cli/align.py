@@ -76,9 +76,10 @@ def align(
     from bridge.analysis.align import align as fit_mounts
     from bridge.analysis.align import unit_motion
     from bridge.analysis.mounts import mounts_yaml
+    from bridge.archive.times import TimeSpan
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import AlignmentError
-    from bridge.export.tables import TimeSpan, offline_times, sample_table
+    from bridge.export.tables import offline_times, sample_table
 
     names = list(unit)
     if len(names) < 2:

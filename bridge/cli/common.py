@@ -132,9 +132,11 @@ EndOpt = Annotated[str | None, typer.Option(
     metavar="TIME", help="End instant (exclusive), as --start.")]
 MetricsOpt = Annotated[str | None, typer.Option(
     "--metrics", metavar="ADDR:PORT",
-    help="Serve health to Prometheus here (/metrics), e.g. 127.0.0.1:9464, or :9464 on "
-         "every interface: each unit's counters, rate, state, clock and its host's sync "
-         "(docs: monitoring).")]
+    help="Serve health to Prometheus here (/metrics): 127.0.0.1:9464 for a Prometheus on "
+         "this machine, the fleet network's address for one elsewhere (whoever reaches it "
+         "can read the health); :9464 listens on every interface. A bridge serves its "
+         "unit's counters, rate, state, clock, host sync and latency; the recorder what "
+         "it archived of each unit (docs: monitoring).")]
 ForceOpt = Annotated[bool, typer.Option(
     "--force", help="Replace an output file that exists (never an input, nor a file "
                     "another process is writing).")]

@@ -52,9 +52,10 @@ def calibrate_mag(
     import numpy as np
 
     from bridge.analysis.magcal import document, fit
+    from bridge.archive.times import TimeSpan
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import TimeSpan, offline_times, sample_table
+    from bridge.export.tables import offline_times, sample_table
 
     span = TimeSpan(start, end)
     with ExitStack() as outputs:

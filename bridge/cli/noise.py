@@ -81,9 +81,10 @@ def allan(
         units_noise,
     )
     from bridge.archive.outputs import named_format
+    from bridge.archive.times import TimeSpan
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import TimeSpan, archive_prefix
+    from bridge.export.tables import archive_prefix
     from bridge.ros2.messages import ros_topic
 
     span = TimeSpan(start, end)

@@ -141,6 +141,13 @@ def record(
         metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
                                  "existing one only with --force).")]
     = None,
+    rrd_max_rate: Annotated[float | None, typer.Option(
+        metavar="HZ",
+        help="Thin --rrd for a recording that runs for days: each plotted line as the least "
+             "and the greatest value of each 1/HZ s bin, at the instants they happened, "
+             "attitude at HZ; status and events whole (the archive keeps every sample). "
+             "Lines reach the file 128 bins at a time (2 min at 1 Hz). Default: every "
+             "sample.")] = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
                       "one reaches this size, MB. Numbers go on after the parts already "
@@ -211,10 +218,19 @@ def record(
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
     rrd_writer = None
+    if rrd_max_rate is not None:
+        from bridge.viz.thin import bin_width_ns
+
+        if rrd is None:
+            raise fail("--rrd-max-rate thins the Rerun recording: give --rrd FILE.rrd too")
+        try:
+            bin_width_ns(rrd_max_rate)
+        except ValueError as exc:
+            raise fail(f"--rrd-max-rate: {exc}") from None
     if rrd is not None:  # Rerun loads only for a recording that writes one
         from bridge.viz.sources import RrdWriter
 
-        rrd_writer = functools.partial(RrdWriter, prefix=prefix)
+        rrd_writer = functools.partial(RrdWriter, prefix=prefix, max_rate_hz=rrd_max_rate)
 
     def announce(unit: str, joined: bool) -> None:
         if not quiet:

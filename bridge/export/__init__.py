@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
+from bridge.archive.times import TimeSpan
 from bridge.export.describe import About
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 
@@ -12,7 +13,6 @@ if TYPE_CHECKING:
     from bridge.export.mounted import shift_times, turn_units
     from bridge.export.run import Export, Exported
     from bridge.export.tables import (
-        TimeSpan,
         align_table,
         event_table,
         offline_times,
@@ -40,8 +40,8 @@ __all__ = [
 _ON_FIRST_USE = {
     **dict.fromkeys(("Export", "Exported"), "bridge.export.run"),
     **dict.fromkeys(("shift_times", "turn_units"), "bridge.export.mounted"),
-    **dict.fromkeys(("TimeSpan", "align_table", "event_table", "offline_times",
-                     "sample_table", "write_table"), "bridge.export.tables"),
+    **dict.fromkeys(("align_table", "event_table", "offline_times", "sample_table",
+                     "write_table"), "bridge.export.tables"),
 }
 
 

@@ -29,13 +29,13 @@ from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
 from bridge.analysis.mounts import read_mounts
 from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
+from bridge.archive.times import TimeSpan
 from bridge.archive.walk import read_samples_archive
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.mounted import shift_times, turn_units
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
-    TimeSpan,
     align_table,
     archive_prefix,
     event_table,

@@ -13,7 +13,7 @@ record. A ``Mounting`` fixes units to one body (``handheld``: turned by hand), f
 Importing it needs neither Zenoh nor Rerun.
 """
 
-from bridge.sim.archived import archive_samples
+from bridge.sim.archived import archive_samples, fleet_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.faults import FaultConfig
 from bridge.sim.motion import Motion, MotionConfig, Mounting, handheld, tumbling
@@ -39,6 +39,7 @@ __all__ = [
     "UnitConfig",
     "UsbDelivery",
     "archive_samples",
+    "fleet_archive",
     "handheld",
     "streaming_config",
     "synthesize",

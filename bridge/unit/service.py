@@ -199,6 +199,7 @@ class BusSink:
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
         self._status_listeners: list[Callable[[Status], None]] = []
+        self._stamp_listeners: list[Callable[[str, int, int], None]] = []
         self._lines = _EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
@@ -246,7 +247,7 @@ class BusSink:
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
             on_command=_command_handler(self.pipeline), allow_commands=self.allow_commands,
-            raw=self.raw)
+            raw=self.raw, on_stamped=self._stamped)
         if self.ros2_options is not None:
             from bridge.ros2.rmw import UnitTopics
 
@@ -343,6 +344,21 @@ class BusSink:
             listener: Hears the message (``bridge.bus.metrics.Health.status``).
         """
         self._status_listeners.append(listener)
+
+    def on_stamped(self, listener: Callable[[str, int, int], None]) -> None:
+        """Tell ``listener`` of each put stamped with its publish time (one in 16).
+
+        Args:
+            listener: Hears ``(unit, received_ns, published_ns)``: when the read that
+                completed the put's last record was received, and when the put returned
+                (``bridge.bus.publish.UnitPublisher``).
+        """
+        self._stamp_listeners.append(listener)
+
+    def _stamped(self, received_ns: int, published_ns: int) -> None:
+        if self.unit is not None:
+            for listener in self._stamp_listeners:
+                listener(self.unit, received_ns, published_ns)
 
     def close(self) -> None:
         """Log the gaps held back, and undeclare the publishers."""
