@@ -168,7 +168,7 @@ def refusals(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (["ref", "later"], "m.yaml", "ref and later: they have no samples at the same time"),
     (["still1", "still2"], "m.yaml", "the body stood still; record it turned by hand"),
     (["spun1", "spun2"], "m.yaml", "turned about one axis only (its z axis)"),
-    (["ref", "unit"], "m.json", "gx3 align writes YAML; name the output .yaml"),
+    (["ref", "unit"], "m.json", "this writes a YAML file; name the file .yaml or .yml"),
 ])
 def test_refusals_are_one_line_and_write_nothing(refusals: Path, tmp_path: Path,
                                                  units: list[str], output: str,
