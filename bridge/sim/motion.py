@@ -39,6 +39,9 @@ WALK_KNOT_S = 1.0
 CYCLES_PER_S = round(1.0 / CALCULATION_CYCLE_S)
 _WALK_SALT = 0x5EED_7A1C_0FF5_E7B1  # keys the walk's normals apart from the white noise's
 _MAG_SALT = 0x3A61_C0DE_9E37_79B9  # and the magnetometer's from the accel and gyro's
+_MASK64 = (1 << 64) - 1
+#: Indexes (calculation cycles, walk knots) whose normals one generator draws at once.
+NORMALS_BLOCK = 1024
 #: The instantaneous accel and gyro readings, computed when any of them is asked for.
 _POINT_READINGS = frozenset({"accel", "ang_rate", "raw_accel", "raw_ang_rate"})
 
@@ -152,14 +155,6 @@ def tumbling(config: MotionConfig) -> MotionConfig:
     return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
 
-def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
-    """SplitMix64: a well-mixed 64-bit hash that NumPy applies to whole arrays."""
-    x = x + np.uint64(0x9E3779B97F4A7C15)
-    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
-
-
 def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int) -> tuple[FloatArray, ...]:
     """Amplitudes, angular frequencies and phases, (3, k) each, of k terms per axis."""
     share = rng.uniform(0.2, 1.0, (3, k))
@@ -167,29 +162,50 @@ def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int) -> tuple[
     return amp, 2.0 * np.pi * rng.uniform(0.05, 0.5, (3, k)), rng.uniform(0.0, 2.0 * np.pi, (3, k))
 
 
-def _keyed_normals(seed: int, index: npt.NDArray[np.int64], count: int) -> FloatArray:
-    """(n, count) standard normals that depend only on (seed, index).
+class _KeyedNormals:
+    """Standard normals, ``count`` per integer index, that depend only on (seed, index).
 
-    Hashing the index (a calculation cycle, a knot), not drawing from a generator, makes
-    a sample's noise independent of its batch; Box-Muller turns the hashed uniforms into
-    normals.
+    Drawn ``NORMALS_BLOCK`` indexes at a time by a generator seeded with (seed, block),
+    not from one stream, so an index's normals are the same whatever batch asks for
+    them, at the cost of a generator a block; the last few blocks are kept, since the
+    batches of a stream share them.
+
+    Args:
+        seed: Keys the normals.
+        count: Normals per index.
     """
-    key = _splitmix64(np.array([seed & 0xFFFF_FFFF_FFFF_FFFF], dtype=np.uint64))
-    pairs = (count + 1) // 2
-    streams = np.arange(1, 2 * pairs + 1, dtype=np.uint64) * np.uint64(0xD1B54A32D192ED03)
-    bits = _splitmix64(streams ^ _splitmix64(index.view(np.uint64) ^ key)[:, None])
-    u = ((bits >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0**-53  # uniform in (0, 1)
-    radius, angle = np.sqrt(-2.0 * np.log(u[:, :pairs])), 2.0 * np.pi * u[:, pairs:]
-    return np.concatenate([radius * np.cos(angle), radius * np.sin(angle)], axis=1)[:, :count]
+
+    _KEPT = 8
+
+    def __init__(self, seed: int, count: int) -> None:
+        self.seed, self.count = seed & _MASK64, count
+        self._blocks: dict[int, FloatArray] = {}
+
+    def _block(self, block: int) -> FloatArray:
+        if block not in self._blocks:
+            if len(self._blocks) >= self._KEPT:
+                del self._blocks[next(iter(self._blocks))]
+            generator = np.random.Generator(np.random.PCG64(
+                np.random.SeedSequence([self.seed, block & _MASK64])))
+            self._blocks[block] = generator.standard_normal((NORMALS_BLOCK, self.count))
+        return self._blocks[block]
+
+    def __call__(self, index: npt.NDArray[np.int64]) -> FloatArray:
+        """(n, count) normals of the indexes ``index``."""
+        blocks = index // NORMALS_BLOCK
+        drawn, where = np.unique(blocks, return_inverse=True)
+        table = np.concatenate([self._block(b) for b in drawn.tolist()])
+        out: FloatArray = table[where * NORMALS_BLOCK + index % NORMALS_BLOCK]
+        return out
 
 
-def _averaged_normals(seed: int, cycles: npt.NDArray[np.int64], weights: FloatArray,
-                      count: int) -> FloatArray:
+def _averaged_normals(normals: _KeyedNormals, cycles: npt.NDArray[np.int64],
+                      weights: FloatArray) -> FloatArray:
     """Per cycle k: the cycles up to k, (k - W, k], weighted: sum_i weights[i] z[k - W + 1 + i].
 
-    z are ``_keyed_normals`` per cycle, so the result is a pure function of (seed, k).
-    Where the windows overlap, each cycle's normals are drawn once for all of them;
-    apart (a decimation past the width), only the windows' are.
+    z are ``normals`` per cycle, so the result is a pure function of (seed, k). Where the
+    windows overlap, each cycle's normals are taken once for all of them; apart (a
+    decimation past the width), only the windows' are.
 
     Returns:
         (n, count).
@@ -197,14 +213,13 @@ def _averaged_normals(seed: int, cycles: npt.NDArray[np.int64], weights: FloatAr
     width = len(weights)
     first, last = int(cycles.min()) + 1 - width, int(cycles.max())
     if last - first + 1 <= len(cycles) * width:
-        z = _keyed_normals(seed, np.arange(first, last + 1, dtype=np.int64), count)
+        z = normals(np.arange(first, last + 1, dtype=np.int64))
         windows = np.lib.stride_tricks.sliding_window_view(z, width, axis=0)[cycles + 1 - width
                                                                                - first]
     else:
         index = (cycles[:, None] + np.arange(1 - width, 1, dtype=np.int64)).reshape(-1)
-        windows = _keyed_normals(seed, index, count).reshape(len(cycles), width, count)
-        windows = windows.swapaxes(1, 2)
-    out: FloatArray = windows @ weights
+        windows = normals(index).reshape(len(cycles), width, normals.count).swapaxes(1, 2)
+    out: FloatArray = np.einsum("ncw,w->nc", windows, weights)  # not BLAS: no threads
     return out
 
 
@@ -287,6 +302,9 @@ class Motion:
                        cfg.accelerometer_noise_density / STANDARD_GRAVITY * root),
             math.hypot(cfg.noise_gyro_rad_s, cfg.gyroscope_noise_density * root),
             cfg.noise_mag_gauss], 3)
+        self._cycle_normals = _KeyedNormals(cfg.seed, 6)
+        self._mag_normals = _KeyedNormals(cfg.seed ^ _MAG_SALT, 3)
+        self._knot_normals = _KeyedNormals(cfg.seed ^ _WALK_SALT, 6)
 
     def euler_and_rates(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Unwrapped roll, pitch, yaw [rad] and their time derivatives.
@@ -355,8 +373,8 @@ class Motion:
         weights = np.full(width, 1.0 / width)
         if span:
             weights = np.convolve(np.ones(span), weights) * CALCULATION_CYCLE_S
-        seed = self.config.seed ^ _MAG_SALT if mag else self.config.seed
-        noise: FloatArray = sigma * _averaged_normals(seed, cycles, weights, len(sigma))
+        normals = self._mag_normals if mag else self._cycle_normals
+        noise: FloatArray = sigma * _averaged_normals(normals, cycles, weights)
         return noise
 
     def bias_walk(self, t: npt.ArrayLike) -> FloatArray:
@@ -380,7 +398,7 @@ class Motion:
         have = len(self._walk_knots)
         if need > have:
             index = np.arange(have, need, dtype=np.int64)
-            steps = self._walk_sigma * _keyed_normals(self.config.seed ^ _WALK_SALT, index, 6)
+            steps = self._walk_sigma * self._knot_normals(index)
             self._walk_knots = np.concatenate(
                 [self._walk_knots, self._walk_knots[-1] + np.cumsum(steps, axis=0)])
         whole = np.floor(at).astype(np.int64)
@@ -460,9 +478,9 @@ class Motion:
             period: The output sample period [s]: D cycles for the deltas' noise.
             chain: What the unit's filters do; the default, a bare sensor.
             only: At least these quantities: the accel and gyro readings, DeltaAng and
-                DeltaVel's quadrature, C's previous orientation and the magnetometer,
-                most of the cost, are computed only when asked for (every value is the
-                same either way); None: everything.
+                DeltaVel's quadrature, C's previous orientation, the magnetometer, Euler
+                angles and the quaternion, most of the cost, are computed only when asked
+                for (every value is the same either way); None: everything.
 
         Returns:
             Quantity name -> values, (n, ...): float64, except temperature, which holds
@@ -500,10 +518,12 @@ class Motion:
         if only is None or "mag" in only:
             out["mag"] = (self.magnetometer(t, chain) if mag_delay != delay else stab_mag
                           + self._chain_noise(cycles, chain.mag_filter_width, mag=True))
+        if only is None or "euler" in only:
+            out["euler"] = convert.m_to_euler(m)
+        if only is None or "quaternion" in only:
+            out["quaternion"] = convert.m_to_quaternion(m)
         return out | {
             "m": m,
-            "euler": convert.m_to_euler(m),
-            "quaternion": convert.m_to_quaternion(m),
             "stab_accel": -m[:, :, 2],
             "stab_mag": stab_mag,
             "temperature": np.tile(self._temperature, (t.shape[0], 1)),

@@ -583,7 +583,7 @@ class SimUnit:
 
         At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
-        return self.motion.sample(device, period, self.signal_chain(), names)
+        return self.motion.sample(device, period, self.signal_chain(), [*names, "quaternion"])
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
