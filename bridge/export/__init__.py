@@ -1,11 +1,13 @@
-"""Archives out to other formats: Parquet and CSV tables, ROS 2 bags, and ``gx3 export``."""
+"""Archives out to other formats: Parquet and CSV tables, ROS 2 and ROS 1 bags, gx3 export."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
+from bridge.export.bags import BagWritten
 from bridge.export.describe import About
+from bridge.export.ros1_bag import write_ros1
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 
 if TYPE_CHECKING:
@@ -20,6 +22,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "About",
+    "BagWritten",
     "Export",
     "Exported",
     "Ros2Written",
@@ -27,6 +30,7 @@ __all__ = [
     "event_table",
     "offline_times",
     "sample_table",
+    "write_ros1",
     "write_ros2",
     "write_table",
 ]

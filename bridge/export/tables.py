@@ -279,7 +279,8 @@ def check_format(path: Path, bag: bool = False) -> str:
 
     Args:
         path: The file to write.
-        bag: The error also names .mcap, for a command that writes a ROS 2 bag there.
+        bag: The error also names .mcap and .bag, for a command that writes ROS 2 and
+            ROS 1 bags there.
 
     Returns:
         The extension, lower-case.
@@ -291,7 +292,8 @@ def check_format(path: Path, bag: bool = False) -> str:
     if suffix not in FORMATS:
         raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
                          "name the file .parquet or .csv"
-                         + (" (a table), or .mcap (a ROS 2 bag)" if bag else ""))
+                         + (" (a table), .mcap (a ROS 2 bag) or .bag (a ROS 1 bag)" if bag
+                            else ""))
     return suffix
 
 
