@@ -9,6 +9,7 @@ import pytest
 import zenoh
 
 import bridge
+from bridge.bus.codec import record_quantities
 from bridge.bus.gx3_pb2 import Event, Status
 from bridge.bus.publish import UnitPublisher
 from bridge.device.session import UnitInfo
@@ -33,10 +34,9 @@ def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Sess
                 assert b is not None and (b.unit, b.code) == ("imu0", code)
                 done = sum(len(g) for g in got)
                 got.append(b["ticks"])
-                for q in b.columns:
-                    if q not in ("command", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns"):
-                        np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
-                                                      err_msg=q)
+                for q in ("timer", *record_quantities(code)):
+                    np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
+                                                  err_msg=q)
             np.testing.assert_array_equal(np.concatenate(got), ticks)
         assert pub.published == 4 * len(DATA_CODES)
         first = raw.get(timeout=10)

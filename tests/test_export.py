@@ -17,11 +17,13 @@ from bridge.archive.mcap_writer import MAGIC
 from bridge.archive.walk import read_archive
 from bridge.export.describe import flat_names
 from bridge.export.tables import sample_table
+from bridge.timing import Estimate
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, Written, write_fleet
 from tests.helpers.processes import GX3, gx3
 from tests.helpers.records import T0
 
-HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "live_time_ns", "rx_ns"]
+HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "time_uncertainty_ns",
+        "live_time_ns", "rx_ns"]
 ROWS = sum(n for _, n, _ in FLEET.values())
 
 
@@ -123,15 +125,16 @@ def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written])
     path, written = fleet
     calls: list[int] = []
 
-    def re_estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray:
+    def re_estimate(unit: str, columns: Mapping[str, np.ndarray]) -> Estimate:
         ticks = columns["ticks"]
         calls.append(len(ticks))
         assert np.all(np.diff(columns["rx_ns"]) >= 0)
-        return T0 + ticks * 16_000  # 62.5 kHz ticks
+        return Estimate(T0 + ticks * 16_000, ticks % 7)  # 62.5 kHz ticks
 
     table = sample_table(read_archive(path), re_estimate=re_estimate)
     assert sorted(calls) == sorted(n for _, n, _ in FLEET.values())
     np.testing.assert_array_equal(table["time_ns"], T0 + table["ticks"] * 16_000)
+    np.testing.assert_array_equal(table["time_uncertainty_ns"], table["ticks"] % 7)
     u1 = table["unit"] == "u1"
     np.testing.assert_array_equal(np.sort(table["live_time_ns"][u1]), written.times["u1"])
 

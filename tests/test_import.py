@@ -22,6 +22,7 @@ from mcap_ros2.decoder import DecoderFactory
 from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.ingest.bytelog import LogFile, import_logs
 from bridge.protocol import Framer, checksum, encode_reply
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig, tumbling
@@ -281,3 +282,17 @@ def test_a_record_with_a_corrupt_timer_is_dropped_as_live(tmp_path: Path) -> Non
     time_ns = np.concatenate([b.columns["time_ns"] for b in archive.samples(["u"])])
     truth = np.delete(segment.truth["value_ns"], [100, 400])
     assert np.abs(np.sort(time_ns) - truth).max() <= 1_000
+
+
+def test_delta_records_are_timed_at_the_middle_of_their_period(tmp_path: Path) -> None:
+    """0xC3 integrates over the output period (here 50 ms): an imported record's time_ns
+    is the period's middle, as live, not its end."""
+    config = streaming_config(_unit(0), code=0xC3, decimation=50, baud=115_200)
+    capture = synthesize(config, UartDelivery(), 20.0)
+    log = tmp_path / "delta.bin"
+    log.write_bytes(b"".join(capture.data))
+    import_logs([LogFile(log, int(capture.truth["time_ns"][0]))], tmp_path / "delta.mcap",
+                "d1")
+    (block,) = read_archive(tmp_path / "delta.mcap").samples(["d1"])
+    error = block.columns["time_ns"] - capture.truth["value_ns"]
+    assert np.abs(error).max() <= 1_000, np.abs(error).max()

@@ -22,13 +22,14 @@ from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.archive.walk import read_archive
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event
+from bridge.export.tables import last_info, offline_times, sample_table
 from bridge.ingest.replay import captures, replay
 from bridge.protocol.codec import encode_reply
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import UsbDelivery
+from bridge.sim.usb import AdapterDelivery, UsbDelivery
 from tests.helpers.archives import sample_columns, write_capture
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3
@@ -275,3 +276,35 @@ def test_a_raw_read_archived_late_keeps_its_receive_times(tmp_path: Path) -> Non
     assert capture.raw_ns is not None and capture.raw_ns.tolist() == [20, 30, 40]
     assert read_archive(tmp_path / "late.mcap").messages("gx3/u1/raw").log_time.tolist() \
         == [2_000, 3_000, 3_000]
+
+
+def test_a_captures_own_sampling_reply_sets_the_archives_info_and_export(
+        tmp_path: Path) -> None:
+    """A 500 Hz capture (filter width 32) that starts with the unit's own 0xDB reply and
+    carries no metadata: replay times it by the reply, the archive's Info says what the
+    reply said, and gx3 export re-times it with that, agreeing with the live time and
+    the truth (not the factory width's 8.5 ms off)."""
+    config = streaming_config(UnitConfig(motion=MotionConfig(seed=3), clock_ppm=-20.0),
+                              code=0xC2, decimation=2, filter_width=32, baud=460_800)
+    cap = synthesize(config, AdapterDelivery(frame_phase_s=0.0005, seed=4,
+                                             latency_timer_s=0.001), seconds=30.0)
+    sampling = vars(config.stored.sampling)
+    reply = encode_reply(0xDB, **{k: sampling[k] for k in (
+        "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
+        "north_compensation")})
+    reads = [(int(cap.rx_ns[0]) - 5_000_000, reply), *zip(cap.rx_ns.tolist(), cap.data,
+                                                         strict=True)]
+    path = write_capture(tmp_path / "raw.mcap", reads)
+    replay([path], tmp_path / "out.mcap")
+    archive = read_archive(tmp_path / "out.mcap")
+    info = last_info(archive, "u1")
+    assert info is not None
+    assert (info.filter_width, info.decimation, info.command) == (32, 2, 0xC2)
+    table = sample_table(archive, ["u1"], re_estimate=offline_times(archive))
+    truth = dict(zip(cap.truth["timer"].tolist(), cap.truth["value_ns"].tolist(),
+                     strict=True))
+    settled = table["time_ns"] - table["time_ns"][0] > 5e9
+    exported, live = table["time_ns"][settled], table["live_time_ns"][settled]
+    true_ns = np.array([truth[t] for t in table["timer"][settled].tolist()])
+    assert np.percentile(np.abs(exported - live), 99) < 100_000
+    assert np.percentile(np.abs(exported - true_ns), 99) < 100_000

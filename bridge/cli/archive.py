@@ -166,7 +166,8 @@ def export(
 
     Columns: unit, command, timer, ticks, time_ns (ns since the Unix epoch, each unit's
     clock re-estimated over the whole recording), time_utc (the same as a UTC
-    timestamp), live_time_ns (as the bridge published it), rx_ns, then flat quantity
+    timestamp), time_uncertainty_ns (the most time_ns can be off by, as the reads bound
+    it; 0: not known), live_time_ns (as the bridge published it), rx_ns, then flat quantity
     columns (accel_x .. accel_z in g, ang_rate_x .. in rad/s, mag_x .. in gauss, m11 ..
     m33, roll pitch yaw in rad, q0 .. q3, temperature_0 .. temperature_3 in A/D codes,
     ...), empty (null) where a record lacks a quantity; rows in time order. Body frame

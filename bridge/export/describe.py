@@ -59,6 +59,9 @@ _HEAD: dict[str, tuple[str, str]] = {
                       "each unit's clock re-estimated over the whole recording (live times "
                       "where the unit's Info is not archived), filter delay taken out"),
     "time_utc": ("ns", "time_ns as a UTC timestamp"),
+    "time_uncertainty_ns": ("ns", "the most time_ns can be off by, as the reads bound it "
+                                  "(time_ns is the middle of the instants they allow); 0: "
+                                  "not known (a UART's reads bound records from one side)"),
     "live_time_ns": ("ns", "time_ns as the bridge published it live (from the past only)"),
     "rx_ns": ("ns", "host receive time (ns since the Unix epoch) of the read that completed "
                     "the record; includes transport latency"),

@@ -38,13 +38,14 @@ from bridge.protocol.convert import (
     quaternion_to_euler,
     quaternion_to_m,
 )
+from bridge.timing.offline import Estimate
 from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings
 
 #: Offline re-estimate of sample times: (unit, its columns ``ticks``, ``time_ns`` (live),
-#: ``rx_ns`` and ``rx_mono_raw_ns``, in the order they were received) -> time_ns, int64
-#: ns; None keeps that unit's live times.
-ReEstimate = Callable[[str, Mapping[str, np.ndarray]], np.ndarray | None]
+#: ``rx_ns``, ``rx_mono_raw_ns`` and the partial reads, in the order they were received)
+#: -> time_ns and each one's uncertainty, int64 ns; None keeps that unit's live times.
+ReEstimate = Callable[[str, Mapping[str, np.ndarray]], Estimate | None]
 
 FORMATS = (".parquet", ".csv")
 
@@ -80,9 +81,12 @@ def parse_time(text: str) -> TimeBound:
 
 
 def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
-                re_estimate: ReEstimate | None) -> list[np.ndarray]:
-    """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
-    live = [b.columns["time_ns"] for b in blocks]
+                re_estimate: ReEstimate | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Best time_ns of each block of one unit and how sure each is.
+
+    Live (uncertainty not known, 0), or re-estimated over the whole unit.
+    """
+    live = [(b.columns["time_ns"], np.zeros(len(b), np.int64)) for b in blocks]
     if re_estimate is None:
         return live
     columns = {name: np.concatenate([b.columns[name] for b in blocks])
@@ -94,9 +98,13 @@ def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
     found = re_estimate(unit, {name: col[order] for name, col in columns.items()})
     if found is None:
         return live
-    estimate = np.empty(len(raw), np.int64)
-    estimate[order] = np.asarray(found, np.int64)
-    return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
+    cuts = np.cumsum([len(b) for b in blocks])[:-1]
+    out = []
+    for values in found:
+        column = np.empty(len(raw), np.int64)
+        column[order] = values
+        out.append(np.split(column, cuts))
+    return list(zip(*out, strict=True))
 
 
 def last_info(archive: ArchiveReader, unit: str) -> Info | None:
@@ -148,7 +156,7 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     Returns:
         The re-estimate, for ``sample_table``'s ``re_estimate``.
     """
-    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> Estimate | None:
         ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
         settings = _unit_settings(archive, unit)
         if settings is None or len(ticks) < 2:
@@ -158,7 +166,7 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
         rx = (raw if on_raw else rx_ns)[order]
         ago, lead = columns["part_ago_ns"][order], columns["part_lead_ns"][order]
         has = ago >= 0
-        instants = settings.offline_clock().smooth(
+        instants, doubt = settings.offline_clock().estimate(
             ticks[order], rx, np.where(has, rx - ago, rx),
             np.where(has, lead, settings.floor_ns))
         if on_raw:
@@ -166,8 +174,8 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
             track = RealtimeReads(reads, rx_ns[first])
             live_offset = columns["time_ns"][order] - instants
             instants = track.map_array(instants, raw[order], sides=live_offset)
-        out = np.empty(len(ticks), np.int64)
-        out[order] = instants
+        out = Estimate(np.empty(len(ticks), np.int64), np.empty(len(ticks), np.int64))
+        out.time_ns[order], out.uncertainty_ns[order] = instants, doubt
         return out
 
     return estimate
@@ -191,12 +199,14 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     Returns:
         Column name -> one value per row: ``unit``, ``command``, ``timer``, ``ticks``,
         ``time_ns`` (the best estimate of the sample instant: the live estimate unless a
-        re-estimate is given), ``live_time_ns`` (as the bridge published it), ``rx_ns``
-        (host receive time), then each quantity any exported record holds, flattened
-        (``accel_x``, ``m11`` .. ``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN
-        where a record lacks it. Temperatures are A/D codes stored as float32 (exact),
-        so that they can be missing too. Orientation columns keep the manual's
-        convention: M maps earth (NED) to sensor, the quaternion is scalar first.
+        re-estimate is given), ``time_uncertainty_ns`` (the most ``time_ns`` can be off
+        by, as the reads bound it; 0: not known), ``live_time_ns`` (as the bridge
+        published it), ``rx_ns`` (host receive time), then each quantity any exported
+        record holds, flattened (``accel_x``, ``m11`` .. ``m33``, ``roll``, ``q0``,
+        ``temperature_0``, ...), NaN where a record lacks it. Temperatures are A/D codes
+        stored as float32 (exact), so that they can be missing too. Orientation columns
+        keep the manual's convention: M maps earth (NED) to sensor, the quaternion is
+        scalar first.
     """
     blocks = archive.samples(units, codes)
     by_unit: dict[str, list[ArchivedSamples]] = {}
@@ -205,7 +215,8 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     times = {u: _unit_times(u, bs, re_estimate) for u, bs in by_unit.items()}
     unit_names = sorted(by_unit)
     ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
-    time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)
+    time_ns, doubt = (np.concatenate([t[i] for _, t in ordered]) if ordered
+                      else np.zeros(0, np.int64) for i in range(2))
     keep = np.ones(len(time_ns), bool)
     if start_ns is not None:
         keep &= time_ns >= start_ns
@@ -219,6 +230,7 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
         "timer": _cat(ordered, "timer", np.uint32),
         "ticks": _cat(ordered, "ticks", np.int64),
         "time_ns": time_ns,
+        "time_uncertainty_ns": doubt,
         "live_time_ns": _cat(ordered, "time_ns", np.int64),
         "rx_ns": _cat(ordered, "rx_ns", np.int64),
     }
@@ -240,7 +252,8 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     return out
 
 
-def _cat(ordered: list[tuple[ArchivedSamples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
+def _cat(ordered: list[tuple[ArchivedSamples, tuple[np.ndarray, np.ndarray]]], name: str,
+         dtype: type) -> np.ndarray:
     if not ordered:
         return np.zeros(0, dtype)
     return np.concatenate([b.columns[name] for b, _ in ordered]).astype(dtype)

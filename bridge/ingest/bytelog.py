@@ -34,7 +34,7 @@ from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
-from bridge.timing.stream import filter_delay_ns
+from bridge.timing.stream import filter_delay_ns, period_middle_ns
 from bridge.timing.unwrap import NS_PER_TICK
 
 __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
@@ -236,7 +236,7 @@ class _Timeline:
             self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
-            return fast, self.origin_ns + fast * NS_PER_TICK, None
+            return fast, self.origin_ns + fast * NS_PER_TICK - self._middle(batch.code), None
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
         origins = np.empty(len(timers), np.int64)  # a reset in the batch changes it
@@ -270,7 +270,12 @@ class _Timeline:
                     self.last_ticks += step
             ticks[i], origins[i] = self.last_ticks, self.origin_ns
             self.last_timer, self.last_code = timer, batch.code
-        return ticks, origins + ticks * NS_PER_TICK, None if keep.all() else keep
+        return (ticks, origins + ticks * NS_PER_TICK - self._middle(batch.code),
+                None if keep.all() else keep)
+
+    def _middle(self, code: int) -> int:
+        """How much earlier records of ``code`` describe than their cycle (``period_middle_ns``)."""
+        return period_middle_ns(code, self.result.decimation)
 
     def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
         """``ticks`` of a batch with no reset or glitch in it (nearly all), at once."""

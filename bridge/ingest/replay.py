@@ -32,7 +32,7 @@ from bridge.bus.gx3_pb2 import Event, Info
 from bridge.exceptions import ArchiveReadError, ReplayError, UnusableCapture
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
-from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
+from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, MAX_OUTPUT_HZ, TICKS_PER_SECOND
 from bridge.timing.links import infer_transport
 from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads
 from bridge.timing.steps import find_steps, raw_like, unwrap_timer
@@ -175,6 +175,10 @@ class _UnitReplay:
         self.timing = StreamTiming(self.host)
         self._pending: list[Batch] = []
         self._pending_records = 0
+        #: the Info's flags and magnetometer filter width beyond ``settings``: the
+        #: capture's metadata's until a 0xDB reply in it says otherwise
+        self._flags = int(capture.metadata.get("flags", "0"))
+        self._mag_filter_width = 0  # not known
 
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self, little_endian: bool, transport: str | None) -> Settings:
@@ -200,7 +204,15 @@ class _UnitReplay:
         link = infer_transport(self.steady[:_INFER_READS],
                                self.capture.data[:_INFER_READS], record, little_endian)
         self.result.inferred.append(link.describe())
-        return replace(settings, transport=link.transport, baud=link.baud or DEFAULT_BAUD,
+        baud = link.baud
+        if baud is None and link.transport != "usb":
+            # the line's pace did not show: the manual's pairing of rate and baud rate
+            rate = 1000 / decimation
+            baud = next((b for b, most in sorted(MAX_OUTPUT_HZ.items()) if most >= rate),
+                        max(MAX_OUTPUT_HZ))
+            self.result.inferred.append(f"baud {baud} (the manual's Table 5 pairs "
+                                        f"{rate:g} Hz with it; the reads did not show it)")
+        return replace(settings, transport=link.transport, baud=baud or DEFAULT_BAUD,
                        latency_timer_ms=link.latency_timer_ms)
 
     def _sniff_batches(self, little_endian: bool) -> list[Batch]:
@@ -264,9 +276,10 @@ class _UnitReplay:
         s, meta = self.settings, self.capture.metadata
         info = Info(unit=self.capture.unit, port=meta.get("port", ""), baud=s.baud,
                     command=s.record, decimation=s.decimation, filter_width=s.filter_width,
-                    flags=int(meta.get("flags", "0")), output_rate_hz=1000 / s.decimation,
+                    flags=self._flags, output_rate_hz=1000 / s.decimation,
                     firmware_text=meta.get("firmware", ""), link=s.transport,
-                    latency_timer_ms=s.latency_timer_ms or 0, bring_up_time_ns=at_ns)
+                    latency_timer_ms=s.latency_timer_ms or 0, bring_up_time_ns=at_ns,
+                    mag_filter_width=self._mag_filter_width)
         emit(f"{prefix}/{self.capture.unit}/info", [info.SerializeToString()], at_ns)
 
     def run(self, emit: Emit, prefix: str) -> Replayed:
@@ -314,6 +327,8 @@ class _UnitReplay:
             self.settings = replace(self.settings,
                                     decimation=max(1, int(batch["decimation"][-1])),
                                     filter_width=max(1, int(batch["filter_width"][-1])))
+            self._flags = int(batch["flags"][-1])
+            self._mag_filter_width = int(batch["mag_filter_width"][-1])
             if self.timing.timeline is not None:
                 self.timing.configure(self.settings, restarted=True)
         elif batch.code == SET_CONTINUOUS:
@@ -321,6 +336,11 @@ class _UnitReplay:
             self.timing.configure(self.settings, restarted=True)
         elif batch.code == TIMER and self.timing.timeline is not None:
             self.timing.configure(self.settings, restarted=True)
+        if batch.code in (SAMPLING, SET_CONTINUOUS):
+            # the unit's own word on its settings, as its bridge publishes Info after
+            # bring-up: what the archive's readers (the export's timing) go by
+            read = batch.rx_ns[-1:]
+            self._info(emit, prefix, int(self.host.map_array(read, read)[0]))
 
     def _clock_changed(self, change: ClockChange, emit: Emit, prefix: str) -> None:
         """A step or slew of the host clock, as the live bridge published it."""

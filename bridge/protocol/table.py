@@ -25,6 +25,8 @@ PROCESSING_DELAY_S = 0.0002
 ERROR_CODE = 0x21
 ERROR_REPLY = bytes((0x21, 0x00, 0x21))
 BAUD_RATES = (115_200, 230_400, 460_800, 921_600)
+#: The manual's Table 5: the most records a second (of 31 bytes) each baud rate carries.
+MAX_OUTPUT_HZ = {115_200: 250, 230_400: 333, 460_800: 500, 921_600: 1000}
 DEFAULT_BAUD = 115_200
 
 

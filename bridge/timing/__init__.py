@@ -6,7 +6,7 @@
 - ``OnlineClock``: valid (ticks, rx_ns) -> ``time_ns``, the host-clock instant the
   values describe, robust to late delivery, following drift; ``state`` for status.
 - ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns).
-- ``OfflineClock``: the recorder's second pass, one epoch at once, using records on
+- ``OfflineClock``: the export's second pass, one epoch at once, using records on
   both sides of each.
 - ``RealtimeTrack`` / ``RealtimeReads``: each instant from the raw monotonic clock onto
   the host's realtime clock, naming its steps and slews (``ClockChange``).
@@ -33,6 +33,7 @@ from bridge.timing.stream import (
     Timed,
     TimedFew,
     filter_delay_ns,
+    period_middle_ns,
     record_delay_ns,
 )
 from bridge.timing.timeline import Timeline, TimelineBatch
@@ -43,4 +44,4 @@ __all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Estimate", 
            "OnlineClock", "RateWindow", "RealtimeReads", "RealtimeTrack", "Settings",
            "StreamTiming", "Timed", "TimedFew", "Timeline", "TimelineBatch", "TimerUnwrapper",
            "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport",
-           "record_delay_ns"]
+           "period_middle_ns", "record_delay_ns"]

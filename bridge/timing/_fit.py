@@ -1,10 +1,10 @@
-"""The line fits under the clocks: lower envelopes, the USB frame grid, the staircase.
+"""The line fits of the clocks: lower envelopes, the USB frame grid, the bounds' polygon.
 
 Shared by ``OnlineClock`` (``bridge.timing.clock``) and ``OfflineClock``
-(``bridge.timing.offline``), so that both fit one way. A record's point is its ticks
-and an upper bound on its sample instant (host ns); every line here lies under the
-points. The geometry (the lower hull, the frame staircase, the polygon of the lines the
-points allow): docs/design/time.md.
+(``bridge.timing.offline``), so that both fit one way. A record's bounds are its ticks
+and when it was on the line by, or not yet (host ns); the lines here pass between them,
+or lie under the upper ones where there are no others. The geometry (the lower hull,
+the frame grid, the polygon of the lines the bounds allow): docs/design/time.md.
 """
 
 from __future__ import annotations

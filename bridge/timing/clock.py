@@ -1,12 +1,14 @@
 """Online estimate of the instant each record was sampled, on the host clock.
 
-A record is received after it was sampled, never before: the receive time of a read is
-an upper bound on the sample instant of every record in it. ``OnlineClock`` fits the
-line ``host = offset + rate * ticks`` under a sliding window of such points: late reads
-(OS latency, a burst after a stall) lie above it and do not move it, and the window
-follows a rate that wanders. Over USB the receive times are first snapped to the 1 ms
-frames that carried them. How the line is found (the lower hull, the frame staircase and
-the polygon of the lines it allows, reads that end inside a record): docs/design/time.md.
+A record is received after it was on the line, never before: the receive time of a read
+is an upper bound on the start of every record in it. Over USB frames that carry every
+byte ready when polled, a read is also a lower bound on the bytes it did not hold: they
+were not there at its frame. ``OnlineClock`` takes the middle of the lines ``host =
+offset + rate * ticks`` that pass between those bounds over a sliding window (on a UART,
+where only upper bounds hold, the line under them): late reads (OS latency, a burst
+after a stall) do not move it, the window follows a rate that wanders, and the spread
+of the lines it allows says how sure it is. How the bounds and the line are found:
+docs/design/time.md.
 
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,

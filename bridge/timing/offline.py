@@ -1,7 +1,7 @@
-"""Re-estimate sample instants over a whole recording (the recorder's second pass).
+"""Re-estimate sample instants over a whole recording (gx3 export's second pass).
 
 Online, a record's time can only use what came before it; offline, every record has
-the points on both sides. The smoother solves anchors a few seconds apart, each from
+the bounds on both sides. The smoother solves anchors a few seconds apart, each from
 the window around it that pins the line best, and interpolates the records between
 them. Over USB frames the live clock is run on the same records too, and where the
 offline pass is no surer the live instant stands: never worse than live. How the

@@ -41,6 +41,22 @@ def filter_delay_ns(filter_width: int) -> int:
     return (filter_width - 1) * 500_000
 
 
+def period_middle_ns(record: int, decimation: int) -> int:
+    """How much earlier a record's values are than an instantaneous record's of its cycle.
+
+    DeltaAngle and DeltaVelocity integrate over the output period (``ReplySpec.integral``):
+    they describe its middle, half a period before the cycle; other records, 0.
+
+    Args:
+        record: The data record.
+        decimation: The output period in 1 ms cycles (0xDB ``decimation``).
+
+    Returns:
+        The difference, ns.
+    """
+    return decimation * 500_000 if REPLIES[record].integral else 0
+
+
 def record_delay_ns(filter_width: int, record: int | None = None, decimation: int = 1) -> int:
     """From the instant a record's values describe to its first byte on the line.
 
@@ -58,8 +74,8 @@ def record_delay_ns(filter_width: int, record: int | None = None, decimation: in
     Returns:
         The delay, ns.
     """
-    half = decimation * 500_000 if record is not None and REPLIES[record].integral else 0
-    return filter_delay_ns(filter_width) + round(PROCESSING_DELAY_S * 1e9) + half
+    middle = 0 if record is None else period_middle_ns(record, decimation)
+    return filter_delay_ns(filter_width) + round(PROCESSING_DELAY_S * 1e9) + middle
 
 
 @dataclass(frozen=True)
@@ -119,7 +135,7 @@ class Settings:
         return self.transport == "usb-serial"
 
     def offline_clock(self) -> OfflineClock:
-        """The recorder's second pass for records with these settings.
+        """The export's second pass for records with these settings.
 
         Returns:
             An ``OfflineClock`` told the delay, floor and link these settings decide.
