@@ -285,11 +285,12 @@ def test_outputs_are_the_format_their_name_says(tmp_path: Path,
     path = tmp_path / "short.mcap"
     with ArchiveWriter(path) as writer:
         archive_samples(writer, "u1", Motion(STILL), _seconds(0, 120), 1 / RATE, chain=CHAIN)
-    for args, says in ((["-o", tmp_path / "imu.json"], "-o " + str(tmp_path / "imu.json")
-                        + ": gx3 allan writes Kalibr's imu.yaml, which is YAML; name the "
-                          "file .yaml or .yml"),
-                       (["-o", tmp_path / "imu.yaml", "--plot", tmp_path / "a.jpg"],
-                        "name the file .png, .svg or .pdf")):
+    cases: list[tuple[list[str | Path], str]] = [
+        (["-o", tmp_path / "imu.json"], f"-o {tmp_path / 'imu.json'}: gx3 allan writes "
+         "Kalibr's imu.yaml, which is YAML; name the file .yaml or .yml"),
+        (["-o", tmp_path / "imu.yaml", "--plot", tmp_path / "a.jpg"],
+         "name the file .png, .svg or .pdf")]
+    for args, says in cases:
         done = gx3("allan", path, *args)
         assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
         assert says in done.stderr
