@@ -74,7 +74,7 @@ def test_the_variance_is_what_a_white_filter_needs_of_the_units_samples(
     samples = unit_samples(Motion(MotionConfig(seed=6, static=True,
                                                gyroscope_noise_density=density)),
                            rate, width, 3000)
-    y = np.concatenate(samples.ang_rate).astype(np.float64)
+    y = samples.join()[3].astype(np.float64)
     sums = y.reshape(-1, rate, 3).sum(axis=1)
     variance = sample_variance(density, rate, width)
     found = float(sums.var(axis=0).mean()) / rate

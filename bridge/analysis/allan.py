@@ -161,13 +161,11 @@ class AllanSums:
         phase = np.empty(n + 1)
         phase[0] = 0.0
         for column, values in enumerate(columns):
-            np.cumsum(values, dtype=np.float64, out=phase[1:])
             # the stretch's mean changes no second difference: taken out, the phase stays
             # small
-            mean = phase[-1] / n
-            for a in range(0, n + 1, _BLOCK):
-                b = min(a + _BLOCK, n + 1)
-                phase[a:b] -= mean * np.arange(a, b, dtype=np.float64)
+            np.subtract(values, np.mean(values, dtype=np.float64), out=phase[1:],
+                        dtype=np.float64)
+            np.cumsum(phase[1:], out=phase[1:])
             for j, m in enumerate(self.factors.tolist()):
                 terms = n + 1 - 2 * m
                 if terms <= 0:

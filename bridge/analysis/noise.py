@@ -68,13 +68,19 @@ MOVED_FACTOR = 10.0
 #: (a knock, handling), in seconds of at least _MIN_SPREAD_SAMPLES samples.
 MOVED_SPREAD = 5.0
 _MIN_SPREAD_SAMPLES = 5
-_WRAP = 1 << 32
 _AXES = "xyz"
+#: Rows of a block of ``UnitSamples``'s columns: 12 MB of float32 triples.
+BLOCK_SAMPLES = 1 << 20
 
 
 @dataclass
 class UnitSamples:
     """A unit's samples that have acceleration and angular rate, in archive order.
+
+    Each column is a list of arrays, joined when the noise is read off. ``add`` copies
+    an archive chunk's few thousand samples into blocks of ``BLOCK_SAMPLES`` rows: each
+    block is then a mapping of its own, which goes back to the system when freed, where
+    thousands of small arrays would leave the heap as large as they made it.
 
     Attributes:
         unit: The unit's name.
@@ -93,17 +99,51 @@ class UnitSamples:
     ang_rate: list[np.ndarray] = field(default_factory=list)
     other_codes: set[int] = field(default_factory=set)
     settings: list[tuple[int, int, int]] = field(default_factory=list)
+    # rows not yet filled at the end of each column's last block
+    _room: int = field(default=0, init=False, repr=False)
 
     def __len__(self) -> int:
-        return sum(len(t) for t in self.time_ns)
+        return sum(len(t) for t in self.time_ns) - self._room
+
+    def _columns(self) -> tuple[list[np.ndarray], ...]:
+        return self.time_ns, self.timer, self.accel, self.ang_rate
+
+    def add(self, time_ns: np.ndarray, timer: np.ndarray, accel: np.ndarray,
+            ang_rate: np.ndarray) -> None:
+        """Keep samples (a chunk's), copied into the columns' blocks.
+
+        Args:
+            time_ns: Their instants, int64 host ns.
+            timer: Their timer values, uint32.
+            accel: Their specific force, g, (n, 3).
+            ang_rate: Their angular rate, rad/s, (n, 3).
+        """
+        values: tuple[np.ndarray, ...] = (
+            time_ns.astype(np.int64, copy=False), timer.astype(np.uint32, copy=False),
+            accel.astype(np.float32, copy=False), ang_rate.astype(np.float32, copy=False))
+        done = 0
+        while done < len(time_ns):
+            if not self._room:
+                for column, value in zip(self._columns(), values, strict=True):
+                    column.append(np.empty((BLOCK_SAMPLES, *value.shape[1:]), value.dtype))
+                self._room = BLOCK_SAMPLES
+            take = min(self._room, len(time_ns) - done)
+            at = BLOCK_SAMPLES - self._room
+            for column, value in zip(self._columns(), values, strict=True):
+                column[-1][at : at + take] = value[done : done + take]
+            self._room -= take
+            done += take
 
     def join(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Each column as one array, the chunks' arrays let go (they are kept joined).
+        """Each column as one array, its blocks let go (the column is kept joined).
 
         Returns:
             time_ns, timer, accel, ang_rate.
         """
-        for column in (self.time_ns, self.timer, self.accel, self.ang_rate):
+        room, self._room = self._room, 0
+        for column in self._columns():
+            if room:
+                column[-1] = column[-1][: len(column[-1]) - room]
             if len(column) > 1:
                 column[:] = [np.concatenate(column)]
         return self.time_ns[0], self.timer[0], self.accel[0], self.ang_rate[0]
@@ -139,10 +179,7 @@ def collect_samples(units: Sequence[str] | None) -> tuple[
             if "accel" not in cols or "ang_rate" not in cols:
                 unit.other_codes.add(block.code)
                 continue
-            unit.time_ns.append(cols["time_ns"].astype(np.int64))
-            unit.timer.append(cols["timer"].astype(np.uint32))
-            unit.accel.append(cols["accel"].astype(np.float32))
-            unit.ang_rate.append(cols["ang_rate"].astype(np.float32))
+            unit.add(cols["time_ns"], cols["timer"], cols["accel"], cols["ang_rate"])
 
     return kept, take, first
 
@@ -234,12 +271,15 @@ def _sample_step(timer: np.ndarray) -> tuple[np.ndarray, float]:
 
     The step is the median; a decimation of an odd number of ms steps by 62.5 ticks
     times it, alternately rounded down and up, so the steps within a tick of the median
-    are averaged to give the period.
+    are averaged to give the period. Steps of the uint32 timer are taken in uint32,
+    whose arithmetic wraps as the timer does: a rollover's step is exact.
     """
-    steps: np.ndarray = np.mod(np.diff(timer.astype(np.int64)), _WRAP)
-    median = float(np.median(steps)) if len(steps) else 0.0
-    regular = np.abs(steps - median) <= 1.0
-    return steps, float(steps[regular].mean()) if regular.any() else median
+    steps: np.ndarray = np.diff(timer.astype(np.uint32, copy=False))
+    if not len(steps):
+        return steps, 0.0
+    median = float(np.median(steps))
+    regular = (steps >= median - 1.0) & (steps <= median + 1.0)
+    return steps, float(np.mean(steps, where=regular, dtype=np.float64))
 
 
 def _stretch_bounds(steps: np.ndarray, step: float) -> np.ndarray:
@@ -249,7 +289,7 @@ def _stretch_bounds(steps: np.ndarray, step: float) -> np.ndarray:
     gap, a repeat, a reset. A rollover moves on by exactly one period mod 2**32, and
     cuts nothing.
     """
-    cut = np.abs(steps - step) > 1.0
+    cut = (steps < step - 1.0) | (steps > step + 1.0)
     return np.concatenate([[0], np.flatnonzero(cut) + 1, [len(steps) + 1]])
 
 
@@ -294,20 +334,20 @@ def _filter_width(samples: UnitSamples, first_ns: int, last_ns: int) -> int | No
     return current[1]
 
 
-def _second_sums(time_ns: np.ndarray, values: np.ndarray
+def _second_sums(time_ns: np.ndarray, parts: tuple[np.ndarray, ...]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per second of samples (in time order): where it starts and its samples.
 
-    Also the sums of ``values`` per column, then the sums of their squares.
+    Also the sums of the columns of ``parts``, in order, then the sums of their squares,
+    in float64 whatever the columns' type.
     """
-    second = (time_ns - time_ns[0]) // 1_000_000_000
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(second)) + 1])
+    ends = np.arange(time_ns[0], time_ns[-1] + 1, 1_000_000_000, dtype=np.int64)
+    starts = np.unique(np.searchsorted(time_ns, ends))
     counts = np.diff(np.concatenate([starts, [len(time_ns)]]))
-    sums = np.column_stack([np.add.reduceat(values[:, i], starts, dtype=np.float64)
-                            for i in range(values.shape[1])])
-    squares = np.column_stack([np.add.reduceat(np.square(values[:, i], dtype=np.float64),
-                                               starts) for i in range(values.shape[1])])
-    return starts, counts, np.concatenate([sums, squares], axis=1)
+    columns = [part[:, i] for part in parts for i in range(part.shape[1])]
+    sums = [np.add.reduceat(c, starts, dtype=np.float64) for c in columns]
+    squares = [np.add.reduceat(np.square(c, dtype=np.float64), starts) for c in columns]
+    return starts, counts, np.column_stack(sums + squares)
 
 
 def _moved(time_ns: np.ndarray, accel: np.ndarray, rate: np.ndarray, unit: str) -> None:
@@ -325,7 +365,7 @@ def _moved(time_ns: np.ndarray, accel: np.ndarray, rate: np.ndarray, unit: str) 
         time_ns, accel, rate = time_ns[keep], accel[keep], rate[keep]
     if not len(time_ns):
         return
-    starts, counts, sums = _second_sums(time_ns, np.concatenate([accel, rate], axis=1))
+    starts, counts, sums = _second_sums(time_ns, (accel, rate))
     mean = sums[:, :6] / counts[:, None]
     mean[:, :3] *= STANDARD_GRAVITY
     spread = np.sqrt((sums[:, 6:] / counts[:, None] - (sums[:, :6] / counts[:, None]) ** 2

@@ -43,8 +43,7 @@ def unit_samples(motion: Motion, rate_hz: float, width: int, seconds: float,
         t = cycles[at : at + 200_000] / 1000
         s = motion.sample(t, decimation / 1000, SignalChain(width, 17, True),
                           only=("accel", "ang_rate"))
-        out.time_ns.append(WALL_NS + cycles[at : at + 200_000] * 1_000_000)
-        out.timer.append((np.round(t * 62_500).astype(np.int64) % 2**32).astype(np.uint32))
-        out.accel.append(s["accel"].astype(np.float32))
-        out.ang_rate.append(s["ang_rate"].astype(np.float32))
+        out.add(WALL_NS + cycles[at : at + 200_000] * 1_000_000,
+                (np.round(t * 62_500).astype(np.int64) % 2**32).astype(np.uint32),
+                s["accel"], s["ang_rate"])
     return out
