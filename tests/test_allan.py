@@ -10,6 +10,7 @@ record at.
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -286,8 +287,8 @@ def test_outputs_are_the_format_their_name_says(tmp_path: Path,
     with ArchiveWriter(path) as writer:
         archive_samples(writer, "u1", Motion(STILL), _seconds(0, 120), 1 / RATE, chain=CHAIN)
     cases: list[tuple[list[str | Path], str]] = [
-        (["-o", tmp_path / "imu.json"], f"-o {tmp_path / 'imu.json'}: gx3 allan writes "
-         "Kalibr's imu.yaml, which is YAML; name the file .yaml or .yml"),
+        (["-o", tmp_path / "imu.json"], f"{tmp_path / 'imu.json'}: this writes a YAML "
+         "file; name the file .yaml or .yml"),
         (["-o", tmp_path / "imu.yaml", "--plot", tmp_path / "a.jpg"],
          "name the file .png, .svg or .pdf")]
     for args, says in cases:
@@ -316,8 +317,11 @@ def test_outputs_are_never_destroyed(tmp_path: Path) -> None:
     assert "--force" in done.stderr and out.read_text() == "mine\n"
     assert gx3("allan", path, "-o", out, "--force").returncode == 0
     assert "accelerometer_noise_density" in out.read_text()
-    # the archive itself is an input: never an output
-    assert gx3("allan", path, "-u", "u1", "-o", path, "--force").returncode == 2
+    # the archive itself is an input: never an output, whatever its name
+    alias = tmp_path / "alias.yaml"
+    os.link(path, alias)
+    done = gx3("allan", path, "-u", "u1", "-o", alias, "--force")
+    assert done.returncode == 2 and "is the input" in done.stderr, done.stderr
     assert path.read_bytes()[:8] == b"\x89MCAP0\r\n"
 
 

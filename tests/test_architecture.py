@@ -53,6 +53,7 @@ LOADS = {
     "bridge.ingest": (),
     "bridge.analysis": (),
     "bridge.export": (),
+    "bridge.viz": (),  # its Rerun and matplotlib parts load on first use
     "bridge.sim": (),
     "bridge.fleet": (),
     "bridge.cli": (),  # every gx3 command starts without them

@@ -29,12 +29,12 @@ def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.nd
               rx_ns: np.ndarray, mono: np.ndarray | None = None,
               part: tuple[np.ndarray, np.ndarray] | None = None) -> ImuSample:
     """The message built field by field with the protobuf library (``mono``: the raw-clock
-    receive times; a bridge that knows none writes 0; ``part``: the partial reads, none
-    -1)."""
+    receive times; a bridge that knows none writes 0; ``part``: the partial reads, not
+    recorded: 0)."""
     return ImuSample(unit=unit, command=batch.code, timer=int(batch["timer"][i]),
                      ticks=int(ticks[i]), time_ns=int(time_ns[i]), rx_ns=int(rx_ns[i]),
                      rx_mono_raw_ns=0 if mono is None else int(mono[i]),
-                     part_ago_ns=-1 if part is None else int(part[0][i]),
+                     part_rx_mono_raw_ns=0 if part is None else int(part[0][i]),
                      part_lead_ns=0 if part is None else int(part[1][i]),
                      **{q: batch[q][i].reshape(-1).tolist() for q in record_quantities(batch.code)})
 
@@ -44,7 +44,7 @@ def test_bulk_encoding_is_byte_identical_to_protobuf(code: int) -> None:
     batch = wire_batch(code, 6, code)
     ticks, time_ns, rx_ns = wire_times(6)
     mono = rx_ns - 1_700_000_000_000_000_000
-    part = (np.array([-1, 0, 5, 900_000, -1, 7]), np.array([0, 0, 86_806, 347_222, 0, 1]))
+    part = (mono - np.array([0, 5, 900_000, 1, 0, 7]), np.array([0, 0, 86_806, 347_222, 0, 1]))
     encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono, part)
     assert len(encoded) == 6
     for i, payload in enumerate(encoded):
@@ -145,7 +145,7 @@ def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
         full = reference("imu0", batch, i, ticks, time_ns, rx_ns)
         head = ImuSample(unit="imu0", command=code, timer=full.timer, ticks=full.ticks,
                          time_ns=full.time_ns, rx_ns=full.rx_ns, rx_mono_raw_ns=0,
-                         part_ago_ns=-1, part_lead_ns=0)
+                         part_rx_mono_raw_ns=0, part_lead_ns=0)
         body = ImuSample(accel=full.accel, ang_rate=full.ang_rate, m=full.m)
         theirs.append(body.SerializeToString() + head.SerializeToString())  # protobuf merges
     assert [len(p) for p in theirs] == [len(p) for p in ours] and theirs != ours
@@ -180,17 +180,17 @@ def test_units_agree_reads_the_unit_as_a_protobuf_parser_does() -> None:
     assert units_agree("b", [relabelled]) == [True]
 
 
-@pytest.mark.parametrize("cleared", [("part_ago_ns", "part_lead_ns"),
-                                     ("part_ago_ns", "part_lead_ns", "rx_mono_raw_ns")],
+@pytest.mark.parametrize("cleared", [("part_rx_mono_raw_ns", "part_lead_ns"),
+                                     ("part_rx_mono_raw_ns", "part_lead_ns", "rx_mono_raw_ns")],
                          ids=["no partial read", "no raw stamp"])
 @pytest.mark.parametrize("code", [0xC2, 0xCC, 0xDF], ids=lambda c: f"0x{c:02X}")
 def test_an_older_bridges_samples_decode_in_bulk(code: int, cleared: tuple[str, ...]) -> None:
-    """Samples from older bridges lack the partial read (``part_ago_ns`` reads -1), and
+    """Samples from older bridges lack the partial read (``part_rx_mono_raw_ns`` reads 0), and
     those older still the raw-clock stamp (``rx_mono_raw_ns`` reads 0): each has a bulk
     layout of its own, read as fast."""
     batch = wire_batch(code, 5, code)
     ticks, time_ns, rx_ns = wire_times(5)
-    part = (np.arange(5) * 1000, np.arange(5) * 87)
+    part = (rx_ns - 7 - np.arange(5) * 1000, np.arange(5) * 87)
     old = []
     for i in range(5):
         message = reference("u1", batch, i, ticks, time_ns, rx_ns, rx_ns - 7, part)
@@ -201,7 +201,7 @@ def test_an_older_bridges_samples_decode_in_bulk(code: int, cleared: tuple[str, 
     new = encode_batch("u1", batch, ticks, time_ns, rx_ns, rx_ns - 7, part)
     want = decode_batch("u1", code, new)
     np.testing.assert_array_equal(want["rx_mono_raw_ns"], rx_ns - 7)
-    absent = {"rx_mono_raw_ns": 0, "part_ago_ns": -1, "part_lead_ns": 0}
+    absent = {"rx_mono_raw_ns": 0, "part_rx_mono_raw_ns": 0, "part_lead_ns": 0}
     rows = np.frombuffer(b"".join(old), np.uint8).reshape(5, -1)
     mixed = [old[0], new[1], old[2], new[3], old[4]]
     for got, fresh in ((decode_batch("u1", code, old), []),

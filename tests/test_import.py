@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from typer.testing import CliRunner
 
 from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.cli import app
 from bridge.ingest.bytelog import LogFile, import_logs
 from bridge.protocol import Framer, checksum, encode_reply
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
@@ -29,6 +31,7 @@ from bridge.sim.motion import MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery
 from bridge.viz import layout
+from tests.helpers.archives import write_two_units
 from tests.helpers.processes import gx3
 from tests.helpers.rrd import rerun_rows
 
@@ -210,6 +213,27 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
                "-o", logged.logs[0], "--force")
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert logged.logs[0].read_bytes() == kept
+
+
+def test_an_archive_or_an_empty_file_is_said_for_what_it_is(tmp_path: Path) -> None:
+    """Not "not a 3DM-GX3 byte log", which leaves the user guessing: what the file is,
+    and what to do with it (in-process: refused before any reading)."""
+    archive, empty, out = tmp_path / "run.mcap", tmp_path / "empty.bin", tmp_path / "x.mcap"
+    write_two_units(archive)
+    empty.write_bytes(b"")
+    start = ["-u", "x", "--start", "2026-01-01T00:00:00Z", "-o", str(out)]
+    for logs, says in (
+            ([archive], f"{archive} is an MCAP archive, not a byte log: gx3 export, rrd "
+                        "and allan read it as it is (a raw capture of a bridge's: gx3 "
+                        "replay)"),
+            ([empty, archive], f"{archive} is an MCAP archive"),
+            ([empty], f"{empty} is empty: nothing to import"),
+            ([empty, empty], f"{empty}, {empty} are all empty: nothing to import")):
+        done = CliRunner().invoke(app, ["import", *map(str, logs), *start],
+                                  env={"COLUMNS": "300"})
+        assert done.exit_code == 2 and done.stderr.startswith(f"error: {says}"), done.stderr
+        assert done.stderr.count("\n") == 1, done.stderr
+        assert not out.exists()
 
 
 def test_a_reset_inside_a_log_takes_the_next_start(tmp_path: Path) -> None:

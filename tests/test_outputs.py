@@ -201,11 +201,12 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(
     capture, archive = small
     alias = tmp_path / "alias.mcap"
     alias_csv = tmp_path / "alias.csv"
-    for name in (alias, alias_csv):
+    alias_rrd = tmp_path / "alias.rrd"
+    for name in (alias, alias_csv, alias_rrd):
         os.link(archive, name)  # another name, the same file
     before = archive.read_bytes(), capture.read_bytes()
     commands: list[list[str | Path]] = [
-        ["rrd", archive, "-o", archive],
+        ["rrd", archive, "-o", alias_rrd],
         ["replay", capture, "-o", capture],
         ["export", archive, "-o", tmp_path / "t.csv", "--events", alias_csv],
         ["repair", archive, "-o", alias]]
@@ -214,7 +215,8 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(
     for done in runs:
         one_line_error(done, 2, "is the input")
     assert (archive.read_bytes(), capture.read_bytes()) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias.csv", "alias.mcap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias.csv", "alias.mcap",
+                                                          "alias.rrd"]
 
 
 def interrupt_once_writing(command: list[str | Path], folder: Path) -> tuple[int, str]:

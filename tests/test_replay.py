@@ -292,9 +292,13 @@ def test_a_captures_own_sampling_reply_sets_the_archives_info_and_export(
     reply = encode_reply(0xDB, **{k: sampling[k] for k in (
         "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
         "north_compensation")})
-    reads = [(int(cap.rx_ns[0]) - 5_000_000, reply), *zip(cap.rx_ns.tolist(), cap.data,
-                                                         strict=True)]
-    path = write_capture(tmp_path / "raw.mcap", reads)
+    path = tmp_path / "raw.mcap"
+    writer = RawCaptureWriter(path, "gx3", "u1")  # stamped as a bridge stamps: no metadata
+    boot = int(cap.rx_ns[0]) - 3_600_000_000_000  # the raw clock counts from boot
+    for rx, data in [(int(cap.rx_ns[0]) - 5_000_000, reply),
+                     *zip(cap.rx_ns.tolist(), cap.data, strict=True)]:
+        writer.write(data, rx, rx - boot)
+    writer.close()
     replay([path], tmp_path / "out.mcap")
     archive = read_archive(tmp_path / "out.mcap")
     info = last_info(archive, "u1")

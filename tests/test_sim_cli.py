@@ -200,7 +200,7 @@ def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
     code, stderr = sim.stop(sig)
     assert code == 0, stderr
     assert "Traceback" not in stderr
-    assert re.search(r"SIGTEST: 1 records sent", stderr), stderr
+    assert re.search(r"SIGTEST: 1 record sent", stderr), stderr
 
 
 def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path: Path) -> None:
@@ -302,6 +302,14 @@ BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
     (("--usb", "--usb-serial"), "--usb/--usb-serial"),
     (("--latency-timer", "16"), "--latency-timer"),
     (("--usb-serial", "--latency-timer", "0"), "--latency-timer"),
+    (("--mount", "180,0,90"), "--mount"),
+    (("--lever-arm", "0.3,0,0"), "--lever-arm"),
+    (("--body", "--mount", "400,0,0"), "--mount"),
+    (("--body", "--mount", "0,0,0", "--mount", "0,0,0"), "--mount"),
+    (("--body", "--lever-arm", "0.3,0"), "--lever-arm"),
+    (("--body", "--tumble"), "--body/--tumble"),
+    (("--link-latency", "-1"), "--link-latency"),
+    (("--link-latency", "1", "--link-latency", "2"), "--link-latency"),
 ]
 
 

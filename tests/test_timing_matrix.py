@@ -80,22 +80,18 @@ def timed(unit: Unit) -> Timed:
     capture = synthesize(config, delivery, unit.seconds)
     stream = StreamTiming()
     stream.configure(unit.settings, True)
-    live, ticks, rx, ago, lead = [], [], [], [], []
+    live, ticks, rx, part, lead = [], [], [], [], []
     for found in frame_reads(Framer([CODE]), capture.rx_ns, capture.data):
         for batch in found:
             out = stream.process(batch)
             live.append(out.time_ns)
             ticks.append(out.ticks)
             rx.append(out.batch.rx_ns)
-            ago.append(out.part[0])
+            part.append(out.part[0])
             lead.append(out.part[1])
     # the partial reads as the archive's samples carry them
-    rx_all, ago_all = np.concatenate(rx), np.concatenate(ago)
-    has = ago_all >= 0
-    s = unit.settings
-    offline = s.offline_clock().estimate(
-        np.concatenate(ticks), rx_all, np.where(has, rx_all - ago_all, rx_all),
-        np.where(has, np.concatenate(lead), s.floor_ns))
+    offline = unit.settings.offline_clock().estimate(
+        np.concatenate(ticks), np.concatenate(rx), np.concatenate(part), np.concatenate(lead))
     return Timed(capture, np.concatenate(live), offline)
 
 

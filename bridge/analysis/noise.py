@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bridge._text import counted, utc_text
+from bridge._text import counted, number, utc_text
 from bridge._workers import Workers, share_out
 from bridge.analysis.allan import (
     CYCLES_PER_S,
@@ -659,7 +659,7 @@ def stretch_text(noise: UnitNoise) -> str:
     Returns:
         One line: samples and hours used, and in how many stretches.
     """
-    return (f"{noise.used_samples:,} of {counted(noise.samples, 'sample')} "
+    return (f"{number(noise.used_samples)} of {counted(noise.samples, 'sample')} "
             f"({noise.used_seconds / 3600:.2f} h at {noise.rate_hz:.4g} Hz) in "
             f"{counted(len(noise.stretches), 'contiguous stretch', 'contiguous stretches')}")
 

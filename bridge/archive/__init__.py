@@ -6,7 +6,8 @@ from bridge.archive.reader import ArchiveReader, Messages, Record
 from bridge.archive.records import ChannelInfo, Damage
 from bridge.archive.repair import RepairReport, repair
 from bridge.archive.samples import ArchivedSamples
-from bridge.archive.walk import read_archive, read_samples_archive
+from bridge.archive.times import TimeBound, TimeSpan, parse_time
+from bridge.archive.walk import SampleSpan, read_archive, read_samples_archive, sample_span
 from bridge.archive.writer import ArchiveWriter
 
 __all__ = [
@@ -19,9 +20,14 @@ __all__ = [
     "RawCaptureWriter",
     "Record",
     "RepairReport",
+    "SampleSpan",
+    "TimeBound",
+    "TimeSpan",
     "capture_metadata",
     "describe_problem",
+    "parse_time",
     "read_archive",
     "read_samples_archive",
     "repair",
+    "sample_span",
 ]

@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bridge._text import counted, number
+
 if TYPE_CHECKING:
     from bridge.archive.reader import ArchiveReader
 
@@ -21,17 +23,18 @@ def describe_contents(archive: ArchiveReader) -> str:
         Its size and state, then topics with their message counts and time ranges,
         then units and record types with their sample counts: one line each.
     """
-    lines = [f"{archive.path}: {archive.size} bytes, {archive.message_count} messages, "
-             f"{archive.chunks} chunks, "
+    lines = [f"{archive.path}: {counted(archive.size, 'byte')}, "
+             f"{counted(archive.message_count, 'message')}, "
+             f"{counted(archive.chunks, 'chunk')}, "
              + (f"{len(archive.damage)} corrupt chunk(s) skipped, " if archive.damage else "")
              + ("complete" if archive.complete else
-             f"not finished ({archive.dropped_bytes} bytes dropped"
+             f"not finished ({counted(archive.dropped_bytes, 'byte')} dropped"
              + (f": {archive.problem}" if archive.problem else "") + ")")]
     for topic, (n, t0, t1) in archive.counts().items():
-        lines.append(f"  {topic}: {n} messages, {(t1 - t0) / 1e9:.3f} s "
+        lines.append(f"  {topic}: {counted(n, 'message')}, {(t1 - t0) / 1e9:.3f} s "
                      f"from {np.datetime64(t0, 'ns')}Z")
     for s in archive.samples():
-        lines.append(f"  {s.unit} 0x{s.code:02X}: {len(s)} samples")
+        lines.append(f"  {s.unit} 0x{s.code:02X}: {counted(len(s), 'sample')}")
     return "\n".join(lines)
 
 
@@ -46,10 +49,10 @@ def describe_damage(archive: ArchiveReader) -> str:
             lost.update(d.lost)
     start = min(d.start_ns for d in archive.damage)
     end = max(d.end_ns for d in archive.damage)
-    topics = ", ".join(f"{t} {n}" for t, n in sorted(lost.items()))
+    topics = ", ".join(f"{t} {number(n)}" for t, n in sorted(lost.items()))
     return (f"{archive.path}: skipped {len(archive.damage)} corrupt chunk(s) at byte(s) "
             + ", ".join(str(d.offset) for d in archive.damage)
-            + f" ({archive.damage[0].why}): lost {sum(lost.values())} messages"
+            + f" ({archive.damage[0].why}): lost {counted(sum(lost.values()), 'message')}"
             + (f" ({topics})" if topics else "")
             + (f" and those of {unknown} chunk(s) whose index is damaged too" if unknown
                else "")
@@ -69,4 +72,4 @@ def describe_problem(archive: ArchiveReader) -> str:
     if archive.complete and not archive.dropped_bytes:
         return ""
     return (f"{archive.path}: not finished, read up to its last complete chunk "
-            f"({archive.dropped_bytes} bytes dropped; {archive.problem})")
+            f"({counted(archive.dropped_bytes, 'byte')} dropped; {archive.problem})")

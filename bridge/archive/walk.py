@@ -14,6 +14,7 @@ import io
 import logging
 import struct
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -127,6 +128,18 @@ def _index_offsets(body: bytes) -> np.ndarray:
     return clipped
 
 
+def is_mcap(path: Path) -> bool:
+    """Whether the file starts as MCAP does: an archive or a raw capture, not raw bytes.
+
+    One that cannot be read is left to whoever opens it, to say why.
+    """
+    try:
+        with path.open("rb") as stream:
+            return stream.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
 def _open(path: Path) -> tuple[IO[bytes], int]:
     try:
         stream = path.open("rb")
@@ -221,7 +234,8 @@ def _hand_over(archive: ArchiveReader, on_blocks: Callable[[ArchiveReader], None
 
 def read_archive(path: Path | str, progress: Callable[[int], None] | None = None,
                  warn: Callable[[str], None] = _log.warning,
-                 on_blocks: Callable[[ArchiveReader], None] | None = None) -> ArchiveReader:
+                 on_blocks: Callable[[ArchiveReader], None] | None = None,
+                 between: tuple[int | None, int | None] = (None, None)) -> ArchiveReader:
     """Read what is readable of an MCAP file: an archive or a raw capture.
 
     Never raises on a damaged tail: the archive reports it (``complete``,
@@ -238,6 +252,13 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
             messages are that chunk's alone (``samples``, ``messages``); they are
             dropped after the call, so memory stays that of one chunk however long the
             file. None: every message is kept.
+        between: Messages logged from the first instant (host ns) up to the second
+            (excluded) are wanted; None: open on that side. In a finished file the
+            summary's chunk index says which chunks can hold them, and no other is read
+            (the summary's schemas and channels stand in for theirs), so a window of an
+            hour of a day-long archive reads an hour's chunks. Messages outside it can
+            still come with those chunks, and a file cut short is read whole: callers
+            keep what they want.
 
     Returns:
         Everything readable in the file.
@@ -254,6 +275,11 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
         index = _summary(stream)
         chunks = {} if index is None else {c.chunk_start_offset: c for c in index.chunk_indexes}
         summary_channels = {} if index is None else index.channels
+        start, end = between
+        if index is not None and between != (None, None):  # chunks left unread name none
+            archive.schemas.update(index.schemas)
+            archive.channels.update((cid, _channel_info(ch, index.schemas))
+                                    for cid, ch in index.channels.items())
         while True:
             _hand_over(archive, on_blocks)
             head = stream.read(9)
@@ -276,6 +302,10 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
             if pos + 9 + length > size:
                 archive.problem = f"a record at byte {pos} is cut short"
                 break
+            if opcode == Opcode.CHUNK and pos in chunks and not _overlaps(chunks[pos], start, end):
+                pos = _after(chunks, chunks[pos])
+                stream.seek(pos)
+                continue
             body = stream.read(length)
             try:
                 if opcode == Opcode.CHUNK and pos in chunks:
@@ -324,9 +354,16 @@ def read_archive(path: Path | str, progress: Callable[[int], None] | None = None
     return archive
 
 
+def _overlaps(chunk: ChunkIndex, start: int | None, end: int | None) -> bool:
+    """Whether a chunk can hold messages logged from ``start`` up to ``end`` (excluded)."""
+    return ((start is None or chunk.message_end_time >= start)
+            and (end is None or chunk.message_start_time < end))
+
+
 def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = None,
                          on_problem: Callable[[str], None] | None = None,
-                         on_blocks: Callable[[ArchiveReader], None] | None = None
+                         on_blocks: Callable[[ArchiveReader], None] | None = None,
+                         between: tuple[int | None, int | None] = (None, None)
                          ) -> ArchiveReader:
     """Read an archive to take samples from; one with nothing readable is refused.
 
@@ -336,16 +373,18 @@ def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = Non
         on_problem: Hears, once, what is wrong with an archive that was cut short or
             damaged, and what to do about it; the readable rest is read.
         on_blocks: Streams it chunk by chunk instead of keeping it (``read_archive``).
+        between: Read only the chunks that can hold messages logged in this span
+            (``read_archive``).
 
     Returns:
         Everything readable in the archive.
 
     Raises:
         ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
-        ValueError: Nothing in it can be read as messages.
+        ValueError: Nothing in it can be read as messages (with no ``between``).
     """
-    archive = read_archive(path, on_read, on_blocks=on_blocks)
-    if not archive.message_count:
+    archive = read_archive(path, on_read, on_blocks=on_blocks, between=between)
+    if not archive.message_count and between == (None, None):
         raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
                          "; is it an archive written by gx3?")
     problem = describe_problem(archive)
@@ -357,6 +396,88 @@ def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = Non
 
 def _read_stream(body: bytes) -> ReadDataStream:
     return ReadDataStream(io.BytesIO(body))
+
+
+@dataclass(frozen=True)
+class SampleSpan:
+    """What an archive holds of samples, known before they are decoded.
+
+    Attributes:
+        counts: Samples of each unit that has a channel of them.
+        first_ns: When the earliest sample was taken (its log time: the live
+            ``time_ns``); None: there is none.
+        last_ns: When the latest was, or a little after (a finished file's summary
+            bounds it by the end of the last chunk that holds samples); None: there is
+            none.
+    """
+
+    counts: dict[str, int]
+    first_ns: int | None
+    last_ns: int | None
+
+    def seconds(self) -> float:
+        """Seconds from the first sample to the last (0 without two)."""
+        if self.first_ns is None or self.last_ns is None:
+            return 0.0
+        return (self.last_ns - self.first_ns) / 1e9
+
+
+def sample_span(path: Path | str, progress: Callable[[int], None] | None = None) -> SampleSpan:
+    """Which units an archive holds samples of, how many, and from when to when.
+
+    A finished file's summary tells, with the one or two chunks that can hold its
+    earliest sample: seconds for a day-long archive. A file without a usable summary (cut
+    short) is read through once, a chunk at a time.
+
+    Args:
+        path: The archive.
+        progress: Hears the bytes read so far, while a file without a summary is read.
+
+    Returns:
+        The samples' units, counts and span.
+
+    Raises:
+        ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
+    """
+    path = Path(path)
+    stream, _ = _open(path)
+    with stream:
+        index = _summary(stream)
+    if index is None or index.statistics is None:
+        return _span_by_reading(path, progress)
+    imu = {cid: info for cid, ch in index.channels.items()
+           if (info := _channel_info(ch, index.schemas)).kind == "imu"}
+    counts: dict[str, int] = {}
+    for cid, info in imu.items():
+        counts[info.unit] = (counts.get(info.unit, 0)
+                             + index.statistics.channel_message_counts.get(cid, 0))
+    counts = {unit: n for unit, n in counts.items() if n}
+    holding = [c for c in index.chunk_indexes if not imu.keys().isdisjoint(
+        c.message_index_offsets)]
+    if not holding:
+        return SampleSpan(counts, None, None)
+    # the chunk that ends first holds a sample no later than its end: the earliest sample
+    # is in a chunk that starts by then
+    earliest = min(c.message_end_time for c in holding)
+    first = read_archive(path, between=(None, earliest + 1)).first_sample_ns()
+    return SampleSpan(counts, first, max(c.message_end_time for c in holding))
+
+
+def _span_by_reading(path: Path, progress: Callable[[int], None] | None) -> SampleSpan:
+    """``sample_span`` of a file read through, a chunk at a time."""
+    counts: dict[str, int] = {}
+    times: list[int] = []
+
+    def take(archive: ArchiveReader) -> None:
+        units = {cid: c.unit for cid, c in archive.channels.items() if c.kind == "imu"}
+        for block in archive.blocks:
+            for cid in set(np.unique(block.channel).tolist()) & units.keys():
+                logged = block.log_time[block.channel == cid]
+                counts[units[cid]] = counts.get(units[cid], 0) + len(logged)
+                times.extend((int(logged.min()), int(logged.max())))
+
+    read_archive(path, progress, on_blocks=take)
+    return SampleSpan(counts, min(times, default=None), max(times, default=None))
 
 
 def summary_counts(path: Path, kind: str) -> dict[str, int] | None:

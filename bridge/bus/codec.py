@@ -27,16 +27,14 @@ from bridge.protocol.codec import reply_dtype
 from bridge.protocol.table import DATA_CODES, QUANTITIES, REPLIES
 
 #: Columns every sample carries besides its quantities.
-HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_ago_ns",
-          "part_lead_ns")
+HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns",
+          "part_rx_mono_raw_ns", "part_lead_ns")
 #: The headers of older bridges' samples, newest first: without the partial read
-#: (``part_ago_ns`` -1), and before reads were stamped on the raw clock too
+#: (``part_rx_mono_raw_ns`` 0), and before reads were stamped on the raw clock too
 #: (``rx_mono_raw_ns`` 0). Their messages have bulk layouts of their own, read as fast.
 LEGACY_HEADERS = (HEADER[:-2], HEADER[:-3])
 #: Every bulk layout a sample may have, newest first.
 HEADERS = (HEADER, *LEGACY_HEADERS)
-#: What a column a message lacks reads as.
-_ABSENT = {"part_ago_ns": -1}
 _FIELDS = ImuSample.DESCRIPTOR.fields_by_name
 _NUMPY = {FieldDescriptor.TYPE_FIXED32: "<u4", FieldDescriptor.TYPE_SFIXED64: "<i8",
           FieldDescriptor.TYPE_FLOAT: "<f4"}
@@ -175,7 +173,7 @@ def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np
 
 #: The int64 columns a message gets besides its record's bytes, in the order
 #: ``encode_records`` and the compiled core take them.
-TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_ago_ns", "part_lead_ns")
+TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns", "part_lead_ns")
 
 
 @functools.cache
@@ -211,7 +209,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
         time_ns: Each record's sample instant (realtime ns).
         rx_ns: The realtime receive time of the read that completed each.
         rx_mono_raw_ns: The same on the raw monotonic clock; None: not known, 0.
-        part: Each record's partial read (``part_ago_ns``, ``part_lead_ns``); None: none.
+        part: Each record's partial read (``part_rx_mono_raw_ns``, ``part_lead_ns``); None:
+            not recorded.
 
     Returns:
         The messages, in record order.
@@ -232,7 +231,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     recs["rx_ns"] = rx_ns
     if rx_mono_raw_ns is not None:
         recs["rx_mono_raw_ns"] = rx_mono_raw_ns
-    recs["part_ago_ns"], recs["part_lead_ns"] = (-1, 0) if part is None else part
+    if part is not None:
+        recs["part_rx_mono_raw_ns"], recs["part_lead_ns"] = part
     buf = recs.tobytes()
     size = lay.size
     return [buf[i : i + size] for i in range(0, len(buf), size)]
@@ -463,8 +463,6 @@ def decode_batch(unit: str, code: int,
         if header == HEADER and good.all() and raw.flags.c_contiguous:
             return _columns(lay, raw.reshape(-1).view(lay.dtype))  # every row as it is
     recs = np.zeros(n, lay.dtype)
-    for name, value in _ABSENT.items():
-        recs[name] = value
     if isinstance(payloads, np.ndarray):
         rows = raw[good].reshape(-1).view(bulk.dtype)
         for name in (*header, *bulk.quantities):
@@ -486,8 +484,7 @@ def decode_batch(unit: str, code: int,
             raise ValueError(f"sample {i} is from {msg.unit!r} 0x{msg.command:02X}, "
                              f"not {unit!r} 0x{code:02X}")
         for col in HEADER:
-            if msg.HasField(col) or col not in _ABSENT:
-                recs[col][i] = getattr(msg, col)
+            recs[col][i] = getattr(msg, col)
         for q in lay.quantities:
             values = getattr(msg, q)
             if len(values) == elements(q):

@@ -76,7 +76,8 @@ def repair(
     from bridge.exceptions import ArchiveError
 
     output = default_output(file) if output is None else output
-    with written(output, [file], force) as temp, failing(ArchiveError, temp=temp, path=output):
+    with written(output, [file], force, suffixes=(".mcap",)) as temp, \
+            failing(ArchiveError, temp=temp, path=output):
         report = repair_archive(file, temp)
     typer.echo(replace(report, output=output).text())
 
@@ -148,6 +149,19 @@ def export(
              "states no attitude accuracy; REP-145 leaves it all 0, unknown, unless one "
              "is given). Records without an orientation keep -1 in element 0. Recorded "
              "as --noise is; CSV: refused.")] = None,
+    mounts: Annotated[Path | None, typer.Option(
+        "--mounts", metavar="MOUNTS.yaml",
+        help="How units on one body are mounted (gx3 align writes it): each unit it names "
+             "gets its vectors (accel, ang_rate, mag, stab_accel, stab_mag, delta_ang, "
+             "delta_vel; not the raw A/D codes) as rotation^T @ v and its attitude (M, "
+             "quaternion, Euler angles, C) in the reference's axes, and its time_ns moved "
+             "by time_shift_s onto the reference's time; --start and --end see the moved "
+             "times. Lever arms are not applied: accel stays the specific force where the "
+             "unit sits. Parquet: the file, its SHA-256 and what it holds go in the "
+             "gx3.mounts metadata; ROS bags: the same as a gx3.mounts metadata record "
+             "(ROS 1: a latched std_msgs/String on /PREFIX/gx3_mounts), and those units' "
+             "messages are in the reference's frame; CSV: refused (no metadata to record "
+             "it in).")] = None,
     ros2_distro: Annotated[str | None, typer.Option(
         "--ros2-distro", metavar="humble|jazzy",
         help="ROS 2 distribution of the bag's message definitions (--format ros2 only); "
@@ -173,7 +187,8 @@ def export(
     ...), empty (null) where a record lacks a quantity; rows in time order. Body frame
     FRD, earth NED: M maps earth to body; the quaternion is scalar first. A Parquet
     file carries each column's unit and frame, the units' Info, the source archive and
-    these options as metadata (schema gx3.v1).
+    these options as metadata (schema gx3.v1); a CSV file each column's unit in its
+    header, in brackets after its name (accel_x [g]; none after time_ns or time_utc).
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
 
@@ -190,24 +205,26 @@ def export(
 
     ROS 1 (--format ros1, a .bag: what Kalibr, allan_variance_ros and imu_utils read):
     the same topics, frames, stamps, covariances and messages with ROS 1 Noetic's
-    definitions, header.seq counting each topic's messages from 0; --noise's record is
-    a latched std_msgs/String (JSON) on /gx3/gx3_noise; --merge copies the camera's bag
-    in, so that Kalibr finds both in one.
+    definitions, header.seq counting each topic's messages from 0; the metadata records
+    of --noise and --mounts are latched std_msgs/String (JSON) on /gx3/gx3_noise and
+    /gx3/gx3_mounts; --merge copies the camera's bag in, so that Kalibr finds both in one.
     """
-    from bridge.export.run import Export
+    from bridge.export.run import SUFFIXES, Export
+    from bridge.export.tables import FORMATS as TABLES
 
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
                      types=record_type, start=start, end=end, align_hz=align, events=events,
                      mag_cal=mag_cal or (), noise=noise,
                      orientation_stddev=orientation_stddev, ros2_distro=ros2_distro,
-                     merge=merge)
+                     merge=merge, mounts=mounts)
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
-        table_file = outputs.enter_context(written(output, job.inputs(), force))
-        events_file = (None if events is None
-                       else outputs.enter_context(written(events, job.inputs(), force)))
+        table_file = outputs.enter_context(written(output, job.inputs(), force,
+                                                   suffixes=SUFFIXES))
+        events_file = (None if events is None else outputs.enter_context(
+            written(events, job.inputs(), force, suffixes=TABLES)))
         try:
             done = job.write(read_with_progress(archive), table_file, events_file)
         except ValueError as exc:  # the archive or the samples cannot give what was asked

@@ -34,13 +34,6 @@ def _per_unit(option: str, path: Path, units: list[str]) -> dict[str, Path]:
     return {u: Path(str(path).replace(_PLACEHOLDER, u)) for u in units}
 
 
-def _check_extension(option: str, path: Path, allowed: tuple[str, ...], what: str) -> None:
-    """Refuse an output whose extension names another format than the one written."""
-    if path.suffix.lower() not in allowed:
-        names = ", ".join(allowed[:-1]) + f" or {allowed[-1]}"
-        raise fail(f"{option} {path}: {what}; name the file {names}")
-
-
 @app.command()
 def allan(
     archive: Annotated[Path, typer.Argument(
@@ -95,27 +88,21 @@ def allan(
         stretch_text,
         units_noise,
     )
+    from bridge.archive.outputs import named_format
+    from bridge.archive.times import TimeSpan
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.export.tables import archive_prefix, parse_time
+    from bridge.export.tables import archive_prefix
     from bridge.ros2.messages import ros_topic
 
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
-    _check_extension("-o", output, _YAML, "gx3 allan writes Kalibr's imu.yaml, which is "
-                     "YAML")
-    if plot is not None:
-        _check_extension("--plot", plot, _PICTURES, "the plot is drawn as its extension "
-                         "says")
+    span = TimeSpan(start, end)
     asked = list(dict.fromkeys(unit)) if unit else None
-    if asked is not None:  # refused before hours of reading, not after
-        for option, path in (("--output", output), ("--plot", plot)):
-            if path is not None:
-                for each in _per_unit(option, path, asked).values():
-                    refused(each, [archive], force)
+    for option, path, suffixes in (("--output", output, _YAML), ("--plot", plot, _PICTURES)):
+        if path is None:  # refused before hours of reading, not after
+            continue
+        named_format(path, *suffixes)
+        for each in _per_unit(option, path, asked).values() if asked else ():
+            refused(each, [archive], force, suffixes=suffixes)
     kept, take, first = collect_samples(asked)
     try:
         data = read_with_progress(archive, take)
@@ -128,10 +115,8 @@ def allan(
                    f"{', '.join(data.units()) or 'none'}); check --unit")
     outputs = _per_unit("--output", output, units)
     plots = _per_unit("--plot", plot, units) if plot is not None else {}
-    origin = first[0] if first else 0
     results = units_noise([kept.get(u, UnitSamples(u)) for u in units],
-                          lo.resolve(origin) if lo else None,
-                          hi.resolve(origin) if hi else None, jobs)
+                          *span.resolve(first[0] if first else 0), jobs)
     prefix = archive_prefix(data)
     refusals = 0
     for name, result in zip(units, results, strict=True):
@@ -141,7 +126,7 @@ def allan(
             err.print(f"[bold red]error:[/] {result}")
             refusals += 1
             continue
-        with written(outputs[name], [archive], force) as temp:
+        with written(outputs[name], [archive], force, suffixes=_YAML) as temp:
             try:
                 temp.write_text(kalibr_yaml(result, ros_topic(prefix, name, "imu"),
                                             archive.name))
@@ -151,7 +136,8 @@ def allan(
         if name in plots:
             from bridge.viz.allan import write_allan_plot
 
-            with written(plots[name], [archive, outputs[name]], force) as temp:
+            with written(plots[name], [archive, outputs[name]], force,
+                         suffixes=_PICTURES) as temp:
                 write_allan_plot(temp, result, plots[name].suffix.lower().lstrip("."))
         for warning in result.warnings:
             err.print(f"[yellow]warning:[/] unit {name}: {warning}")

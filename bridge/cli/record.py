@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -141,6 +141,13 @@ def record(
         metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
                                  "existing one only with --force).")]
     = None,
+    rrd_max_rate: Annotated[float | None, typer.Option(
+        metavar="HZ",
+        help="Thin --rrd for a recording that runs for days: each plotted line as the least "
+             "and the greatest value of each 1/HZ s bin, at the instants they happened, "
+             "attitude at HZ; status and events whole (the archive keeps every sample). "
+             "Lines reach the file 128 bins at a time (2 min at 1 Hz). Default: every "
+             "sample.")] = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
                       "one reaches this size, MB. Numbers go on after the parts already "
@@ -194,6 +201,7 @@ def record(
     whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
+    from bridge.archive.outputs import named_format
     from bridge.bus.keys import check_prefix
     from bridge.bus.session import ZenohOptions
     from bridge.recorder.hosts import host_tolerance_ns
@@ -204,13 +212,25 @@ def record(
         host_tolerance_ns(max_host_offset_ms)
     except ValueError as exc:
         raise fail(f"--max-host-offset-ms {exc}") from None
+    for given, suffix in ((output, ".mcap"), (rrd, ".rrd")):
+        if given is not None:
+            named_format(given, suffix)
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
     rrd_writer = None
+    if rrd_max_rate is not None:
+        from bridge.viz.thin import bin_width_ns
+
+        if rrd is None:
+            raise fail("--rrd-max-rate thins the Rerun recording: give --rrd FILE.rrd too")
+        try:
+            bin_width_ns(rrd_max_rate)
+        except ValueError as exc:
+            raise fail(f"--rrd-max-rate: {exc}") from None
     if rrd is not None:  # Rerun loads only for a recording that writes one
         from bridge.viz.sources import RrdWriter
 
-        rrd_writer = functools.partial(RrdWriter, prefix=prefix)
+        rrd_writer = functools.partial(RrdWriter, prefix=prefix, max_rate_hz=rrd_max_rate)
 
     def announce(unit: str, joined: bool) -> None:
         if not quiet:
@@ -250,15 +270,15 @@ def record(
         err.print(view(whole=True))
     if not quiet:
         files = ", ".join(str(p) for p in recording.paths)
-        err.print(f"wrote {files}; {recording.recorder.misses} samples reported lost in "
-                  "transit")
+        err.print(f"wrote {files}; {counted(recording.recorder.misses, 'sample')} reported "
+                  "lost in transit")
     err.file.flush()
 
 
 @app.command("replay")
 def replay_command(
     captures: Annotated[list[Path], typer.Argument(
-        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+        metavar="CAPTURE.mcap", help="Raw captures (gx3 bridge --capture, or archives "
                                         "recorded with --raw).")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="ARCHIVE.mcap",
@@ -305,9 +325,9 @@ def replay_command(
     shown = [0.0]
 
     def report(result: Replayed) -> None:
-        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        events = ", ".join(f"{number(n)} {kind}" for kind, n in sorted(result.events.items()))
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
-        progress.console.print(f"{result.unit}: {result.samples:,} samples"
+        progress.console.print(f"{result.unit}: {counted(result.samples, 'sample')}"
                                + (f", {events}" if events else "") + guessed)
         units = progress.tasks[0].fields["units"] + 1
         progress.update(task, units=units, done=counted(units, "unit"), refresh=True)
@@ -318,7 +338,7 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    with written(output, captures, force) as temp, \
+    with written(output, captures, force, suffixes=(".mcap",)) as temp, \
             failing(ReplayError, ArchiveError, unless=(UnusableCapture,), temp=temp,
                     path=output), progress:
         results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,

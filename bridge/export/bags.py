@@ -2,11 +2,12 @@
 
 Per unit ``/<prefix>/<unit>/imu`` (``sensor_msgs/Imu``) and, for records with a
 magnetometer, ``/<prefix>/<unit>/mag`` (``sensor_msgs/MagneticField``), in the frame
-``bridge.ros2.messages`` names, the values in REP-103 frames and SI units. The messages
-come from the rows of :func:`bridge.export.tables.sample_table`, so a bag holds exactly
-the samples a table export with the same options holds, stamped with the same
-``time_ns``; they are handed out a slice of samples at a time (``SLICE``), as values,
-and each bag format encodes them its own way.
+``bridge.ros2.messages`` names (a mounted unit's: its reference's), the values in
+REP-103 frames and SI units. The messages come from the rows of
+:func:`bridge.export.tables.sample_table`, so a bag holds exactly the samples a table
+export with the same options holds, stamped with the same ``time_ns``; they are handed
+out a slice of samples at a time (``SLICE``), as values, and each bag format encodes
+them its own way.
 """
 
 from __future__ import annotations
@@ -95,7 +96,8 @@ def _quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.
 
 
 def bag_slices(table: dict[str, np.ndarray], prefix: str,
-               covariances: Mapping[str, ImuCovariance]) -> Iterator[BagSlice]:
+               covariances: Mapping[str, ImuCovariance],
+               frames: Mapping[str, str]) -> Iterator[BagSlice]:
     """The messages a bag of the table holds: unit by unit, ``SLICE`` samples at a time.
 
     Args:
@@ -103,6 +105,8 @@ def bag_slices(table: dict[str, np.ndarray], prefix: str,
         prefix: The key prefix, the first part of the topics and frame ids.
         covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not in
             it gets 0 (unknown).
+        frames: Per unit, the unit whose frame its messages are in (a mounted unit's
+            are in its reference's, ``gx3 export --mounts``); a unit not in it: its own.
 
     Yields:
         The messages of one topic from one slice of a unit's samples, in time order
@@ -112,7 +116,7 @@ def bag_slices(table: dict[str, np.ndarray], prefix: str,
     sent: dict[tuple[str, str], int] = {}
     for unit in sorted(set(units.tolist())):
         unit_rows = np.flatnonzero(units == unit)
-        frame = messages.frame_id(unit, prefix)
+        frame = messages.frame_id(frames.get(unit, unit), prefix)
         for at in range(0, len(unit_rows), SLICE):
             rows = unit_rows[at : at + SLICE]
             columns = _quantities(table, rows)

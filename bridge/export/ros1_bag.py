@@ -8,9 +8,10 @@ encapsulation and alignment: the header (``seq``, the stamp as uint32 seconds an
 nanoseconds, the frame id as a uint32 length and its bytes), then the float64 fields,
 packed little-endian.
 
-A bag has no metadata records. What a ROS 2 bag keeps in its ``gx3.noise`` metadata
-(the noise file and the covariances it gave) goes into one latched ``std_msgs/String``
-on ``/<prefix>/gx3_noise``, as JSON, at the first message's stamp.
+A bag has no metadata records. What a ROS 2 bag keeps in each of its metadata records
+(``gx3.noise``: the noise file and the covariances it gave; ``gx3.mounts``: the mounts
+file) goes into one latched ``std_msgs/String`` on ``/<prefix>/gx3_noise`` or
+``/<prefix>/gx3_mounts``, as JSON, at the first message's stamp.
 
 Kalibr reads a single bag, the camera's images and the IMU's samples together: another
 ROS 1 bag (the camera's, recorded by ROS) can be merged in, its connections and
@@ -36,10 +37,8 @@ from bridge.ros2.noise import ImuCovariance
 if TYPE_CHECKING:
     from rosbags.rosbag1 import Writer
 
-__all__ = ["NOISE_TOPIC", "check_merge", "ros1_messages", "write_ros1"]
+__all__ = ["check_merge", "record_topic", "ros1_messages", "write_ros1"]
 
-#: The latched topic of the noise a bag's covariances came from, after the prefix.
-NOISE_TOPIC = "gx3_noise"
 _STRING = "std_msgs/msg/String"
 
 
@@ -78,6 +77,19 @@ def ros1_messages(time_ns: npt.ArrayLike, frame: str, values: np.ndarray,
     out["values"] = values
     data, size = out.tobytes(), layout.itemsize
     return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+def record_topic(prefix: str, name: str) -> str:
+    """The latched topic of a ROS 2 bag's metadata record ``name`` (``gx3.noise``).
+
+    Args:
+        prefix: The key prefix, the first part of the topic.
+        name: The record's name.
+
+    Returns:
+        ``/<prefix>/<name>``, each part a ROS name (``/gx3/gx3_noise``).
+    """
+    return "/" + "/".join(map(ros_token, [*prefix.split("/"), name]))
 
 
 def check_merge(path: Path) -> list[str]:
@@ -126,7 +138,8 @@ def _merge(writer: Writer, path: Path, taken: set[str]) -> int:
 
 def write_ros1(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                covariances: Mapping[str, ImuCovariance] | None = None,
-               noise: Mapping[str, object] | None = None,
+               metadata: Mapping[str, Mapping[str, object]] | None = None,
+               frames: Mapping[str, str] | None = None,
                merge: Path | None = None) -> BagWritten:
     """Write the samples of an export table as a ROS 1 bag.
 
@@ -136,8 +149,10 @@ def write_ros1(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
         prefix: The key prefix, the first part of the topics and frame ids.
         covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not
             in it gets 0 (unknown).
-        noise: What a ROS 2 bag's ``gx3.noise`` metadata holds (the noise file, the
-            covariances): JSON on the latched noise topic; None: no such topic.
+        metadata: What a ROS 2 bag's metadata records hold, by name (``gx3.noise``,
+            ``gx3.mounts``): each as JSON on its latched topic (``record_topic``).
+        frames: Per unit, the unit whose frame its messages are in (a mounted unit's
+            are in its reference's, ``gx3 export --mounts``); a unit not in it: its own.
         merge: Another ROS 1 bag (the camera's) whose connections and messages are
             copied in as they are; None: none.
 
@@ -158,7 +173,7 @@ def write_ros1(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
     writer.open()
     try:
         connections = {}
-        for part in bag_slices(table, prefix, covariances or {}):
+        for part in bag_slices(table, prefix, covariances or {}, frames or {}):
             if part.topic not in connections:
                 connections[part.topic] = writer.add_connection(part.topic, part.msgtype,
                                                                 typestore=store)
@@ -168,12 +183,12 @@ def write_ros1(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                                                  part.first), strict=True):
                 writer.write(connection, stamp, data)
             counts[part.leaf] += len(part.time_ns)
-        if noise is not None and len(table["time_ns"]):
-            text = json.dumps(dict(noise), sort_keys=True).encode()
-            topic = "/" + "/".join([*map(ros_token, prefix.split("/")), NOISE_TOPIC])
-            latched = writer.add_connection(topic, _STRING, typestore=store, latching=1)
-            writer.write(latched, int(table["time_ns"].min()),
-                         struct.pack("<I", len(text)) + text)
+        stamps = table["time_ns"]
+        for name, content in (metadata or {}).items() if len(stamps) else ():
+            text = json.dumps(dict(content), sort_keys=True).encode()
+            latched = writer.add_connection(record_topic(prefix, name), _STRING,
+                                            typestore=store, latching=1)
+            writer.write(latched, int(stamps.min()), struct.pack("<I", len(text)) + text)
         merged = 0 if merge is None else _merge(writer, merge, set(connections))
     finally:
         writer.close()

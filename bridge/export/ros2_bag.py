@@ -39,7 +39,8 @@ Ros2Written = BagWritten
 def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                distro: str = messages.DEFAULT_DISTRO,
                covariances: Mapping[str, ImuCovariance] | None = None,
-               metadata: Mapping[str, Mapping[str, str]] | None = None) -> BagWritten:
+               metadata: Mapping[str, Mapping[str, str]] | None = None,
+               frames: Mapping[str, str] | None = None) -> BagWritten:
     """Write the samples of an export table as a ROS 2 bag.
 
     Args:
@@ -50,6 +51,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
         covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not
             in it gets 0 (unknown).
         metadata: MCAP metadata records to add, by name (``gx3.noise``).
+        frames: Per unit, the unit whose frame its messages are in (a mounted unit's
+            are in its reference's, ``gx3 export --mounts``); a unit not in it: its own.
 
     Returns:
         How many messages of each type the bag got.
@@ -68,7 +71,7 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                 messages.message_definition(msgtype, distro).encode())
                 for msgtype in (messages.IMU, messages.MAGNETIC_FIELD)}
             channels: dict[str, int] = {}  # topic -> channel id
-            for part in bag_slices(table, prefix, covariances or {}):
+            for part in bag_slices(table, prefix, covariances or {}, frames or {}):
                 if part.topic not in channels:
                     channels[part.topic] = writer.register_channel(
                         part.topic, MESSAGE_ENCODING, schemas[part.msgtype], CHANNEL_METADATA)

@@ -25,23 +25,25 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
+from bridge.analysis.mounts import read_mounts
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
+from bridge.archive.times import TimeSpan
 from bridge.archive.walk import read_samples_archive
 from bridge.export.bags import BagWritten
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
+from bridge.export.mounted import shift_times, turn_units
 from bridge.export.ros1_bag import check_merge, write_ros1
 from bridge.export.ros2_bag import write_ros2
+from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
-    TimeBound,
     align_table,
     archive_prefix,
-    check_format,
     event_table,
     last_info,
     offline_times,
-    parse_time,
     sample_table,
     write_table,
 )
@@ -56,6 +58,8 @@ __all__ = ["Export", "Exported"]
 
 #: What ``--format`` takes, and the extension of the file each writes.
 FORMATS = {"parquet": ".parquet", "csv": ".csv", "ros2": ".mcap", "ros1": ".bag"}
+#: The extensions of what an export writes: a table, or a ROS 2 (.mcap) or ROS 1 bag.
+SUFFIXES = tuple(FORMATS.values())
 #: The formats that are ROS bags.
 BAGS = ("ros2", "ros1")
 
@@ -77,15 +81,12 @@ def _output_format(output: Path, given: str | None) -> str:
         A key of ``FORMATS``.
 
     Raises:
-        ValueError: No such format, an extension that names none, or one that is not
-            the format's.
+        OutputRefused: The extension names none of the formats.
+        ValueError: No such format, or an extension that is not the format's.
     """
-    suffix = output.suffix.lower()
+    suffix = named_format(output, *SUFFIXES)
     if given is None:
-        named = [name for name, extension in FORMATS.items() if extension == suffix]
-        if not named:
-            check_format(output, bag=True)  # says what the extensions are
-        return named[0]
+        return next(name for name, extension in FORMATS.items() if extension == suffix)
     name = given.lower()
     if name not in FORMATS:
         raise ValueError(f"--format {given}: give {', '.join(FORMATS)}")
@@ -169,15 +170,17 @@ class Exported:
         """
         of = f"{counted(self.samples, 'sample')} of {counted(self.units, 'unit')} to {self.output}"
         if self.bag is not None:
-            text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
+            text = (f"wrote {number(self.bag.imu)} Imu and {number(self.bag.mag)} "
+                    f"MagneticField messages of {of}")
             if self.merged is not None:
-                text += f", and {self.bag.merged} messages of {self.merged}"
+                text += f", and {number(self.bag.merged)} messages of {self.merged}"
         elif self.align_hz is not None:
-            text = f"wrote {self.instants} instants at {self.align_hz:g} Hz of {of}"
+            text = (f"wrote {counted(self.instants or 0, 'instant')} at {self.align_hz:g} Hz "
+                    f"of {of}")
         else:
             text = f"wrote {of}"
         if self.events_path is not None:
-            text += f"; {self.events} events to {self.events_path}"
+            text += f"; {counted(self.events, 'event')} to {self.events_path}"
         return text
 
 
@@ -214,12 +217,18 @@ class Export:
         ros2_distro: The ROS 2 distribution of a ROS 2 bag (``jazzy``, ``humble``).
         merge: A ROS 1 bag (the camera's) to copy into a ROS 1 bag whole, so that one
             bag holds what Kalibr reads.
+        mounts: A mounts file (``gx3 align``): each unit it names is put in the
+            reference's axes and on its time; a Parquet table or a bag records the file
+            and its SHA-256 (``gx3.mounts``), and a bag's messages of those units are in
+            the reference's frame. A CSV file has nowhere to record it and is refused.
 
     Raises:
-        ValueError: The request cannot be met: a calibration or noise file that cannot
-            be read, a format or extension that does not fit, --align with a bag, the
-            events table on the output's own file, a record type or time that is not
-            one, --noise or --orientation-stddev with a CSV file, a negative standard
+        OutputRefused: An output's extension names none of the formats it can hold.
+        ValueError: The request cannot be met: a calibration, noise or mounts file that
+            cannot be read, a format that does not fit the output's extension, --align
+            with a bag, the events table on the output's own file, a record type or time
+            that is not one, an end before the start (TimeSpanError), --noise,
+            --orientation-stddev or --mounts with a CSV file, a negative standard
             deviation, --ros2-distro with another format, --merge with another format
             or a bag that cannot be read.
     """
@@ -230,7 +239,8 @@ class Export:
                  align_hz: float | None = None, events: Path | None = None,
                  mag_cal: Sequence[Path] = (), noise: Path | None = None,
                  orientation_stddev: float | None = None,
-                 ros2_distro: str | None = None, merge: Path | None = None) -> None:
+                 ros2_distro: str | None = None, merge: Path | None = None,
+                 mounts: Path | None = None) -> None:
         self.archive, self.output, self.events = archive, output, events
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
@@ -249,6 +259,10 @@ class Export:
                 raise ValueError(f"{option} is recorded in a Parquet table's metadata or "
                                  "used in a ROS bag; a CSV file has no metadata to record "
                                  f"it in (write .parquet, or leave out {option})")
+        if mounts is not None and self.format == "csv":
+            raise ValueError("--mounts changes the samples, and a table records which "
+                             "file did in its metadata; a CSV file has none (write "
+                             ".parquet, or leave out --mounts)")
         if orientation_stddev is not None and not (math.isfinite(orientation_stddev)
                                                    and orientation_stddev >= 0):
             raise ValueError(f"--orientation-stddev {orientation_stddev}: give the standard "
@@ -262,14 +276,14 @@ class Export:
         self.merge = merge
         self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
         self.noise = None if noise is None else read_noise(noise)
+        self.mounts = None if mounts is None else read_mounts(mounts)
         if events is not None:
-            check_format(events)
+            named_format(events, *TABLES)
             if events.absolute() == output.absolute():
                 raise ValueError(f"--events {events} is the table's own file; give it "
                                  "another name")
         self.types = [_code(c) for c in types] if types else None
-        self._start: TimeBound | None = parse_time(start) if start else None
-        self._end: TimeBound | None = parse_time(end) if end else None
+        self.span = TimeSpan(start, end)
 
     def inputs(self) -> list[Path]:
         """The files the export reads, which no output may be.
@@ -310,14 +324,17 @@ class Export:
             What was written.
 
         Raises:
-            ValueError: No samples match, a calibration's unit has none, or a sample's
-                time does not fit a ROS time stamp.
+            ValueError: No samples match, the end is not after the start
+                (TimeSpanError), a calibration's unit has none, a mounts file names a unit
+                the archive lacks, or a sample's time does not fit a ROS time stamp.
             OSError: An output cannot be written.
         """
-        first = data.first_sample_ns() or 0
-        lo_ns = self._start.resolve(first) if self._start else None
-        hi_ns = self._end.resolve(first) if self._end else None
-        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, offline_times(data))
+        lo_ns, hi_ns = self.span.resolve(data.first_sample_ns() or 0)
+        times = offline_times(data)
+        if self.mounts is not None:
+            self.mounts.check_units(data.units())
+            times = shift_times(times, self.mounts)
+        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, times)
         rows = len(table["time_ns"])
         if not rows:
             raise ValueError(f"{self.archive}: no samples match (units: "
@@ -326,6 +343,8 @@ class Export:
         names = sorted(set(table["unit"].tolist()))
         irons = self.irons
         apply(table, irons)
+        if self.mounts is not None:
+            turn_units(table, self.mounts)
         infos = {u: last_info(data, u) for u in names}
         covariances: dict[str, ImuCovariance] = {}
         noted: dict[str, object] = {}
@@ -340,20 +359,26 @@ class Export:
             "units": self.units, "types": self.types, "start": self.start, "end": self.end,
             "start_ns": lo_ns, "end_ns": hi_ns, "align_hz": self.align_hz,
             "time_ns": "re-estimated"},
-            {iron.unit: iron.content for iron in irons}, noted)
+            {iron.unit: iron.content for iron in irons}, noted,
+            {} if self.mounts is None else self.mounts.provenance())
         done = Exported(self.output, rows, len(names), events_path=self.events,
                         notes=tuple(notes))
         prefix = archive_prefix(data)
+        records = {name: content for name, content in (("gx3.noise", noted),
+                                                       ("gx3.mounts", about.mounts))
+                   if content}
+        frames = {} if self.mounts is None else dict.fromkeys(self.mounts.units,
+                                                              self.mounts.reference)
         if self.format == "ros2":
-            record = {"gx3.noise": {k: v if isinstance(v, str) else json.dumps(v)
-                                    for k, v in noted.items()}} if noted else None
             done = replace(done, bag=write_ros2(
                 table, table_file, prefix, distro=self.distro, covariances=covariances,
-                metadata=record))
+                metadata={name: {k: v if isinstance(v, str) else json.dumps(v)
+                                 for k, v in content.items()}
+                          for name, content in records.items()} or None, frames=frames))
         elif self.format == "ros1":
             done = replace(done, merged=self.merge, bag=write_ros1(
-                table, table_file, prefix, covariances=covariances, noise=noted or None,
-                merge=self.merge))
+                table, table_file, prefix, covariances=covariances, metadata=records,
+                frames=frames, merge=self.merge))
         elif self.align_hz is not None:
             table = align_table(table, self.align_hz)
             if irons:

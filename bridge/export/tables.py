@@ -11,8 +11,6 @@ metadata. The columns one by one: ``docs/design/archive.md``.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +18,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.samples import ArchivedSamples
 from bridge.bus.codec import elements
@@ -29,6 +28,7 @@ from bridge.export.describe import (
     QUANTITY_ORDER,
     About,
     column_metadata,
+    csv_header,
     flat_names,
     unit_labels,
 )
@@ -50,36 +50,6 @@ ReEstimate = Callable[[str, Mapping[str, np.ndarray]], Estimate | None]
 FORMATS = (".parquet", ".csv")
 
 
-@dataclass(frozen=True)
-class TimeBound:
-    """A --start/--end bound: absolute host time in ns, or seconds from the first sample."""
-
-    ns: int
-    relative: bool
-
-    def resolve(self, first_ns: int) -> int:
-        """The bound in host ns, for a recording whose first sample is at ``first_ns``."""
-        return first_ns + self.ns if self.relative else self.ns
-
-
-def parse_time(text: str) -> TimeBound:
-    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start)."""
-    try:
-        return TimeBound(round(float(text) * 1e9), relative=True)
-    except ValueError:
-        pass
-    try:
-        when = datetime.fromisoformat(text)
-    except ValueError:
-        raise ValueError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z nor "
-                         "seconds from the start such as 12.5") from None
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
-    delta = when - datetime(1970, 1, 1, tzinfo=UTC)
-    return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
-                     + delta.microseconds * 1000, relative=False)
-
-
 def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
                 re_estimate: ReEstimate | None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Best time_ns of each block of one unit and how sure each is.
@@ -90,7 +60,7 @@ def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
     if re_estimate is None:
         return live
     columns = {name: np.concatenate([b.columns[name] for b in blocks])
-               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_ago_ns",
+               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns",
                             "part_lead_ns")}
     raw = columns["rx_mono_raw_ns"]
     # the raw clock orders reads truly; the realtime clock may have been stepped back
@@ -141,8 +111,8 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     The live estimate only had the past. A unit is timed with the settings of its
     archived Info; units without one keep their live times. Each sample carries the read
     that ended inside its record, or right where it begins, where there was one
-    (``part_ago_ns``): with it the records are bounded as live, to a byte time behind a
-    USB-serial adapter.
+    (``part_rx_mono_raw_ns``): with it the records are bounded as live, to a byte time
+    behind a USB-serial adapter.
 
     Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
     against the raw clock and each instant mapped onto the realtime clock as live
@@ -164,11 +134,10 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
         on_raw = bool((raw > 0).all())
         order = np.argsort(ticks, kind="stable")
         rx = (raw if on_raw else rx_ns)[order]
-        ago, lead = columns["part_ago_ns"][order], columns["part_lead_ns"][order]
-        has = ago >= 0
+        part, lead = columns["part_rx_mono_raw_ns"][order], columns["part_lead_ns"][order]
+        has = (part > 0) & on_raw  # recorded, on the raw clock the rest is timed on
         instants, doubt = settings.offline_clock().estimate(
-            ticks[order], rx, np.where(has, rx - ago, rx),
-            np.where(has, lead, settings.floor_ns))
+            ticks[order], rx, np.where(has, part, rx), np.where(has, lead, settings.floor_ns))
         if on_raw:
             reads, first = np.unique(raw, return_index=True)
             track = RealtimeReads(reads, rx_ns[first])
@@ -287,29 +256,6 @@ def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     }
 
 
-def check_format(path: Path, bag: bool = False) -> str:
-    """The table format named by the file's extension, or a one-line error.
-
-    Args:
-        path: The file to write.
-        bag: The error also names .mcap and .bag, for a command that writes ROS 2 and
-            ROS 1 bags there.
-
-    Returns:
-        The extension, lower-case.
-
-    Raises:
-        ValueError: The extension names no table format.
-    """
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv"
-                         + (" (a table), .mcap (a ROS 2 bag) or .bag (a ROS 1 bag)" if bag
-                            else ""))
-    return suffix
-
-
 def _arrow(col: np.ndarray) -> pa.Array:
     if col.dtype.kind in "OU":  # names: stored once per file, not once per row
         return pa.array(col.astype(str), pa.string()).dictionary_encode()
@@ -337,7 +283,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
     """Write columns as Parquet (zstd) or CSV, chosen by the file's extension.
 
     A ``time_utc`` timestamp goes beside ``time_ns``; in Parquet, each column's unit and
-    frame and ``about`` go in as metadata.
+    frame and ``about`` go in as metadata, in CSV each column's unit into its header
+    (``csv_header``: ``accel_x [g]``).
 
     Args:
         columns: The table (``sample_table``, ``event_table``, ``align_table``).
@@ -345,9 +292,9 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         about: The file's provenance: archive, units, options.
 
     Raises:
-        ValueError: The extension names no format this writes.
+        OutputRefused: The extension names no format this writes.
     """
-    suffix = check_format(path)
+    suffix = named_format(path, *FORMATS)
     labels = unit_labels(about.infos) if about else {}
     fields, arrays = [], []
     for name, col in columns.items():
@@ -364,7 +311,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         pq.write_table(table, path, compression="zstd", column_encoding=encodings,
                        use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
-        pa_csv.write_csv(table, path)
+        pa_csv.write_csv(table.rename_columns([csv_header(f.name, labels) for f in fields]),
+                         path)
 
 
 # -- aligning units on one time grid ---------------------------------------------------------

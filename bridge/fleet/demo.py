@@ -23,7 +23,7 @@ from bridge.exceptions import DemoError
 from bridge.fleet.loopback import free_port, interrupt, loopback_config
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
-from bridge.sim.motion import MotionConfig
+from bridge.sim.motion import MotionConfig, Mounting, handheld
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
@@ -32,6 +32,17 @@ if TYPE_CHECKING:
     from bridge.recorder.units import UnitRow
 
 CLOCK_PPM = (42.0, -27.0, 85.0, -63.0, 12.0, -95.0, 55.0, -8.0)
+#: With --body, where each unit sits on the one body (unit i takes row i % 4): its axes'
+#: roll, pitch, yaw against the body's (degrees), its lever arm (m, body axes) and a
+#: constant extra latency on its link (s). The first is the reference gx3 align suggests.
+BODY_MOUNTS: tuple[tuple[tuple[float, float, float], tuple[float, float, float], float],
+                   ...] = (
+    ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0),
+    ((180.0, 0.0, 90.0), (0.30, 0.0, 0.0), 0.0),
+    ((2.0, -1.5, 177.0), (-0.10, 0.25, 0.05), 0.0),
+    ((0.0, 90.0, 0.0), (0.0, -0.30, -0.20), 0.0032),
+)
+BODY_SEED = 7
 ORIENTATION_RECORDS = frozenset({0xC5, 0xC6, 0xC8, 0xCC, 0xCE, 0xCF, 0xD2, 0xDF})
 STARTUP_TIMEOUT_S = 60.0
 
@@ -65,17 +76,20 @@ def _line_baud(code: int, rate_hz: float) -> int:
                     f"UART carries ({BAUD_RATES[-1]:,}); lower --rate")
 
 
-def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[DemoUnit]:
+def fleet(count: int, code: int, rate_hz: float, duration_s: float,
+          body: bool = False) -> list[DemoUnit]:
     """The demo fleet: clock errors of tens of ppm, a timer rollover, faults.
 
     Unit 2 (or the only one) crosses the timer rollover halfway; the last suffers bit
-    flips and an unplug.
+    flips and an unplug. With ``body`` every unit is fixed to one body turned by hand,
+    each mounted as ``BODY_MOUNTS`` says: what ``gx3 align`` finds from the archive.
 
     Args:
         count: How many units.
         code: The record type they stream.
         rate_hz: Records per second.
         duration_s: How long the demo streams, seconds (the rollover comes halfway).
+        body: Fix the units to one body turned by hand.
 
     Returns:
         The units.
@@ -103,6 +117,8 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
                             clock_wander_ppm=2.0, clock_seed=i,
                             motion=MotionConfig(seed=100 + i), stored=stored)
         unit = DemoUnit(f"imu{i + 1}", config)
+        if body:
+            _mount(unit, i)
         units.append(unit)
     rolling = units[min(1, count - 1)]
     ticks_to_wrap = round((duration_s / 2 + 5.0) * 62_500)
@@ -113,6 +129,18 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     faulty.unplug = True
     faulty.notes.append("bit flips, unplug")
     return units
+
+
+def _mount(unit: DemoUnit, index: int) -> None:
+    """Fix ``unit`` to the demo's body as ``BODY_MOUNTS`` row ``index`` says."""
+    turned, arm, latency = BODY_MOUNTS[index % len(BODY_MOUNTS)]
+    motion = handheld(unit.config.motion, Mounting.turned(turned, arm, BODY_SEED))
+    unit.config = replace(unit.config, motion=motion, link_latency_s=latency)
+    if index:
+        unit.notes.append("turned ({:g}, {:g}, {:g})°, ({:g}, {:g}, {:g}) m from imu1"
+                          .format(*turned, *arm))
+    if latency:
+        unit.notes.append(f"link +{latency * 1e3:g} ms")
 
 
 def _gx3_executable() -> list[str]:
@@ -262,7 +290,7 @@ class Demo:
                 for unit, link in zip(self.units, links, strict=True):
                     procs.start(unit.name, ["bridge", "--port", str(link), "--baud",
                                             str(unit.config.stored.baud), "--unit", unit.name,
-                                            "--zenoh-config", str(bridge_cfg), "--quiet"],
+                                            "--zenoh-config", str(bridge_cfg)],
                                 self.output / f"{unit.name}.log")
                 self._stream(sim, recorder, procs)
                 procs.stop()

@@ -366,7 +366,8 @@ class _UnitReplay:
             return
         payloads = encode_batch(unit, timed.batch, timed.ticks, timed.time_ns, timed.rx_ns,
                                 timed.batch.rx_ns if self.capture.raw_ns is not None
-                                else np.zeros(len(timed.batch), np.int64), timed.part)
+                                else np.zeros(len(timed.batch), np.int64),
+                                timed.part if self.capture.raw_ns is not None else None)
         emit(f"{prefix}/{unit}/imu", payloads, timed.rx_ns)
         self.result.samples += len(payloads)
 

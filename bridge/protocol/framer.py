@@ -22,6 +22,7 @@ from typing import TypeVar
 import numpy as np
 
 from bridge import _native as native
+from bridge._text import number
 from bridge.protocol.codec import (
     Batch,
     Records,
@@ -58,14 +59,15 @@ class FramerStats:
         """One line for people: records by type, then each count.
 
         Returns:
-            ``records: 0xC8×199; checksum failures: 5; implausible: 0; bytes skipped: 67
-            of 13400; resyncs: 1``, for instance.
+            ``records: 0xC8×1,199; checksum failures: 5; implausible: 0; bytes skipped:
+            67 of 80,400; resyncs: 1``, for instance.
         """
-        by_type = ", ".join(f"0x{c:02X}×{n}" for c, n in sorted(self.records.items())) or "none"
-        return (f"records: {by_type}; checksum failures: {self.checksum_failures}; "
-                f"implausible: {self.implausible}; "
-                f"bytes skipped: {self.bytes_skipped} of {self.bytes_fed}; "
-                f"resyncs: {self.resyncs}")
+        by_type = ", ".join(f"0x{c:02X}×{number(n)}"
+                            for c, n in sorted(self.records.items())) or "none"
+        return (f"records: {by_type}; checksum failures: {number(self.checksum_failures)}; "
+                f"implausible: {number(self.implausible)}; "
+                f"bytes skipped: {number(self.bytes_skipped)} of {number(self.bytes_fed)}; "
+                f"resyncs: {number(self.resyncs)}")
 
 
 class _Reads:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from bridge._text import counted
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import parse
 from bridge.bus.gx3_pb2 import Event, Info, Status
@@ -133,6 +134,10 @@ class Recorder:
         max_host_offset_ms: How far behind the recorder's clock a bridge host's may be
             (strictly, how late its samples may arrive) before a HOST_CLOCK_OFFSET event
             says so; None: no such check (a host ahead of the recorder is always told).
+        on_latency: Hears ``(unit, seconds)``: for the messages of a unit its bridge
+            stamped with their publish time (one put in 16), how long from then until
+            they were handed to the archive's writer (two hosts' clocks); None: not
+            measured.
 
     Raises:
         ValueError: ``max_host_offset_ms`` is not above 0.
@@ -144,8 +149,10 @@ class Recorder:
                  on_written: Callable[[list[RawMessage]], None] | None = None,
                  queue_size: int = 100_000, buffer_bytes: int = BUFFER_BYTES,
                  on_event: Callable[[str, Event], None] | None = None,
-                 max_host_offset_ms: float | None = None) -> None:
+                 max_host_offset_ms: float | None = None,
+                 on_latency: Callable[[str, list[float]], None] | None = None) -> None:
         self.max_host_offset_ns = host_tolerance_ns(max_host_offset_ms)
+        self._on_latency = on_latency
         self._clock_checks = ClockChecks(self.max_host_offset_ns)
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
         self.views: dict[str, UnitView] = {}
@@ -162,9 +169,10 @@ class Recorder:
         self._lock = threading.Lock()  # the views
         # what the receiving thread holds for the writer, guarded by _held_lock
         self._held_lock = threading.RLock()  # a reject is reported while it is held
-        # by key: payloads, receive times, and a raw read's raw-clock stamps (its publish
-        # time in the archive; an older bridge's reads have none: their receive time)
-        self._held: dict[str, tuple[list[bytes], list[int], list[int]]] = {}
+        # by key: payloads, receive times, a raw read's raw-clock stamps (its publish
+        # time in the archive; an older bridge's reads have none: their receive time),
+        # and the publish times the bridge stamped some of them with
+        self._held: dict[str, tuple[list[bytes], list[int], list[int], list[int]]] = {}
         self._held_bytes = 0
         self._shedding = False
         self._last: dict[str, bytes] = {}  # the last message of each key that arrived
@@ -281,7 +289,7 @@ class Recorder:
                                                         first_ticks, last_ticks)
                 continue
             self._held_bytes += size
-            held, received, published = self._held.setdefault(key, ([], [], []))
+            held, received, published, stamps = self._held.setdefault(key, ([], [], [], []))
             held += payloads
             if leaf == "raw":  # a raw read's time is when its bridge received it
                 reals = [now if t is None else t for t in map(read_time, got.attachments)]
@@ -290,6 +298,9 @@ class Recorder:
                               in zip(map(read_raw_time, got.attachments), reals, strict=True)]
             else:
                 received += [now] * len(payloads)
+                if self._on_latency is not None:  # one put in 16 carries its instant
+                    stamps += [t for a in got.attachments
+                               if a is not None and len(a) > 4 and (t := read_time(a))]
         return n
 
     def _missed_on(self, index: int) -> Callable[[str, int], None]:
@@ -367,9 +378,12 @@ class Recorder:
         answers = check([self._answers.popleft() for _ in range(len(self._answers))],
                         self._rejected)
         written: list[RawMessage] | None = None if self._on_written is None else []
-        for key, (payloads, received, published) in held.items():
+        for key, (payloads, received, published, stamps) in held.items():
             self._write(key, payloads, np.array(received, np.int64), written,
                         np.array(published, np.int64) if published else None)
+            if stamps and self._on_latency is not None and self.error is None:
+                archived = clock.realtime_ns()
+                self._on_latency(self._unit(key), [(archived - t) / 1e9 for t in stamps])
         for key, got in answers.items():
             self._write(key, got.payloads, now, written)
         notes += self._clock_checks.events(self.hosts(now), now)
@@ -386,7 +400,7 @@ class Recorder:
             if note.kind in self.losses:
                 self.losses[note.kind] += note.count
             self._write(f"{self.prefix}/{unit}/event", [note.SerializeToString()], now,
-                        written)
+                        written, heard=False)
             if self._on_event is not None:
                 self._on_event(unit, note)
         if written and self._on_written is not None:
@@ -410,7 +424,7 @@ class Recorder:
             span.add(loss.count, loss.missed_ns, loss.missed_ns)
         where = f" after ticks {k0}" if k0 else ""
         return self._unarchived(loss.key, Event.LOST, span,
-                                f"{loss.count} message(s) lost in transit{where} (not "
+                                f"{counted(loss.count, 'message')} lost in transit{where} (not "
                                 "recoverable from the publisher's cache)")
 
     def _unarchived(self, key: str, kind: int, span: _Span, detail: str
@@ -423,11 +437,13 @@ class Recorder:
                            detail=f"{key}: {detail}")
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
-               written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
+               written: list[RawMessage] | None, published: np.ndarray | None = None,
+               heard: bool = True) -> None:
         """Archive messages of one key, and count them in their unit's view.
 
         ``received``: host ns, one for all or one each; ``published``: raw reads'
-        raw-clock stamps. Samples also go into the unit's clock bound.
+        raw-clock stamps; ``heard``: they came from the unit's bridge (not the recorder's
+        own events). Samples also go into the unit's clock bound.
         """
         if self.error is not None:
             return
@@ -451,6 +467,8 @@ class Recorder:
             if view is None:
                 view = self.views[unit] = UnitView(unit)
             view.bytes += sum(map(len, payloads))
+            if heard:
+                view.heard_ns = max(view.heard_ns, int(np.max(received)))
             if leaf == "imu":
                 now = int(np.max(received))
                 view.samples += len(payloads)
@@ -503,15 +521,6 @@ class Recorder:
                 break
             kept.append(payload)
         return kept
-
-    def statuses(self) -> list[Status]:
-        """Each unit's latest Status, as archived (for ``bridge.bus.metrics``).
-
-        Returns:
-            One message per unit that has sent one.
-        """
-        with self._lock:
-            return [v.status for v in self.views.values() if v.status is not None]
 
     def snapshot(self) -> list[UnitRow]:
         """What the terminal shows of the units.

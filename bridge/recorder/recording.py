@@ -102,8 +102,10 @@ class Recording:
             the caller's.
         on_unit: Hears ``(unit, joined)`` as units appear and leave.
         on_event: Hears ``(unit, event)`` of each event the recorder itself archives.
-        metrics: Serve the fleet's health to Prometheus at this ``ADDR:PORT`` (each
-            unit's latest Status, what was archived); None: not.
+        metrics: Serve the recorder's health to Prometheus at this ``ADDR:PORT``: what it
+            archived of each unit, when it last heard from each, and how long samples
+            took from their bridge to the archive (each unit's own numbers are its
+            bridge's to serve); None: not.
 
     Attributes:
         writer: The archive's writer (once entered).
@@ -208,12 +210,13 @@ class Recording:
         from bridge.archive.outputs import refuse
         from bridge.device import clock
 
+        on_latency = None
         if self.metrics is not None:  # a busy port is said before any file is made
             from bridge.bus.metrics import Health, MetricsServer
 
-            self._metrics = MetricsServer(self.metrics, Health(
-                pull=lambda: self._recorder.statuses() if self._recorder else [],
-                extra=self._archived_metrics))
+            health = Health(extra=self._archived_metrics, latencies=["archive"])
+            self._metrics = MetricsServer(self.metrics, health)
+            on_latency = health.latencies["archive"].observe
         if self.rrd is not None:
             if self.rrd.absolute() == self.path.absolute():
                 raise OutputRefused(f"--rrd {self.rrd} is the archive's own file; give the "
@@ -238,7 +241,8 @@ class Recording:
         self._recorder = Recorder(
             self._session, self._writer, self.prefix, self.units, self.raw, self.history,
             on_unit=self._on_unit, on_written=_to_each(listeners) if listeners else None,
-            on_event=self._on_event, max_host_offset_ms=self.max_host_offset_ms)
+            on_event=self._on_event, max_host_offset_ms=self.max_host_offset_ms,
+            on_latency=on_latency)
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:

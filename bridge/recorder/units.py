@@ -28,6 +28,7 @@ class UnitRow:
         recorded_s: Seconds from its first sample archived to its last.
         bytes: Bytes of its messages archived.
         joined: Times its bridge joined.
+        heard_ns: When its last message was received (host ns; 0: none yet).
     """
 
     unit: str
@@ -43,6 +44,7 @@ class UnitRow:
     recorded_s: float
     bytes: int
     joined: int
+    heard_ns: int
 
 
 @dataclass
@@ -55,6 +57,7 @@ class UnitView:
     bytes: int = 0
     first_ns: int = 0
     last_ns: int = 0
+    heard_ns: int = 0  # its last message's receive time, whatever its kind
     status: Status | None = None
     #: the clock offset of its first status with a clock model: the row shows how far
     #: the offset has moved since (the offset itself is an instant near the epoch)
@@ -87,4 +90,4 @@ class UnitView:
             drift_ppm=s.clock_drift_ppm if s and s.clock_offset_ns and s.clock_drift_ppm
             else None,
             recorded_s=(self.last_ns - self.first_ns) / 1e9, bytes=self.bytes,
-            joined=self.joined)
+            joined=self.joined, heard_ns=self.heard_ns)

@@ -88,6 +88,8 @@ class UnitConfig:
         usb: On its own USB port: the baud rate has no effect on the line, and a record
             goes to the host whole, once its last byte is in the port's buffer.
         processing_delay_s: From the end of a record's cycle to its first byte on the line.
+        link_latency_s: A constant delay its link adds each way (a long cable, a
+            converter, a wireless serial link): one that no clock model can see.
     """
 
     serial: str = "SIM0001"
@@ -108,6 +110,7 @@ class UnitConfig:
     filter_model: bool = True
     usb: bool = False  # on its own USB port: the baud rate has no effect on the line
     processing_delay_s: float = PROCESSING_DELAY_S
+    link_latency_s: float = 0.0
 
     def id_string(self, selector: int) -> str:
         """The device ID string 0xEA reports.
@@ -255,7 +258,8 @@ class SimUnit:
                  wall_ns: int | None = None) -> None:
         now = time.monotonic() if now is None else now
         self.config = config
-        self.motion = Motion(config.motion)
+        self.motion = Motion(config.motion, None if config.motion.mounting is None
+                             else self._body_time)
         self.stored = state.load(config.state_file, config.stored)
         self._t0 = now
         self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
@@ -408,8 +412,10 @@ class SimUnit:
 
         Args:
             data: The bytes.
-            now: When they arrived, host monotonic seconds.
+            now: When they arrived, host monotonic seconds (its link's latency later
+                they reach the unit).
         """
+        now += self.config.link_latency_s
         if now < self._ready or not data:
             return
         if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
@@ -447,7 +453,8 @@ class SimUnit:
             now: Host monotonic seconds; not before the last call's.
 
         Returns:
-            (baud, bytes) runs, in the order they went out.
+            (baud, bytes) runs, in the order they went out: those that finished crossing
+            the line its link's latency before ``now``.
         """
         while self._queue:
             arrived, raw = self._queue[0]
@@ -460,7 +467,7 @@ class SimUnit:
             self._execute(raw, at)
         if self.planned_until < now + URGENT_S:
             self.plan(now)
-        return self._transmit(now)
+        return self._transmit(now - self.config.link_latency_s)
 
     @property
     def planned_until(self) -> float:
@@ -584,6 +591,13 @@ class SimUnit:
         At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
         return self.motion.sample(device, period, self.signal_chain(), [*names, "quaternion"])
+
+    def _body_time(self, device: np.ndarray) -> np.ndarray:
+        """A shared body's time at device times: host seconds since power-up.
+
+        Units that power up together see one motion, whatever their clocks.
+        """
+        return self._host_times(device) - self._t0
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""

@@ -183,8 +183,10 @@ class Timed:
 
     ``time_ns`` and ``rx_ns`` are on the realtime clock (the batch's own ``rx_ns`` are the
     raw clock's); ``part``: each record's partial read as an ImuSample carries it
-    (``part_ago_ns``, ``part_lead_ns``); ``events`` what the timeline found, ``dropped``
-    samples missing (gaps), ``invalid`` records dropped for a corrupt timer.
+    (``part_rx_mono_raw_ns``, ``part_lead_ns``: the read and the line time of the bytes
+    it held, the completing read and the whole record's where there is none); ``events``
+    what the timeline found, ``dropped`` samples missing (gaps), ``invalid`` records
+    dropped for a corrupt timer.
     """
 
     batch: Batch
@@ -298,17 +300,10 @@ class StreamTiming:
                      timed.dropped, invalid)
 
     def _carried(self, batch: Batch) -> tuple[np.ndarray, np.ndarray]:
-        """The records' partial reads as their ImuSamples carry them.
-
-        How long before the completing read each came (-1: none), and the line time of
-        the record's bytes it held.
-        """
-        if batch.part_ns is None or batch.part_bytes is None:
-            return np.full(len(batch), -1, np.int64), np.zeros(len(batch), np.int64)
-        has = batch.part_bytes < self._parts[0]
+        """The records' partial reads as their ImuSamples carry them (``Timed.part``)."""
         assert self.settings is not None
-        return (np.where(has, batch.rx_ns - batch.part_ns, -1),
-                np.where(has, self.settings.part_lead_ns(batch.part_bytes), 0))
+        part_ns, part_bytes = batch.partial()
+        return part_ns, self.settings.part_lead_ns(part_bytes)
 
     def process_few(self, timers: list[int], rx_ns: list[int],
                     part_ns: list[int] | None = None, part_bytes: list[int] | None = None
@@ -326,17 +321,14 @@ class StreamTiming:
             period after the last; None: nothing changed, ``process`` them.
         """
         assert self.timeline is not None and self.settings is not None, "configure() first"
+        length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
         if part_ns is None or part_bytes is None:
             run = self.timeline.update_few(timers, rx_ns)
-            carried = ([-1] * len(rx_ns), [0] * len(rx_ns))
+            carried = (rx_ns, [floor] * len(rx_ns))
         else:
-            length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
             leads = [floor - round((length - k) * byte_ns) for k in part_bytes]
             run = self.timeline.update_few(timers, rx_ns, (part_ns, leads))
-            carried = ([r - p if k < length else -1
-                        for r, p, k in zip(rx_ns, part_ns, part_bytes, strict=True)],
-                       [lead if k < length else 0
-                        for lead, k in zip(leads, part_bytes, strict=True)])
+            carried = (part_ns, leads)
         if run is None:
             return None
         ticks, instants, events = run

@@ -105,7 +105,7 @@ class TimedSamples:
         ticks: Their unwrapped device timer.
         time_ns: The host-clock instants their values describe, ns.
         rx_ns: Their completing reads' receive times on the realtime clock, ns.
-        part: Their partial reads, as ImuSamples carry them (``part_ago_ns``,
+        part: Their partial reads, as ImuSamples carry them (``part_rx_mono_raw_ns``,
             ``part_lead_ns``).
     """
 
@@ -141,7 +141,7 @@ class TimedSamples:
 
     @functools.cached_property
     def part(self) -> tuple[np.ndarray, np.ndarray]:
-        """The partial reads as ImuSamples carry them (``part_ago_ns``, ``part_lead_ns``)."""
+        """The partial reads as ImuSamples carry them (raw stamp, line time held)."""
         return (np.asarray(self.part_values[0], np.int64),
                 np.asarray(self.part_values[1], np.int64))
 
@@ -151,7 +151,7 @@ class TimedSamples:
         As a live read's come.
 
         Returns:
-            (ticks, time_ns, rx_ns, part_ago_ns, part_lead_ns).
+            (ticks, time_ns, rx_ns, part_rx_mono_raw_ns, part_lead_ns).
         """
         return (_plain(self.tick_values), _plain(self.time_values), _plain(self.rx_values),
                 _plain(self.part_values[0]), _plain(self.part_values[1]))

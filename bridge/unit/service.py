@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.archive.rawcapture import capture_metadata
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
@@ -199,6 +199,7 @@ class BusSink:
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
         self._status_listeners: list[Callable[[Status], None]] = []
+        self._stamp_listeners: list[Callable[[str, int, int], None]] = []
         self._lines = _EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
@@ -246,7 +247,7 @@ class BusSink:
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
             on_command=_command_handler(self.pipeline), allow_commands=self.allow_commands,
-            raw=self.raw)
+            raw=self.raw, on_stamped=self._stamped)
         if self.ros2_options is not None:
             from bridge.ros2.rmw import UnitTopics
 
@@ -344,6 +345,21 @@ class BusSink:
         """
         self._status_listeners.append(listener)
 
+    def on_stamped(self, listener: Callable[[str, int, int], None]) -> None:
+        """Tell ``listener`` of each put stamped with its publish time (one in 16).
+
+        Args:
+            listener: Hears ``(unit, received_ns, published_ns)``: when the read that
+                completed the put's last record was received, and when the put returned
+                (``bridge.bus.publish.UnitPublisher``).
+        """
+        self._stamp_listeners.append(listener)
+
+    def _stamped(self, received_ns: int, published_ns: int) -> None:
+        if self.unit is not None:
+            for listener in self._stamp_listeners:
+                listener(self.unit, received_ns, published_ns)
+
     def close(self) -> None:
         """Log the gaps held back, and undeclare the publishers."""
         self._lines.flush(None)
@@ -363,8 +379,9 @@ class BusSink:
         if self.pipeline is None or self.unit is None:
             return f"{self.port}: no unit brought up"
         c = self.pipeline.counters
-        return (f"{self.unit}: {c.samples} samples, {c.dropped} dropped, "
-                f"{c.reconnects} reconnects, {c.checksum_failures} checksum failures")
+        return (f"{self.unit}: {counted(c.samples, 'sample')}, {number(c.dropped)} dropped, "
+                f"{counted(c.reconnects, 'reconnect')}, "
+                f"{counted(c.checksum_failures, 'checksum failure')}")
 
 
 def _name_from_serial(serial: str) -> str:
