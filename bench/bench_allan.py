@@ -11,7 +11,7 @@ units for --fleet-hours each. Prints, with the load average (other work slows it
 - `gx3 allan` of the one unit as a user runs it (start-up included): wall seconds and
   the peak resident memory of the process;
 - the overlapping Allan deviation alone of its six axes on the same taus: this
-  project's cumulative-sum version (``bridge.recorder.allan``) against allantools'
+  project's cumulative-sum version (``bridge.analysis.allan``) against allantools'
   ``oadev`` (``pip install allantools==2024.6``; skipped when it is not installed),
   seconds and peak memory (tracemalloc) of each;
 - `gx3 allan` of every unit of the fleet archive, with one process per core and with one.
@@ -20,28 +20,22 @@ units for --fleet-hours each. Prints, with the load average (other work slows it
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
+from procstat import gx3_run, load
 
+from bridge.analysis.allan import AllanSums, averaging_factors
+from bridge.analysis.noise import collect_samples
+from bridge.archive.walk import read_samples_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.protocol.convert import STANDARD_GRAVITY
-from bridge.recorder.allan import AllanSums, averaging_factors
-from bridge.recorder.export import read_samples_archive
-from bridge.recorder.noise import collect_samples
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
-
-
-def load() -> str:
-    return f"load average {os.getloadavg()[0]:.2f}"
 
 
 def still_archive(path: Path, units: int, hours: float, rate: float) -> None:
@@ -58,20 +52,6 @@ def still_archive(path: Path, units: int, hours: float, rate: float) -> None:
     print(f"wrote {path.name}: {units} x {len(times):,} samples, "
           f"{path.stat().st_size / 1e6:.0f} MB in {time.perf_counter() - start:.0f} s",
           flush=True)
-
-
-def gx3_allan(*args: str | Path) -> tuple[float, float]:
-    """Wall seconds and peak resident MiB of ``gx3 allan ARGS``, as a user runs it."""
-    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
-    start = time.perf_counter()
-    proc = subprocess.Popen([gx3, "allan", *map(str, args), "--force"],
-                            stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(proc.pid, 0)  # this run's own peak, not earlier runs'
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    elapsed = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"gx3 allan failed ({proc.returncode})")
-    return elapsed, usage.ru_maxrss / 1024
 
 
 def core(path: Path) -> None:
@@ -123,7 +103,7 @@ def main() -> None:
     workdir.mkdir(parents=True, exist_ok=True)
     one = workdir / f"still_{args.hours:g}h.mcap"
     still_archive(one, 1, args.hours, args.rate)
-    elapsed, peak = gx3_allan(one, "-o", workdir / "imu.yaml")
+    elapsed, peak = gx3_run("allan", one, "-o", workdir / "imu.yaml")
     print(f"gx3 allan, 1 unit x {args.hours:g} h at {args.rate:g} Hz: {elapsed:.1f} s, peak "
           f"{peak:.0f} MiB; {load()}", flush=True)
     core(one)
@@ -131,7 +111,7 @@ def main() -> None:
     still_archive(fleet, args.units, args.fleet_hours, args.rate)
     for jobs in (None, 1):
         extra = () if jobs is None else ("-j", str(jobs))
-        elapsed, peak = gx3_allan(fleet, "-o", workdir / "imu_{unit}.yaml", *extra)
+        elapsed, peak = gx3_run("allan", fleet, "-o", workdir / "imu_{unit}.yaml", *extra)
         print(f"gx3 allan, {args.units} units x {args.fleet_hours:g} h, "
               f"{'one process per core' if jobs is None else 'one process'}: "
               f"{elapsed:.1f} s, peak {peak:.0f} MiB (largest process); {load()}", flush=True)

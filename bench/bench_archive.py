@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.protocol.codec import Batch
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.writer import ArchiveWriter
 
 T0 = 1_763_000_000_000_000_000
 PERIOD_NS = 10_000_000

@@ -13,7 +13,9 @@ On the same emulated stream (one emulated unit on a pty), one after the other:
 - that loop, at 1 ms and at the largest budget, putting through an advanced publisher
   declared as the bridge declares its imu key: what the publisher kind costs;
 - ``gx3 bridge`` at ``--max-latency-ms`` 1, 2 and 5; where the compiled core
-  (``bridge/_records.c``) is built, each also without it (``GX3_NATIVE=0``): what it gives.
+  (``bridge/_records.c``) is built, each also without it (``GX3_NATIVE=0``): what it gives;
+  with ``--metrics``, each serving its health to Prometheus (the latency histogram
+  observes one read in 16).
 
 For each: its process's CPU (user + system time over wall time, % of one core), the
 same per record, the latency from the receive stamp of the read that completed a
@@ -24,6 +26,7 @@ coalescing as it does). The bridge's CPU is also given by thread.
 
     python bench/bench_bridge.py --seconds 10
     PYTHONPATH=OTHER_TREE python bench/bench_bridge.py --budgets default  # another version
+    python bench/bench_bridge.py --budgets 1 --metrics  # with its health served
 """
 
 from __future__ import annotations
@@ -347,6 +350,8 @@ def main() -> None:
     parser.add_argument("--budgets", default="1,2,5",
                         help="gx3 bridge --max-latency-ms values, comma-separated; 'default' "
                              "runs it without the option (also a bridge from before it)")
+    parser.add_argument("--metrics", action="store_true",
+                        help="gx3 bridge also serves --metrics on a free loopback port")
     parser.add_argument("--loop-child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.loop_child:
@@ -388,10 +393,12 @@ def main() -> None:
             cores = [False] if native.records is None else [True, False]
             for budget in budgets:
                 option = [] if budget == "default" else ["--max-latency-ms", budget]
+                served = ["--metrics", f"127.0.0.1:{free_port()}"] if args.metrics else []
                 command = [gx3, "bridge", "--port", port, "--baud", "921600", "--unit", "bench",
-                           "--zenoh-config", str(cfg), "--quiet", *option]
+                           "--zenoh-config", str(cfg), "--quiet", *option, *served]
                 for core in cores:
-                    name = " ".join(["gx3 bridge", *option]) + ("" if core else PURE)
+                    name = " ".join(["gx3 bridge", *option, *served[:1]]) + (
+                        "" if core else PURE)
                     rows.append(measure(name, command, args.seconds, session, "bridge",
                                         1.0 if budget == "default" else float(budget),
                                         None if core else {"GX3_NATIVE": "0"}))

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 from bench_archive import PERIOD_NS, T0, unit_batch
 
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
-from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
 
 
 def main() -> None:

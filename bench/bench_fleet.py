@@ -139,8 +139,8 @@ def main() -> None:
                     proc.wait()
         produced = sum(len(u.truth) for u in sim.units)
         unwritten = (sum(lost1) - sum(lost0), sum(slot.lost for slot in sim.slots))
+        from bridge.archive.walk import read_archive
         from bridge.bus.gx3_pb2 import Event
-        from bridge.recorder.reader import read_archive
 
         archive = read_archive(out)
         blocks = archive.samples()

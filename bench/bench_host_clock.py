@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.device.clock import SCRIPT_ENV, ClockScript
+from bridge.export.tables import offline_times, sample_table
 from bridge.fleet.loopback import free_port, loopback_config
-from bridge.recorder.reader import read_archive
-from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored

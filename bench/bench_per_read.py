@@ -49,11 +49,10 @@ class Encode:
         start = time.thread_time_ns()
         records = samples.records
         if isinstance(records, Records):
-            sealed_records("bench", records, list(samples.tick_values),
-                           list(samples.time_values), list(samples.rx_values))
+            sealed_records("bench", records, *samples.lists())
         else:  # the first record of a stream: the batch path
             seals(encode_batch("bench", samples.batch, samples.ticks, samples.time_ns,
-                               samples.rx_ns, samples.batch.rx_ns))
+                               samples.rx_ns, samples.batch.rx_ns, samples.part))
         self.records += len(records)
         self.spent["encode + CRC"] += time.thread_time_ns() - start
 

@@ -42,7 +42,7 @@ def imu_messages(path: Path) -> int:
 def damaged(path: Path, per_unit: int) -> int:
     """Archived samples that are not as published: each unit's ticks are 0, 62, 124, ...
     once each and every quantity is 0, so a payload mangled in transit shows."""
-    from bridge.recorder.reader import read_archive
+    from bridge.archive.walk import read_archive
 
     bad = 0
     expected = np.arange(per_unit) * 62

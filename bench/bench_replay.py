@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.replay import replay
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.ingest.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.unit import UnitConfig

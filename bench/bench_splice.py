@@ -112,10 +112,10 @@ def receive_app(args: argparse.Namespace) -> None:
 def receive_recorder(args: argparse.Namespace) -> None:
     import zenoh
 
+    from bridge.archive.walk import read_archive
+    from bridge.archive.writer import ArchiveWriter
     from bridge.bus.gx3_pb2 import Event
     from bridge.recorder.live import Recorder
-    from bridge.recorder.reader import read_archive
-    from bridge.recorder.writer import ArchiveWriter
 
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(zenoh.Config.from_json5(config(args.endpoint, True, args.wbc_us)))

@@ -1,8 +1,13 @@
-"""CPU time and peak memory of another process, from /proc (Linux)."""
+"""CPU time and peak memory of another process (from /proc, Linux), and of a gx3 command."""
 
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -37,3 +42,34 @@ def peak_rss_mb(pid: int) -> float:
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024
     return float("nan")
+
+
+def load() -> str:
+    """The machine's load over the last minute, so a figure says what else was running."""
+    return f"load average {os.getloadavg()[0]:.2f}"
+
+
+def gx3_measured(*args: str | Path) -> tuple[float, float, str]:
+    """Wall seconds, peak resident MiB and what it said (stderr) of ``gx3 ARGS``, as a
+    user runs it (start-up included).
+
+    Raises:
+        SystemExit: The command failed.
+    """
+    gx3 = shutil.which("gx3", path=str(Path(sys.executable).parent)) or "gx3"
+    start = time.perf_counter()
+    with tempfile.TemporaryFile() as said:
+        proc = subprocess.Popen([gx3, *map(str, args)], stderr=said)
+        _, status, usage = os.wait4(proc.pid, 0)  # this run's own peak, not earlier runs'
+        elapsed = time.perf_counter() - start
+        said.seek(0)
+        text = said.read().decode()
+    if os.waitstatus_to_exitcode(status):
+        raise SystemExit(f"gx3 {args[0]} failed: {text.strip()}")
+    return elapsed, usage.ru_maxrss / 1024, text
+
+
+def gx3_run(command: str, *args: str | Path) -> tuple[float, float]:
+    """Wall seconds and peak resident MiB of ``gx3 COMMAND ARGS --force``."""
+    elapsed, peak, _ = gx3_measured(command, *args, "--force")
+    return elapsed, peak

@@ -8,10 +8,13 @@ through ``logging`` (loggers under ``bridge``) and prints nothing.
 
 The subpackages, in the order the data flows: ``protocol`` (the bytes: command table,
 codec, framer), ``device`` (a unit over a port), ``timing`` (the unit's timer to host
-time), ``unit`` (one unit from bytes to the bus), ``bus`` (Zenoh), ``recorder``
-(archives), ``viz`` (Rerun), ``ros2``; ``sim`` is the emulator, ``fleet`` a fleet on one
-machine, and every error raised on purpose is in ``bridge.exceptions``. How they fit
-together: docs/design/architecture.md.
+time), ``bus`` (Zenoh), ``ros2`` (ROS 2 messages), ``unit`` (one unit from bytes to the
+bus), ``recorder`` (the fleet recorded live), ``archive`` (the archive's file format),
+``ingest`` (bytes into archives), ``export`` and ``analysis`` (archives out to tables
+and bags, and what they tell of the units), ``viz`` (Rerun); ``sim`` is the emulator,
+``fleet`` a fleet on one machine, and every error raised on purpose is in
+``bridge.exceptions``. How they fit together, and which may import which:
+docs/design/architecture.md.
 """
 
 from __future__ import annotations

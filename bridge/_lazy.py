@@ -16,7 +16,7 @@ def imported(package: str, modules: Mapping[str, str], name: str) -> object:
     Args:
         package: The package's ``__name__``.
         modules: Each such name's module: relative to the package (``.codec``) or whole
-            (``bridge.recorder.tables``).
+            (``bridge.export.tables``).
         name: The attribute asked for.
 
     Raises:

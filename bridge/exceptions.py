@@ -19,15 +19,18 @@ an ``OSError``, a bad name a ``ValueError``)::
     │   ├── NameTaken (RuntimeError)      a running bridge holds the unit's name
     │   ├── BadName (ValueError)          a unit name or prefix that cannot be a key
     │   └── MetricsError (OSError)        a --metrics address that cannot be served
-    ├── OutputRefused                     writing there would destroy data
+    ├── OutputRefused                     writing there would destroy data, or misname it
     ├── ArchiveError (OSError)            an archive that cannot be written
     ├── ArchiveReadError (ValueError)     a file that cannot be read as an archive
+    ├── TimeSpanError (ValueError)        a --start/--end that is no time, or no span
     ├── CaptureError (OSError)            a raw capture that cannot be written
     ├── ReplayError (ValueError)          a replay that failed while working
     │   └── UnusableCapture               an input with nothing to replay
     ├── LogImportError (ValueError)       byte logs that cannot be imported as asked
     ├── CalibrationError (ValueError)     readings that cannot give a calibration
     ├── NoiseFileError (ValueError)       a noise file (imu.yaml) that cannot be used
+    ├── AlignmentError (ValueError)       units whose motion cannot give their mounting
+    ├── MountsFileError (ValueError)      a mounts file (mounts.yaml) that cannot be used
     ├── DemoError (RuntimeError)          a demo that cannot run as asked
     └── EmulatorError                     the emulator (gx3 sim)
         ├── OptionError (ValueError)      an option it cannot run with
@@ -38,12 +41,13 @@ an ``OSError``, a bad name a ``ValueError``)::
 from __future__ import annotations
 
 __all__ = [
-    "ArchiveError", "ArchiveReadError", "BadName", "BusError", "CalibrationError",
-    "CaptureError", "CommandRejected", "CommandTimeout", "DemoError", "DeviceError",
-    "EmulatorError", "Gx3Error", "LinkPathError", "LogImportError", "MetricsError",
-    "NameTaken", "NoiseFileError", "OptionError", "OutputRefused", "PersistRefused",
-    "PortError", "ProtocolError", "RemoteError", "ReplayError", "SessionError",
-    "StateFileError", "UnsupportedUnit", "UnusableCapture",
+    "AlignmentError", "ArchiveError", "ArchiveReadError", "BadName", "BusError",
+    "CalibrationError", "CaptureError", "CommandRejected", "CommandTimeout",
+    "DemoError", "DeviceError", "EmulatorError", "Gx3Error", "LinkPathError",
+    "LogImportError", "MetricsError", "MountsFileError", "NameTaken", "NoiseFileError",
+    "OptionError", "OutputRefused", "PersistRefused", "PortError", "ProtocolError",
+    "RemoteError", "ReplayError", "SessionError", "StateFileError", "TimeSpanError",
+    "UnsupportedUnit", "UnusableCapture",
 ]
 
 
@@ -122,7 +126,10 @@ class MetricsError(BusError, OSError):
 
 
 class OutputRefused(Gx3Error):
-    """Writing there would destroy data or cannot start; the message says what to do."""
+    """Writing there would destroy data, or cannot start, or the name is another format's.
+
+    The message says what to do.
+    """
 
 
 class ArchiveError(Gx3Error, OSError):
@@ -131,6 +138,14 @@ class ArchiveError(Gx3Error, OSError):
 
 class ArchiveReadError(Gx3Error, ValueError):
     """A file that cannot be read as an archive; the message says what it is instead."""
+
+
+class TimeSpanError(Gx3Error, ValueError):
+    """A --start or --end that is not a time, or an end that is not after the start.
+
+    Said before anything is read where the two can be compared then, else as soon as
+    the first sample's instant is known.
+    """
 
 
 class CaptureError(Gx3Error, OSError):
@@ -161,6 +176,17 @@ class CalibrationError(Gx3Error, ValueError):
 
 class NoiseFileError(Gx3Error, ValueError):
     """A noise file (Kalibr's imu.yaml) that cannot be used; the message says why."""
+
+
+class AlignmentError(Gx3Error, ValueError):
+    """Units whose motion cannot give their mounting (``gx3 align``).
+
+    The message says what motion to record instead.
+    """
+
+
+class MountsFileError(Gx3Error, ValueError):
+    """A mounts file (``gx3 align``'s mounts.yaml) that cannot be used; says why."""
 
 
 class DemoError(Gx3Error, RuntimeError):

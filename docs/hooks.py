@@ -10,7 +10,9 @@ from the code it describes:
   ``bridge.protocol.docs`` from ``bridge/protocol/table.py`` (what ``gx3 commands
   --markdown`` prints);
 - ``<!-- gx3: quantities -->``: every reply field of the command table
-  (``bridge.protocol.table.QUANTITIES``) with its shape, unit and meaning.
+  (``bridge.protocol.table.QUANTITIES``) with its shape, unit and meaning;
+- ``<!-- gx3: changelog -->``: the repository's ``CHANGELOG.md``, its links to pages
+  under ``docs/`` made the site's.
 
 A page without a marker is left as it is. Named in ``mkdocs.yml`` under ``hooks``.
 """
@@ -121,7 +123,29 @@ def quantities() -> str:
     return "\n".join(lines) + "\n"
 
 
-GENERATORS = {"cli": cli_reference, "command-table": command_table, "quantities": quantities}
+def changelog() -> str:
+    """The repository's CHANGELOG.md, its links into ``docs/`` made the site's.
+
+    In the repository it links a page as ``docs/guides/monitoring.md``, from its root; on
+    the site it is a page in ``docs/`` itself, where that link is
+    ``guides/monitoring.md``. A relative link to anything outside ``docs/`` has no page
+    on the site: it is refused, with what to do.
+    """
+
+    def rebased(match: re.Match[str]) -> str:
+        target = match.group(1)
+        if re.match(r"[a-zA-Z][\w+.-]*:|#", target):  # a URL, or an anchor of its own
+            return match.group(0)
+        if not target.startswith("docs/"):
+            raise ValueError(f"CHANGELOG.md links {target}, which the site has no page for; "
+                             "link a page under docs/, or a URL")
+        return f"]({target.removeprefix('docs/')})"
+
+    return re.sub(r"\]\(([^)\s]+)\)", rebased, (ROOT / "CHANGELOG.md").read_text(encoding="utf-8"))
+
+
+GENERATORS = {"cli": cli_reference, "command-table": command_table, "quantities": quantities,
+              "changelog": changelog}
 
 
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:

@@ -66,8 +66,7 @@ def describe(sample: Any) -> str:
     parts = [f"{sample.unit} 0x{sample.command:02X} ticks={sample.ticks}",
              f"time={when.isoformat(timespec='milliseconds')}"]
     for field, values in sample.ListFields():
-        if field.name not in {"unit", "command", "timer", "ticks", "time_ns", "rx_ns",
-                              "rx_mono_raw_ns"}:
+        if field.is_repeated:  # the quantities; the rest are the header's scalars
             parts.append(f"{field.name}={[round(v, 4) for v in values]}")
     return " ".join(parts)
 

@@ -6,6 +6,7 @@ emulator's motion model (``bridge.sim.archive_samples``), so a test takes second
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,11 +14,18 @@ import numpy as np
 import pytest
 from ruamel.yaml import YAML
 
-from bridge.exceptions import OptionError
-from bridge.recorder.allan import AllanSums, averaging_factors
-from bridge.recorder.export import read_samples_archive
-from bridge.recorder.noise import NOISE_KEYS, UnitNoise, collect_samples, unit_noise
-from bridge.recorder.writer import ArchiveWriter
+from bridge.analysis.allan import AllanSums, averaging_factors
+from bridge.analysis.noise import (
+    NOISE_KEYS,
+    UnitNoise,
+    UnitSamples,
+    collect_samples,
+    unit_noise,
+    units_noise,
+)
+from bridge.archive.walk import read_samples_archive
+from bridge.archive.writer import ArchiveWriter
+from bridge.exceptions import CalibrationError, OptionError
 from bridge.ros2.noise import imu_covariance, read_noise
 from bridge.sim.archived import archive_samples
 from bridge.sim.motion import Motion, MotionConfig
@@ -145,8 +153,11 @@ def test_outputs_are_never_destroyed(tmp_path: Path) -> None:
     assert "--force" in done.stderr and out.read_text() == "mine\n"
     assert gx3("allan", path, "-o", out, "--force").returncode == 0
     assert "accelerometer_noise_density" in out.read_text()
-    # the archive itself is an input: never an output
-    assert gx3("allan", path, "-u", "u1", "-o", path, "--force").returncode == 2
+    # the archive itself is an input: never an output, whatever its name
+    alias = tmp_path / "alias.yaml"
+    os.link(path, alias)
+    done = gx3("allan", path, "-u", "u1", "-o", alias, "--force")
+    assert done.returncode == 2 and "is the input" in done.stderr, done.stderr
     assert path.read_bytes()[:8] == b"\x89MCAP0\r\n"
 
 
@@ -176,6 +187,33 @@ def test_stretches_add_up_as_one_sum() -> None:
     assert (both.counts == apart[0].counts + apart[1].counts).all()
     # white noise of unit variance: the Allan variance at m samples is 1/m
     assert np.allclose(both.variance()[:5] * factors[:5, None], 1.0, rtol=0.1)
+
+
+def _white(unit: str, seed: int, seconds: float = 600.0) -> UnitSamples:
+    """A still unit's samples as ``collect_samples`` keeps them: white noise about 1 g."""
+    rng = np.random.default_rng(seed)
+    n = round(seconds * RATE)
+    step = round(62_500 / RATE)
+    accel = np.array([0.0, 0.0, -1.0]) + rng.normal(0, 1e-3, (n, 3))
+    return UnitSamples(unit, [10**18 + np.arange(n, dtype=np.int64) * round(1e9 / RATE)],
+                       [(np.arange(n) * step).astype(np.uint32)],
+                       [accel.astype(np.float32)],
+                       [rng.normal(0, 1e-4, (n, 3)).astype(np.float32)])
+
+
+def test_units_shared_out_among_processes_give_what_each_gives_alone() -> None:
+    """gx3 allan of a fleet: a unit a process, each result (or refusal) in its place."""
+    units = [_white("u1", 1), UnitSamples("none"), _white("u2", 2), _white("u3", 3)]
+    alone, shared = units_noise(units, jobs=1), units_noise(units, jobs=3)
+    assert [type(r) for r in shared] == [UnitNoise, CalibrationError, UnitNoise, UnitNoise]
+    assert str(shared[1]) == str(alone[1]) and "unit none has no samples" in str(shared[1])
+    for one, other in zip(alone, shared, strict=True):
+        if isinstance(one, UnitNoise):
+            assert isinstance(other, UnitNoise) and other.unit == one.unit
+            assert other.stretches == one.stretches
+            for sensor in ("accelerometer", "gyroscope"):
+                assert np.array_equal(getattr(other, sensor).adev, getattr(one, sensor).adev,
+                                      equal_nan=True)
 
 
 def test_the_emulator_noise_options_are_checked() -> None:

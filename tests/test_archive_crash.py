@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.repair import repair
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import FLUSH_EVERY_S, REORDER_S, ArchiveWriter
 from bridge.bus.codec import encode_batch
-from bridge.recorder.reader import read_archive
-from bridge.recorder.repair import repair
-from bridge.recorder.writer import FLUSH_EVERY_S, REORDER_S, ArchiveWriter
 
 # Writes 0xCC samples at about 2 kHz, stamped with the wall clock, and reports on stdout
 # how many it has written, and when (monotonic), every 50 ms.
@@ -25,7 +25,7 @@ from pathlib import Path
 from bridge.bus.codec import encode_batch
 from tests.helpers.records import synthetic_batch
 batch = synthetic_batch(0xCC, 100, 1)
-from bridge.recorder.writer import ArchiveWriter
+from bridge.archive.writer import ArchiveWriter
 writer = ArchiveWriter(Path(sys.argv[1]))
 n = 0
 last = time.monotonic()

@@ -15,10 +15,11 @@ from mcap.records import Chunk, ChunkIndex, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.summary import Summary
 
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, ImuSample, Status
-from bridge.recorder.reader import ArchiveReader, read_archive
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.archives import PERIOD
 from tests.helpers.processes import GX3
 from tests.helpers.records import T0, synthetic_batch

@@ -12,13 +12,15 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
+from bridge.archive.mcap_writer import MAGIC
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.repair import repair
+from bridge.archive.walk import read_archive, sample_span
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import HEADER, encode_batch, record_quantities
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.exceptions import ArchiveReadError
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import MAGIC, read_archive
-from bridge.recorder.repair import repair
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, write_fleet
 from tests.helpers.records import T0, synthetic_batch
 
@@ -332,3 +334,54 @@ def test_bulk_reading_gives_what_the_mcap_library_reads(tmp_path: Path) -> None:
         cut = tmp_path / f"{name.replace(' ', '_')}.mcap"
         cut.write_bytes(content)
         assert_reads_like_the_library(cut)
+
+
+def test_a_window_reads_only_its_chunks_and_all_of_its_messages(fleet: Path) -> None:
+    """Of a finished file, the chunks that can hold messages logged in the window, no
+    other; every message logged in it is among what is read, on the channels of the
+    summary (those registered in chunks left unread too)."""
+    full = read_archive(fleet)
+    with fleet.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    lo, hi = T0 + 1_000_000_000, T0 + 1_500_000_000
+    window = read_archive(fleet, between=(lo, hi))
+    overlapping = [c for c in summary.chunk_indexes
+                   if c.message_end_time >= lo and c.message_start_time < hi]
+    assert 0 < window.chunks == len(overlapping) < full.chunks
+    assert window.topics() == full.topics()
+    for topic in full.topics():
+        every, some = full.messages(topic), window.messages(topic)
+        inside = (every.log_time >= lo) & (every.log_time < hi)
+        kept = np.isin(some.log_time, every.log_time[inside])
+        assert [p for p, k in zip(some.payloads, kept, strict=True) if k] == [
+            p for p, i in zip(every.payloads, inside, strict=True) if i], topic
+    assert read_archive(fleet, between=(None, T0 - 10**9)).chunks == 0
+    assert read_archive(fleet, between=(T0 + 10**12, None)).chunks == 0
+
+
+def test_the_span_of_samples_from_the_summary_or_by_reading(fleet: Path,
+                                                            tmp_path: Path) -> None:
+    """Units, counts and the first sample's time from a finished file's summary and the
+    chunks that can hold it; a file cut short is read through for the same."""
+    full = read_archive(fleet)
+    last = max(int(b.columns["time_ns"].max()) for b in full.samples())
+    span = sample_span(fleet)
+    assert span.counts == samples_per_unit(full) == {u: n for u, (_, n, _) in FLEET.items()}
+    assert span.first_ns == full.first_sample_ns()
+    assert span.last_ns is not None and last <= span.last_ns <= last + 10**9
+    data = fleet.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    read = read_archive(cut)
+    span = sample_span(cut)
+    assert span.counts == samples_per_unit(read)
+    assert span.first_ns == read.first_sample_ns()
+    assert span.last_ns == max(int(b.columns["time_ns"].max()) for b in read.samples())
+
+
+def samples_per_unit(archive: ArchiveReader) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for block in archive.samples():
+        counts[block.unit] = counts.get(block.unit, 0) + len(block)
+    return counts

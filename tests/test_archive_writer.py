@@ -19,13 +19,14 @@ from hypothesis import strategies as st
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 
+from bridge.archive.frames import frame_picks
+from bridge.archive.repair import repair
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter, numbered
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import ImuSample, Info, Status
 from bridge.exceptions import ArchiveError
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.reader import read_archive
-from bridge.recorder.repair import repair
-from bridge.recorder.writer import ArchiveWriter, frame_picks, numbered
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, Feed, fleet_feed, write_fleet
 from tests.helpers.records import T0, synthetic_batch
 from tests.helpers.rotations import rotation
@@ -274,7 +275,7 @@ import sys
 import numpy as np
 from pathlib import Path
 from bridge.bus.codec import encode_batch
-from bridge.recorder.writer import ArchiveWriter
+from bridge.archive.writer import ArchiveWriter
 from bridge.exceptions import ArchiveError
 from tests.helpers.records import T0, synthetic_batch
 batch = synthetic_batch(0xCC, 20000, 1)
@@ -487,7 +488,7 @@ def test_frames_built_in_bulk_are_the_bytes_protobuf_serializes() -> None:
     from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
     from google.protobuf.timestamp_pb2 import Timestamp
 
-    from bridge.recorder.frames import frame_messages
+    from bridge.archive.frames import frame_messages
 
     rng = np.random.default_rng(11)
     times = np.concatenate([rng.integers(-(1 << 62), 1 << 62, 300),

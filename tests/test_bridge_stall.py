@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
+from bridge.export.tables import offline_times, sample_table
 from bridge.protocol.framer import Framer
-from bridge.recorder.reader import read_archive
-from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Stored

@@ -7,7 +7,7 @@ import pytest
 
 from bridge.bus.codec import (
     HEADER,
-    LEGACY_HEADER,
+    LEGACY_HEADERS,
     decode_batch,
     encode_batch,
     encode_records,
@@ -26,12 +26,16 @@ CODES = sorted(DATA_CODES)
 
 
 def reference(unit: str, batch: Batch, i: int, ticks: np.ndarray, time_ns: np.ndarray,
-              rx_ns: np.ndarray, mono: np.ndarray | None = None) -> ImuSample:
+              rx_ns: np.ndarray, mono: np.ndarray | None = None,
+              part: tuple[np.ndarray, np.ndarray] | None = None) -> ImuSample:
     """The message built field by field with the protobuf library (``mono``: the raw-clock
-    receive times; a bridge that knows none writes 0)."""
+    receive times; a bridge that knows none writes 0; ``part``: the partial reads, not
+    recorded: 0)."""
     return ImuSample(unit=unit, command=batch.code, timer=int(batch["timer"][i]),
                      ticks=int(ticks[i]), time_ns=int(time_ns[i]), rx_ns=int(rx_ns[i]),
                      rx_mono_raw_ns=0 if mono is None else int(mono[i]),
+                     part_rx_mono_raw_ns=0 if part is None else int(part[0][i]),
+                     part_lead_ns=0 if part is None else int(part[1][i]),
                      **{q: batch[q][i].reshape(-1).tolist() for q in record_quantities(batch.code)})
 
 
@@ -40,11 +44,12 @@ def test_bulk_encoding_is_byte_identical_to_protobuf(code: int) -> None:
     batch = wire_batch(code, 6, code)
     ticks, time_ns, rx_ns = wire_times(6)
     mono = rx_ns - 1_700_000_000_000_000_000
-    encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono)
+    part = (mono - np.array([0, 5, 900_000, 1, 0, 7]), np.array([0, 0, 86_806, 347_222, 0, 1]))
+    encoded = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono, part)
     assert len(encoded) == 6
     for i, payload in enumerate(encoded):
         assert payload == reference("imu-0.a", batch, i, ticks, time_ns, rx_ns,
-                                    mono).SerializeToString()
+                                    mono, part).SerializeToString()
         assert peek(payload) == ("imu-0.a", code)
 
 
@@ -87,10 +92,10 @@ def test_one_record_at_a_time_encodes_to_the_bulk_bytes(code: int, little_endian
     time_ns = rng.integers(-(2**62), 2**62, n)
     rx_ns = rng.integers(0, 2**62, n)
     mono = rng.integers(0, 2**62, n)
-    bulk = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono)
+    part = (rng.integers(-1, 2**40, n), rng.integers(0, 10**6, n))
+    bulk = encode_batch("imu-0.a", batch, ticks, time_ns, rx_ns, mono, part)
     assert encode_records("imu-0.a", code, little_endian, [bytes(r) for r in block],
-                          ticks.tolist(), time_ns.tolist(), rx_ns.tolist(),
-                          mono.tolist()) == bulk
+                          [c.tolist() for c in (ticks, time_ns, rx_ns, mono, *part)]) == bulk
 
 
 @pytest.mark.parametrize("code", CODES, ids=lambda c: f"0x{c:02X}")
@@ -139,7 +144,8 @@ def test_other_valid_encodings_of_the_same_message_decode_alike() -> None:
     for i in range(3):
         full = reference("imu0", batch, i, ticks, time_ns, rx_ns)
         head = ImuSample(unit="imu0", command=code, timer=full.timer, ticks=full.ticks,
-                         time_ns=full.time_ns, rx_ns=full.rx_ns, rx_mono_raw_ns=0)
+                         time_ns=full.time_ns, rx_ns=full.rx_ns, rx_mono_raw_ns=0,
+                         part_rx_mono_raw_ns=0, part_lead_ns=0)
         body = ImuSample(accel=full.accel, ang_rate=full.ang_rate, m=full.m)
         theirs.append(body.SerializeToString() + head.SerializeToString())  # protobuf merges
     assert [len(p) for p in theirs] == [len(p) for p in ours] and theirs != ours
@@ -174,27 +180,35 @@ def test_units_agree_reads_the_unit_as_a_protobuf_parser_does() -> None:
     assert units_agree("b", [relabelled]) == [True]
 
 
+@pytest.mark.parametrize("cleared", [("part_rx_mono_raw_ns", "part_lead_ns"),
+                                     ("part_rx_mono_raw_ns", "part_lead_ns", "rx_mono_raw_ns")],
+                         ids=["no partial read", "no raw stamp"])
 @pytest.mark.parametrize("code", [0xC2, 0xCC, 0xDF], ids=lambda c: f"0x{c:02X}")
-def test_an_older_bridges_samples_decode_in_bulk_with_no_raw_stamp(code: int) -> None:
-    """Samples from bridges that did not stamp reads on the raw clock lack
-    ``rx_mono_raw_ns``: their own bulk layout, read as fast, the stamp 0."""
+def test_an_older_bridges_samples_decode_in_bulk(code: int, cleared: tuple[str, ...]) -> None:
+    """Samples from older bridges lack the partial read (``part_rx_mono_raw_ns`` reads 0), and
+    those older still the raw-clock stamp (``rx_mono_raw_ns`` reads 0): each has a bulk
+    layout of its own, read as fast."""
     batch = wire_batch(code, 5, code)
     ticks, time_ns, rx_ns = wire_times(5)
+    part = (rx_ns - 7 - np.arange(5) * 1000, np.arange(5) * 87)
     old = []
     for i in range(5):
-        message = reference("u1", batch, i, ticks, time_ns, rx_ns)
-        message.ClearField("rx_mono_raw_ns")
+        message = reference("u1", batch, i, ticks, time_ns, rx_ns, rx_ns - 7, part)
+        for name in cleared:
+            message.ClearField(name)
         old.append(message.SerializeToString())
-    assert {len(p) for p in old} == {layout(code, "u1", LEGACY_HEADER).size}
-    new = encode_batch("u1", batch, ticks, time_ns, rx_ns, rx_ns - 7)
+    assert {len(p) for p in old} == {layout(code, "u1", LEGACY_HEADERS[len(cleared) - 2]).size}
+    new = encode_batch("u1", batch, ticks, time_ns, rx_ns, rx_ns - 7, part)
     want = decode_batch("u1", code, new)
     np.testing.assert_array_equal(want["rx_mono_raw_ns"], rx_ns - 7)
+    absent = {"rx_mono_raw_ns": 0, "part_rx_mono_raw_ns": 0, "part_lead_ns": 0}
     rows = np.frombuffer(b"".join(old), np.uint8).reshape(5, -1)
     mixed = [old[0], new[1], old[2], new[3], old[4]]
-    for got, raw in ((decode_batch("u1", code, old), [0] * 5),
-                     (decode_batch("u1", code, rows), [0] * 5),
-                     (decode_batch("u1", code, mixed), [0, rx_ns[1] - 7, 0, rx_ns[3] - 7, 0])):
-        np.testing.assert_array_equal(got["rx_mono_raw_ns"], raw)
+    for got, fresh in ((decode_batch("u1", code, old), []),
+                       (decode_batch("u1", code, rows), []),
+                       (decode_batch("u1", code, mixed), [1, 3])):
         for name, column in want.items():
-            if name != "rx_mono_raw_ns":
-                np.testing.assert_array_equal(got[name], column, err_msg=name)
+            expected = column.copy()
+            if name in cleared:
+                expected[[i for i in range(5) if i not in fresh]] = absent[name]
+            np.testing.assert_array_equal(got[name], expected, err_msg=name)

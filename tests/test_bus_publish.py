@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
 import zenoh
 
 import bridge
+from bridge.bus.codec import record_quantities
 from bridge.bus.gx3_pb2 import Event, Status
+from bridge.bus.integrity import intact, read_time
 from bridge.bus.publish import UnitPublisher
 from bridge.device.session import UnitInfo
 from bridge.protocol.table import DATA_CODES
@@ -33,10 +36,9 @@ def test_every_record_type_arrives_as_the_columns_it_left_as(session: zenoh.Sess
                 assert b is not None and (b.unit, b.code) == ("imu0", code)
                 done = sum(len(g) for g in got)
                 got.append(b["ticks"])
-                for q in b.columns:
-                    if q not in ("command", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns"):
-                        np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
-                                                      err_msg=q)
+                for q in ("timer", *record_quantities(code)):
+                    np.testing.assert_array_equal(b[q], batch[q][done:done + len(b)],
+                                                  err_msg=q)
             np.testing.assert_array_equal(np.concatenate(got), ticks)
         assert pub.published == 4 * len(DATA_CODES)
         first = raw.get(timeout=10)
@@ -115,3 +117,31 @@ def test_reads_from_before_the_first_bring_up_reach_the_capture_boundedly(
         assert heard[-1] == 10**18
     finally:
         sink.close()
+
+
+def test_one_put_in_sixteen_carries_when_it_was_put(session: zenoh.Session) -> None:
+    """What the latency metrics are measured on: the last message of one imu put in 16
+    carries the instant it was put after its CRC-32 (and its read's receipt and the
+    put's return are heard); every other message carries its CRC alone."""
+    got: list[tuple[bytes, bytes]] = []
+    sub = session.declare_subscriber("gx3/imu0/imu", lambda s: got.append(
+        (s.payload.to_bytes(), s.attachment.to_bytes() if s.attachment else b"")))
+    stamped: list[tuple[int, int]] = []
+    batch = wire_batch(0xC2, 4, 1)
+    ticks, time_ns, rx_ns = wire_times(4)
+    before = time.time_ns()
+    with UnitPublisher(session, "imu0", on_stamped=lambda rx, put: stamped.append((rx, put))
+                       ) as pub:
+        for _ in range(40):  # four records a put
+            pub.publish_samples(batch, ticks, time_ns, rx_ns)
+        after = time.time_ns()
+    wait_for(lambda: len(got) == 160, what="every sample")
+    sub.undeclare()
+    assert all(intact(payload, attachment) for payload, attachment in got)
+    longer = [i for i, (_, attachment) in enumerate(got) if len(attachment) > 4]
+    assert longer == [3, 67, 131]  # the last of puts 0, 16 and 32
+    put_at = [read_time(got[i][1]) or 0 for i in longer]
+    assert before <= put_at[0] <= put_at[1] <= put_at[2] <= after
+    assert [rx for rx, _ in stamped] == [int(rx_ns[-1])] * 3
+    assert all(p <= returned <= after
+               for p, (_, returned) in zip(put_at, stamped, strict=True))

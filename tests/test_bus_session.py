@@ -37,7 +37,7 @@ def exchange(sender: zenoh.Session, receiver: zenoh.Session) -> None:
 
 def test_loopback_config_with_flags_overriding_its_endpoints() -> None:
     a_ep, b_ep = free_endpoint(), free_endpoint()
-    config = CONFIGS / "zenoh-loopback.json5"
+    config = CONFIGS / "loopback" / "listen.json5"
     with open_session(config, listen=[a_ep]) as a, \
             open_session(config, listen=[b_ep], connect=[a_ep]) as b:
         assert ZenohOptions(config, listen=[a_ep]).config().get_json("listen/endpoints") \

@@ -14,9 +14,9 @@ import pyarrow.parquet as pq
 import pytest
 from rerun.chunk import RrdReader
 
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import replay
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.walk import read_archive
+from bridge.ingest.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import Motion, MotionConfig, tumbling
 from bridge.sim.serve import Simulator

@@ -1,7 +1,8 @@
 """The table marks exactly the commands that write non-volatile memory, as the firmware does.
 
-DESIGN.md forbids sending those unasked; the rules follow the manual's command pages
-and the 0xDB footnote (before firmware 1.1.27, function 1 stores too).
+docs/design/protocol.md ("Commands that change what a unit stores") forbids sending those
+unasked; the rules follow the manual's command pages and the 0xDB footnote (before
+firmware 1.1.27, function 1 stores too).
 """
 
 from __future__ import annotations

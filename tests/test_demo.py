@@ -10,7 +10,7 @@ from pathlib import Path
 
 import psutil
 
-from bridge.recorder.reader import read_archive
+from bridge.archive.walk import read_archive
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3
 from tests.helpers.rrd import rerun_rows
@@ -67,6 +67,15 @@ def test_demo_runs_the_fleet_and_reports_the_fault(tmp_path: Path) -> None:
         ("rerun ", "/", "."))and " export " not in line]
     assert viewers and all(os.access(Path(tmp_path, v), os.X_OK) if not v.startswith("/")
                            else os.access(v, os.X_OK) for v in viewers), viewers
+    # no display in this shell: Rerun's web viewer, which needs none, and where to open it
+    assert all(" --serve-web --bind 127.0.0.1 --port 9876 --web-viewer-port 9090 " in line
+               for line in stderr.splitlines() if line.strip().split()[:1] == [viewers[0]])
+    assert ("open http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy in "
+            "a browser") in stderr
+    for unit in ("imu1", "imu2"):  # each bridge's own account, in the folder
+        log = (out / f"{unit}.log").read_text()
+        assert "bring_up 3DM-GX3-25" in log and f"{unit}: " in log, log
+    assert "disconnect" in (out / "imu2.log").read_text()
 
 
 def test_an_interrupted_demo_keeps_its_results_and_exits_130(tmp_path: Path) -> None:

@@ -13,14 +13,17 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 import pytest
 
-from bridge.recorder.describe import flat_names
-from bridge.recorder.reader import MAGIC, read_archive
-from bridge.recorder.tables import sample_table
+from bridge.archive.mcap_writer import MAGIC
+from bridge.archive.walk import read_archive
+from bridge.export.describe import flat_names
+from bridge.export.tables import sample_table
+from bridge.timing import Estimate
 from tests.helpers.archives import FLEET, LATENCY, PERIOD, Written, write_fleet
 from tests.helpers.processes import GX3, gx3
 from tests.helpers.records import T0
 
-HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "live_time_ns", "rx_ns"]
+HEAD = ["unit", "command", "timer", "ticks", "time_ns", "time_utc", "time_uncertainty_ns",
+        "live_time_ns", "rx_ns"]
 ROWS = sum(n for _, n, _ in FLEET.values())
 
 
@@ -47,6 +50,10 @@ def test_export_writes_one_row_per_sample_with_flat_columns(
     assert result.returncode == 0, result.stderr
     assert f"wrote {ROWS} samples of 3 units" in result.stderr
     table = pq.read_table(out) if suffix == ".parquet" else pa_csv.read_csv(out)
+    if suffix == ".csv":  # each column's unit in its header, where Parquet has metadata
+        assert {"timer [tick (1/62500 s)]", "accel_x [g]", "ang_rate_z [rad/s]",
+                "mag_y [gauss]", "time_ns", "time_utc", "m11", "q0"} <= set(table.column_names)
+        table = table.rename_columns([n.split(" [")[0] for n in table.column_names])
     assert table.num_rows == ROWS
     assert table.column_names == [
         *HEAD, "accel_x", "accel_y", "accel_z", "ang_rate_x", "ang_rate_y", "ang_rate_z",
@@ -108,8 +115,8 @@ def test_events_file_lists_every_event_per_unit(fleet: tuple[Path, Written],
     result = gx3("export", path, "-o", tmp_path / "s.csv", "--events", events)
     assert result.returncode == 0, result.stderr
     table = pa_csv.read_csv(events)
-    assert table.column_names == ["unit", "time_ns", "time_utc", "ticks", "kind", "amount",
-                                  "detail"]
+    assert table.column_names == ["unit", "time_ns", "time_utc", "ticks [tick (1/62500 s)]",
+                                  "kind", "amount", "detail"]
     rows = table.to_pylist()
     assert [r["unit"] for r in rows] == ["u3", "u1", "u2"]  # in time order
     for r in rows:
@@ -122,15 +129,16 @@ def test_re_estimate_hook_replaces_time_ns_per_unit(fleet: tuple[Path, Written])
     path, written = fleet
     calls: list[int] = []
 
-    def re_estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray:
+    def re_estimate(unit: str, columns: Mapping[str, np.ndarray]) -> Estimate:
         ticks = columns["ticks"]
         calls.append(len(ticks))
         assert np.all(np.diff(columns["rx_ns"]) >= 0)
-        return T0 + ticks * 16_000  # 62.5 kHz ticks
+        return Estimate(T0 + ticks * 16_000, ticks % 7)  # 62.5 kHz ticks
 
     table = sample_table(read_archive(path), re_estimate=re_estimate)
     assert sorted(calls) == sorted(n for _, n, _ in FLEET.values())
     np.testing.assert_array_equal(table["time_ns"], T0 + table["ticks"] * 16_000)
+    np.testing.assert_array_equal(table["time_uncertainty_ns"], table["ticks"] % 7)
     u1 = table["unit"] == "u1"
     np.testing.assert_array_equal(np.sort(table["live_time_ns"][u1]), written.times["u1"])
 
@@ -165,7 +173,7 @@ def test_bad_input_gives_one_line_errors(fleet: tuple[Path, Written], tmp_path: 
              for says, f in _bad_files(tmp_path).items()]
     cases += [
         (["export", path, "-o", tmp_path / "o.xlsx"],
-         "name the file .parquet or .csv (a table), or .mcap (a ROS 2 bag)"),
+         "name the file .parquet, .csv or .mcap"),
         (["export", path, "-o", tmp_path / "o.csv", "--start", "noon"], "neither an ISO time"),
         (["export", path, "-o", tmp_path / "o.csv", "--unit", "nobody"], "no samples match"),
         (["export", path, "-o", tmp_path / "no" / "o.csv"], "does not exist"),

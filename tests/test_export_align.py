@@ -10,9 +10,9 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
+from bridge.archive.walk import read_archive
+from bridge.export.tables import align_table, sample_table
 from bridge.protocol.convert import euler_to_m
-from bridge.recorder.reader import read_archive
-from bridge.recorder.tables import align_table, sample_table
 from tests.helpers.archives import ACCEL_RATE, YAW_RATE, write_two_units
 from tests.helpers.processes import gx3
 from tests.helpers.records import T0

@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from bridge.bus.gx3_pb2 import Info
-from bridge.recorder.describe import SCHEMA_VERSION, column_metadata, unit_labels
+from bridge.export.describe import SCHEMA_VERSION, column_metadata, unit_labels
 from tests.helpers.archives import write_two_units
 from tests.helpers.processes import GX3
 
@@ -126,6 +126,30 @@ def test_csv_time_utc_and_empty_gaps_read_back_typed(exported: dict[str, Path]) 
             f"SELECT typeof(any_value(time_utc)), count(*) - count(imu2__m33) "
             f"FROM read_csv('{exported['csv']}')").fetchall()
     assert (kind, nulls) == ("TIMESTAMP WITH TIME ZONE", table.column("imu2__m33").null_count)
+
+
+def test_csv_headers_say_each_columns_unit_and_every_reader_takes_them(
+        exported: dict[str, Path]) -> None:
+    """CSV has no metadata: a column's unit is in its header, ``accel_x [g]``, which
+    pandas, polars and DuckDB read with no option; the unit is the one a Parquet file's
+    field metadata gives."""
+    path = exported["csv"]
+    frame = pd.read_csv(path)
+    table = pl.read_csv(path)
+    with duckdb.connect() as db:
+        names = [n for n, *_ in db.sql(f"DESCRIBE SELECT * FROM read_csv('{path}')").fetchall()]
+        (mean,), = db.sql(f"SELECT avg(\"imu2__accel_x [g]\") FROM read_csv('{path}')"
+                          ).fetchall()
+    assert list(frame.columns) == table.columns == names
+    assert {"time_ns", "time_utc", "imu2__accel_x [g]", "imu_1__ang_rate_z [rad/s]",
+            "imu2__m33"} <= set(names)
+    parquet = pq.read_schema(exported["aligned"])
+    for name in names:
+        bare, _, bracket = name.partition(" [")
+        unit = (parquet.field(bare).metadata or {}).get(b"physical_unit", b"").decode()
+        assert bracket == (f"{unit}]" if unit not in ("", "unitless", "ns") else ""), name
+    assert mean == pytest.approx(frame["imu2__accel_x [g]"].mean())
+    assert mean == pytest.approx(table["imu2__accel_x [g]"].mean())
 
 
 def test_every_column_name_works_unquoted_in_sql_and_as_an_attribute(

@@ -31,6 +31,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
@@ -38,10 +40,9 @@ from bridge.cli.record import _hosts_table
 from bridge.device import clock
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
-from bridge.recorder import live
-from bridge.recorder.live import HOST_MARGIN_NS, HOSTS_METADATA, HostView, Recorder
-from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
+from bridge.recorder import hosts as host_clocks
+from bridge.recorder.hosts import HOST_MARGIN_NS, HOSTS_METADATA, HostView
+from bridge.recorder.live import Recorder
 from tests.helpers.archives import archived_events
 from tests.helpers.processes import GX3
 from tests.helpers.waiting import free_port, wait_for
@@ -176,10 +177,10 @@ def test_a_host_ahead_is_told_once_per_unit_and_an_honest_host_never(tmp_path: P
     # the live view: each host with its units, bound and sync state (the honest host
     # named by its unit's Info alone)
     assert shown["robot-ahead"].units == ("a1", "a2")
-    assert live.ahead(shown["robot-ahead"].bound_ns)
+    assert host_clocks.ahead(shown["robot-ahead"].bound_ns)
     assert shown["robot-honest"].units == ("h1",)
     honest = shown["robot-honest"].bound_ns
-    assert honest is not None and honest >= 0 and not live.ahead(honest)
+    assert honest is not None and honest >= 0 and not host_clocks.ahead(honest)
     assert shown["robot-ahead"].clock is not None and shown["robot-ahead"].clock.synchronised
     # the archive's record of the whole recording
     hosts = hosts_record(out)
@@ -210,7 +211,7 @@ def test_a_host_is_told_again_only_after_it_cleared(tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """Ahead, told; set right, cleared once the window has none of its ahead samples
     left; ahead again, told again. A shorter window keeps the test short."""
-    monkeypatch.setattr(live, "HOST_WINDOW_S", 2)
+    monkeypatch.setattr(host_clocks, "HOST_WINDOW_S", 2)
     out = tmp_path / "again.mcap"
     units = {"a1": Unit("robot-wobbly", AHEAD_NS)}
     with Fleet(out, units) as fleet:

@@ -113,7 +113,7 @@ def test_fleet_across_namespaces_through_a_router_survives_a_pulled_link(
                 for stream in (proc.stdout, proc.stderr):
                     if stream is not None:
                         stream.close()
-    from bridge.recorder.reader import read_archive
+    from bridge.archive.walk import read_archive
 
     archive = read_archive(out)
     assert archive.complete

@@ -16,14 +16,14 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
+from bridge.ingest.replay import replay
 from bridge.protocol.codec import Batch, encode_reply
 from bridge.protocol.convert import euler_to_m
 from bridge.protocol.table import REPLIES
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.motion import Motion, MotionConfig
 from tests.helpers.archives import write_capture
 from tests.helpers.mcap_order import order_problems

@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.device.clock import SCRIPT_ENV, ClockScript
+from bridge.export.tables import offline_times, sample_table
+from bridge.ingest.replay import replay
 from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.recorder.reader import ArchiveReader, read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.tables import offline_times, sample_table
 from bridge.sim.capture import USB_BAUD, WALL_NS, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator

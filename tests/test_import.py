@@ -18,16 +18,20 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from typer.testing import CliRunner
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
+from bridge.cli import app
+from bridge.ingest.bytelog import LogFile, import_logs
 from bridge.protocol import Framer, checksum, encode_reply
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.motion import MotionConfig, tumbling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery
 from bridge.viz import layout
+from tests.helpers.archives import write_two_units
 from tests.helpers.processes import gx3
 from tests.helpers.rrd import rerun_rows
 
@@ -211,6 +215,27 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
     assert logged.logs[0].read_bytes() == kept
 
 
+def test_an_archive_or_an_empty_file_is_said_for_what_it_is(tmp_path: Path) -> None:
+    """Not "not a 3DM-GX3 byte log", which leaves the user guessing: what the file is,
+    and what to do with it (in-process: refused before any reading)."""
+    archive, empty, out = tmp_path / "run.mcap", tmp_path / "empty.bin", tmp_path / "x.mcap"
+    write_two_units(archive)
+    empty.write_bytes(b"")
+    start = ["-u", "x", "--start", "2026-01-01T00:00:00Z", "-o", str(out)]
+    for logs, says in (
+            ([archive], f"{archive} is an MCAP archive, not a byte log: gx3 export, rrd "
+                        "and allan read it as it is (a raw capture of a bridge's: gx3 "
+                        "replay)"),
+            ([empty, archive], f"{archive} is an MCAP archive"),
+            ([empty], f"{empty} is empty: nothing to import"),
+            ([empty, empty], f"{empty}, {empty} are all empty: nothing to import")):
+        done = CliRunner().invoke(app, ["import", *map(str, logs), *start],
+                                  env={"COLUMNS": "300"})
+        assert done.exit_code == 2 and done.stderr.startswith(f"error: {says}"), done.stderr
+        assert done.stderr.count("\n") == 1, done.stderr
+        assert not out.exists()
+
+
 def test_a_reset_inside_a_log_takes_the_next_start(tmp_path: Path) -> None:
     """A logger that power-cycled its unit mid-file: each epoch from its own --start."""
     off_s = 1000.0  # the unit was off for a while: the timer tells nothing of it
@@ -281,3 +306,17 @@ def test_a_record_with_a_corrupt_timer_is_dropped_as_live(tmp_path: Path) -> Non
     time_ns = np.concatenate([b.columns["time_ns"] for b in archive.samples(["u"])])
     truth = np.delete(segment.truth["value_ns"], [100, 400])
     assert np.abs(np.sort(time_ns) - truth).max() <= 1_000
+
+
+def test_delta_records_are_timed_at_the_middle_of_their_period(tmp_path: Path) -> None:
+    """0xC3 integrates over the output period (here 50 ms): an imported record's time_ns
+    is the period's middle, as live, not its end."""
+    config = streaming_config(_unit(0), code=0xC3, decimation=50, baud=115_200)
+    capture = synthesize(config, UartDelivery(), 20.0)
+    log = tmp_path / "delta.bin"
+    log.write_bytes(b"".join(capture.data))
+    import_logs([LogFile(log, int(capture.truth["time_ns"][0]))], tmp_path / "delta.mcap",
+                "d1")
+    (block,) = read_archive(tmp_path / "delta.mcap").samples(["d1"])
+    error = block.columns["time_ns"] - capture.truth["value_ns"]
+    assert np.abs(error).max() <= 1_000, np.abs(error).max()

@@ -54,14 +54,12 @@ class Collect:
         if isinstance(records, Records):  # as UnitPublisher.publish_records
             self.lean += len(records)
             self.partial += len(records) - (records.part_bytes or [SIZE] * len(records)).count(SIZE)
-            payloads, attachments = sealed_records("u1", records, list(samples.tick_values),
-                                                   list(samples.time_values),
-                                                   list(samples.rx_values))
+            payloads, attachments = sealed_records("u1", records, *samples.lists())
             assert attachments == seals(payloads)
             self.payloads += payloads
         else:  # as UnitPublisher.publish_samples
             self.payloads += encode_batch("u1", samples.batch, samples.ticks, samples.time_ns,
-                                          samples.rx_ns, samples.batch.rx_ns)
+                                          samples.rx_ns, samples.batch.rx_ns, samples.part)
         self.ticks += samples.ticks.tolist()
         self.time_ns += samples.time_ns.tolist()
 
@@ -139,7 +137,7 @@ def batch_path(data: bytes, read_ends: list[int], rx: np.ndarray, transport: str
         timed = timing.process(batch)
         out.events += [(e.kind, e.ticks, e.count) for e in timed.events]
         out.payloads += encode_batch("u1", timed.batch, timed.ticks, timed.time_ns,
-                                     timed.rx_ns, timed.batch.rx_ns)
+                                     timed.rx_ns, timed.batch.rx_ns, timed.part)
         out.ticks += timed.ticks.tolist()
         out.time_ns += timed.time_ns.tolist()
     return out

@@ -158,14 +158,14 @@ def test_log_level_and_format_reach_every_line(capfd: pytest.CaptureFixture[str]
 
     try:
         log_to(LogLevel.warning, LogFormat.json)
-        logging.getLogger("bridge.recorder.reader").info("an info line")
-        logging.getLogger("bridge.recorder.reader").warning("a warning", extra={"count": 3})
+        logging.getLogger("bridge.archive.walk").info("an info line")
+        logging.getLogger("bridge.archive.walk").warning("a warning", extra={"count": 3})
         err.print("[bold red]error:[/] a command's own error")
     finally:
         log_to()
     lines = [json.loads(line) for line in capfd.readouterr().err.splitlines()]
     assert [(x["level"], x["logger"], x["message"]) for x in lines] == [
-        ("warning", "bridge.recorder.reader", "a warning"),
+        ("warning", "bridge.archive.walk", "a warning"),
         ("error", "gx3", "a command's own error")]
     assert lines[0]["count"] == 3
 

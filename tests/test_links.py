@@ -8,9 +8,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from bridge.archive.rawcapture import capture_metadata
 from bridge.device.link import TIMER_RULE, Link, find_link, kernel_name
 from bridge.protocol.table import REPLIES
-from bridge.recorder.rawcapture import capture_metadata
 from bridge.sim.serve import Simulator
 from bridge.sim.usb import AdapterDelivery
 from bridge.timing.stream import USB_FRAME_NS, Settings, StreamTiming

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bridge.analysis.magcal import fit
 from bridge.exceptions import CalibrationError
 from bridge.protocol import convert
-from bridge.recorder.magcal import fit
 from bridge.sim.motion import Motion, MotionConfig, tumbling
 
 SOFT = (1.1, 0.05, 0.0, 0.05, 0.9, -0.02, 0.0, -0.02, 1.0)

@@ -16,7 +16,7 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Chunk, Footer, MessageIndex
 from mcap.stream_reader import get_chunk_data_stream
 
-from bridge.recorder.mcap_writer import MAGIC, McapWriter
+from bridge.archive.mcap_writer import MAGIC, McapWriter
 from tests.helpers.records import T0
 
 Written = list[tuple[int, int, int, int, bytes]]  # channel, sequence, log, publish, data

@@ -135,13 +135,15 @@ def test_messages_are_the_encoders_bytes_and_seals(code: int, little_endian: boo
     time_ns = rng.integers(-(2**62), 2**62, n).tolist()
     rx_ns = rng.integers(0, 2**62, n).tolist()
     mono = rng.integers(0, 2**62, n).tolist()
+    ago = rng.integers(0, 2**62, n).tolist()
+    lead = rng.integers(0, 10**6, n).tolist()
     records = wire(code, n, code + little_endian)
+    times = (ticks, time_ns, rx_ns, mono, ago, lead)
     for unit in ("u", "imu-0.a", "x" * 200):
-        payloads = encode_records(unit, code, little_endian, records, ticks, time_ns, rx_ns,
-                                  mono)
+        payloads = encode_records(unit, code, little_endian, records, times)
         assert CORE is not None
         assert CORE.messages(*native_layout(code, unit, little_endian), records,
-                             (ticks, time_ns, rx_ns, mono)) == (payloads, seals(payloads))
+                             times) == (payloads, seals(payloads))
 
 
 @needs_core
@@ -149,16 +151,18 @@ def test_messages_refuses_what_it_cannot_lay_out() -> None:
     template, moves, at = native_layout(0xCC, "u", False)
     rec = wire(0xCC, 1, 0)
     assert CORE is not None
+    more = ([5], [6])  # the partial read's columns
     with pytest.raises(ValueError, match="record 0"):
-        CORE.messages(template, moves, at, [rec[0][:10]], ([1], [2], [3], [4]))
+        CORE.messages(template, moves, at, [rec[0][:10]], ([1], [2], [3], [4], *more))
     with pytest.raises(ValueError, match="as long as wire"):
-        CORE.messages(template, moves, at, rec, ([1, 2], [2], [3], [4]))
+        CORE.messages(template, moves, at, rec, ([1, 2], [2], [3], [4], *more))
     with pytest.raises(ValueError, match="a position in at"):
-        CORE.messages(template, moves, at, rec, ([1], [2], [3]))
+        CORE.messages(template, moves, at, rec, ([1], [2], [3], *more))
     with pytest.raises(OverflowError):
-        CORE.messages(template, moves, at, rec, ([2**64], [2], [3], [4]))
+        CORE.messages(template, moves, at, rec, ([2**64], [2], [3], [4], *more))
     with pytest.raises(ValueError, match="outside the message"):
-        CORE.messages(template, moves, (0, 1, 2, len(template)), rec, ([1], [2], [3], [4]))
+        CORE.messages(template, moves, (0, 1, 2, 3, 4, len(template)), rec,
+                      ([1], [2], [3], [4], *more))
 
 
 def records_of(code: int, recs: list[bytes], little_endian: bool) -> Records:
@@ -177,9 +181,9 @@ def test_the_publishers_payloads_do_not_depend_on_the_core(
         monkeypatch.setattr(native, "records", None)
     recs = wire(0xCC, 3, 1)
     payloads, attachments = sealed_records("b", records_of(0xCC, recs, False), [1, 2, 3],
-                                           [4, 5, 6], [7, 8, 9])
-    expected = encode_records("b", 0xCC, False, recs, [1, 2, 3], [4, 5, 6], [7, 8, 9],
-                              [5, 5, 5])
+                                           [4, 5, 6], [7, 8, 9], [1, 0, 3], [0, 0, 86])
+    expected = encode_records("b", 0xCC, False, recs, ([1, 2, 3], [4, 5, 6], [7, 8, 9],
+                                                       [5, 5, 5], [1, 0, 3], [0, 0, 86]))
     assert payloads == expected
     assert attachments == seals(expected)
 
@@ -269,6 +273,23 @@ def test_a_machine_without_a_compiler_installs_the_pure_python_package(tmp_path:
                          cwd=tmp_path, timeout=60, check=True,
                          env={**os.environ, "PYTHONPATH": path})
     assert ran.stdout.split() == [str(target / "bridge" / "__init__.py"), "None"]
+
+
+def test_where_the_core_can_be_built_the_install_built_it() -> None:
+    """The core's tests skip where it is not built; a C file that no longer compiles
+    would make them skip everywhere, and pass. Where a C compiler and Python's headers
+    are at hand the install builds it, so there its absence fails."""
+    compiler = (sysconfig.get_config_var("CC") or "").split()[:1]
+    headers = Path(sysconfig.get_paths()["include"]) / "Python.h"
+    if not compiler or shutil.which(compiler[0]) is None or not headers.is_file():
+        pytest.skip("no C compiler or no Python headers here: the core cannot be built")
+    if os.environ.get("GX3_NATIVE") == "0":
+        pytest.skip("GX3_NATIVE=0 runs the pure-Python paths on purpose")
+    missing = [name for name, core in (("_records", native.records), ("_gather", native.reader))
+               if core is None]
+    assert not missing, (f"bridge.{' and bridge.'.join(missing)} not built although "
+                         f"{compiler[0]} and {headers} are here: reinstall, and read why the "
+                         "build of bridge/*.c failed")
 
 
 @contextmanager

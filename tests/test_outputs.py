@@ -1,7 +1,7 @@
 """No command destroys a file: outputs that exist, are an input, or are being written.
 
 Real `gx3` processes on real files; each case is judged by what is in the files
-afterwards (bridge/recorder/outputs.py holds the rules every command follows).
+afterwards (bridge/archive/outputs.py holds the rules every command follows).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bridge.archive.outputs import create_locked, free_folder, lock_holder, staged
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import numbered
 from bridge.exceptions import OutputRefused
-from bridge.recorder.outputs import create_locked, free_folder, lock_holder, staged
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.writer import numbered
+from bridge.ingest.replay import replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
@@ -201,11 +201,12 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(
     capture, archive = small
     alias = tmp_path / "alias.mcap"
     alias_csv = tmp_path / "alias.csv"
-    for name in (alias, alias_csv):
+    alias_rrd = tmp_path / "alias.rrd"
+    for name in (alias, alias_csv, alias_rrd):
         os.link(archive, name)  # another name, the same file
     before = archive.read_bytes(), capture.read_bytes()
     commands: list[list[str | Path]] = [
-        ["rrd", archive, "-o", archive],
+        ["rrd", archive, "-o", alias_rrd],
         ["replay", capture, "-o", capture],
         ["export", archive, "-o", tmp_path / "t.csv", "--events", alias_csv],
         ["repair", archive, "-o", alias]]
@@ -214,7 +215,8 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(
     for done in runs:
         one_line_error(done, 2, "is the input")
     assert (archive.read_bytes(), capture.read_bytes()) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias.csv", "alias.mcap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias.csv", "alias.mcap",
+                                                          "alias.rrd"]
 
 
 def interrupt_once_writing(command: list[str | Path], folder: Path) -> tuple[int, str]:

@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import parse
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.subscribe import subscribe
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.records import CODE, T0
 from tests.helpers.zenoh import peer_sessions
 
@@ -69,7 +69,7 @@ def test_a_burst_on_many_keys_is_archived_completely_and_in_order(tmp_path: Path
         pub_session.close()
         rec_session.close()
     assert recorder.error is None and recorder.misses == 0
-    assert [r["samples"] for r in rows] == [PER_UNIT] * UNITS
+    assert [r.samples for r in rows] == [PER_UNIT] * UNITS
     with out.open("rb") as f:
         reader = make_reader(f)
         for i in range(UNITS):

@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.recorder.reader import read_archive
+from bridge.archive.walk import read_archive
 from bridge.sim.serve import Simulator
+from bridge.viz.thin import Bins
 from tests.helpers.archives import sample_columns, samples_in
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3, bridge_process, published, recorder
-from tests.helpers.rrd import rerun_rows, rerun_rows_so_far
+from tests.helpers.rrd import rerun_rows, rerun_rows_so_far, scalar_lines
 from tests.helpers.units import TWO_UNITS
 from tests.helpers.waiting import free_port, wait_for
 from tests.helpers.zenoh import zenoh_config
@@ -71,13 +72,16 @@ def test_the_recorders_summary_is_for_people_at_80_columns(tmp_path: Path) -> No
     """What a person sees at the end of `gx3 record --rrd` in an 80-column terminal:
     every line fits, no header is cut, the offset is how far the unit's clock moved
     (a few ms at most here, not the epoch-sized offset itself), and no third-party
-    log line (Rerun's file sink warnings, raw ANSI codes) reaches the terminal."""
+    log line (Rerun's file sink warnings, raw ANSI codes) reaches the terminal. With
+    --rrd-max-rate, the Rerun recording holds each line's least and greatest value of
+    each bin, at their instants, of every sample archived."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
     out = tmp_path / "fleet.mcap"
     proc = subprocess.Popen([GX3, "record", "-o", out.name, "--zenoh-config", str(rec_cfg),
-                             "--rrd", "fleet.rrd"], stdout=subprocess.PIPE,
+                             "--rrd", "fleet.rrd", "--rrd-max-rate", "5"],
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, cwd=tmp_path,
                             env={**os.environ, "COLUMNS": "80"})
     with Simulator(TWO_UNITS[:1], "pty") as sim, \
@@ -96,6 +100,13 @@ def test_the_recorders_summary_is_for_people_at_80_columns(tmp_path: Path) -> No
     (row,) = [line for line in lines if line.startswith("imu-with-a-long-name ")]
     offset_ms = float(row.split()[6])
     assert abs(offset_ms) < 5.0, text
+    archived = sample_columns(out, "imu-with-a-long-name")
+    time_ns, accel = archived["time_ns"], archived["accel"][:, 1].astype(np.float64)
+    bins = Bins.of(time_ns, 200_000_000, hold_last=False)
+    thinned = scalar_lines(tmp_path / "fleet.rrd")["/plots/accel/y/imu-with-a-long-name"]
+    kept = bins.extremes(accel)
+    assert np.array_equal(thinned[0], time_ns[kept]) and np.array_equal(thinned[1], accel[kept])
+    assert len(kept) < len(time_ns) / 4
 
 
 def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
@@ -212,10 +223,10 @@ def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
 
 def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
     """A killed recorder's file: `gx3 rrd` renders what is readable and says so."""
+    from bridge.archive.writer import ArchiveWriter
     from bridge.bus.codec import encode_batch
     from bridge.protocol.codec import Batch
     from bridge.protocol.table import REPLIES
-    from bridge.recorder.writer import ArchiveWriter
 
     path = tmp_path / "cut.mcap"
     with ArchiveWriter(path, chunk_size=4096) as writer:

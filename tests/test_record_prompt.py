@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.publish import UnitPublisher
 from bridge.protocol.codec import Batch
 from bridge.protocol.table import REPLIES
 from bridge.recorder.live import Recorder
-from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.records import CODE, T0
 from tests.helpers.zenoh import peer_sessions
 

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.bus.integrity import seal
 from bridge.bus.publish import UnitPublisher
 from bridge.bus.session import open_session
 from bridge.recorder.live import Recorder
-from bridge.recorder.reader import read_archive
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.serve import Simulator
 from tests.helpers.archives import archived_events, samples_in, topics_in
 from tests.helpers.processes import GX3, bridge_process, published, recorder

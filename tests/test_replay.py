@@ -18,17 +18,18 @@ import numpy as np
 import psutil
 import pytest
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.gx3_pb2 import Event
+from bridge.export.tables import last_info, offline_times, sample_table
+from bridge.ingest.replay import captures, replay
 from bridge.protocol.codec import encode_reply
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import captures, replay
-from bridge.recorder.writer import ArchiveWriter
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
 from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
-from bridge.sim.usb import UsbDelivery
+from bridge.sim.usb import AdapterDelivery, UsbDelivery
 from tests.helpers.archives import sample_columns, write_capture
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3
@@ -245,18 +246,20 @@ def running_process(process: psutil.Process) -> bool:
 
 def test_a_workers_error_reaches_the_caller_even_if_it_does_not_pickle() -> None:
     """What a worker sends goes through pickle; an error that does not pickle is sent as
-    its words (the queue would drop it, and the replay would end short, saying nothing)."""
-    from bridge.exceptions import ReplayError
-    from bridge.recorder.replay import _sendable
+    its words (the queue would drop it, and the replay would end short, saying nothing),
+    in a ReplayError, which gx3 says in one line as it does every Gx3Error."""
+    from bridge._workers import sendable
+    from bridge.exceptions import Gx3Error, ReplayError
 
     class Unsendable(Exception):
         def __init__(self, what: str, where: int) -> None:
             super().__init__(f"{what} at {where}")
 
-    said = _sendable(Unsendable("odd bytes", 12))
-    assert isinstance(said, RuntimeError) and str(said) == "Unsendable: odd bytes at 12"
+    said = sendable(Unsendable("odd bytes", 12), ReplayError)
+    assert isinstance(said, ReplayError) and isinstance(said, Gx3Error)
+    assert str(said) == "Unsendable: odd bytes at 12"
     plain = ReplayError("u1: no record found")
-    assert _sendable(plain) is plain
+    assert sendable(plain, ReplayError) is plain
 
 
 def test_a_raw_read_archived_late_keeps_its_receive_times(tmp_path: Path) -> None:
@@ -273,3 +276,39 @@ def test_a_raw_read_archived_late_keeps_its_receive_times(tmp_path: Path) -> Non
     assert capture.raw_ns is not None and capture.raw_ns.tolist() == [20, 30, 40]
     assert read_archive(tmp_path / "late.mcap").messages("gx3/u1/raw").log_time.tolist() \
         == [2_000, 3_000, 3_000]
+
+
+def test_a_captures_own_sampling_reply_sets_the_archives_info_and_export(
+        tmp_path: Path) -> None:
+    """A 500 Hz capture (filter width 32) that starts with the unit's own 0xDB reply and
+    carries no metadata: replay times it by the reply, the archive's Info says what the
+    reply said, and gx3 export re-times it with that, agreeing with the live time and
+    the truth (not the factory width's 8.5 ms off)."""
+    config = streaming_config(UnitConfig(motion=MotionConfig(seed=3), clock_ppm=-20.0),
+                              code=0xC2, decimation=2, filter_width=32, baud=460_800)
+    cap = synthesize(config, AdapterDelivery(frame_phase_s=0.0005, seed=4,
+                                             latency_timer_s=0.001), seconds=30.0)
+    sampling = vars(config.stored.sampling)
+    reply = encode_reply(0xDB, **{k: sampling[k] for k in (
+        "decimation", "flags", "filter_width", "mag_filter_width", "up_compensation",
+        "north_compensation")})
+    path = tmp_path / "raw.mcap"
+    writer = RawCaptureWriter(path, "gx3", "u1")  # stamped as a bridge stamps: no metadata
+    boot = int(cap.rx_ns[0]) - 3_600_000_000_000  # the raw clock counts from boot
+    for rx, data in [(int(cap.rx_ns[0]) - 5_000_000, reply),
+                     *zip(cap.rx_ns.tolist(), cap.data, strict=True)]:
+        writer.write(data, rx, rx - boot)
+    writer.close()
+    replay([path], tmp_path / "out.mcap")
+    archive = read_archive(tmp_path / "out.mcap")
+    info = last_info(archive, "u1")
+    assert info is not None
+    assert (info.filter_width, info.decimation, info.command) == (32, 2, 0xC2)
+    table = sample_table(archive, ["u1"], re_estimate=offline_times(archive))
+    truth = dict(zip(cap.truth["timer"].tolist(), cap.truth["value_ns"].tolist(),
+                     strict=True))
+    settled = table["time_ns"] - table["time_ns"][0] > 5e9
+    exported, live = table["time_ns"][settled], table["live_time_ns"][settled]
+    true_ns = np.array([truth[t] for t in table["timer"][settled].tolist()])
+    assert np.percentile(np.abs(exported - live), 99) < 100_000
+    assert np.percentile(np.abs(exported - true_ns), 99) < 100_000

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Info
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import captures, replay
+from bridge.ingest.replay import captures, replay
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery

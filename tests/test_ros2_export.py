@@ -18,13 +18,13 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.walk import read_archive
+from bridge.export import ros2_bag
+from bridge.export.ros2_bag import write_ros2
+from bridge.export.tables import sample_table
+from bridge.ingest.replay import replay
 from bridge.protocol.convert import STANDARD_GRAVITY, quaternion_to_m
-from bridge.recorder import ros2_export
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import read_archive
-from bridge.recorder.replay import replay
-from bridge.recorder.ros2_export import write_ros2
-from bridge.recorder.tables import sample_table
 from bridge.ros2 import messages
 from bridge.sim.capture import streaming_config, synthesize
 from bridge.sim.motion import MotionConfig
@@ -164,7 +164,7 @@ def test_a_long_export_is_encoded_in_slices_to_the_same_bag(
         fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     table = sample_table(read_archive(fleet.archive), re_estimate=None)
     write_ros2(table, tmp_path / "whole.mcap")
-    monkeypatch.setattr(ros2_export, "SLICE", 97)
+    monkeypatch.setattr(ros2_bag, "SLICE", 97)
     write_ros2(table, tmp_path / "sliced.mcap")
     whole, sliced = read_bag(tmp_path / "whole.mcap"), read_bag(tmp_path / "sliced.mcap")
     assert sliced.raw == whole.raw and sliced.sequence == whole.sequence

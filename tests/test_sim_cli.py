@@ -302,6 +302,14 @@ BAD_OPTIONS: list[tuple[tuple[str, ...], str]] = [
     (("--usb", "--usb-serial"), "--usb/--usb-serial"),
     (("--latency-timer", "16"), "--latency-timer"),
     (("--usb-serial", "--latency-timer", "0"), "--latency-timer"),
+    (("--mount", "180,0,90"), "--mount"),
+    (("--lever-arm", "0.3,0,0"), "--lever-arm"),
+    (("--body", "--mount", "400,0,0"), "--mount"),
+    (("--body", "--mount", "0,0,0", "--mount", "0,0,0"), "--mount"),
+    (("--body", "--lever-arm", "0.3,0"), "--lever-arm"),
+    (("--body", "--tumble"), "--body/--tumble"),
+    (("--link-latency", "-1"), "--link-latency"),
+    (("--link-latency", "1", "--link-latency", "2"), "--link-latency"),
 ]
 
 

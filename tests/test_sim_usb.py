@@ -178,3 +178,38 @@ def test_capture_refuses_a_line_paced_for_another_link() -> None:
     with pytest.raises(ValueError, match="do not fit"):
         synthesize(streaming_config(UnitConfig(), code=0xCC, decimation=1, baud=115200),
                    UartDelivery(), 1.0)
+
+
+@pytest.mark.parametrize("rate", [100, 1000])
+def test_the_units_own_port_hands_over_whole_records_at_the_next_frame(rate: int) -> None:
+    """Each record's last byte goes out the processing delay and its transfer after its
+    cycle; the host's driver gets the record whole at the first frame after that, and
+    never a part of one."""
+    config = streaming_config(UnitConfig(clock_ppm=-3.0), decimation=1000 // rate)
+    usb = UsbDelivery(frame_phase_s=0.00061, os_latency_mean_s=0.0, stall_every_s=0.0)
+    capture = synthesize(config, usb, 3.0)
+    size = REPLIES[0xC2].length
+    assert all(len(d) % size == 0 for d in capture.data), "a read ended inside a record"
+    finished = capture.truth["time_ns"] + round(config.processing_delay_s * 1e9) + size * 1_000
+    frame = 1_000_000
+    phase = 610_000 + 1_763_000_000_000_000_000 % frame
+    first_frame = finished + (phase - finished) % frame
+    timer, rx = capture.records()
+    assert np.array_equal(timer, capture.truth["timer"])
+    np.testing.assert_array_equal(rx, first_frame)
+
+
+def test_a_record_leaves_the_processing_delay_after_its_cycle() -> None:
+    """On a UART each record's first byte crosses the line a fixed processing delay after
+    the cycle that sampled it; a slower unit's firmware is later by its own."""
+    size, byte_ns = REPLIES[0xC2].length, 10e9 / 115_200
+    for delay_s in (0.0002, 0.0007):
+        config = streaming_config(UnitConfig(processing_delay_s=delay_s), baud=115_200)
+        capture = synthesize(config, UartDelivery(os_latency_mean_s=0.0, stall_every_s=0.0),
+                             2.0)
+        # with no latency the driver reads each byte as it has crossed the line
+        begins = np.cumsum([0, *map(len, capture.data)])[:-1] % size == 0
+        cycles = capture.truth["time_ns"]
+        lead = capture.rx_ns[begins][: len(cycles)] - cycles
+        assert len(lead) == len(cycles) > 150
+        assert np.all(np.abs(lead - (delay_s * 1e9 + byte_ns)) < 2_000)

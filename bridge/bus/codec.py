@@ -27,10 +27,14 @@ from bridge.protocol.codec import reply_dtype
 from bridge.protocol.table import DATA_CODES, QUANTITIES, REPLIES
 
 #: Columns every sample carries besides its quantities.
-HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")
-#: The header of samples from bridges that did not stamp reads on the raw clock: their
-#: messages have a bulk layout of their own, read as fast (``rx_mono_raw_ns`` is 0).
-LEGACY_HEADER = HEADER[:-1]
+HEADER = ("command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns",
+          "part_rx_mono_raw_ns", "part_lead_ns")
+#: The headers of older bridges' samples, newest first: without the partial read
+#: (``part_rx_mono_raw_ns`` 0), and before reads were stamped on the raw clock too
+#: (``rx_mono_raw_ns`` 0). Their messages have bulk layouts of their own, read as fast.
+LEGACY_HEADERS = (HEADER[:-2], HEADER[:-3])
+#: Every bulk layout a sample may have, newest first.
+HEADERS = (HEADER, *LEGACY_HEADERS)
 _FIELDS = ImuSample.DESCRIPTOR.fields_by_name
 _NUMPY = {FieldDescriptor.TYPE_FIXED32: "<u4", FieldDescriptor.TYPE_SFIXED64: "<i8",
           FieldDescriptor.TYPE_FLOAT: "<f4"}
@@ -109,7 +113,7 @@ class Layout:
 def layout(code: int, unit: str, header: tuple[str, ...] = HEADER) -> Layout:
     """The message layout of record type ``code`` published by ``unit``.
 
-    ``header``: ``LEGACY_HEADER`` for an older bridge's.
+    ``header``: one of ``LEGACY_HEADERS`` for an older bridge's.
     """
     quantities = tuple(record_quantities(code))
     name = unit.encode()
@@ -169,7 +173,7 @@ def _byte_map(code: int, unit: str, little_endian: bool) -> tuple[np.ndarray, np
 
 #: The int64 columns a message gets besides its record's bytes, in the order
 #: ``encode_records`` and the compiled core take them.
-TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")
+TIMES = ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns", "part_lead_ns")
 
 
 @functools.cache
@@ -191,7 +195,8 @@ def native_layout(code: int, unit: str, little_endian: bool
 
 
 def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
-                 rx_ns: np.ndarray, rx_mono_raw_ns: np.ndarray | None = None) -> list[bytes]:
+                 rx_ns: np.ndarray, rx_mono_raw_ns: np.ndarray | None = None,
+                 part: tuple[np.ndarray, np.ndarray] | None = None) -> list[bytes]:
     """One serialized ImuSample per record of ``batch``: what protobuf would produce.
 
     Records that came off the wire are moved byte by byte from their wire bytes, with
@@ -204,6 +209,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
         time_ns: Each record's sample instant (realtime ns).
         rx_ns: The realtime receive time of the read that completed each.
         rx_mono_raw_ns: The same on the raw monotonic clock; None: not known, 0.
+        part: Each record's partial read (``part_rx_mono_raw_ns``, ``part_lead_ns``); None:
+            not recorded.
 
     Returns:
         The messages, in record order.
@@ -224,6 +231,8 @@ def encode_batch(unit: str, batch: RecordBatch, ticks: np.ndarray, time_ns: np.n
     recs["rx_ns"] = rx_ns
     if rx_mono_raw_ns is not None:
         recs["rx_mono_raw_ns"] = rx_mono_raw_ns
+    if part is not None:
+        recs["part_rx_mono_raw_ns"], recs["part_lead_ns"] = part
     buf = recs.tobytes()
     size = lay.size
     return [buf[i : i + size] for i in range(0, len(buf), size)]
@@ -296,10 +305,10 @@ class _RecordPacker:
             raise ValueError(f"0x{code:02X}: message layout of {lay.size} bytes, "
                              f"packed as {struct.calcsize(msg_fmt)}")
 
-    def pack(self, record: bytes, ticks: int, time_ns: int, rx_ns: int,
-             rx_mono_raw_ns: int) -> bytes:
-        values = (*self._values(record, 1), self._timer(record, self._timer_at)[0], ticks,
-                  time_ns, rx_ns, rx_mono_raw_ns, *self._consts)
+    def pack(self, record: bytes, times: tuple[int, ...]) -> bytes:
+        """The message of one wire record with ``TIMES``' values, in that order."""
+        values = (*self._values(record, 1), self._timer(record, self._timer_at)[0], *times,
+                  *self._consts)
         return self._message(*self._pick(values))
 
 
@@ -307,16 +316,14 @@ _packer = functools.cache(_RecordPacker)
 
 
 def encode_records(unit: str, code: int, little_endian: bool, records: Iterable[bytes],
-                   ticks: Iterable[int], time_ns: Iterable[int], rx_ns: Iterable[int],
-                   rx_mono_raw_ns: Iterable[int]) -> list[bytes]:
+                   times: Sequence[Iterable[int]]) -> list[bytes]:
     """``encode_batch`` of wire records held as bytes, one each.
 
     A live bridge gets one or two a read, for which array set-up costs more than the
-    work.
+    work. ``times``: one list per column of ``TIMES``, in that order.
     """
     pack = _packer(code, unit, little_endian).pack
-    return [pack(r, t, s, x, m) for r, t, s, x, m
-            in zip(records, ticks, time_ns, rx_ns, rx_mono_raw_ns, strict=True)]
+    return [pack(r, t) for r, t in zip(records, zip(*times, strict=True), strict=True)]
 
 
 def units_agree(unit: str, payloads: Sequence[bytes]) -> list[bool]:
@@ -427,8 +434,8 @@ def decode_batch(unit: str, code: int,
                  payloads: Sequence[bytes] | np.ndarray) -> dict[str, np.ndarray]:
     """Columns of serialized ImuSamples of one unit and record type.
 
-    Messages in the bulk layout (or an older bridge's, without ``rx_mono_raw_ns``) are
-    read as one array; any other valid encoding of the same message (another
+    Messages in the bulk layout (or an older bridge's, ``LEGACY_HEADERS``) are read as one
+    array; any other valid encoding of the same message (another
     producer's field order, say) is parsed one by one.
 
     Args:
@@ -448,18 +455,19 @@ def decode_batch(unit: str, code: int,
     n = len(payloads)
     recs = np.zeros(n, lay.dtype)
     if isinstance(payloads, np.ndarray):
-        legacy = layout(code, unit, LEGACY_HEADER)
-        bulk, header = (legacy, LEGACY_HEADER) if n and payloads.size == n * legacy.size \
-            else (lay, HEADER)
-        raw = payloads.reshape(n, bulk.size)
-        good = _constant_bytes_hold(bulk, raw)
+        size = payloads.size // n if n else lay.size
+        header = next((h for h in HEADERS if layout(code, unit, h).size == size), HEADER)
+        bulk = layout(code, unit, header)
+        raw = payloads.reshape(n, -1)
+        good = _constant_bytes_hold(bulk, raw) if bulk.size == raw.shape[1] \
+            else np.zeros(n, bool)
         rows = raw[good].reshape(-1).view(bulk.dtype)
         for name in (*header, *bulk.quantities):
             recs[name][good] = rows[name]
         todo = np.flatnonzero(~good)
     else:
         todo = np.arange(n)
-        for header in (HEADER, LEGACY_HEADER):
+        for header in HEADERS:
             if not len(todo):
                 break
             bulk = layout(code, unit, header)

@@ -13,7 +13,7 @@ PHYSICAL_UNIT_FIELD_NUMBER: _ClassVar[int]
 physical_unit: _descriptor.FieldDescriptor
 
 class ImuSample(_message.Message):
-    __slots__ = ("unit", "command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "raw_accel", "raw_ang_rate", "accel", "stab_accel", "ang_rate", "delta_ang", "delta_vel", "mag", "stab_mag", "m", "c", "euler", "quaternion", "temperature")
+    __slots__ = ("unit", "command", "timer", "ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns", "part_lead_ns", "raw_accel", "raw_ang_rate", "accel", "stab_accel", "ang_rate", "delta_ang", "delta_vel", "mag", "stab_mag", "m", "c", "euler", "quaternion", "temperature")
     UNIT_FIELD_NUMBER: _ClassVar[int]
     COMMAND_FIELD_NUMBER: _ClassVar[int]
     TIMER_FIELD_NUMBER: _ClassVar[int]
@@ -21,6 +21,8 @@ class ImuSample(_message.Message):
     TIME_NS_FIELD_NUMBER: _ClassVar[int]
     RX_NS_FIELD_NUMBER: _ClassVar[int]
     RX_MONO_RAW_NS_FIELD_NUMBER: _ClassVar[int]
+    PART_RX_MONO_RAW_NS_FIELD_NUMBER: _ClassVar[int]
+    PART_LEAD_NS_FIELD_NUMBER: _ClassVar[int]
     RAW_ACCEL_FIELD_NUMBER: _ClassVar[int]
     RAW_ANG_RATE_FIELD_NUMBER: _ClassVar[int]
     ACCEL_FIELD_NUMBER: _ClassVar[int]
@@ -42,6 +44,8 @@ class ImuSample(_message.Message):
     time_ns: int
     rx_ns: int
     rx_mono_raw_ns: int
+    part_rx_mono_raw_ns: int
+    part_lead_ns: int
     raw_accel: _containers.RepeatedScalarFieldContainer[float]
     raw_ang_rate: _containers.RepeatedScalarFieldContainer[float]
     accel: _containers.RepeatedScalarFieldContainer[float]
@@ -56,10 +60,10 @@ class ImuSample(_message.Message):
     euler: _containers.RepeatedScalarFieldContainer[float]
     quaternion: _containers.RepeatedScalarFieldContainer[float]
     temperature: _containers.RepeatedScalarFieldContainer[int]
-    def __init__(self, unit: _Optional[str] = ..., command: _Optional[int] = ..., timer: _Optional[int] = ..., ticks: _Optional[int] = ..., time_ns: _Optional[int] = ..., rx_ns: _Optional[int] = ..., rx_mono_raw_ns: _Optional[int] = ..., raw_accel: _Optional[_Iterable[float]] = ..., raw_ang_rate: _Optional[_Iterable[float]] = ..., accel: _Optional[_Iterable[float]] = ..., stab_accel: _Optional[_Iterable[float]] = ..., ang_rate: _Optional[_Iterable[float]] = ..., delta_ang: _Optional[_Iterable[float]] = ..., delta_vel: _Optional[_Iterable[float]] = ..., mag: _Optional[_Iterable[float]] = ..., stab_mag: _Optional[_Iterable[float]] = ..., m: _Optional[_Iterable[float]] = ..., c: _Optional[_Iterable[float]] = ..., euler: _Optional[_Iterable[float]] = ..., quaternion: _Optional[_Iterable[float]] = ..., temperature: _Optional[_Iterable[int]] = ...) -> None: ...
+    def __init__(self, unit: _Optional[str] = ..., command: _Optional[int] = ..., timer: _Optional[int] = ..., ticks: _Optional[int] = ..., time_ns: _Optional[int] = ..., rx_ns: _Optional[int] = ..., rx_mono_raw_ns: _Optional[int] = ..., part_rx_mono_raw_ns: _Optional[int] = ..., part_lead_ns: _Optional[int] = ..., raw_accel: _Optional[_Iterable[float]] = ..., raw_ang_rate: _Optional[_Iterable[float]] = ..., accel: _Optional[_Iterable[float]] = ..., stab_accel: _Optional[_Iterable[float]] = ..., ang_rate: _Optional[_Iterable[float]] = ..., delta_ang: _Optional[_Iterable[float]] = ..., delta_vel: _Optional[_Iterable[float]] = ..., mag: _Optional[_Iterable[float]] = ..., stab_mag: _Optional[_Iterable[float]] = ..., m: _Optional[_Iterable[float]] = ..., c: _Optional[_Iterable[float]] = ..., euler: _Optional[_Iterable[float]] = ..., quaternion: _Optional[_Iterable[float]] = ..., temperature: _Optional[_Iterable[int]] = ...) -> None: ...
 
 class Status(_message.Message):
-    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud", "host_clock")
+    __slots__ = ("unit", "time_ns", "connected", "state", "command", "output_rate_hz", "samples_per_s", "samples", "dropped", "checksum_failures", "implausible", "bytes_skipped", "resyncs", "reconnects", "glitches", "clock_offset_ns", "clock_drift_ppm", "clock_spread_ns", "port", "baud", "host_clock", "time_uncertainty_ns")
     class State(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         STATE_UNSPECIFIED: _ClassVar[Status.State]
@@ -95,6 +99,7 @@ class Status(_message.Message):
     PORT_FIELD_NUMBER: _ClassVar[int]
     BAUD_FIELD_NUMBER: _ClassVar[int]
     HOST_CLOCK_FIELD_NUMBER: _ClassVar[int]
+    TIME_UNCERTAINTY_NS_FIELD_NUMBER: _ClassVar[int]
     unit: str
     time_ns: int
     connected: bool
@@ -116,7 +121,8 @@ class Status(_message.Message):
     port: str
     baud: int
     host_clock: HostClock
-    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ...) -> None: ...
+    time_uncertainty_ns: int
+    def __init__(self, unit: _Optional[str] = ..., time_ns: _Optional[int] = ..., connected: _Optional[bool] = ..., state: _Optional[_Union[Status.State, str]] = ..., command: _Optional[int] = ..., output_rate_hz: _Optional[float] = ..., samples_per_s: _Optional[float] = ..., samples: _Optional[int] = ..., dropped: _Optional[int] = ..., checksum_failures: _Optional[int] = ..., implausible: _Optional[int] = ..., bytes_skipped: _Optional[int] = ..., resyncs: _Optional[int] = ..., reconnects: _Optional[int] = ..., glitches: _Optional[int] = ..., clock_offset_ns: _Optional[int] = ..., clock_drift_ppm: _Optional[float] = ..., clock_spread_ns: _Optional[float] = ..., port: _Optional[str] = ..., baud: _Optional[int] = ..., host_clock: _Optional[_Union[HostClock, _Mapping]] = ..., time_uncertainty_ns: _Optional[int] = ...) -> None: ...
 
 class HostClock(_message.Message):
     __slots__ = ("host", "synchronised", "known", "estimated_error_ns", "maximum_error_ns", "tai_offset_s", "state", "realtime_minus_raw_ns")

@@ -11,8 +11,9 @@ of the ``info`` queryable's replies, little-endian (schemas/gx3.proto says the s
 apps in other languages):
 
 - bytes 0-3: CRC-32 of the payload (IEEE 802.3 / zlib / PNG polynomial), uint32;
-- bytes 4-11, raw reads only: the host receive time of the read, int64 ns since the
-  Unix epoch;
+- bytes 4-11, raw reads: the host receive time of the read; one imu put in 16
+  (``bridge.bus.publish.STAMP_EVERY``; absent on the others): the host time it was put;
+  int64 ns since the Unix epoch;
 - bytes 12-19, raw reads only: the same instant on the host's ``CLOCK_MONOTONIC_RAW``,
   int64 ns (older bridges leave it out).
 
@@ -46,9 +47,12 @@ NOT_OF_KEY = "key"
 def seal(payload: bytes, rx_ns: int | None = None, raw_ns: int | None = None) -> bytes:
     """The attachment of a payload: its CRC-32, then a raw read's receive times.
 
+    Or, for one imu put in 16, the instant it was put.
+
     Args:
         payload: The message's bytes.
-        rx_ns: A raw read's receive time on the realtime clock; None: not a raw read.
+        rx_ns: A raw read's receive time on the realtime clock, or when a stamped imu
+            put was put; None: neither.
         raw_ns: The same instant on the raw monotonic clock (None: left out).
 
     Returns:
@@ -81,7 +85,7 @@ def intact(payload: bytes, attachment: bytes | None) -> bool:
 
 
 def read_time(attachment: bytes | None) -> int | None:
-    """The receive time a raw read's attachment carries.
+    """The host time an attachment carries: a raw read's receipt, a stamped imu put's.
 
     Args:
         attachment: The attachment, if the message had one.

@@ -5,13 +5,15 @@ never dropped silently. They go through zenoh.ext's advanced publisher, whose
 cache lets a subscriber that lost its link for a moment recover the samples,
 and whose heartbeat lets it count exactly what it could not recover. Each message
 carries the CRC-32 of its payload in its attachment (bridge/bus/integrity.py), so a
-payload damaged on the way is caught.
+payload damaged on the way is caught. One imu put in ``STAMP_EVERY`` also carries the
+instant it was put, which the latencies are measured on (``bridge.bus.metrics``), so
+that the other reads pay nothing for them.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -29,10 +31,14 @@ from bridge.bus.codec import RecordBatch, encode_batch, encode_records, native_l
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.bus.integrity import seal, seals
 from bridge.bus.keys import ENCODINGS, PREFIX, UnitKeys
+from bridge.device import clock
 from bridge.protocol.codec import Records
 
 #: Default imu cache: five seconds at the unit's top rate of 1 kHz.
 CACHE_SAMPLES = 5000
+#: One imu put in this many carries the instant it was put (its last message's
+#: attachment, ``bridge.bus.integrity``): 6 a second at 100 Hz, 62 at 1 kHz.
+STAMP_EVERY = 16
 HEARTBEAT_S = 0.5
 REFUSAL = ("commands are disabled on this bridge: restart it with --allow-commands "
            "to let operators act on the unit over Zenoh")
@@ -70,7 +76,8 @@ def declare_data_publisher(session: zenoh.Session, key: str, encoding: str,
 
 
 def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[int],
-                   rx_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
+                   rx_ns: list[int], part_rx_ns: list[int],
+                   part_lead_ns: list[int]) -> tuple[list[bytes], list[bytes]]:
     """The ImuSample payloads of a live read's records and their attachments (``seal``).
 
     In one call of the compiled core where it is built, else ``encode_records`` and
@@ -82,17 +89,20 @@ def sealed_records(unit: str, records: Records, ticks: list[int], time_ns: list[
         ticks: Each record's unwrapped ticks.
         time_ns: Each record's sample instant.
         rx_ns: The completing reads' realtime stamps.
+        part_rx_ns: Each partial read's raw-clock stamp, as ``records.rx_ns`` are.
+        part_lead_ns: The line time of the record's bytes each held.
 
     Returns:
         The payloads and their attachments.
     """
+    times = (ticks, time_ns, rx_ns, records.rx_ns, part_rx_ns, part_lead_ns)
     core = native.records
     if core is None:
         payloads = encode_records(unit, records.code, records.little_endian, records.wire,
-                                  ticks, time_ns, rx_ns, records.rx_ns)
+                                  times)
         return payloads, seals(payloads)
     return core.messages(*native_layout(records.code, unit, records.little_endian),
-                         records.wire, (ticks, time_ns, rx_ns, records.rx_ns))
+                         records.wire, times)
 
 
 class UnitPublisher:
@@ -113,6 +123,10 @@ class UnitPublisher:
         allow_commands: Whether ``on_command`` is asked at all; without, every command
             is refused with what to do.
         raw: Declare the raw publisher (``publish_raw``).
+        on_stamped: Hears ``(received_ns, published_ns)`` of each put stamped with its
+            publish time (one in ``STAMP_EVERY``): when the read that completed its last
+            record was received, and when the put returned (with BLOCK congestion
+            control, once Zenoh took the samples), on the realtime clock.
 
     Raises:
         BadName: The unit name or the prefix cannot be used in a key.
@@ -121,10 +135,13 @@ class UnitPublisher:
     def __init__(self, session: zenoh.Session, unit: str, *, prefix: str = PREFIX,
                  cache_samples: int = CACHE_SAMPLES, heartbeat_s: float = HEARTBEAT_S,
                  on_command: CommandHandler | None = None, allow_commands: bool = False,
-                 raw: bool = False) -> None:
+                 raw: bool = False,
+                 on_stamped: Callable[[int, int], None] | None = None) -> None:
         self.keys = UnitKeys(unit, prefix)
         self.unit = unit
         self.published = 0
+        self._on_stamped = on_stamped
+        self._unstamped = 0  # puts before the next stamped one
         self._info: bytes | None = None
         self._on_command = on_command if allow_commands else None
         self._lock = threading.Lock()
@@ -151,7 +168,8 @@ class UnitPublisher:
         return pub
 
     def publish_samples(self, batch: RecordBatch, ticks: np.ndarray, time_ns: np.ndarray,
-                        rx_ns: np.ndarray | None = None) -> int:
+                        rx_ns: np.ndarray | None = None,
+                        part: tuple[np.ndarray, np.ndarray] | None = None) -> int:
         """One ImuSample per record of ``batch``, each sealed with its CRC-32.
 
         Args:
@@ -161,17 +179,20 @@ class UnitPublisher:
             rx_ns: The completing reads' realtime stamps, ``batch.rx_ns`` then being
                 their raw-clock ones (a live bridge's); None: ``batch.rx_ns`` are
                 realtime stamps, with no raw ones.
+            part: Each record's partial read (``part_rx_mono_raw_ns``, ``part_lead_ns``).
 
         Returns:
             Samples put.
         """
         if rx_ns is None:
-            return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns))
+            return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, batch.rx_ns,
+                                              part=part), received_ns=batch.rx_ns)
         return self._put_imu(encode_batch(self.unit, batch, ticks, time_ns, rx_ns,
-                                          batch.rx_ns))
+                                          batch.rx_ns, part), received_ns=rx_ns)
 
     def publish_records(self, records: Records, ticks: list[int], time_ns: list[int],
-                        rx_ns: list[int]) -> int:
+                        rx_ns: list[int], part_rx_ns: list[int],
+                        part_lead_ns: list[int]) -> int:
         """``publish_samples`` of a live read's record or two, from their wire bytes.
 
         Args:
@@ -179,18 +200,34 @@ class UnitPublisher:
             ticks: Each record's unwrapped timer.
             time_ns: Each record's host-clock instant.
             rx_ns: The completing reads' realtime stamps.
+            part_rx_ns: Each record's partial read, as ``sealed_records`` takes it.
+            part_lead_ns: The same.
 
         Returns:
             Samples put.
         """
-        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns))
+        return self._put_imu(*sealed_records(self.unit, records, ticks, time_ns, rx_ns,
+                                             part_rx_ns, part_lead_ns), received_ns=rx_ns)
 
-    def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None) -> int:
-        """Put ImuSample payloads back to back, each sealed with its CRC-32."""
+    def _put_imu(self, payloads: list[bytes], attachments: list[bytes] | None = None, *,
+                 received_ns: Sequence[int] | np.ndarray) -> int:
+        """Put ImuSample payloads back to back, each sealed with its CRC-32.
+
+        One call in ``STAMP_EVERY`` seals its last payload with the instant of the put too.
+        """
         put = self._imu.put
-        for payload, attachment in zip(payloads, attachments or seals(payloads), strict=True):
+        sealed = attachments or seals(payloads)
+        self._unstamped -= 1
+        stamped = self._unstamped < 0 and bool(payloads)
+        if stamped:
+            self._unstamped = STAMP_EVERY - 1
+            published = clock.realtime_ns()
+            sealed = [*sealed[:-1], seal(payloads[-1], published)]
+        for payload, attachment in zip(payloads, sealed, strict=True):
             put(payload, attachment=attachment)
         self.published += len(payloads)
+        if stamped and self._on_stamped is not None:  # once put (BLOCK: once Zenoh took it)
+            self._on_stamped(int(received_ns[-1]), clock.realtime_ns())
         return len(payloads)
 
     def publish_status(self, status: Status) -> None:

@@ -10,6 +10,7 @@ signal.signal(signal.SIGINT, lambda *_: sys.exit(130))
 from typer.models import CommandInfo
 
 from bridge.cli import (
+    align,
     archive,
     bridge,
     commands,
@@ -31,7 +32,8 @@ PANELS = {
     "Run a fleet": ("demo", "bridge", "record", "view", "router", "sim"),
     "Operate a unit": ("info", "configure", "capture-bias", "set-timer", "stationary-test",
                        "reset"),
-    "Archives": ("export", "replay", "import", "rrd", "repair", "calibrate-mag", "allan"),
+    "Archives": ("export", "replay", "import", "rrd", "repair", "calibrate-mag", "allan",
+                 "align"),
     "Bytes and protocol": ("decode", "commands"),
 }
 
@@ -53,5 +55,5 @@ def _arrange() -> None:
 _arrange()
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
-__all__ = ["app", "archive", "bridge", "commands", "decode", "demo", "importlog", "magcal",
+__all__ = ["align", "app", "archive", "bridge", "commands", "decode", "demo", "importlog", "magcal",
            "noise", "operate", "record", "router", "sim", "viz"]

@@ -25,10 +25,10 @@ from bridge.cli.common import (
 )
 
 if TYPE_CHECKING:
-    from bridge.recorder.reader import ArchiveReader
+    from bridge.archive.reader import ArchiveReader
 
-# The recorder modules (pyarrow, protobuf schemas) load only when these commands run, so
-# every other gx3 command starts as fast as before.
+# The archive and export modules (pyarrow, protobuf schemas) load only when these commands
+# run, so every other gx3 command starts as fast as before.
 
 
 def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | None = None
@@ -36,7 +36,7 @@ def read_with_progress(path: Path, on_blocks: Callable[[ArchiveReader], None] | 
     """Read an archive with progress on a terminal; warn once when it was cut short.
 
     ``on_blocks`` streams it (``read_archive``)."""
-    from bridge.recorder.export import read_samples_archive
+    from bridge.archive.walk import read_samples_archive
 
     size = path.stat().st_size if path.is_file() else None
     progress = Progress(TextColumn("reading"), BarColumn(), DownloadColumn(), console=err,
@@ -71,12 +71,13 @@ def repair(
     said (time span, messages per topic). Exits 2 when nothing can be recovered. The
     input is never overwritten.
     """
+    from bridge.archive.repair import default_output
+    from bridge.archive.repair import repair as repair_archive
     from bridge.exceptions import ArchiveError
-    from bridge.recorder.repair import default_output
-    from bridge.recorder.repair import repair as repair_archive
 
     output = default_output(file) if output is None else output
-    with written(output, [file], force) as temp, failing(ArchiveError, temp=temp, path=output):
+    with written(output, [file], force, suffixes=(".mcap",)) as temp, \
+            failing(ArchiveError, temp=temp, path=output):
         report = repair_archive(file, temp)
     typer.echo(replace(report, output=output).text())
 
@@ -136,6 +137,18 @@ def export(
              "file. Parquet: the samples are unchanged; gx3.noise metadata records the file "
              "and the covariances it gives. CSV: refused (no metadata to record it in).")
     ] = None,
+    mounts: Annotated[Path | None, typer.Option(
+        "--mounts", metavar="MOUNTS.yaml",
+        help="How units on one body are mounted (gx3 align writes it): each unit it names "
+             "gets its vectors (accel, ang_rate, mag, stab_accel, stab_mag, delta_ang, "
+             "delta_vel; not the raw A/D codes) as rotation^T @ v and its attitude (M, "
+             "quaternion, Euler angles, C) in the reference's axes, and its time_ns moved "
+             "by time_shift_s onto the reference's time; --start and --end see the moved "
+             "times. Lever arms are not applied: accel stays the specific force where the "
+             "unit sits. Parquet: the file, its SHA-256 and what it holds go in the "
+             "gx3.mounts metadata; ROS 2 bag: the same as a gx3.mounts metadata record, "
+             "and those units' messages are in the reference's frame; CSV: refused (no "
+             "metadata to record it in).")] = None,
     ros2_distro: Annotated[str | None, typer.Option(
         "--ros2-distro", metavar="humble|jazzy",
         help="ROS 2 distribution of the bag's message definitions (--format ros2 only); "
@@ -148,13 +161,15 @@ def export(
 
     Columns: unit, command, timer, ticks, time_ns (ns since the Unix epoch, each unit's
     clock re-estimated over the whole recording), time_utc (the same as a UTC
-    timestamp), live_time_ns (as the bridge published it), rx_ns, then flat quantity
+    timestamp), time_uncertainty_ns (the most time_ns can be off by, as the reads bound
+    it; 0: not known), live_time_ns (as the bridge published it), rx_ns, then flat quantity
     columns (accel_x .. accel_z in g, ang_rate_x .. in rad/s, mag_x .. in gauss, m11 ..
     m33, roll pitch yaw in rad, q0 .. q3, temperature_0 .. temperature_3 in A/D codes,
     ...), empty (null) where a record lacks a quantity; rows in time order. Body frame
     FRD, earth NED: M maps earth to body; the quaternion is scalar first. A Parquet
     file carries each column's unit and frame, the units' Info, the source archive and
-    these options as metadata (schema gx3.v1).
+    these options as metadata (schema gx3.v1); a CSV file each column's unit in its
+    header, in brackets after its name (accel_x [g]; none after time_ns or time_utc).
     A corrupt chunk, or a message that is not what its topic says (another unit's
     sample), is left out with a warning that says what was lost; the rest is exported.
 
@@ -169,18 +184,21 @@ def export(
     unless --noise gives them. header.stamp and the log time are the time_ns a table
     export with the same options gives.
     """
-    from bridge.recorder.export import Export
+    from bridge.export.run import SUFFIXES, Export
+    from bridge.export.tables import FORMATS as TABLES
 
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
                      types=record_type, start=start, end=end, align_hz=align, events=events,
-                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro)
+                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro,
+                     mounts=mounts)
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
-        table_file = outputs.enter_context(written(output, [archive], force))
-        events_file = (None if events is None
-                       else outputs.enter_context(written(events, [archive], force)))
+        table_file = outputs.enter_context(written(output, [archive], force,
+                                                   suffixes=SUFFIXES))
+        events_file = (None if events is None else outputs.enter_context(
+            written(events, [archive], force, suffixes=TABLES)))
         try:
             done = job.write(read_with_progress(archive), table_file, events_file)
         except ValueError as exc:  # the archive or the samples cannot give what was asked

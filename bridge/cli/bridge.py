@@ -203,7 +203,7 @@ def run_bridge(
     if unit is not None:
         check_unit(unit)
     if capture is not None:
-        refused(capture, force=force)
+        refused(capture, force=force, suffixes=(".mcap",))
     options = Options(url=port, baud=parse_baud(baud), record=code, decimation=decimation,
                       flags=parse_code(flags) if flags else None, filter_width=filter_width,
                       mag_filter_width=mag_filter_width, new_baud=new_baud, persist=persist,

@@ -10,7 +10,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -132,9 +132,11 @@ EndOpt = Annotated[str | None, typer.Option(
     metavar="TIME", help="End instant (exclusive), as --start.")]
 MetricsOpt = Annotated[str | None, typer.Option(
     "--metrics", metavar="ADDR:PORT",
-    help="Serve health to Prometheus here (/metrics), e.g. 127.0.0.1:9464, or :9464 on "
-         "every interface: each unit's counters, rate, state, clock and its host's sync "
-         "(docs: monitoring).")]
+    help="Serve health to Prometheus here (/metrics): 127.0.0.1:9464 for a Prometheus on "
+         "this machine, the fleet network's address for one elsewhere (whoever reaches it "
+         "can read the health); :9464 listens on every interface. A bridge serves its "
+         "unit's counters, rate, state, clock, host sync and latency; the recorder what "
+         "it archived of each unit (docs: monitoring).")]
 ForceOpt = Annotated[bool, typer.Option(
     "--force", help="Replace an output file that exists (never an input, nor a file "
                     "another process is writing).")]
@@ -145,12 +147,15 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 
 @contextmanager
-def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Iterator[Path]:
-    """The temporary file a batch command writes ``path`` through (bridge/recorder/outputs.py
-    ``staged``): a refused output is a one-line error (exit 2); Ctrl-C or SIGTERM exit
-    130, and like any failure leave nothing under ``path``."""
-    from bridge.recorder.outputs import staged
+def written(path: Path, inputs: Iterable[Path] = (), force: bool = False, *,
+            suffixes: Sequence[str]) -> Iterator[Path]:
+    """The temporary file a batch command writes ``path`` through (bridge/archive/outputs.py
+    ``named_format`` and ``staged``): a refused output (an extension that is none of
+    ``suffixes`` too) is a one-line error (exit 2); Ctrl-C or SIGTERM exit 130, and like
+    any failure leave nothing under ``path``."""
+    from bridge.archive.outputs import named_format, staged
 
+    named_format(path, *suffixes)
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with staged(path, inputs, force) as temp:
@@ -161,10 +166,13 @@ def written(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> Ite
         signal.signal(signal.SIGTERM, previous)
 
 
-def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False) -> None:
-    """bridge/recorder/outputs.py ``refuse`` for a live output (OutputRefused: exit 2)."""
-    from bridge.recorder.outputs import refuse
+def refused(path: Path, inputs: Iterable[Path] = (), force: bool = False, *,
+            suffixes: Sequence[str]) -> None:
+    """bridge/archive/outputs.py ``named_format`` and ``refuse`` for a live output, or one
+    checked before its work begins (OutputRefused: exit 2)."""
+    from bridge.archive.outputs import named_format, refuse
 
+    named_format(path, *suffixes)
     refuse(path, inputs, force)
 
 

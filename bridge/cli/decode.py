@@ -16,7 +16,6 @@ from bridge.cli.common import INTERRUPTED, app, err, fail, reply_code
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, other_byte_order
 from bridge.protocol.table import BYTE_ORDER_REPLY, DATA_CODES
-from bridge.recorder.mcap_writer import MAGIC
 
 _READ_SIZE = 1 << 20  # at most; a pipe gives what it holds, so records leave as they arrive
 _KEPT = 1 << 22  # input kept to try the other byte order when nothing decodes
@@ -59,11 +58,14 @@ def decode(
     An MCAP capture (a bridge's --capture file, or an archive recorded with --raw) is
     decoded unit by unit from its raw reads, each object led by "unit"; a summary line
     per unit. Exit status 1 when no record decodes (an empty input included), 2 when
-    the input cannot be read, 130 on Ctrl-C (after the summary so far).
+    the input cannot be read, 130 on Ctrl-C, which ends it quietly, with the summary so
+    far (in a pipe from a serial reader, Ctrl-C is how the user stops both).
     """
+    from bridge.archive.walk import is_mcap  # loaded as decode runs, not by every command
+
     codes = {*([reply_code("--expect", c) for c in expect] if expect else DATA_CODES),
              BYTE_ORDER_REPLY}
-    if file != "-" and _is_mcap(Path(file)):
+    if file != "-" and is_mcap(Path(file)):
         _decode_capture(Path(file), codes, little_endian)
         return
     framer = Framer(codes, little_endian=little_endian)
@@ -86,9 +88,9 @@ def decode(
                 progress.advance(task, len(chunk))
             out.write(_lines(framer.flush()))
             out.flush()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the user's choice, not an error: the summary so far, quietly
         err.print(framer.stats.summary())
-        raise fail("interrupted", INTERRUPTED) from None
+        raise typer.Exit(INTERRUPTED) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None
@@ -98,30 +100,27 @@ def decode(
         raise fail(_nothing_decoded(bytes(kept), codes, little_endian), 1)
 
 
-def _is_mcap(path: Path) -> bool:
-    """Whether the file starts as MCAP does (one that cannot be read is left to open)."""
-    try:
-        with path.open("rb") as stream:
-            return stream.read(len(MAGIC)) == MAGIC
-    except OSError:
-        return False
-
-
 def _decode_capture(path: Path, codes: set[int], little_endian: bool) -> None:
     """Each unit's raw reads in an MCAP capture, decoded as the bytes off its line."""
-    from bridge.recorder.replay import captures
+    from bridge.ingest.replay import captures
 
     found = 0
+    unit, framer = "", None
     try:
         for reads in captures(path):
-            framer = Framer(codes, little_endian=little_endian)
+            unit, framer = reads.unit, Framer(codes, little_endian=little_endian)
             lead = f'{{"unit":{orjson.dumps(reads.unit).decode()},'.encode()
             for data in reads.data:
                 sys.stdout.buffer.write(_lines(framer.feed(data), lead))
             sys.stdout.buffer.write(_lines(framer.flush(), lead))
             sys.stdout.buffer.flush()
-            err.print(f"{reads.unit}: {framer.stats.summary()}")
+            err.print(f"{unit}: {framer.stats.summary()}")
             found += sum(framer.stats.records.values())
+            framer = None  # said: not again if the next unit is interrupted
+    except KeyboardInterrupt:  # as from a pipe: the unit's summary so far, quietly
+        if framer is not None:
+            err.print(f"{unit}: {framer.stats.summary()}")
+        raise typer.Exit(INTERRUPTED) from None
     except BrokenPipeError:
         sys.stderr.close()
         raise typer.Exit(0) from None

@@ -15,7 +15,7 @@ from bridge.cli.common import ForceOpt, app, err, fail, failing, written
 @app.command("import")
 def import_command(
     logs: Annotated[list[Path], typer.Argument(
-        metavar="LOG...", show_default=False,
+        metavar="LOG", show_default=False,
         help="Byte logs of one unit, in the order they were written: what the unit sent, "
              "as a data logger, cat /dev/ttyUSB0 or a terminal program saved it.")],
     unit: Annotated[str, typer.Option(
@@ -53,7 +53,7 @@ def import_command(
     it as any archive.
     """
     from bridge.exceptions import LogImportError
-    from bridge.recorder.bytelog import LogFile, import_logs, name_time, parse_start
+    from bridge.ingest.bytelog import LogFile, import_logs, name_time, parse_start
 
     if start and start_from_name is not None:
         raise fail("give --start or --start-from-name, not both")
@@ -71,8 +71,8 @@ def import_command(
     total = sum(log.stat().st_size for log in logs)
     progress = Progress(TextColumn("importing"), BarColumn(), DownloadColumn(), console=err,
                         transient=True, disable=not err.is_terminal)
-    with written(output, logs, force) as temp, failing(OSError, unless=(LogImportError,),
-                                                       temp=temp, path=output), progress:
+    with written(output, logs, force, suffixes=(".mcap",)) as temp, \
+            failing(OSError, unless=(LogImportError,), temp=temp, path=output), progress:
         task = progress.add_task("import", total=total)
         done = import_logs(files, temp, unit, prefix, little_endian,
                            lambda n: progress.advance(task, n), restarts=starts[1:])

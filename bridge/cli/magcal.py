@@ -51,20 +51,17 @@ def calibrate_mag(
     """
     import numpy as np
 
+    from bridge.analysis.magcal import document, fit
+    from bridge.archive.times import TimeSpan
     from bridge.cli.archive import read_with_progress
     from bridge.exceptions import CalibrationError
-    from bridge.recorder.magcal import document, fit
-    from bridge.recorder.tables import offline_times, parse_time, sample_table
+    from bridge.export.tables import offline_times, sample_table
 
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
+    span = TimeSpan(start, end)
     with ExitStack() as outputs:
-        temp = outputs.enter_context(written(output, [archive], force))
+        temp = outputs.enter_context(written(output, [archive], force, suffixes=(".json",)))
         drawing = None if rrd is None else outputs.enter_context(
-            written(rrd, [archive, output], force))
+            written(rrd, [archive, output], force, suffixes=(".rrd",)))
         try:
             data = read_with_progress(archive)
             units = data.units()
@@ -72,9 +69,9 @@ def calibrate_mag(
             if name not in units:
                 raise ValueError(f"{archive} has no unit {name!r} (units: "
                                  f"{', '.join(units) or 'none'}); check --unit")
-            first = data.first_sample_ns() or 0
-            table = sample_table(data, [name], None, lo.resolve(first) if lo else None,
-                                 hi.resolve(first) if hi else None, offline_times(data))
+            table = sample_table(data, [name], None,
+                                 *span.resolve(data.first_sample_ns() or 0),
+                                 offline_times(data))
             if not len(table["time_ns"]):
                 raise ValueError(f"{archive}: no samples of unit {name} from --start to "
                                  "--end; check them (seconds from the first sample, or "
@@ -104,7 +101,7 @@ def calibrate_mag(
                        "permissions where it goes", FAILED) from None
     for warning in cal.warnings:
         err.print(f"[yellow]warning:[/] unit {name}: {warning}")
-    err.print(f"wrote {output}: unit {name}, {cal.readings} readings, hard iron "
+    err.print(f"wrote {output}: unit {name}, {counted(cal.readings, 'reading')}, hard iron "
               f"({', '.join(f'{v:+.4f}' for v in cal.hard_iron)}) gauss, field "
               f"{cal.field_gauss:.4f} gauss, spread {cal.residual_before:.2%} before and "
               f"{cal.residual_after:.2%} after, {cal.coverage:.0%} of directions covered")

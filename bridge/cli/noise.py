@@ -21,6 +21,8 @@ from bridge.cli.common import (
 )
 
 _PLACEHOLDER = "{unit}"
+_YAML = (".yaml", ".yml")
+_PNG = (".png",)
 
 
 def _per_unit(option: str, path: Path, units: list[str]) -> dict[str, Path]:
@@ -71,29 +73,28 @@ def allan(
     a recording too short for the random walks gives them with a warning saying how
     long to record.
     """
-    from bridge.cli.archive import read_with_progress
-    from bridge.exceptions import CalibrationError
-    from bridge.recorder.noise import (
+    from bridge.analysis.noise import (
         UnitSamples,
         collect_samples,
         kalibr_yaml,
         stretch_text,
         units_noise,
     )
-    from bridge.recorder.tables import archive_prefix, parse_time
+    from bridge.archive.outputs import named_format
+    from bridge.archive.times import TimeSpan
+    from bridge.cli.archive import read_with_progress
+    from bridge.exceptions import CalibrationError
+    from bridge.export.tables import archive_prefix
     from bridge.ros2.messages import ros_topic
 
-    try:
-        lo = parse_time(start) if start else None
-        hi = parse_time(end) if end else None
-    except ValueError as exc:
-        raise fail(str(exc)) from None
+    span = TimeSpan(start, end)
     asked = list(dict.fromkeys(unit)) if unit else None
-    if asked is not None:  # refused before hours of reading, not after
-        for option, path in (("--output", output), ("--plot", plot)):
-            if path is not None:
-                for each in _per_unit(option, path, asked).values():
-                    refused(each, [archive], force)
+    for option, path, suffixes in (("--output", output, _YAML), ("--plot", plot, _PNG)):
+        if path is None:  # refused before hours of reading, not after
+            continue
+        named_format(path, *suffixes)
+        for each in _per_unit(option, path, asked).values() if asked else ():
+            refused(each, [archive], force, suffixes=suffixes)
     kept, take, first = collect_samples(asked)
     try:
         data = read_with_progress(archive, take)
@@ -106,10 +107,8 @@ def allan(
                    f"{', '.join(data.units()) or 'none'}); check --unit")
     outputs = _per_unit("--output", output, units)
     plots = _per_unit("--plot", plot, units) if plot is not None else {}
-    origin = first[0] if first else 0
     results = units_noise([kept.get(u, UnitSamples(u)) for u in units],
-                          lo.resolve(origin) if lo else None,
-                          hi.resolve(origin) if hi else None, jobs)
+                          *span.resolve(first[0] if first else 0), jobs)
     prefix = archive_prefix(data)
     refusals = 0
     for name, result in zip(units, results, strict=True):
@@ -119,7 +118,7 @@ def allan(
             err.print(f"[bold red]error:[/] {result}")
             refusals += 1
             continue
-        with written(outputs[name], [archive], force) as temp:
+        with written(outputs[name], [archive], force, suffixes=_YAML) as temp:
             try:
                 temp.write_text(kalibr_yaml(result, ros_topic(prefix, name, "imu"),
                                             archive.name))
@@ -129,7 +128,8 @@ def allan(
         if name in plots:
             from bridge.viz.allan import write_allan_plot
 
-            with written(plots[name], [archive, outputs[name]], force) as temp:
+            with written(plots[name], [archive, outputs[name]], force,
+                         suffixes=_PNG) as temp:
                 write_allan_plot(temp, result)
         for warning in result.warnings:
             err.print(f"[yellow]warning:[/] unit {name}: {warning}")

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import signal
 import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Group
@@ -16,7 +17,7 @@ from rich.markup import escape
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from bridge._text import counted
+from bridge._text import counted, number
 from bridge.cli.bridge import ConnectOpt, ListenOpt, ModeOpt, PrefixOpt, ZenohConfigOpt
 from bridge.cli.common import (
     FAILED,
@@ -37,10 +38,11 @@ from bridge.cli.common import (
 
 if TYPE_CHECKING:
     from bridge.bus.gx3_pb2 import HostClock
-    from bridge.recorder.live import HostView
+    from bridge.recorder.hosts import HostView
+    from bridge.recorder.units import UnitRow
 
 
-def unit_table(rows: list[dict[str, Any]], title: str) -> Table:
+def unit_table(rows: Sequence[UnitRow], title: str) -> Table:
     """The units as a recorder sees them (``Recorder.snapshot``), in 80 columns: offset
     is how far each unit's clock offset moved since its first clock model (the offset
     itself is an instant)."""
@@ -54,11 +56,11 @@ def unit_table(rows: list[dict[str, Any]], title: str) -> Table:
                          overflow="ellipsis" if name == "unit" else "fold")
     for r in rows:
         table.add_row(
-            r["unit"], "[green]live[/]" if r["alive"] else "[red]gone[/]", f"{r['rate']:,.0f}",
-            f"{r['samples']:,}", f"{r['dropped']:,}", f"{r['checksum_failures']:,}",
-            "–" if r["offset_ms"] is None else f"{r['offset_ms']:+.2f}",
-            "–" if r["drift_ppm"] is None else f"{r['drift_ppm']:+.1f}",
-            duration_text(r["recorded_s"]), f"{r['bytes'] / 1e6:,.1f}")
+            r.unit, "[green]live[/]" if r.alive else "[red]gone[/]", f"{r.rate:,.0f}",
+            f"{r.samples:,}", f"{r.dropped:,}", f"{r.checksum_failures:,}",
+            "–" if r.offset_ms is None else f"{r.offset_ms:+.2f}",
+            "–" if r.drift_ppm is None else f"{r.drift_ppm:+.1f}",
+            duration_text(r.recorded_s), f"{r.bytes / 1e6:,.1f}")
     if not rows:
         table.add_row("[dim]waiting for units…[/]", *[""] * 9)
     return table
@@ -74,7 +76,7 @@ def _ms(ns: float) -> str:
 def _bound(bound_ns: int | None, tolerance_ns: int | None) -> str:
     """What a host's clock bound says: how far behind the recorder it can be at most, or
     (red) how far ahead it is at least; yellow beyond the tolerance."""
-    from bridge.recorder.live import ahead
+    from bridge.recorder.hosts import ahead
 
     if bound_ns is None:
         return "[dim]no samples yet[/]"
@@ -96,7 +98,7 @@ def _sync(state: HostClock | None) -> str:
 def _hosts_table(hosts: Sequence[HostView], tolerance_ns: int | None, whole: bool) -> Table:
     """Each bridge host's clock against the recorder's: over the last seconds while
     recording, over the whole recording at the end. Fits 80 columns."""
-    from bridge.recorder.live import HOST_WINDOW_S
+    from bridge.recorder.hosts import HOST_WINDOW_S
 
     over = "over the recording" if whole else f"last {HOST_WINDOW_S} s"
     table = Table(title=f"bridge hosts' clocks against the recorder's ({over})",
@@ -139,6 +141,13 @@ def record(
         metavar="FILE.rrd", help="Also write a Rerun recording as the archive is recorded (an "
                                  "existing one only with --force).")]
     = None,
+    rrd_max_rate: Annotated[float | None, typer.Option(
+        metavar="HZ",
+        help="Thin --rrd for a recording that runs for days: each plotted line as the least "
+             "and the greatest value of each 1/HZ s bin, at the instants they happened, "
+             "attitude at HZ; status and events whole (the archive keeps every sample). "
+             "Lines reach the file 128 bins at a time (2 min at 1 Hz). Default: every "
+             "sample.")] = None,
     split_mb: Annotated[float | None, typer.Option(
         min=1.0, help="Start a new numbered file (FILE_0001.mcap, FILE_0002.mcap, ...) when "
                       "one reaches this size, MB. Numbers go on after the parts already "
@@ -192,9 +201,10 @@ def record(
     whole recording into gx3.hosts at the end.
     """
     log_to(log_level, log_format)
+    from bridge.archive.outputs import named_format
     from bridge.bus.keys import check_prefix
     from bridge.bus.session import ZenohOptions
-    from bridge.recorder.live import host_tolerance_ns
+    from bridge.recorder.hosts import host_tolerance_ns
     from bridge.recorder.recording import Recording
 
     check_prefix(prefix)
@@ -202,8 +212,25 @@ def record(
         host_tolerance_ns(max_host_offset_ms)
     except ValueError as exc:
         raise fail(f"--max-host-offset-ms {exc}") from None
+    for given, suffix in ((output, ".mcap"), (rrd, ".rrd")):
+        if given is not None:
+            named_format(given, suffix)
     path = output or Path(time.strftime("gx3-%Y%m%d-%H%M%S.mcap"))
     table = not quiet and log_format is LogFormat.text  # the live table is for people
+    rrd_writer = None
+    if rrd_max_rate is not None:
+        from bridge.viz.thin import bin_width_ns
+
+        if rrd is None:
+            raise fail("--rrd-max-rate thins the Rerun recording: give --rrd FILE.rrd too")
+        try:
+            bin_width_ns(rrd_max_rate)
+        except ValueError as exc:
+            raise fail(f"--rrd-max-rate: {exc}") from None
+    if rrd is not None:  # Rerun loads only for a recording that writes one
+        from bridge.viz.sources import RrdWriter
+
+        rrd_writer = functools.partial(RrdWriter, prefix=prefix, max_rate_hz=rrd_max_rate)
 
     def announce(unit: str, joined: bool) -> None:
         if not quiet:
@@ -215,7 +242,8 @@ def record(
         units=units, raw=raw, history=history, max_host_offset_ms=max_host_offset_ms,
         split_bytes=None if split_mb is None else int(split_mb * 1e6),
         split_seconds=None if split_minutes is None else split_minutes * 60, force=force,
-        rrd=rrd, metrics=metrics, on_unit=announce, on_event=lambda unit, event: err.print(
+        rrd=rrd, rrd_writer=rrd_writer, metrics=metrics, on_unit=announce,
+        on_event=lambda unit, event: err.print(
             f"[yellow]warning:[/] {event.detail}", highlight=False, soft_wrap=True))
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -242,15 +270,15 @@ def record(
         err.print(view(whole=True))
     if not quiet:
         files = ", ".join(str(p) for p in recording.paths)
-        err.print(f"wrote {files}; {recording.recorder.misses} samples reported lost in "
-                  "transit")
+        err.print(f"wrote {files}; {counted(recording.recorder.misses, 'sample')} reported "
+                  "lost in transit")
     err.file.flush()
 
 
 @app.command("replay")
 def replay_command(
     captures: Annotated[list[Path], typer.Argument(
-        metavar="CAPTURE.mcap...", help="Raw captures (gx3 bridge --capture, or archives "
+        metavar="CAPTURE.mcap", help="Raw captures (gx3 bridge --capture, or archives "
                                         "recorded with --raw).")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", metavar="ARCHIVE.mcap",
@@ -279,7 +307,7 @@ def replay_command(
     unit's samples are the same as replayed alone.
     """
     from bridge.exceptions import ArchiveError, ReplayError, UnusableCapture
-    from bridge.recorder.replay import Replayed, replay
+    from bridge.ingest.replay import Replayed, replay
     from bridge.timing.stream import TRANSPORTS
 
     if transport is not None and transport not in TRANSPORTS:
@@ -297,9 +325,9 @@ def replay_command(
     shown = [0.0]
 
     def report(result: Replayed) -> None:
-        events = ", ".join(f"{n} {kind}" for kind, n in sorted(result.events.items()))
+        events = ", ".join(f"{number(n)} {kind}" for kind, n in sorted(result.events.items()))
         guessed = f" (inferred: {', '.join(result.inferred)})" if result.inferred else ""
-        progress.console.print(f"{result.unit}: {result.samples:,} samples"
+        progress.console.print(f"{result.unit}: {counted(result.samples, 'sample')}"
                                + (f", {events}" if events else "") + guessed)
         units = progress.tasks[0].fields["units"] + 1
         progress.update(task, units=units, done=counted(units, "unit"), refresh=True)
@@ -310,7 +338,7 @@ def replay_command(
             shown[0] = time.monotonic()
             progress.refresh()
 
-    with written(output, captures, force) as temp, \
+    with written(output, captures, force, suffixes=(".mcap",)) as temp, \
             failing(ReplayError, ArchiveError, unless=(UnusableCapture,), temp=temp,
                     path=output), progress:
         results = replay(captures, temp, prefix, on_unit=report, jobs=jobs or None,

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
+from bridge._text import counted, number
 from bridge.cli.common import (
     FAILED,
     LogFormat,
@@ -56,6 +57,28 @@ def sim(
         "--tumble", help="Turn every unit through all orientations (roll and yaw keep "
                          "turning, pitch swings ±55°): the motion a magnetometer iron "
                          "calibration needs.")] = False,
+    body: Annotated[bool, typer.Option(
+        "--body", help="Fix every unit to one rigid body turned by hand (brisk turns about "
+                       "all three axes, 0.15-0.8 Hz, and 0.3 g of linear acceleration, the "
+                       "seed's), each seen through its own --mount and --lever-arm: what "
+                       "gx3 align needs. Units share the body's motion whatever their "
+                       "clocks.")] = False,
+    mount: Annotated[list[str] | None, typer.Option(
+        metavar="ROLL,PITCH,YAW",
+        help="With --body: how a unit's axes are turned against the body's, degrees, as a "
+             "unit's attitude against north-east-down (yaw, then pitch, then roll); "
+             "repeat for unit 1, 2, …; units past the last sit as the body.")] = None,
+    lever_arm: Annotated[list[str] | None, typer.Option(
+        metavar="X,Y,Z",
+        help="With --body: where a unit sits from the body's origin, metres, in the body's "
+             "axes; repeat for unit 1, 2, …; units past the last sit at the origin.")]
+    = None,
+    link_latency: Annotated[list[float] | None, typer.Option(
+        metavar="MS",
+        help="A constant delay on a unit's link each way, ms, 0-1000 (a long cable, a "
+             "converter, a wireless serial link): one no clock model can see, which gx3 "
+             "align measures; repeat for unit 1, 2, …; units past the last have none.")]
+    = None,
     noise_accel: Annotated[float, typer.Option(help="Accel noise, g (1σ, before the "
                                                "filter).")] = 0.0,
     noise_gyro: Annotated[float, typer.Option(help="Gyro noise, rad/s (1σ, before the "
@@ -151,12 +174,17 @@ def sim(
     import signal
     import time
 
+    import numpy as np
+
+    from bridge.protocol.convert import m_to_euler
     from bridge.sim.options import SimOptions
 
     setup = SimOptions(
         pty=pty, tcp=tcp, units=units, serial=serial, model_name=model_name,
         model_number=model_number, firmware=firmware, timer_start=timer_start,
-        clock_ppm=clock_ppm, seed=seed, static=static, tumble=tumble, noise_accel=noise_accel,
+        clock_ppm=clock_ppm, seed=seed, static=static, tumble=tumble, body=body,
+        mount=mount or (), lever_arm=lever_arm or (), link_latency=link_latency or (),
+        noise_accel=noise_accel,
         noise_gyro=noise_gyro, noise_mag=noise_mag, gyro_bias=gyro_bias,
         accel_noise_density=accel_noise_density, accel_random_walk=accel_random_walk,
         gyro_noise_density=gyro_noise_density, gyro_random_walk=gyro_random_walk,
@@ -180,8 +208,15 @@ def sim(
         for endpoint in simulator.endpoints:
             print(endpoint, flush=True)
         for cfg in setup.configs:
+            where = ""
+            if cfg.motion.mounting is not None:
+                turned = np.degrees(m_to_euler(cfg.motion.mounting.matrix))
+                where = (", on the body turned ({:g}, {:g}, {:g})° at ({:g}, {:g}, {:g}) m"
+                         .format(*turned.round(2), *cfg.motion.mounting.lever_arm_m))
+            if cfg.link_latency_s:
+                where += f", link +{cfg.link_latency_s * 1e3:g} ms"
             err.print(f"[dim]unit {escape(cfg.serial)}: clock {cfg.clock_ppm:+.1f} ppm, "
-                      f"seed {cfg.motion.seed}[/]")
+                      f"seed {cfg.motion.seed}{escape(where)}[/]")
         deadline = None if duration is None else time.monotonic() + duration
         while not stop["now"] and simulator.error is None:
             if deadline is not None and time.monotonic() >= deadline:
@@ -191,6 +226,7 @@ def sim(
         raise fail(f"emulator stopped: {simulator.error}", FAILED)
     for slot in simulator.slots:
         u = slot.unit
-        err.print(f"{escape(u.config.serial)}: {u.records_sent} records sent, "
-                  f"{u.records_skipped} skipped (line busy), {slot.lost} bytes not delivered "
-                  "(no host connected, or host not reading)")
+        err.print(f"{escape(u.config.serial)}: {counted(u.records_sent, 'record')} sent, "
+                  f"{number(u.records_skipped)} skipped (line busy), "
+                  f"{counted(slot.lost, 'byte')} not delivered (no host connected, or host "
+                  "not reading)")

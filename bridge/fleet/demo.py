@@ -17,18 +17,32 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from bridge.exceptions import DemoError
 from bridge.fleet.loopback import free_port, interrupt, loopback_config
 from bridge.protocol.table import BAUD_RATES, DATA_CODES, REPLIES, Flag
 from bridge.sim.faults import FaultConfig
-from bridge.sim.motion import MotionConfig
+from bridge.sim.motion import MotionConfig, Mounting, handheld
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
 
+if TYPE_CHECKING:
+    from bridge.recorder.units import UnitRow
+
 CLOCK_PPM = (42.0, -27.0, 85.0, -63.0, 12.0, -95.0, 55.0, -8.0)
+#: With --body, where each unit sits on the one body (unit i takes row i % 4): its axes'
+#: roll, pitch, yaw against the body's (degrees), its lever arm (m, body axes) and a
+#: constant extra latency on its link (s). The first is the reference gx3 align suggests.
+BODY_MOUNTS: tuple[tuple[tuple[float, float, float], tuple[float, float, float], float],
+                   ...] = (
+    ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0),
+    ((180.0, 0.0, 90.0), (0.30, 0.0, 0.0), 0.0),
+    ((2.0, -1.5, 177.0), (-0.10, 0.25, 0.05), 0.0),
+    ((0.0, 90.0, 0.0), (0.0, -0.30, -0.20), 0.0032),
+)
+BODY_SEED = 7
 ORIENTATION_RECORDS = frozenset({0xC5, 0xC6, 0xC8, 0xCC, 0xCE, 0xCF, 0xD2, 0xDF})
 STARTUP_TIMEOUT_S = 60.0
 
@@ -62,17 +76,20 @@ def _line_baud(code: int, rate_hz: float) -> int:
                     f"UART carries ({BAUD_RATES[-1]:,}); lower --rate")
 
 
-def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[DemoUnit]:
+def fleet(count: int, code: int, rate_hz: float, duration_s: float,
+          body: bool = False) -> list[DemoUnit]:
     """The demo fleet: clock errors of tens of ppm, a timer rollover, faults.
 
     Unit 2 (or the only one) crosses the timer rollover halfway; the last suffers bit
-    flips and an unplug.
+    flips and an unplug. With ``body`` every unit is fixed to one body turned by hand,
+    each mounted as ``BODY_MOUNTS`` says: what ``gx3 align`` finds from the archive.
 
     Args:
         count: How many units.
         code: The record type they stream.
         rate_hz: Records per second.
         duration_s: How long the demo streams, seconds (the rollover comes halfway).
+        body: Fix the units to one body turned by hand.
 
     Returns:
         The units.
@@ -100,6 +117,8 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
                             clock_wander_ppm=2.0, clock_seed=i,
                             motion=MotionConfig(seed=100 + i), stored=stored)
         unit = DemoUnit(f"imu{i + 1}", config)
+        if body:
+            _mount(unit, i)
         units.append(unit)
     rolling = units[min(1, count - 1)]
     ticks_to_wrap = round((duration_s / 2 + 5.0) * 62_500)
@@ -110,6 +129,18 @@ def fleet(count: int, code: int, rate_hz: float, duration_s: float) -> list[Demo
     faulty.unplug = True
     faulty.notes.append("bit flips, unplug")
     return units
+
+
+def _mount(unit: DemoUnit, index: int) -> None:
+    """Fix ``unit`` to the demo's body as ``BODY_MOUNTS`` row ``index`` says."""
+    turned, arm, latency = BODY_MOUNTS[index % len(BODY_MOUNTS)]
+    motion = handheld(unit.config.motion, Mounting.turned(turned, arm, BODY_SEED))
+    unit.config = replace(unit.config, motion=motion, link_latency_s=latency)
+    if index:
+        unit.notes.append("turned ({:g}, {:g}, {:g})°, ({:g}, {:g}, {:g}) m from imu1"
+                          .format(*turned, *arm))
+    if latency:
+        unit.notes.append(f"link +{latency * 1e3:g} ms")
 
 
 def _gx3_executable() -> list[str]:
@@ -140,6 +171,33 @@ class _Processes:
             out.close()
 
 
+@dataclass(frozen=True)
+class UnitOutcome:
+    """What one unit's run gave, beside the truth the emulator knows (the demo's summary).
+
+    Attributes:
+        unit: Its name.
+        samples: Samples archived.
+        dropped: Records its bridge found missing.
+        checksum_failures: Records its bridge's framer refused.
+        resyncs: Times its bridge's framer lost the records' boundaries.
+        reconnects: Times its bridge reopened the port.
+        drift_ppm: The drift its bridge found; None if it found none yet.
+        true_ppm: The drift the emulator gave its clock.
+        notes: What it shows, in words (``DemoUnit.notes``).
+    """
+
+    unit: str
+    samples: int
+    dropped: int
+    checksum_failures: int
+    resyncs: int
+    reconnects: int
+    drift_ppm: float | None
+    true_ppm: float
+    notes: str
+
+
 @dataclass
 class Demo:
     """Runs the demo; ``show(rows, elapsed)`` draws the dashboard.
@@ -162,10 +220,10 @@ class Demo:
     duration_s: float
     router: bool = False
     viewer: Any = None  # a Rerun recording to mirror the live data into
-    show: Callable[[list[dict[str, Any]], float], None] = lambda rows, elapsed: None
+    show: Callable[[list[UnitRow], float], None] = lambda rows, elapsed: None
     force: bool = False  # replace an earlier run's archive in ``output``
     stop: threading.Event = field(default_factory=threading.Event)
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    rows: list[UnitRow] = field(default_factory=list)
 
     @property
     def archive(self) -> Path:
@@ -185,10 +243,10 @@ class Demo:
                 could not be written; it says where the logs are.
             ArchiveError: The archive could not be created.
         """
+        from bridge.archive.writer import ArchiveWriter
         from bridge.bus.session import open_session
         from bridge.exceptions import ArchiveError
         from bridge.recorder.live import Recorder
-        from bridge.recorder.writer import ArchiveWriter
         from bridge.viz.logger import RerunLogger
         from bridge.viz.sources import log_messages
 
@@ -232,7 +290,7 @@ class Demo:
                 for unit, link in zip(self.units, links, strict=True):
                     procs.start(unit.name, ["bridge", "--port", str(link), "--baud",
                                             str(unit.config.stored.baud), "--unit", unit.name,
-                                            "--zenoh-config", str(bridge_cfg), "--quiet"],
+                                            "--zenoh-config", str(bridge_cfg)],
                                 self.output / f"{unit.name}.log")
                 self._stream(sim, recorder, procs)
                 procs.stop()
@@ -266,7 +324,7 @@ class Demo:
                 raise DemoError(f"{', '.join(broken)} stopped; see its log in {self.output}")
             self.rows = recorder.snapshot()
             now = time.monotonic()
-            live = {r["unit"] for r in self.rows if r["samples"] > 0}
+            live = {r.unit for r in self.rows if r.samples > 0}
             if streaming_since is None:
                 if live >= {u.name for u in self.units}:
                     streaming_since = now
@@ -284,21 +342,21 @@ class Demo:
                     break
             self.show(self.rows, 0.0 if streaming_since is None else now - streaming_since)
 
-    def summary(self) -> list[dict[str, Any]]:
+    def summary(self) -> list[UnitOutcome]:
         """What the run gave, unit by unit.
 
         Returns:
             Per unit: what arrived, what went wrong, and the drift found against the
             truth.
         """
-        by_name = {r["unit"]: r for r in self.rows}
+        by_name = {r.unit: r for r in self.rows}
         out = []
         for unit in self.units:
-            r = by_name.get(unit.name, {})
-            out.append({"unit": unit.name, "samples": r.get("samples", 0),
-                        "dropped": r.get("dropped", 0),
-                        "checksum_failures": r.get("checksum_failures", 0),
-                        "resyncs": r.get("resyncs", 0), "reconnects": r.get("reconnects", 0),
-                        "drift_ppm": r.get("drift_ppm"), "true_ppm": unit.config.clock_ppm,
-                        "notes": ", ".join(unit.notes)})
+            r = by_name.get(unit.name)
+            out.append(UnitOutcome(
+                unit=unit.name, samples=r.samples if r else 0, dropped=r.dropped if r else 0,
+                checksum_failures=r.checksum_failures if r else 0,
+                resyncs=r.resyncs if r else 0, reconnects=r.reconnects if r else 0,
+                drift_ppm=r.drift_ppm if r else None, true_ppm=unit.config.clock_ppm,
+                notes=", ".join(unit.notes)))
         return out

@@ -19,15 +19,16 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 from rerun.experimental import ViewerClient, ViewerState
 
+from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event
 from bridge.fleet.loopback import free_port
-from bridge.recorder.reader import read_archive
 from bridge.viz.layout import TIME
 
 
@@ -44,32 +45,72 @@ def rerun_executable() -> str:
     return found
 
 
+@contextmanager
+def headless_viewer(size: tuple[int, int] = (1600, 1000), timeout_s: float = 60.0,
+                    memory_limit: str | None = None
+                    ) -> Iterator[tuple[ViewerClient, subprocess.Popen[bytes]]]:
+    """A headless Rerun viewer on a free loopback port, and a client connected to it.
+
+    Stopped on leaving, with the viewer its ``rerun`` wrapper started.
+
+    Args:
+        size: The window's size, points.
+        timeout_s: How long it may take to answer.
+        memory_limit: Its ``--memory-limit`` (``1GB``); None: Rerun's default.
+
+    Yields:
+        The client, and the process (the wrapper, leading its process group).
+    """
+    port = free_port()
+    limit = [] if memory_limit is None else ["--memory-limit", memory_limit]
+    viewer = subprocess.Popen(
+        [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
+         "--window-size", f"{size[0]}x{size[1]}", "--hide-welcome-screen", *limit],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        yield _connect(f"rerun+http://127.0.0.1:{port}/proxy", viewer,
+                       time.monotonic() + timeout_s), viewer
+    finally:
+        os.killpg(viewer.pid, signal.SIGTERM)  # the wrapper and the viewer it started
+        viewer.wait(timeout=10)
+
+
+def open_recording(client: ViewerClient, rrd: str | os.PathLike[str],
+                   timeout_s: float = 60.0) -> ViewerState:
+    """Open ``rrd`` in a viewer and wait until it has loaded.
+
+    Returns:
+        The viewer's state once loaded.
+
+    Raises:
+        TimeoutError: It has not loaded within ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    client.open(os.fspath(Path(rrd).resolve()))
+    while True:
+        state = client.get_state()
+        if not state.loading and state.active_recording:
+            return state
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the viewer did not load {rrd} within {timeout_s:g} s")
+        time.sleep(0.2)
+
+
 def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: int | None = None,
            before_end_s: float | None = None, size: tuple[int, int] = (1600, 1000),
-           timeout_s: float = 60.0) -> ViewerState:
+           timeout_s: float = 60.0, tab: str | None = None) -> ViewerState:
     """Open ``rrd`` in a headless viewer and save what it shows to ``png``.
 
     The time cursor is paused at ``at_ns`` on the ``time`` timeline, else
-    ``before_end_s`` seconds before its end, else where the viewer puts it. Returns the
-    viewer's own account of what it showed: recordings, timelines, views and what each
-    view failed to show.
+    ``before_end_s`` seconds before its end, else where the viewer puts it; ``tab``
+    names the tab shown (``accel [g]``), else the first is. Returns the viewer's own
+    account of what it showed: recordings, timelines, views and what each view failed
+    to show.
     """
-    port = free_port()
-    viewer = subprocess.Popen(
-        [rerun_executable(), "--headless", "--bind", "127.0.0.1", "--port", str(port),
-         "--window-size", f"{size[0]}x{size[1]}", "--hide-welcome-screen"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        deadline = time.monotonic() + timeout_s
-        client = _connect(f"rerun+http://127.0.0.1:{port}/proxy", viewer, deadline)
-        client.open(os.fspath(Path(rrd).resolve()))
-        while True:
-            state = client.get_state()
-            if not state.loading and state.active_recording:
-                break
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"the viewer did not load {rrd} within {timeout_s:g} s")
-            time.sleep(0.2)
+    with headless_viewer(size, timeout_s) as (client, _):
+        state = open_recording(client, rrd, timeout_s)
+        if tab is not None:
+            _show_tab(client, tab)
         if at_ns is None and before_end_s is not None:
             (end,) = [t.end for r in state.recordings for t in r.timelines if t.name == TIME]
             at_ns = None if end is None else end - round(before_end_s * 1e9)
@@ -78,9 +119,20 @@ def render(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, at_ns: i
         time.sleep(1.0)  # let the views catch up with the cursor before the shot
         client.save_screenshot(os.fspath(png))
         return client.get_state()
-    finally:
-        os.killpg(viewer.pid, signal.SIGTERM)  # the wrapper and the viewer it started
-        viewer.wait(timeout=10)
+
+
+def _show_tab(client: ViewerClient, name: str) -> None:
+    """Make the tab of that name the one shown, in the recording's blueprint."""
+    blueprint = client.get_blueprint(of="recording").blueprint
+    tabs = {parts["ContainerBlueprint"]["display_name"]: path.lstrip("/")
+            for path, parts in blueprint.items()
+            if "display_name" in parts.get("ContainerBlueprint", {})}
+    if name not in tabs:
+        raise ValueError(f"no tab {name!r} in the recording (tabs: {', '.join(tabs)})")
+    for parts in blueprint.values():
+        if parts.get("ContainerBlueprint", {}).get("container_kind") == "Tabs":
+            parts["ContainerBlueprint"]["active_tab"] = tabs[name]
+    client.set_blueprint(blueprint, of="recording")
 
 
 def _connect(url: str, viewer: subprocess.Popen[bytes], deadline: float) -> ViewerClient:

@@ -452,10 +452,12 @@ class Batch:
     ``little_endian`` is the float byte order the records were decoded with; ``block``
     the records' wire bytes, (n, length) uint8, when they came from a byte stream.
     ``part_ns`` and ``part_bytes``: for a record whose bytes came in more than one read,
-    the receive time of the latest read before the completing one and how many of the
-    record's bytes had arrived by then (None: no record here had such a read; see
-    ``partial``). ``batch["accel"]`` is ``batch.columns["accel"]``; ``len(batch)`` the
-    record count.
+    or right after a read that ended where it begins, the receive time of the latest read
+    before the completing one and how many of the record's bytes had arrived by then (0
+    to its length less one; None: no record here had such a read; see ``partial``). Such
+    a read says when the record was on its way, and when it was not yet: the timing
+    layer bounds the record's instant from both sides with it. ``batch["accel"]`` is
+    ``batch.columns["accel"]``; ``len(batch)`` the record count.
     """
 
     code: int
@@ -492,8 +494,9 @@ class Batch:
         """Per record, a receive time and how many of its bytes had arrived by then.
 
         Returns:
-            The latest read that ended inside each record and the record's bytes it had
-            brought, else the read that completed it and the record's length.
+            The latest read that ended inside each record, or right where it begins, and
+            the record's bytes it had brought (0 for the latter), else the read that
+            completed it and the record's length.
         """
         if self.part_ns is None or self.part_bytes is None:
             return self.rx_ns, np.full(len(self.rx_ns), REPLIES[self.code].length, np.int64)

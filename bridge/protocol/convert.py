@@ -225,6 +225,42 @@ def sensor_to_earth_xyzw(q: npt.ArrayLike) -> FloatArray:
     return _f64(a[..., [1, 2, 3, 0]])
 
 
+def rotation_to_xyzw(r: npt.ArrayLike) -> FloatArray:
+    """A rotation matrix's Hamilton quaternion, x, y, z, w, as ROS, Rerun and SciPy take it.
+
+    ``r`` turns vectors actively, v' = r @ v. The manual's "M to Q" gives the quaternion
+    whose matrix is M's transpose (see ``sensor_to_earth_xyzw``), so it is applied to
+    r's transpose; w >= 0.
+
+    Args:
+        r: (..., 3, 3) proper rotation matrices.
+
+    Returns:
+        (..., 4) x, y, z, w.
+
+    Raises:
+        ValueError: ``r`` does not end in (3, 3).
+    """
+    return _f64(m_to_quaternion(np.swapaxes(_f64(r), -1, -2))[..., [1, 2, 3, 0]])
+
+
+def xyzw_to_rotation(q: npt.ArrayLike) -> FloatArray:
+    """The rotation matrix of a Hamilton quaternion x, y, z, w (``rotation_to_xyzw``'s).
+
+    Args:
+        q: (..., 4) x, y, z, w; normalised first.
+
+    Returns:
+        (..., 3, 3) r, v' = r @ v.
+
+    Raises:
+        ValueError: ``q``'s last axis is not 4 long.
+    """
+    a = _f64(q)
+    _check_shape(a, (4,), "q")
+    return _f64(np.swapaxes(quaternion_to_m(a[..., [3, 0, 1, 2]]), -1, -2))
+
+
 def ticks_to_seconds(ticks: npt.ArrayLike) -> FloatOut:
     """Device timer ticks to seconds (the GX3 timer runs at 62,500 ticks per second).
 

@@ -22,6 +22,7 @@ from typing import TypeVar
 import numpy as np
 
 from bridge import _native as native
+from bridge._text import number
 from bridge.protocol.codec import (
     Batch,
     Records,
@@ -58,30 +59,38 @@ class FramerStats:
         """One line for people: records by type, then each count.
 
         Returns:
-            ``records: 0xC8×199; checksum failures: 5; implausible: 0; bytes skipped: 67
-            of 13400; resyncs: 1``, for instance.
+            ``records: 0xC8×1,199; checksum failures: 5; implausible: 0; bytes skipped:
+            67 of 80,400; resyncs: 1``, for instance.
         """
-        by_type = ", ".join(f"0x{c:02X}×{n}" for c, n in sorted(self.records.items())) or "none"
-        return (f"records: {by_type}; checksum failures: {self.checksum_failures}; "
-                f"implausible: {self.implausible}; "
-                f"bytes skipped: {self.bytes_skipped} of {self.bytes_fed}; "
-                f"resyncs: {self.resyncs}")
+        by_type = ", ".join(f"0x{c:02X}×{number(n)}"
+                            for c, n in sorted(self.records.items())) or "none"
+        return (f"records: {by_type}; checksum failures: {number(self.checksum_failures)}; "
+                f"implausible: {number(self.implausible)}; "
+                f"bytes skipped: {number(self.bytes_skipped)} of {number(self.bytes_fed)}; "
+                f"resyncs: {number(self.resyncs)}")
 
 
 class _Reads:
     """Receive time of every read with bytes still held, by the stream position it ends at.
 
-    A read received at the same time as the one before it extends that one.
+    And the latest read whose bytes are all decided (``last_end``, ``last_ns``): where a
+    record begins right where it ended, that read bounds the record from below (none of
+    its bytes had come). A read received at the same time as the one before it extends
+    that one.
     """
 
     def __init__(self) -> None:
         self.ends: list[int] = []
         self.ns: list[int] = []
+        self.last_end = -1
+        self.last_ns = 0
 
     def add(self, ends: list[int], rx_ns: list[int]) -> None:
         if self.ns and rx_ns[0] == self.ns[-1]:
             self.ends[-1] = ends[0]
             ends, rx_ns = ends[1:], rx_ns[1:]
+        elif not self.ns and rx_ns[0] == self.last_ns and self.last_end >= 0:
+            self.last_end = -1  # the same read, cut in two: it did not end there
         self.ends += ends
         self.ns += rx_ns
 
@@ -90,18 +99,16 @@ class _Reads:
         """The receive times of records of ``length`` bytes at these stream positions.
 
         For each: the receive time of the read that completed it, and of the latest read
-        before it (if it ended inside the record, else the completing read's) with the
-        record's bytes it had brought (else ``length``); None, None when no read ended
-        inside any of them.
+        before that one if it ended inside the record or right where it begins, with the
+        record's bytes it had brought (0 to ``length`` - 1; else the completing read's
+        time and ``length``); None, None when no record here has such a read.
         """
-        if len(self.ns) == 1:  # a live bridge: every record completed by the one read held
-            return np.full(len(starts), self.ns[0], np.int64), None, None
-        ends = np.array(self.ends, np.int64)
-        ns = np.array(self.ns, np.int64)
+        ends = np.array([self.last_end, *self.ends], np.int64)
+        ns = np.array([self.last_ns, *self.ns], np.int64)
         index = np.searchsorted(ends, starts + (length - 1), side="right")
         rx = ns[index]
         before = ends[index - 1] - starts
-        inside = (index > 0) & (before > 0)
+        inside = (index > 0) & (before >= 0)
         if not inside.any():
             return rx, None, None
         return rx, np.where(inside, ns[index - 1], rx), np.where(inside, before, length)
@@ -109,24 +116,31 @@ class _Reads:
     def times_of(self, starts: list[int],
                  length: int) -> tuple[list[int], list[int] | None, list[int] | None]:
         """``times`` in plain integers, for a record or two."""
-        if len(self.ns) == 1:
-            return [self.ns[0]] * len(starts), None, None
         ends, ns = self.ends, self.ns
+        if len(ns) == 1:  # a live bridge: every record completed by the one read held
+            one = [ns[0]] * len(starts)
+            if starts and starts[0] == self.last_end:  # the read before ended right there
+                return one, [self.last_ns, *one[1:]], [0, *[length] * (len(starts) - 1)]
+            return one, None, None
         rx: list[int] = []
         part_ns: list[int] = []
         part_bytes: list[int] = []
         for start in starts:
             index = bisect_right(ends, start + length - 1)
             rx.append(ns[index])
-            before = ends[index - 1] - start if index else 0
-            part_ns.append(ns[index - 1] if before > 0 else ns[index])
-            part_bytes.append(before if before > 0 else length)
+            end, at = (ends[index - 1], ns[index - 1]) if index else (self.last_end,
+                                                                       self.last_ns)
+            before = end - start
+            part_ns.append(at if before >= 0 else ns[index])
+            part_bytes.append(before if before >= 0 else length)
         if part_bytes.count(length) == len(part_bytes):
             return rx, None, None
         return rx, part_ns, part_bytes
 
     def forget_before(self, position: int) -> None:
         done = bisect_right(self.ends, position)
+        if done:
+            self.last_end, self.last_ns = self.ends[done - 1], self.ns[done - 1]
         del self.ends[:done], self.ns[:done]
 
 

@@ -16,9 +16,17 @@ from typing import Any
 
 TICKS_PER_SECOND = 62_500
 CALCULATION_CYCLE_S = 0.001  # the unit samples, filters and answers once per 1 ms cycle
+#: From the end of a cycle (its timer, the end of its filter window) to a data record's first
+#: byte on the line: the cycle's calculation (steps 2-6 of the manual's Calculation Cycle).
+#: The manual gives no figure; the emulator sends after this long and the timing layer
+#: takes it out, so a unit whose firmware takes longer is late by the difference, as every
+#: unit of that firmware is (docs/design/time.md).
+PROCESSING_DELAY_S = 0.0002
 ERROR_CODE = 0x21
 ERROR_REPLY = bytes((0x21, 0x00, 0x21))
 BAUD_RATES = (115_200, 230_400, 460_800, 921_600)
+#: The manual's Table 5: the most records a second (of 31 bytes) each baud rate carries.
+MAX_OUTPUT_HZ = {115_200: 250, 230_400: 333, 460_800: 500, 921_600: 1000}
 DEFAULT_BAUD = 115_200
 
 
@@ -69,6 +77,8 @@ class Field:
     ``domain_values``; the framer takes a candidate with anything else for garbage
     that matched the checksum. ``shape`` makes a vector or row-major matrix of
     ``kind`` elements. ``pad`` fields are reserved bytes, sent as zero, not decoded.
+    ``integral``: the value is a time integral over the most recent output period (the
+    manual's DeltaAngle and DeltaVelocity), so it describes that period's middle.
     """
 
     name: str
@@ -81,6 +91,7 @@ class Field:
     domain_values: frozenset[int] | None = None
     unit: str = ""
     doc: str = ""
+    integral: bool = False
 
     # cached: the framer asks for these for every record it checks
     @cached_property
@@ -104,8 +115,10 @@ def _pad(n: int) -> Field:
     return Field("reserved", "pad", (n,), doc="reserved, set to 0")
 
 
-def _vec(name: str, bound: float, unit: str, doc: str, shape: tuple[int, ...] = (3,)) -> Field:
-    return Field(name, "f32", shape, domain=(-bound, bound), unit=unit, doc=doc)
+def _vec(name: str, bound: float, unit: str, doc: str, shape: tuple[int, ...] = (3,),
+         integral: bool = False) -> Field:
+    return Field(name, "f32", shape, domain=(-bound, bound), unit=unit, doc=doc,
+                 integral=integral)
 
 
 # Far beyond any sensor range (and any 17-bit raw code); random bytes read as a float
@@ -124,8 +137,10 @@ QUANTITIES: dict[str, Field] = {
         _vec("accel", _PHYSICAL, "g", "specific force, sensor frame"),
         _vec("stab_accel", _PHYSICAL, "g", "gyro-stabilised gravity estimate, sensor frame"),
         _vec("ang_rate", _PHYSICAL, "rad/s", "angular rate, sensor frame"),
-        _vec("delta_ang", _PHYSICAL, "rad", "integral of ang_rate over the sample period"),
-        _vec("delta_vel", _PHYSICAL, "g*s", "integral of accel over the sample period"),
+        _vec("delta_ang", _PHYSICAL, "rad", "integral of ang_rate over the sample period",
+             integral=True),
+        _vec("delta_vel", _PHYSICAL, "g*s", "integral of accel over the sample period",
+             integral=True),
         _vec("mag", _PHYSICAL, "gauss", "magnetic field, sensor frame"),
         _vec("stab_mag", _PHYSICAL, "gauss", "gyro-stabilised field estimate, sensor frame"),
         _vec("m", _UNIT, "", "orientation matrix, v_local = M v_earth (NED)", (3, 3)),
@@ -447,6 +462,15 @@ class ReplySpec:
     def length(self) -> int:
         """Bytes of the reply: echo byte, fields, 16-bit checksum."""
         return 3 + sum(f.size for f in self.fields)
+
+    @cached_property
+    def integral(self) -> bool:
+        """Whether its values are integrals over the output period (0xC3, 0xD3).
+
+        They describe the middle of that period, half a period before an instantaneous
+        record's values; a record's ``time_ns`` is the instant they describe.
+        """
+        return any(f.integral for f in self.fields)
 
     def offset(self, name: str) -> int:
         """Byte position of a field in the reply (the echo byte is at 0).

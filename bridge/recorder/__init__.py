@@ -1,15 +1,14 @@
-"""Archives: the fleet recorded into MCAP, and read, replayed, exported and repaired.
+"""The live recorder: every unit on Zenoh into one archive, as units come and go.
 
-An archive is one MCAP file (or numbered parts) that holds the very messages the
-bridges publish on Zenoh, in log-time order, with frames and an event log for viewers.
-A raw capture holds the bytes a bridge read from its unit and when each read came, so
-that a replay gives what the live bridge gave. Reading never gives up on a damaged or
-unfinished file: what is readable is read, and what is not is said. The layouts of
-archives, raw captures and exports: ``docs/design/archive.md``.
+``Recorder`` takes what arrives off Zenoh, checks it and hands it to an archive's
+writer; ``Recording`` is the run of ``gx3 record`` around it (the session, the archive,
+what else sees each batch). Both need Zenoh, and are imported on first use.
 
-The live recorder (``Recorder``, ``HostView``: Zenoh) and the table export
-(``sample_table`` and the rest: pyarrow) are imported on first use, so that reading or
-writing an archive needs neither.
+This package held every part of the archive before they got packages of their own:
+the format (``bridge.archive``), replay and byte-log import (``bridge.ingest``),
+exports (``bridge.export``) and analyses (``bridge.analysis``). The names it declared
+then are still declared here, imported on first use from their new homes; new code
+imports them from there.
 """
 
 from __future__ import annotations
@@ -17,46 +16,51 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
-from bridge.recorder.allan import AllanSums, NoiseFit, averaging_factors, read_off
-from bridge.recorder.bytelog import Imported, LogFile, import_logs, name_time, parse_start
-from bridge.recorder.describe import About
-from bridge.recorder.magcal import IronCalibration, UnitIron, fit, read_document
-from bridge.recorder.noise import (
-    NOISE_KEYS,
-    SensorNoise,
-    UnitNoise,
-    UnitSamples,
-    collect_samples,
-    kalibr_yaml,
-    stretch_text,
-    unit_noise,
-    units_noise,
-)
-from bridge.recorder.rawcapture import RawCaptureWriter, capture_metadata
-from bridge.recorder.reader import (
-    ArchivedSamples,
-    ArchiveReader,
-    ChannelInfo,
-    Damage,
-    Messages,
-    Record,
-    describe_problem,
-    read_archive,
-)
-from bridge.recorder.repair import RepairReport, repair
-from bridge.recorder.replay import CapturedReads, Replayed, captures, replay
-from bridge.recorder.ros2_export import Ros2Written, write_ros2
-from bridge.recorder.writer import ArchiveWriter
 
 if TYPE_CHECKING:
-    from bridge.recorder.live import HostView, Recorder
-    from bridge.recorder.tables import (
+    from bridge.analysis.allan import AllanSums, NoiseFit, averaging_factors, read_off
+    from bridge.analysis.magcal import IronCalibration, UnitIron, fit, read_document
+    from bridge.analysis.noise import (
+        NOISE_KEYS,
+        SensorNoise,
+        UnitNoise,
+        UnitSamples,
+        collect_samples,
+        kalibr_yaml,
+        stretch_text,
+        unit_noise,
+        units_noise,
+    )
+    from bridge.archive import (
+        ArchivedSamples,
+        ArchiveReader,
+        ArchiveWriter,
+        ChannelInfo,
+        Damage,
+        Messages,
+        RawCaptureWriter,
+        Record,
+        RepairReport,
+        capture_metadata,
+        describe_problem,
+        read_archive,
+        repair,
+    )
+    from bridge.export.describe import About
+    from bridge.export.ros2_bag import Ros2Written, write_ros2
+    from bridge.export.tables import (
         align_table,
         event_table,
         offline_times,
         sample_table,
         write_table,
     )
+    from bridge.ingest.bytelog import Imported, LogFile, import_logs, name_time, parse_start
+    from bridge.ingest.replay import CapturedReads, Replayed, captures, replay
+    from bridge.recorder.hosts import HostView
+    from bridge.recorder.live import Recorder
+    from bridge.recorder.recording import Recording
+    from bridge.recorder.units import UnitRow
 
 __all__ = [
     "NOISE_KEYS",
@@ -77,12 +81,14 @@ __all__ = [
     "RawCaptureWriter",
     "Record",
     "Recorder",
+    "Recording",
     "RepairReport",
     "Replayed",
     "Ros2Written",
     "SensorNoise",
     "UnitIron",
     "UnitNoise",
+    "UnitRow",
     "UnitSamples",
     "align_table",
     "averaging_factors",
@@ -110,17 +116,27 @@ __all__ = [
     "write_table",
 ]
 
-#: Names whose modules have heavy imports of their own, imported on first use.
-_ON_FIRST_USE = {
-    "align_table": "bridge.recorder.tables",
-    "event_table": "bridge.recorder.tables",
-    "offline_times": "bridge.recorder.tables",
-    "sample_table": "bridge.recorder.tables",
-    "write_table": "bridge.recorder.tables",
-    "HostView": "bridge.recorder.live",
+#: The package each name comes from, imported when the name is first asked for.
+_HOMES = {
+    "HostView": "bridge.recorder.hosts",
     "Recorder": "bridge.recorder.live",
+    "Recording": "bridge.recorder.recording",
+    "UnitRow": "bridge.recorder.units",
+    **dict.fromkeys(("ArchiveReader", "ArchiveWriter", "ArchivedSamples", "ChannelInfo",
+                     "Damage", "Messages", "RawCaptureWriter", "Record", "RepairReport",
+                     "capture_metadata", "describe_problem", "read_archive", "repair"),
+                    "bridge.archive"),
+    **dict.fromkeys(("CapturedReads", "Imported", "LogFile", "Replayed", "captures",
+                     "import_logs", "name_time", "parse_start", "replay"), "bridge.ingest"),
+    **dict.fromkeys(("About", "Ros2Written", "align_table", "event_table", "offline_times",
+                     "sample_table", "write_ros2", "write_table"), "bridge.export"),
+    **dict.fromkeys(("NOISE_KEYS", "AllanSums", "IronCalibration", "NoiseFit",
+                     "SensorNoise", "UnitIron", "UnitNoise", "UnitSamples",
+                     "averaging_factors", "collect_samples", "fit", "kalibr_yaml",
+                     "read_document", "read_off", "stretch_text", "unit_noise",
+                     "units_noise"), "bridge.analysis"),
 }
 
 
 def __getattr__(name: str) -> object:
-    return imported(__name__, _ON_FIRST_USE, name)
+    return imported(__name__, _HOMES, name)

@@ -6,33 +6,39 @@ a second. So a slow disk never holds Zenoh's receive path, and through it the
 publishers. Nothing is lost unrecorded: samples Zenoh missed, messages that fail their
 checks and samples shed while the memory was full go into the archive as events of
 their unit. Each bridge host's clock is judged against the recorder's by when its
-samples arrive. How and why: ``docs/design/archive.md``; the hosts' clocks:
-``docs/design/time.md``.
+samples arrive (``bridge.recorder.hosts``). How and why: ``docs/design/archive.md``; the
+hosts' clocks: ``docs/design/time.md``.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 import zenoh
 
+from bridge._text import counted
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import parse
-from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
+from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.bus.integrity import read_raw_time, read_time
 from bridge.bus.keys import ENCODINGS, unit_of
 from bridge.bus.subscribe import Arrivals, RawMessage, Subscription, check, subscribe
 from bridge.device import clock
 from bridge.exceptions import ArchiveError
-from bridge.recorder.writer import ArchiveWriter, stamps
-from bridge.timing.rate import RateWindow
+from bridge.recorder.hosts import (
+    HOSTS_METADATA,
+    ClockChecks,
+    HostView,
+    host_tolerance_ns,
+    host_views,
+    hosts_metadata,
+)
+from bridge.recorder.units import UnitRow, UnitView
 
 LEAVES = ("imu", "status", "event")
 _QUERY_TIMEOUT_S = 3.0
@@ -53,14 +59,6 @@ _TAKE = 10_000  # messages the receiving thread takes off one channel at a time
 BUFFER_BYTES = 256 << 20
 _OVERHEAD = 64  # bytes a held message costs besides its payload (object, list slots)
 _SHEDDABLE = ("imu", "raw")  # status, events and info are few and always kept
-#: Seconds of arrival over which a host's clock bound is taken: long enough that some
-#: sample meets the least latency, short enough to follow a clock being corrected.
-HOST_WINDOW_S = 10
-#: A host counts as ahead only beyond the bridges' own timing error (~0.06 ms), and a
-#: condition clears only once the bound is back by this much (no event per wobble).
-HOST_MARGIN_NS = 100_000
-HOSTS_METADATA = "gx3.hosts"
-_SECOND_NS = 1_000_000_000
 _REASONS = {"checksum": "payload does not match its CRC-32 (damaged in transit)",
             "key": "names another unit than its key, or is not a message of the key's type"}
 
@@ -104,179 +102,6 @@ def _instant(leaf: str, payload: bytes | None, default_ns: int) -> tuple[int, in
     return sample.time_ns, sample.ticks
 
 
-class _Lags:
-    """The least (arrival - time_ns) of one unit's samples (see ``HostView``).
-
-    Kept per second of arrival over the last ``HOST_WINDOW_S`` seconds, and over the
-    whole recording.
-
-    Samples are gathered and read about once a second of arrivals (their time_ns from
-    their headers in bulk, ``stamps``): a read costs mostly a fixed amount, so a second
-    of a 1 kHz unit costs little more than the 50 samples a pass writes.
-    """
-
-    def __init__(self, unit: str) -> None:
-        self.unit = unit
-        self.least: int | None = None  # over the samples read so far
-        self._seconds: deque[list[int]] = deque(maxlen=HOST_WINDOW_S)  # [second, least]
-        self._payloads: list[bytes] = []
-        self._arrivals: list[np.ndarray] = []
-
-    @property
-    def seen(self) -> bool:
-        """Whether any sample came (read or still gathered)."""
-        return self.least is not None or bool(self._payloads)
-
-    def add(self, payloads: list[bytes], arrival: np.ndarray) -> None:
-        """Samples that arrived at ``arrival`` (the recorder's clock, in arrival order)."""
-        if payloads:
-            self._payloads += payloads
-            self._arrivals.append(arrival)
-            self._read_due(int(arrival[-1]))
-
-    def _read_due(self, now_ns: int) -> None:
-        if self._arrivals and now_ns - int(self._arrivals[0][0]) >= _SECOND_NS:
-            self.read()
-
-    def read(self) -> None:
-        """Fold the samples gathered into the least per second and overall."""
-        if not self._payloads:
-            return
-        payloads, self._payloads = self._payloads, []
-        arrival = np.concatenate(self._arrivals)
-        self._arrivals = []
-        try:
-            _, _, time_ns = stamps(self.unit, payloads)
-        except ValueError:  # not a sample after all (the writer has left it out): none
-            return
-        lag = arrival - time_ns
-        first, last = int(arrival[0]) // _SECOND_NS, int(arrival[-1]) // _SECOND_NS
-        if first == last:
-            seconds = [(first, int(lag.min()))]
-        else:
-            second = arrival // _SECOND_NS
-            starts = np.concatenate(([0], np.flatnonzero(np.diff(second)) + 1))
-            seconds = list(zip(second[starts].tolist(),
-                               np.minimum.reduceat(lag, starts).tolist(), strict=True))
-        for at, least in seconds:
-            if self._seconds and self._seconds[-1][0] == at:
-                self._seconds[-1][1] = min(self._seconds[-1][1], least)
-            else:  # a step back of the recorder's clock is a new second too
-                self._seconds.append([at, least])
-            self.least = least if self.least is None else min(self.least, least)
-
-    def bound(self, now_ns: int) -> int | None:
-        """The least over the seconds of arrival within ``HOST_WINDOW_S`` of ``now_ns``.
-
-        None: no sample arrived in them. Samples gathered for less than a second are not
-        in it yet.
-        """
-        self._read_due(now_ns)
-        since = now_ns // _SECOND_NS - HOST_WINDOW_S
-        return min((least for at, least in self._seconds if at > since), default=None)
-
-
-@dataclass
-class _UnitView:
-    """What the terminal shows of one unit."""
-
-    name: str
-    alive: bool = True
-    samples: int = 0
-    bytes: int = 0
-    first_ns: int = 0
-    last_ns: int = 0
-    status: Status | None = None
-    #: the clock offset of its first status with a clock model: the table shows how far
-    #: the offset has moved since (the offset itself is an instant near the epoch)
-    first_offset_ns: int | None = None
-    joined: int = 1
-    meter: RateWindow = field(default_factory=lambda: RateWindow(3.0))
-    #: its bridge host's clock, from the latest Status or Info that carried one, and
-    #: that message's own time
-    host_clock: HostClock | None = None
-    host_clock_ns: int = 0
-    lags: _Lags = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.lags = _Lags(self.name)
-
-    def rate(self, now: float) -> float:
-        return self.meter.rate(now, self.samples)
-
-    def learn_host(self, message: Status | Info, at_ns: int) -> None:
-        """Keep the host clock ``message`` carries if it is newer than the one known.
-
-        An Info answered late is older than the Status before it. A unit whose bridge now
-        runs on another host starts its clock bound afresh.
-        """
-        if not message.HasField("host_clock") or at_ns < self.host_clock_ns:
-            return
-        host = message.host_clock.host
-        if self.host_clock is not None and self.host_clock.host not in ("", host):
-            self.lags = _Lags(self.name)
-        self.host_clock, self.host_clock_ns = message.host_clock, at_ns
-
-
-@dataclass(frozen=True)
-class HostView:
-    """The clock of one host that bridges run on, as the recorder sees it.
-
-    A sample's ``time_ns`` is on its bridge host's realtime clock, its arrival on the
-    recorder's, and arrival - time_ns = (recorder's clock - host's) + latency, with
-    latency > 0: so the least of it over a host's samples bounds how far behind the
-    recorder the host's clock can be, and a negative least proves it ahead.
-
-    ``bound_ns``: the least (arrival on the recorder's clock - time_ns) of its units'
-    samples over the last ``HOST_WINDOW_S`` s, the most its clock can be behind the
-    recorder's (negative: it is ahead by at least that much); ``whole_ns`` the same over
-    the recording so far (samples are read about once a second); None: no sample yet.
-    ``clock``: its latest sync state.
-    ``host`` is empty for a bridge that names no host (an older one): such a unit is a
-    host of its own.
-    """
-
-    host: str
-    units: tuple[str, ...]
-    bound_ns: int | None
-    whole_ns: int | None
-    clock: HostClock | None
-
-    @property
-    def name(self) -> str:
-        """How events and the terminal name it."""
-        return f"host {self.host}" if self.host else f"the unnamed host of {self.units[0]}"
-
-
-def ahead(bound_ns: int | None) -> bool:
-    """Whether a host is provably ahead of the recorder by more than the bridges' timing error.
-
-    ``bound_ns`` is the host's least (arrival - time_ns).
-    """
-    return bound_ns is not None and bound_ns < -HOST_MARGIN_NS
-
-
-def host_tolerance_ns(ms: float | None) -> int | None:
-    """A host clock tolerance given in ms, in ns (None: none).
-
-    ValueError unless above 0: every sample arrives some time after it was taken, so 0
-    would always be exceeded.
-    """
-    if ms is None:
-        return None
-    if not (math.isfinite(ms) and ms > 0):
-        raise ValueError(f"{ms:g}: give a tolerance above 0 ms, such as 5")
-    return round(ms * 1e6)
-
-
-def recorder_metadata(sync: clock.HostSync) -> dict[str, str]:
-    """The recorder's own host and its clock's sync state, for the archive's metadata.
-
-    Every arrival time (publish time) in the archive is on this clock.
-    """
-    return {"recorder_host": sync.host, "recorder_clock": json.dumps(asdict(sync))}
-
-
 class Recorder:
     """Record ``<prefix>/<units>/{imu,status,event}`` (and ``raw``) into an archive.
 
@@ -309,6 +134,10 @@ class Recorder:
         max_host_offset_ms: How far behind the recorder's clock a bridge host's may be
             (strictly, how late its samples may arrive) before a HOST_CLOCK_OFFSET event
             says so; None: no such check (a host ahead of the recorder is always told).
+        on_latency: Hears ``(unit, seconds)``: for the messages of a unit its bridge
+            stamped with their publish time (one put in 16), how long from then until
+            they were handed to the archive's writer (two hosts' clocks); None: not
+            measured.
 
     Raises:
         ValueError: ``max_host_offset_ms`` is not above 0.
@@ -320,10 +149,13 @@ class Recorder:
                  on_written: Callable[[list[RawMessage]], None] | None = None,
                  queue_size: int = 100_000, buffer_bytes: int = BUFFER_BYTES,
                  on_event: Callable[[str, Event], None] | None = None,
-                 max_host_offset_ms: float | None = None) -> None:
+                 max_host_offset_ms: float | None = None,
+                 on_latency: Callable[[str, list[float]], None] | None = None) -> None:
         self.max_host_offset_ns = host_tolerance_ns(max_host_offset_ms)
+        self._on_latency = on_latency
+        self._clock_checks = ClockChecks(self.max_host_offset_ns)
         self.session, self.writer, self.prefix, self.units = session, writer, prefix, units
-        self.views: dict[str, _UnitView] = {}
+        self.views: dict[str, UnitView] = {}
         self.error: ArchiveError | None = None
         self.written = 0
         self.buffer_bytes = buffer_bytes
@@ -337,9 +169,10 @@ class Recorder:
         self._lock = threading.Lock()  # the views
         # what the receiving thread holds for the writer, guarded by _held_lock
         self._held_lock = threading.RLock()  # a reject is reported while it is held
-        # by key: payloads, receive times, and a raw read's raw-clock stamps (its publish
-        # time in the archive; an older bridge's reads have none: their receive time)
-        self._held: dict[str, tuple[list[bytes], list[int], list[int]]] = {}
+        # by key: payloads, receive times, a raw read's raw-clock stamps (its publish
+        # time in the archive; an older bridge's reads have none: their receive time),
+        # and the publish times the bridge stamped some of them with
+        self._held: dict[str, tuple[list[bytes], list[int], list[int], list[int]]] = {}
         self._held_bytes = 0
         self._shedding = False
         self._last: dict[str, bytes] = {}  # the last message of each key that arrived
@@ -349,8 +182,6 @@ class Recorder:
         self._shed: dict[str, _Span] = {}
         self._notes: list[tuple[str, Event]] = []
         self._conflicts: set[tuple[str, tuple[str, ...]]] = set()
-        # (host name, condition) -> the units told of it since it started
-        self._told: dict[tuple[str, str], set[str]] = {}
         leaves = (*LEAVES, "raw") if raw else LEAVES
         self._subs: list[Subscription[RawMessage]] = []
         try:
@@ -386,7 +217,7 @@ class Recorder:
         with self._lock:
             view = self.views.get(unit)
             if view is None:
-                view = self.views[unit] = _UnitView(unit)
+                view = self.views[unit] = UnitView(unit)
             elif joined and not view.alive:
                 view.joined += 1
             view.alive = joined
@@ -458,7 +289,7 @@ class Recorder:
                                                         first_ticks, last_ticks)
                 continue
             self._held_bytes += size
-            held, received, published = self._held.setdefault(key, ([], [], []))
+            held, received, published, stamps = self._held.setdefault(key, ([], [], [], []))
             held += payloads
             if leaf == "raw":  # a raw read's time is when its bridge received it
                 reals = [now if t is None else t for t in map(read_time, got.attachments)]
@@ -467,6 +298,9 @@ class Recorder:
                               in zip(map(read_raw_time, got.attachments), reals, strict=True)]
             else:
                 received += [now] * len(payloads)
+                if self._on_latency is not None:  # one put in 16 carries its instant
+                    stamps += [t for a in got.attachments
+                               if a is not None and len(a) > 4 and (t := read_time(a))]
         return n
 
     def _missed_on(self, index: int) -> Callable[[str, int], None]:
@@ -544,12 +378,15 @@ class Recorder:
         answers = check([self._answers.popleft() for _ in range(len(self._answers))],
                         self._rejected)
         written: list[RawMessage] | None = None if self._on_written is None else []
-        for key, (payloads, received, published) in held.items():
+        for key, (payloads, received, published, stamps) in held.items():
             self._write(key, payloads, np.array(received, np.int64), written,
                         np.array(published, np.int64) if published else None)
+            if stamps and self._on_latency is not None and self.error is None:
+                archived = clock.realtime_ns()
+                self._on_latency(self._unit(key), [(archived - t) / 1e9 for t in stamps])
         for key, got in answers.items():
             self._write(key, got.payloads, now, written)
-        notes += self._clock_notes(now)
+        notes += self._clock_checks.events(self.hosts(now), now)
         notes += [self._lost(loss, after, now) for loss, after in losses]
         notes += [self._unarchived(key, Event.REJECTED, span,
                                    f"{span.count} message(s) rejected: {_REASONS[reason]}")
@@ -563,7 +400,7 @@ class Recorder:
             if note.kind in self.losses:
                 self.losses[note.kind] += note.count
             self._write(f"{self.prefix}/{unit}/event", [note.SerializeToString()], now,
-                        written)
+                        written, heard=False)
             if self._on_event is not None:
                 self._on_event(unit, note)
         if written and self._on_written is not None:
@@ -587,7 +424,7 @@ class Recorder:
             span.add(loss.count, loss.missed_ns, loss.missed_ns)
         where = f" after ticks {k0}" if k0 else ""
         return self._unarchived(loss.key, Event.LOST, span,
-                                f"{loss.count} message(s) lost in transit{where} (not "
+                                f"{counted(loss.count, 'message')} lost in transit{where} (not "
                                 "recoverable from the publisher's cache)")
 
     def _unarchived(self, key: str, kind: int, span: _Span, detail: str
@@ -600,11 +437,13 @@ class Recorder:
                            detail=f"{key}: {detail}")
 
     def _write(self, key: str, payloads: list[bytes], received: int | np.ndarray,
-               written: list[RawMessage] | None, published: np.ndarray | None = None) -> None:
+               written: list[RawMessage] | None, published: np.ndarray | None = None,
+               heard: bool = True) -> None:
         """Archive messages of one key, and count them in their unit's view.
 
         ``received``: host ns, one for all or one each; ``published``: raw reads'
-        raw-clock stamps. Samples also go into the unit's clock bound.
+        raw-clock stamps; ``heard``: they came from the unit's bridge (not the recorder's
+        own events). Samples also go into the unit's clock bound.
         """
         if self.error is not None:
             return
@@ -626,32 +465,31 @@ class Recorder:
         with self._lock:
             view = self.views.get(unit)
             if view is None:
-                view = self.views[unit] = _UnitView(unit)
+                view = self.views[unit] = UnitView(unit)
             view.bytes += sum(map(len, payloads))
+            if heard:
+                view.heard_ns = max(view.heard_ns, int(np.max(received)))
             if leaf == "imu":
                 now = int(np.max(received))
                 view.samples += len(payloads)
                 view.last_ns = now
                 view.first_ns = view.first_ns or now
                 if bulk:  # (the rare rest have no receive time each: left out)
-                    view.lags.add(payloads, np.broadcast_to(np.asarray(received, np.int64),
+                    view.host.lags.add(payloads, np.broadcast_to(np.asarray(received, np.int64),
                                                             (len(payloads),)))
             elif status is not None:
                 view.status = status
                 if view.first_offset_ns is None and status.clock_offset_ns:
                     view.first_offset_ns = status.clock_offset_ns
-                view.learn_host(status, status.time_ns)
+                view.host.learn(status, status.time_ns)
             elif info is not None:
-                view.learn_host(info, info.bring_up_time_ns)
+                view.host.learn(info, info.bring_up_time_ns)
         if written is not None:
             encoding = ENCODINGS.get(leaf, "")
             written.extend(RawMessage(key, payload, encoding) for payload in payloads)
 
     def hosts(self, now_ns: int | None = None) -> list[HostView]:
-        """Every bridge host's clock against the recorder's.
-
-        Units with neither samples nor a named host are left out (nothing is known of
-        their host).
+        """Every bridge host's clock against the recorder's (``host_views``).
 
         Args:
             now_ns: The end of the last ``HOST_WINDOW_S`` s that ``bound_ns`` covers, on
@@ -662,87 +500,8 @@ class Recorder:
         """
         now = clock.realtime_ns() if now_ns is None else now_ns
         with self._lock:
-            groups: dict[tuple[bool, str], list[_UnitView]] = {}  # (unnamed, host or unit)
-            for view in sorted(self.views.values(), key=lambda v: v.name):
-                host = view.host_clock.host if view.host_clock is not None else ""
-                if host or view.lags.seen:
-                    groups.setdefault((not host, host or view.name), []).append(view)
-            rows = []
-            for (unnamed, host), views in sorted(groups.items()):
-                bounds = [b for v in views if (b := v.lags.bound(now)) is not None]
-                wholes = [v.lags.least for v in views if v.lags.least is not None]
-                latest = max(views, key=lambda v: v.host_clock_ns)
-                rows.append(HostView("" if unnamed else host, tuple(v.name for v in views),
-                                     min(bounds, default=None), min(wholes, default=None),
-                                     latest.host_clock))
-        return rows
-
-    def _clock_notes(self, now: int) -> list[tuple[str, Event]]:
-        """HOST_CLOCK_OFFSET events, one for each unit of a host whose clock disagrees.
-
-        A host disagrees with the recorder when it is provably ahead by more than
-        ``HOST_MARGIN_NS`` (cleared once it is not provably ahead at all), or, with a
-        tolerance, when its bound is beyond it (cleared once back under it by
-        ``HOST_MARGIN_NS``). Each is told once when it starts (and to a unit that joins
-        the host while it holds), again only after it cleared: a host that stays off
-        fills no archive.
-        """
-        notes = []
-        tolerance = self.max_host_offset_ns
-        for host in self.hosts(now):
-            bound = host.bound_ns
-            if bound is None:
-                continue
-            checks = [("ahead", ahead(bound), bound >= 0)]
-            if tolerance is not None:
-                checks.append(("behind", bound > tolerance,
-                               bound <= tolerance - HOST_MARGIN_NS))
-            for condition, holds, cleared in checks:
-                key = (host.name, condition)
-                if cleared:
-                    self._told.pop(key, None)
-                    continue
-                if not holds:
-                    continue
-                told = self._told.setdefault(key, set())
-                detail = self._offset_detail(host, condition, bound)
-                for unit in host.units:
-                    if unit not in told:
-                        told.add(unit)
-                        notes.append((unit, Event(
-                            unit=unit, time_ns=now, kind=Event.HOST_CLOCK_OFFSET, count=1,
-                            clock_change_ns=bound, detail=detail)))
-        return notes
-
-    def _offset_detail(self, host: HostView, condition: str, bound: int) -> str:
-        """The event's one line: what the bound proves, or allows, and what to look at."""
-        if condition == "ahead":
-            return (f"the clock of {host.name} is ahead of the recorder's by at least "
-                    f"{-bound / 1e6:,.2f} ms: its samples arrived before the instants they "
-                    "were stamped with (check chrony, ntpd or PTP on both hosts)")
-        assert self.max_host_offset_ns is not None
-        return (f"the clock of {host.name} may be behind the recorder's by up to "
-                f"{bound / 1e6:,.2f} ms, or its samples take that long to arrive (tolerance "
-                f"{self.max_host_offset_ns / 1e6:g} ms)")
-
-    @staticmethod
-    def _hosts_metadata(hosts: list[HostView]) -> dict[str, str]:
-        """The ``gx3.hosts`` metadata record.
-
-        Each host's units, the least (arrival - time_ns) over the whole recording and its
-        latest sync state; and the recorder's own.
-        """
-        meta = {"note": "least_lag_ns: the least (arrival on the recorder's clock - "
-                        "time_ns) of the host's samples over the recording: the most its "
-                        "clock was behind the recorder's; negative: ahead by at least that",
-                "recorder": json.dumps(asdict(clock.host_sync()))}
-        for host in hosts:
-            meta[f"host/{host.host or host.units[0] + ' (unnamed)'}"] = json.dumps({
-                "units": list(host.units), "least_lag_ns": host.whole_ns,
-                "ahead": ahead(host.whole_ns),
-                "clock": None if host.clock is None else {
-                    f.name: getattr(host.clock, f.name) for f in HostClock.DESCRIPTOR.fields}})
-        return meta
+            return host_views([v.host for v in sorted(self.views.values(),
+                                                      key=lambda v: v.name)], now)
 
     def _each(self, key: str, payloads: list[bytes], received: int | np.ndarray
               ) -> list[bytes]:
@@ -763,42 +522,16 @@ class Recorder:
             kept.append(payload)
         return kept
 
-    def statuses(self) -> list[Status]:
-        """Each unit's latest Status, as archived (for ``bridge.bus.metrics``).
-
-        Returns:
-            One message per unit that has sent one.
-        """
-        with self._lock:
-            return [v.status for v in self.views.values() if v.status is not None]
-
-    def snapshot(self) -> list[dict[str, Any]]:
+    def snapshot(self) -> list[UnitRow]:
         """What the terminal shows of the units.
 
         Returns:
-            A row per unit, by name: alive, rate, samples and losses, its clock model
-            (``offset_ms``: how far its clock offset moved since its first status with
-            a model; it and ``drift_ppm`` None before one).
+            A row per unit, by name.
         """
         now = time.monotonic()
-        rows = []
         with self._lock:
-            for view in sorted(self.views.values(), key=lambda v: v.name):
-                s = view.status
-                rows.append({
-                    "unit": view.name, "alive": view.alive, "rate": view.rate(now),
-                    "samples": view.samples, "dropped": s.dropped if s else 0,
-                    "checksum_failures": s.checksum_failures if s else 0,
-                    "resyncs": s.resyncs if s else 0, "reconnects": s.reconnects if s else 0,
-                    "offset_ms": None if s is None or view.first_offset_ns is None
-                    or not s.clock_offset_ns
-                    else (s.clock_offset_ns - view.first_offset_ns) / 1e6,
-                    # exactly 0 until the model has measured the rate (see gx3.proto)
-                    "drift_ppm": s.clock_drift_ppm if s and s.clock_offset_ns
-                    and s.clock_drift_ppm else None,
-                    "recorded_s": (view.last_ns - view.first_ns) / 1e9,
-                    "bytes": view.bytes, "joined": view.joined})
-        return rows
+            return [view.row(now) for view in sorted(self.views.values(),
+                                                     key=lambda v: v.name)]
 
     def close(self) -> None:
         """Stop receiving and write what has arrived; the writer stays open, its owner's.
@@ -821,10 +554,10 @@ class Recorder:
             sub.close()
         with self._lock:
             for view in self.views.values():
-                view.lags.read()  # every sample in the bound over the recording
+                view.host.lags.read()  # every sample in the bound over the recording
         hosts = self.hosts()
         if self.error is None and hosts:
             try:
-                self.writer.add_metadata(HOSTS_METADATA, self._hosts_metadata(hosts))
+                self.writer.add_metadata(HOSTS_METADATA, hosts_metadata(hosts))
             except ArchiveError as exc:
                 self.error = exc

@@ -1,20 +1,23 @@
 """What ``gx3 record`` runs, set up and torn down in one place: a ``Recording``.
 
 A recording is the archive's writer, the Zenoh session it records from, the
-``Recorder`` between them, and optionally a Rerun recording of what is archived.
-Entering opens them in the order that refuses a bad output before anything is
-written, and leaves nothing behind when a later step fails; leaving closes them in the
-order that loses nothing, whatever ended the block (Ctrl-C included)::
+``Recorder`` between them, and optionally a file that shows what is archived as it is
+archived (a Rerun recording: ``bridge.viz.RrdWriter``, which the caller hands in, so
+that the recorder needs no viewer). Entering opens them in the order that refuses a bad
+output before anything is written, and leaves nothing behind when a later step fails;
+leaving closes them in the order that loses nothing, whatever ended the block (Ctrl-C
+included)::
 
     import threading
     from pathlib import Path
 
-    from bridge.bus.session import ZenohOptions
-    from bridge.recorder.recording import Recording
+    from bridge.bus import ZenohOptions
+    from bridge.recorder import Recording
+    from bridge.viz import RrdWriter
 
     stop = threading.Event()  # set it (a signal handler, say) to end the recording
     with Recording(Path("fleet.mcap"), ZenohOptions(connect=["tcp/10.0.0.5:7447"]),
-                   rrd=Path("fleet.rrd")) as recording:
+                   rrd=Path("fleet.rrd"), rrd_writer=RrdWriter) as recording:
         recording.run(stop, duration_s=60)
     if recording.error is not None:
         raise recording.error
@@ -27,12 +30,13 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, suppress
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import ArchiveError, OutputRefused
-from bridge.recorder.live import Recorder, host_tolerance_ns, recorder_metadata
-from bridge.recorder.writer import ArchiveWriter
+from bridge.recorder.hosts import host_tolerance_ns, recorder_metadata
+from bridge.recorder.live import Recorder
 
 if TYPE_CHECKING:
     import threading
@@ -43,23 +47,32 @@ if TYPE_CHECKING:
     from bridge.bus.gx3_pb2 import Event
     from bridge.bus.metrics import MetricsServer
     from bridge.bus.subscribe import RawMessage
-    from bridge.viz.logger import RerunLogger
 
-__all__ = ["Recording"]
+__all__ = ["Mirror", "Recording"]
 
 #: How long ``run`` waits for messages at a time, seconds: how often ``every`` is called.
 RUN_STEP_S = 0.25
+
+
+class Mirror(Protocol):
+    """A file that shows what a recording archives, batch by batch (a Rerun recording)."""
+
+    def log(self, messages: list[RawMessage]) -> None:
+        """Take a batch of messages, as written into the archive."""
+
+    def close(self) -> None:
+        """Finish the file: the recording has ended."""
 
 
 class Recording:
     """Record the fleet on Zenoh into an archive: ``gx3 record``, as a context manager.
 
     Entering opens, in this order: the archive (first, so that a file that is refused is
-    said before anything else opens; after a check of ``rrd``), the Zenoh session, the
-    Rerun recording of ``rrd``, then the ``Recorder``. If a step fails, what was opened is
-    closed, and the archive, with nothing recorded in it, is removed. Leaving closes, in
-    this order: the Recorder (what has arrived is written, and the hosts' clocks), the
-    Rerun recording, the archive (finished with its index), the session.
+    said before anything else opens; after a check of ``rrd``), the Zenoh session,
+    ``rrd``, then the ``Recorder``. If a step fails, what was opened is closed, and the
+    archive, with nothing recorded in it, is removed. Leaving closes, in this order: the
+    Recorder (what has arrived is written, and the hosts' clocks), ``rrd``, the archive
+    (finished with its index), the session.
 
     Args:
         archive: The archive: a path (an ``ArchiveWriter`` is opened on entry with
@@ -78,13 +91,21 @@ class Recording:
         split_seconds: With a path: start a new numbered part after this many seconds.
         force: Replace an existing archive (with a path) and an existing ``rrd``.
         metadata: With a path: more entries for the archive's ``gx3.archive`` metadata.
-        rrd: Also write a Rerun recording of what is archived, as it is archived.
-        rerun: More Rerun loggers to hand every batch written (a live viewer, say); they
-            stay the caller's to close.
+        rrd: Also write what is archived into this file, as it is archived, through
+            ``rrd_writer``.
+        rrd_writer: Opens ``rrd``: called with its path and a recording id (the
+            archive's name) once the archive is open; what it gives hears every batch
+            written and is closed after the recorder. ``bridge.viz.RrdWriter`` writes a
+            Rerun recording. Required with ``rrd``; it raises ``OutputRefused`` when
+            the file cannot be written.
+        on_written: More to hand every batch written (a live viewer, say); they stay
+            the caller's.
         on_unit: Hears ``(unit, joined)`` as units appear and leave.
         on_event: Hears ``(unit, event)`` of each event the recorder itself archives.
-        metrics: Serve the fleet's health to Prometheus at this ``ADDR:PORT`` (each
-            unit's latest Status, what was archived); None: not.
+        metrics: Serve the recorder's health to Prometheus at this ``ADDR:PORT``: what it
+            archived of each unit, when it last heard from each, and how long samples
+            took from their bridge to the archive (each unit's own numbers are its
+            bridge's to serve); None: not.
 
     Attributes:
         writer: The archive's writer (once entered).
@@ -92,7 +113,8 @@ class Recording:
         started: When recording began, on ``time.monotonic``.
 
     Raises:
-        ValueError: ``max_host_offset_ms`` is not above 0.
+        ValueError: ``max_host_offset_ms`` is not above 0, or ``rrd`` comes without
+            ``rrd_writer``.
     """
 
     def __init__(self, archive: Path | ArchiveWriter,
@@ -101,11 +123,14 @@ class Recording:
                  max_host_offset_ms: float | None = None, split_bytes: int | None = None,
                  split_seconds: float | None = None, force: bool = False,
                  metadata: Mapping[str, str] | None = None, rrd: Path | None = None,
-                 rerun: Sequence[RerunLogger] = (),
+                 rrd_writer: Callable[[Path, str], Mirror] | None = None,
+                 on_written: Sequence[Callable[[list[RawMessage]], None]] = (),
                  on_unit: Callable[[str, bool], None] | None = None,
                  on_event: Callable[[str, Event], None] | None = None,
                  metrics: str | None = None) -> None:
         host_tolerance_ns(max_host_offset_ms)  # refused before anything opens
+        if rrd is not None and rrd_writer is None:
+            raise ValueError(f"rrd {rrd}: give the rrd_writer that writes it")
         self._archive = archive
         self._session_from = ZenohOptions() if session is None else session
         self.prefix, self.units, self.raw, self.history = prefix, units, raw, history
@@ -113,12 +138,13 @@ class Recording:
         self.split_bytes, self.split_seconds, self.force = split_bytes, split_seconds, force
         self.metadata = dict(metadata or {})
         self.rrd = rrd
-        self._rerun = list(rerun)
+        self._rrd_writer = rrd_writer
+        self._on_written = list(on_written)
         self._on_unit, self._on_event = on_unit, on_event
         self._writer = archive if isinstance(archive, ArchiveWriter) else None
         self._session: zenoh.Session | None = None
         self._own_session = False
-        self._logger: RerunLogger | None = None
+        self._mirror: Mirror | None = None
         self._recorder: Recorder | None = None
         self.metrics = metrics
         self._metrics: MetricsServer | None = None
@@ -159,15 +185,15 @@ class Recording:
         return time.monotonic() - self.started
 
     def __enter__(self) -> Recording:
-        """Open the archive, the session, the Rerun recording and the recorder.
+        """Open the archive, the session, ``rrd`` and the recorder.
 
         Returns:
             The recording.
 
         Raises:
             OutputRefused: ``rrd`` is the archive's own file, or cannot be written (a
-                folder, another process's, an existing file without ``force``, or Rerun
-                cannot create it).
+                folder, another process's, an existing file without ``force``, or its
+                writer cannot create it).
             ArchiveError: The archive exists (without ``force``), another process writes
                 it, or it cannot be created.
             BadName: ``prefix`` cannot be a chunk of a key.
@@ -181,15 +207,16 @@ class Recording:
         return self
 
     def _open(self) -> None:
+        from bridge.archive.outputs import refuse
         from bridge.device import clock
-        from bridge.recorder.outputs import refuse
 
+        on_latency = None
         if self.metrics is not None:  # a busy port is said before any file is made
             from bridge.bus.metrics import Health, MetricsServer
 
-            self._metrics = MetricsServer(self.metrics, Health(
-                pull=lambda: self._recorder.statuses() if self._recorder else [],
-                extra=self._archived_metrics))
+            health = Health(extra=self._archived_metrics, latencies=["archive"])
+            self._metrics = MetricsServer(self.metrics, health)
+            on_latency = health.latencies["archive"].observe
         if self.rrd is not None:
             if self.rrd.absolute() == self.path.absolute():
                 raise OutputRefused(f"--rrd {self.rrd} is the archive's own file; give the "
@@ -206,17 +233,20 @@ class Recording:
         else:
             self._session = self._session_from
         if self.rrd is not None:
-            self._logger = _rrd_logger(self.rrd, self.path.stem)
-        loggers = [*([self._logger] if self._logger is not None else []), *self._rerun]
+            assert self._rrd_writer is not None  # (__init__ refused one without)
+            self._mirror = self._rrd_writer(self.rrd, self.path.stem)
+        listeners = [*([self._mirror.log] if self._mirror is not None else []),
+                     *self._on_written]
         self.started = time.monotonic()
         self._recorder = Recorder(
             self._session, self._writer, self.prefix, self.units, self.raw, self.history,
-            on_unit=self._on_unit, on_written=_to_rerun(loggers, self.prefix) if loggers else None,
-            on_event=self._on_event, max_host_offset_ms=self.max_host_offset_ms)
+            on_unit=self._on_unit, on_written=_to_each(listeners) if listeners else None,
+            on_event=self._on_event, max_host_offset_ms=self.max_host_offset_ms,
+            on_latency=on_latency)
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        """Close the recorder, the Rerun recording, the archive and the session, in order.
+        """Close the recorder, ``rrd``, the archive and the session, in order.
 
         A failure to finish the archive is kept in ``error``.
         """
@@ -241,14 +271,14 @@ class Recording:
                 every()
 
     def _close(self, discard: bool) -> None:
-        """Close what is open: recorder, Rerun recording, archive, session, in that order.
+        """Close what is open: recorder, ``rrd``, archive, session, in that order.
 
         With ``discard``, nothing was recorded: the archive's files are removed.
         """
         with ExitStack() as steps:  # each runs, even after one that failed; last first
             steps.callback(self._close_session)
             steps.callback(self._close_archive, discard)
-            steps.callback(self._close_logger)
+            steps.callback(self._close_mirror)
             steps.callback(self._close_recorder)
             steps.callback(self._close_metrics)
 
@@ -282,10 +312,10 @@ class Recording:
         if self._recorder is not None:
             self._recorder.close()
 
-    def _close_logger(self) -> None:
-        logger, self._logger = self._logger, None
-        if logger is not None:
-            logger.close()
+    def _close_mirror(self) -> None:
+        mirror, self._mirror = self._mirror, None
+        if mirror is not None:
+            mirror.close()
 
     def _close_archive(self, discard: bool) -> None:
         writer = self._writer
@@ -310,28 +340,12 @@ class Recording:
             session.close()
 
 
-def _rrd_logger(path: Path, recording_id: str) -> RerunLogger:
-    """A Rerun recording written to ``path`` as the archive is written.
+def _to_each(listeners: list[Callable[[list[RawMessage]], None]]
+             ) -> Callable[[list[RawMessage]], None]:
+    """What hands each batch written to every one of ``listeners``, in order."""
 
-    Raises:
-        OutputRefused: Rerun cannot create the file.
-    """
-    from bridge.viz.logger import RerunLogger
+    def hand(messages: list[RawMessage]) -> None:
+        for listen in listeners:
+            listen(messages)
 
-    try:
-        # long recordings: bigger chunks, and no in-memory index of every chunk
-        return RerunLogger(path, recording_id=recording_id, latency_s=2.0, write_footer=False)
-    except (OSError, RuntimeError) as exc:  # Rerun says RuntimeError
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-        raise OutputRefused(f"--rrd {path}: cannot write ({why})") from None
-
-
-def _to_rerun(loggers: list[RerunLogger], prefix: str) -> Callable[[list[RawMessage]], None]:
-    """What hands each batch written to every Rerun logger."""
-    from bridge.viz.sources import log_messages
-
-    def log(messages: list[RawMessage]) -> None:
-        for logger in loggers:
-            log_messages(logger, messages, prefix)
-
-    return log
+    return hand

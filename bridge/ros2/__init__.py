@@ -7,8 +7,9 @@ Humble's), so that ROS 2 nodes see a bridge's units as topics; ``bridge.ros2.noi
 reads a unit's measured noise (Kalibr's ``imu.yaml``) and gives the Imu covariances.
 How they fit in: ``docs/design/architecture.md``.
 
-The Zenoh side (``UnitTopics``, ``Ros2Node``, ``Ros2Publisher``, ``Qos``) is imported
-on first use, so that the archive export needs no Zenoh.
+The Zenoh side (``UnitTopics``, ``Ros2Node``, ``Ros2Publisher``, ``Qos``) and the
+rosbags type stores (``DISTROS``) are imported on first use, so that the archive export
+needs no Zenoh, and the archive and a live bridge without ROS 2 topics no rosbags.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
 from bridge.ros2.messages import (
-    DISTROS,
     IMU,
     MAGNETIC_FIELD,
     check_distro,
@@ -33,6 +33,7 @@ from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance, read_nois
 from bridge.ros2.options import Ros2Options
 
 if TYPE_CHECKING:
+    from bridge.ros2.messages import DISTROS
     from bridge.ros2.rmw import Qos, Ros2Node, Ros2Publisher, UnitTopics
 
 __all__ = [
@@ -58,9 +59,10 @@ __all__ = [
     "type_hash",
 ]
 
-#: Names whose module imports Zenoh, imported on first use.
-_ON_FIRST_USE = {name: "bridge.ros2.rmw" for name in ("Qos", "Ros2Node", "Ros2Publisher",
-                                                      "UnitTopics")}
+#: Names whose module imports Zenoh (or, DISTROS, rosbags), imported on first use.
+_ON_FIRST_USE = {**{name: "bridge.ros2.rmw" for name in ("Qos", "Ros2Node", "Ros2Publisher",
+                                                         "UnitTopics")},
+                 "DISTROS": "bridge.ros2.messages"}
 
 
 def __getattr__(name: str) -> object:

@@ -21,7 +21,9 @@ Messages are CDR (little-endian, XCDR1, the encapsulation rosbag2 and rmw use), 
 a whole batch at once with NumPy: every message of one frame id has the same layout, so
 a structured array writes all of them in one pass. The message definitions and type
 hashes come from the ``rosbags`` type store of the ROS 2 distribution asked for (Humble's
-and Jazzy's definitions of these messages are the same text, and so are their hashes).
+and Jazzy's definitions of these messages are the same text, and so are their hashes);
+rosbags is imported when they are first asked for, so that what uses only the rest (the
+archive's frames, a live bridge without ROS 2 topics) never loads it.
 """
 
 from __future__ import annotations
@@ -29,11 +31,10 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from rosbags.typesys import Stores, get_typestore
-from rosbags.typesys.store import Typestore
 
 from bridge.protocol.convert import (
     STANDARD_GRAVITY,
@@ -44,8 +45,16 @@ from bridge.protocol.convert import (
 )
 from bridge.ros2.noise import ImuCovariance
 
-#: The ROS 2 distributions whose message definitions and type hashes are used, by name.
-DISTROS = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
+if TYPE_CHECKING:
+    from rosbags.typesys import Stores
+    from rosbags.typesys.store import Typestore
+
+    #: The rosbags type store of each ROS 2 distribution spoken, by name (imported on
+    #: first use, by ``__getattr__``).
+    DISTROS: dict[str, Stores]
+
+#: The ROS 2 distributions spoken, whose message definitions and type hashes are used.
+DISTRO_NAMES = ("humble", "jazzy")
 #: The distribution spoken unless another is asked for.
 DEFAULT_DISTRO = "jazzy"
 IMU = "sensor_msgs/msg/Imu"
@@ -75,14 +84,30 @@ def check_distro(distro: str) -> str:
         ValueError: Another name.
     """
     name = distro.lower()
-    if name not in DISTROS:
-        raise ValueError(f"ROS 2 distribution {distro!r}: give {' or '.join(DISTROS)}")
+    if name not in DISTRO_NAMES:
+        raise ValueError(f"ROS 2 distribution {distro!r}: give {' or '.join(DISTRO_NAMES)}")
     return name
 
 
 @functools.cache
+def _stores() -> dict[str, Stores]:
+    """``DISTROS``: rosbags, imported now."""
+    from rosbags.typesys import Stores
+
+    return {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
+
+
+def __getattr__(name: str) -> object:
+    if name == "DISTROS":
+        return _stores()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+@functools.cache
 def _typestore(distro: str = DEFAULT_DISTRO) -> Typestore:
-    return get_typestore(DISTROS[check_distro(distro)])
+    from rosbags.typesys import get_typestore
+
+    return get_typestore(_stores()[check_distro(distro)])
 
 
 def message_definition(msgtype: str, distro: str = DEFAULT_DISTRO) -> str:

@@ -6,16 +6,17 @@ I/O, driven by whatever clock the caller passes, so that a test can cross the ti
 rollover or stream for an hour in a second. ``synthesize`` runs a unit in virtual time
 through a model of its link to the host (``UsbDelivery``, ``AdapterDelivery``,
 ``UartDelivery``) and returns what a bridge would have read, beside the truth of every
-record. How it follows the manual, and where it had to choose:
+record. A ``Mounting`` fixes units to one body (``handheld``: turned by hand), for
+``gx3 align``. How it follows the manual, and where it had to choose:
 ``docs/design/emulator.md``.
 
 Importing it needs neither Zenoh nor Rerun.
 """
 
-from bridge.sim.archived import archive_samples
+from bridge.sim.archived import archive_samples, fleet_archive
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.faults import FaultConfig
-from bridge.sim.motion import Motion, MotionConfig, tumbling
+from bridge.sim.motion import Motion, MotionConfig, Mounting, handheld, tumbling
 from bridge.sim.serve import Simulator, unit_configs
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import SimUnit, TruthLog, UnitConfig
@@ -27,6 +28,7 @@ __all__ = [
     "HostDelivery",
     "Motion",
     "MotionConfig",
+    "Mounting",
     "Sampling",
     "SimUnit",
     "Simulator",
@@ -37,6 +39,8 @@ __all__ = [
     "UnitConfig",
     "UsbDelivery",
     "archive_samples",
+    "fleet_archive",
+    "handheld",
     "streaming_config",
     "synthesize",
     "tumbling",

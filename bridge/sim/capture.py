@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import CALCULATION_CYCLE_S, REPLIES, Mode
 from bridge.sim.state import Sampling
@@ -44,6 +46,39 @@ class SyntheticCapture:
     truth: dict[str, np.ndarray]  # timer, time_ns, value_ns when the emulator has it, ...
     config: UnitConfig
     delivery: HostDelivery  # native USB, a USB-serial adapter or a UART
+
+    def write(self, path: Path, unit: str, prefix: str = "gx3") -> Path:
+        """Write the reads as a bridge's raw capture (``--capture``), for ``gx3 replay``.
+
+        With the metadata a bridge writes of the unit and its link, so that a replay
+        times the records as that bridge would have.
+
+        Args:
+            path: The capture file to create.
+            unit: The unit's name.
+            prefix: The key prefix of its topic.
+
+        Returns:
+            ``path``.
+
+        Raises:
+            CaptureError: The file exists or cannot be written.
+        """
+        sampling, delivery = self.config.stored.sampling, self.delivery
+        metadata = {"unit": unit, "record": f"0x{self.code:02X}",
+                    "decimation": str(sampling.decimation),
+                    "filter_width": str(sampling.filter_width),
+                    "baud": str(self.config.stored.baud), "transport": delivery.transport}
+        timer_s = getattr(delivery, "latency_timer_s", None)
+        if timer_s is not None:
+            metadata["latency_timer_ms"] = str(round(timer_s * 1000))
+        writer = RawCaptureWriter(path, prefix, unit, metadata)
+        try:
+            for rx, data in zip(self.rx_ns.tolist(), self.data, strict=True):
+                writer.write(data, rx)
+        finally:
+            writer.close()
+        return path
 
     def records(self) -> tuple[np.ndarray, np.ndarray]:
         """Every record's timer and the receive time of the read that completed it.
@@ -133,7 +168,9 @@ def synthesize(config: UnitConfig, delivery: HostDelivery, seconds: float,
         data += unit.poll(t)
     device0 = float(unit.truth.arrays()["device_s"][0]) if len(unit.truth) else math.inf
     done = 0
-    while (finished := float(unit.host_time(device0 + done * period)) + size * byte_s) <= end:
+    # from a record's cycle to its last byte at the host's end of the link
+    lead = config.processing_delay_s + size * byte_s + config.link_latency_s
+    while (finished := float(unit.host_time(device0 + done * period)) + lead) <= end:
         data += unit.poll(finished)
         if len(data) != size:
             break

@@ -54,7 +54,10 @@ class MotionConfig:
     earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
     it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
     calibration has to undo. spin_rad_s adds steady roll and yaw turns to the sway, so a
-    unit can turn on a turntable or (``tumbling``) through every orientation.
+    unit can turn on a turntable or (``tumbling``) through every orientation. band_hz
+    bounds the sway's frequencies (``handheld``: a hand's brisker turns). With a
+    mounting the unit sits on a body it shares with others: the sway is the body's
+    (its seed, not the unit's), and the unit sees it through its own mounting.
     """
 
     seed: int = 0
@@ -75,6 +78,77 @@ class MotionConfig:
     hard_iron_gauss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     spin_rad_s: tuple[float, float] = (0.0, 0.0)
+    band_hz: tuple[float, float] = (0.05, 0.5)
+    mounting: Mounting | None = None
+
+
+@dataclass(frozen=True)
+class Mounting:
+    """Where a unit sits on a rigid body that several units share.
+
+    The body's motion comes from ``body_seed`` and the rest of the unit's MotionConfig
+    (give co-mounted units the same), as a function of host seconds since power-up, so
+    units that power up together see one motion whatever their clocks. The unit's axes
+    are turned against the body's by ``rotation`` (row-major, v_unit = rotation @
+    v_body), and it sits ``lever_arm_m`` from the body's origin (body axes, metres):
+    its accelerometer feels the origin's specific force plus alpha x r + omega x
+    (omega x r), with omega and alpha the body's rate and angular acceleration.
+
+    Raises:
+        ValueError: ``rotation`` is not a proper rotation (orthonormal, determinant +1).
+    """
+
+    body_seed: int = 0
+    rotation: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        r = np.reshape(np.asarray(self.rotation, np.float64), (3, 3))
+        if not (np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0):
+            raise ValueError("mounting: rotation must be a proper rotation matrix, "
+                             "row-major (orthonormal, determinant +1)")
+
+    @property
+    def matrix(self) -> FloatArray:
+        """The rotation, body to unit, (3, 3)."""
+        return np.reshape(np.asarray(self.rotation, np.float64), (3, 3))
+
+    @classmethod
+    def turned(cls, roll_pitch_yaw_deg: tuple[float, float, float],
+               lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+               body_seed: int = 0) -> Mounting:
+        """A mounting given as the unit's axes' roll, pitch and yaw against the body's.
+
+        As a unit's attitude against north-east-down: yaw, then pitch, then roll (ZYX).
+
+        Args:
+            roll_pitch_yaw_deg: The angles, degrees.
+            lever_arm_m: Where the unit sits from the body's origin (body axes, metres).
+            body_seed: The body's seed.
+
+        Returns:
+            The mounting.
+        """
+        rotation = convert.euler_to_m(np.radians(roll_pitch_yaw_deg))
+        return cls(body_seed, tuple(rotation.ravel().tolist()), lever_arm_m)
+
+
+def handheld(config: MotionConfig, mounting: Mounting | None = None) -> MotionConfig:
+    """``config`` turned by hand: brisk turns about all three axes, as to align units.
+
+    Sways of 0.4 rad (yaw 0.8) at 0.15-0.8 Hz, rates of a few rad/s and angular
+    accelerations of up to ~10 rad/s², with 0.3 g of linear acceleration: what turning a
+    rig by hand for a minute gives, within a GX3's 300 deg/s and 5 g.
+
+    Args:
+        config: The motion to turn.
+        mounting: Where the unit sits on the body; None: as the config has it.
+
+    Returns:
+        The config, its amplitudes, band and mounting changed.
+    """
+    return replace(config, attitude_amplitude_rad=0.4, linear_accel_amplitude_g=0.3,
+                   band_hz=(0.15, 0.8), mounting=mounting or config.mounting)
 
 
 def tumbling(config: MotionConfig) -> MotionConfig:
@@ -100,11 +174,13 @@ def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
     return x ^ (x >> np.uint64(31))
 
 
-def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int) -> tuple[FloatArray, ...]:
+def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int,
+               band_hz: tuple[float, float]) -> tuple[FloatArray, ...]:
     """Amplitudes, angular frequencies and phases, (3, k) each, of k terms per axis."""
     share = rng.uniform(0.2, 1.0, (3, k))
     amp = axis_amp[:, None] * (share / share.sum(axis=1, keepdims=True))
-    return amp, 2.0 * np.pi * rng.uniform(0.05, 0.5, (3, k)), rng.uniform(0.0, 2.0 * np.pi, (3, k))
+    return (amp, 2.0 * np.pi * rng.uniform(*band_hz, (3, k)),
+            rng.uniform(0.0, 2.0 * np.pi, (3, k)))
 
 
 def _time_keyed_normals(seed: int, t: FloatArray, count: int) -> FloatArray:
@@ -136,6 +212,7 @@ class Motion:
     Roll, pitch and yaw are each a sum of three sinusoids (yaw also drifts slowly, so it
     wraps); the earth-frame linear acceleration is a sum of two per axis. Pitch stays
     within +/-55 degrees, clear of the Euler singularity. static freezes the t = 0 pose.
+    A mounted unit (``Mounting``) sees that motion as its body's, through its mounting.
     Sums over terms use einsum: one pass, in an order that does not depend on the batch.
 
     Args:
@@ -144,17 +221,20 @@ class Motion:
 
     def __init__(self, config: MotionConfig | None = None) -> None:
         self.config = cfg = config if config is not None else MotionConfig()
-        rng = np.random.default_rng(cfg.seed)
+        mounting = cfg.mounting
+        rng = np.random.default_rng(cfg.seed if mounting is None else mounting.body_seed)
         # The draws and their order define each seed's trajectory: keep them stable.
         amplitude = max(cfg.attitude_amplitude_rad, 0.0)
         axis_amp = np.array([amplitude, min(amplitude, _MAX_PITCH_AMPLITUDE_RAD), 2 * amplitude])
-        self._att_amp, self._att_omega, self._att_phase = _sinusoids(rng, axis_amp, 3)
+        self._att_amp, self._att_omega, self._att_phase = _sinusoids(rng, axis_amp, 3,
+                                                                     cfg.band_hz)
         self._att_offset = np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
         yaw_drift_rad_s = rng.uniform(-1.0, 1.0) * 0.25 * amplitude
         self._att_drift = np.array([0.0, 0.0, yaw_drift_rad_s])
 
         lin_amp = np.full(3, max(cfg.linear_accel_amplitude_g, 0.0))
-        self._lin_amp, self._lin_omega, self._lin_phase = _sinusoids(rng, lin_amp, 2)
+        self._lin_amp, self._lin_omega, self._lin_phase = _sinusoids(rng, lin_amp, 2,
+                                                                     cfg.band_hz)
 
         code0 = round(float(convert.celsius_to_mag_temperature_code(cfg.temperature_c)))
         codes = np.concatenate([[code0], code0 + rng.integers(-60, 61, 3)])
@@ -175,6 +255,8 @@ class Motion:
         self._walk_sigma = np.repeat([cfg.accelerometer_random_walk / STANDARD_GRAVITY,
                                       cfg.gyroscope_random_walk], 3) * math.sqrt(WALK_KNOT_S)
         self._walk_knots = np.zeros((1, 6))
+        self._mount = None if mounting is None else (
+            mounting.matrix, np.asarray(mounting.lever_arm_m, np.float64))
 
     def euler_and_rates(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Unwrapped roll, pitch, yaw [rad] and their time derivatives.
@@ -204,18 +286,46 @@ class Motion:
         accel: FloatArray = np.einsum("ak,...ak->...a", self._lin_amp, np.sin(phase))
         return accel
 
+    def _euler_accelerations(self, t: FloatArray) -> FloatArray:
+        """Second time derivatives of roll, pitch and yaw [rad/s²], (n, 3)."""
+        phase = self._att_phase + self._att_omega * t[:, None, None]
+        accel: FloatArray = -np.einsum("ak,nak->na", self._att_amp * self._att_omega ** 2,
+                                       np.sin(phase))
+        return accel
+
+    def _attitude(self, t: FloatArray) -> FloatArray:
+        """The unit's true M at times t, through its mounting, (n, 3, 3)."""
+        m = convert.euler_to_m(self.euler_and_rates(t)[0])
+        return m if self._mount is None else self._mount[0] @ m
+
     def _kinematics(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """True M, body rate [rad/s] and specific force [g] at times t, shape (n,)."""
+        """True M, body rate [rad/s] and specific force [g] at times t, shape (n,).
+
+        A mounted unit's: the body's turned by its mounting, the force at its lever arm.
+        """
         euler, euler_rate = self.euler_and_rates(t)
         droll, dpitch, dyaw = euler_rate.T
         m = convert.euler_to_m(euler)
         # ZYX kinematics in the sensor frame: roll turns about x, pitch about the rolled y
         # axis (0, cos roll, -sin roll) and yaw about earth z, which is M's third column.
         roll = euler[:, 0]
-        body_rate = np.stack([droll, dpitch * np.cos(roll), -dpitch * np.sin(roll)], axis=1)
+        cos, sin = np.cos(roll), np.sin(roll)
+        body_rate = np.stack([droll, dpitch * cos, -dpitch * sin], axis=1)
         body_rate = body_rate + dyaw[:, None] * m[:, :, 2]
         lin = self.linear_accel_earth(t) - _GRAVITY_NED_G
-        return m, body_rate, np.einsum("nij,nj->ni", m, lin)
+        force = np.einsum("nij,nj->ni", m, lin)
+        if self._mount is None:
+            return m, body_rate, force
+        rotation, arm = self._mount
+        # The body rate's derivative, term by term; M's third column turns as
+        # d/dt M[:, 2] = -omega x M[:, 2], since dM/dt = -[omega]x M.
+        ddroll, ddpitch, ddyaw = self._euler_accelerations(t).T
+        alpha = np.stack([ddroll, ddpitch * cos - dpitch * droll * sin,
+                          -ddpitch * sin - dpitch * droll * cos], axis=1)
+        alpha += ddyaw[:, None] * m[:, :, 2] - dyaw[:, None] * np.cross(body_rate, m[:, :, 2])
+        lever = np.cross(alpha, arm) + np.cross(body_rate, np.cross(body_rate, arm))
+        force = force + lever / STANDARD_GRAVITY
+        return rotation @ m, body_rate @ rotation.T, force @ rotation.T
 
     def _node_count(self, half_period: float) -> int:
         """Gauss-Legendre nodes (at least 5) for float64-exact deltas at any period.
@@ -288,7 +398,7 @@ class Motion:
             The readings [gauss], (n, 3), sensor frame.
         """
         t = _times(t)
-        m = convert.euler_to_m(self.euler_and_rates(t)[0])
+        m = self._attitude(t)
         field = self._ironed(m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64))
         noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
         return field + noise
@@ -352,7 +462,7 @@ class Motion:
             out["delta_ang"] = delta_ang + noise[:, 3:6] * period
             out["delta_vel"] = delta_vel + noise[:, 0:3] * period
         if only is None or "c" in only:
-            m_prev = convert.euler_to_m(self.euler_and_rates(t - CALCULATION_CYCLE_S)[0])
+            m_prev = self._attitude(t - CALCULATION_CYCLE_S)
             out["c"] = m @ m_prev.swapaxes(1, 2)
         return out | {
             "m": m,

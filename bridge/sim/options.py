@@ -18,14 +18,18 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bridge.exceptions import EmulatorError, LinkPathError, OptionError, StateFileError
 from bridge.sim.faults import FaultConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
+
+if TYPE_CHECKING:
+    from bridge.sim.motion import Mounting
 
 __all__ = ["SimOptions", "SimSetup"]
 
@@ -34,6 +38,8 @@ _log = logging.getLogger("bridge.sim.serve")  # the emulator's own log
 ID_LENGTH = 16
 #: The largest clock error ``--clock-ppm`` takes, either way.
 MAX_CLOCK_PPM = 10_000.0
+#: The longest extra latency ``--link-latency`` takes, ms.
+MAX_LINK_LATENCY_MS = 1000.0
 #: 0xDB and preset fields of the stored state, as the options that set them are called.
 _STORED_OPTIONS = {"mode_preset": "--mode-preset", "continuous_preset": "--continuous-preset",
                    "sampling.decimation": "--decimation", "sampling.flags": "--flags",
@@ -97,14 +103,15 @@ def _shown(value: float) -> str:
 
 
 def _parse_numbers(option: str, text: str | None, count: int,
-                  default: tuple[float, ...]) -> tuple[float, ...]:
-    """Read ``count`` finite numbers within ±100 separated by commas.
+                  default: tuple[float, ...], limit: float = 100.0) -> tuple[float, ...]:
+    """Read ``count`` finite numbers within ±``limit`` separated by commas.
 
     Args:
         option: The option they were given to, for the error.
         text: The numbers; None gives ``default``.
         count: How many there must be.
         default: The numbers when none are given (and the example in the error).
+        limit: The largest magnitude a number may have.
 
     Returns:
         The numbers.
@@ -118,10 +125,32 @@ def _parse_numbers(option: str, text: str | None, count: int,
         values = tuple(float(part) for part in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != count or not all(math.isfinite(v) and abs(v) <= 100 for v in values):
-        raise OptionError(option, f"{text!r} is not {count} numbers within ±100 separated by "
-                          f"commas, e.g. {','.join(_shown(v) for v in default)}")
+    if len(values) != count or not all(math.isfinite(v) and abs(v) <= limit for v in values):
+        raise OptionError(option, f"{text!r} is not {count} numbers within ±{_shown(limit)} "
+                          f"separated by commas, e.g. {','.join(_shown(v) for v in default)}")
     return values
+
+
+def _mountings(body_seed: int, mounts: Sequence[str], arms: Sequence[str],
+               units: int) -> list[Mounting]:
+    """Each unit's mounting on the body from ``--mount`` and ``--lever-arm``.
+
+    Unit i takes the i-th of each; a unit past the last given sits as the body's axes,
+    at its origin.
+
+    Raises:
+        OptionError: A value that is not three numbers in range.
+    """
+    from bridge.sim.motion import Mounting
+
+    out = []
+    for i in range(units):
+        roll, pitch, yaw = _parse_numbers("--mount", mounts[i] if i < len(mounts) else None,
+                                          3, (0.0, 0.0, 0.0), limit=360.0)
+        x, y, z = _parse_numbers("--lever-arm", arms[i] if i < len(arms) else None, 3,
+                                 (0.0, 0.0, 0.0))
+        out.append(Mounting.turned((roll, pitch, yaw), (x, y, z), body_seed))
+    return out
 
 
 def _parse_soft_iron(text: str | None) -> tuple[float, ...]:
@@ -222,6 +251,10 @@ class SimOptions:
     seed: int = 0
     static: bool = False
     tumble: bool = False
+    body: bool = False
+    mount: Sequence[str] = ()
+    lever_arm: Sequence[str] = ()
+    link_latency: Sequence[float] = ()
     noise_accel: float = 0.0
     noise_gyro: float = 0.0
     noise_mag: float = 0.0
@@ -265,7 +298,7 @@ class SimOptions:
         """
         self._check()
         from bridge.device.link import DEFAULT_LATENCY_TIMER_MS
-        from bridge.sim.motion import MotionConfig, tumbling
+        from bridge.sim.motion import MotionConfig, handheld, tumbling
         from bridge.sim.serve import unit_configs
         from bridge.sim.state import Sampling, Stored, check_writable, problems
         from bridge.sim.usb import AdapterDelivery
@@ -289,12 +322,19 @@ class SimOptions:
                               gyro_bias_rad_s=(self.gyro_bias,) * 3,
                               hard_iron_gauss=(hard[0], hard[1], hard[2]), soft_iron=soft)
         motion = tumbling(motion) if self.tumble else motion
+        motion = handheld(motion) if self.body else motion
         base = UnitConfig(serial=self.serial, model_name=self.model_name,
                           model_number=self.model_number, firmware=self.firmware,
                           timer_start=self.timer_start, motion=motion, stored=stored,
                           state_file=self.state, filter_model=not self.no_filter_model)
         configs = unit_configs(self.units, base,
                                None if self.clock_ppm is None else list(self.clock_ppm))
+        if self.body:
+            configs = [replace(cfg, motion=replace(cfg.motion, mounting=mounting))
+                       for cfg, mounting in zip(configs, _mountings(
+                           self.seed, self.mount, self.lever_arm, self.units), strict=True)]
+        configs = [replace(cfg, link_latency_s=self.link_latency[i] / 1000)
+                   if i < len(self.link_latency) else cfg for i, cfg in enumerate(configs)]
         for cfg in configs:
             for option, text in (("--serial", cfg.serial), ("--model-name", cfg.model_name),
                                  ("--model-number", cfg.model_number)):
@@ -343,12 +383,25 @@ class SimOptions:
             ("--disconnect-for", self.disconnect_for, 0, math.inf),
             *(("--clock-ppm", ppm, -MAX_CLOCK_PPM, MAX_CLOCK_PPM)
               for ppm in self.clock_ppm or ()),
+            *(("--link-latency", ms, 0, MAX_LINK_LATENCY_MS) for ms in self.link_latency),
             ("--duration", 0.0 if self.duration is None else self.duration, 0, math.inf),
         ]
         for option, message in _bad_numbers(checks):
             raise OptionError(option, message)
         if self.static and self.tumble:
             raise OptionError("--static/--tumble", "choose one: hold still or tumble")
+        if self.body and self.tumble:
+            raise OptionError("--body/--tumble", "choose one: turned by hand on one body, or "
+                              "each unit tumbling on its own")
+        for option, given in (("--mount", self.mount), ("--lever-arm", self.lever_arm)):
+            if given and not self.body:
+                raise OptionError(option, "places a unit on the body: it goes with --body")
+        for option, count in (("--mount", len(self.mount)),
+                              ("--lever-arm", len(self.lever_arm)),
+                              ("--link-latency", len(self.link_latency))):
+            if count > self.units:
+                raise OptionError(option, f"{count} given for {self.units} unit(s); give one "
+                                  "per unit at most (unit 1's first)")
         if self.usb and self.usb_serial:
             raise OptionError("--usb/--usb-serial", "choose one: the unit's own USB port or "
                               "its serial port through an adapter")

@@ -25,6 +25,7 @@ from bridge.protocol.table import (
     CALCULATION_CYCLE_S,
     DATA_CODES,
     ERROR_REPLY,
+    PROCESSING_DELAY_S,
     REPLIES,
     STATIONARY_TEST_BITS,
     TICKS_PER_SECOND,
@@ -83,7 +84,11 @@ class UnitConfig:
             the file when there is one); None: in memory only.
         truth_length: Records whose truth is kept (``SimUnit.truth``).
         filter_model: Whether its filters' delay and noise averaging are modelled.
-        usb: On its own USB port: the baud rate has no effect on the line.
+        usb: On its own USB port: the baud rate has no effect on the line, and a record
+            goes to the host whole, once its last byte is in the port's buffer.
+        processing_delay_s: From the end of a record's cycle to its first byte on the line.
+        link_latency_s: A constant delay its link adds each way (a long cable, a
+            converter, a wireless serial link): one that no clock model can see.
     """
 
     serial: str = "SIM0001"
@@ -103,6 +108,8 @@ class UnitConfig:
     truth_length: int = 100_000
     filter_model: bool = True
     usb: bool = False  # on its own USB port: the baud rate has no effect on the line
+    processing_delay_s: float = PROCESSING_DELAY_S
+    link_latency_s: float = 0.0
 
     def id_string(self, selector: int) -> str:
         """The device ID string 0xEA reports.
@@ -116,10 +123,11 @@ class UnitConfig:
         return (self.model_number, self.serial, self.model_name, self.options, self.lot)[selector]
 
 
-#: One record's truth: its cycle's instant (host wall clock, ns), the instant its accel,
-#: gyro and attitude values describe (ns, earlier by the filter delay), device time of
-#: the cycle (s), timer, record type, and the true attitude quaternion at the values'
-#: instant (scalar first, earth to sensor).
+#: One record's truth: its cycle's instant (host wall clock, ns), the instant its values
+#: describe (ns, earlier by the filter delay, and for integrals over the output period
+#: by half that period more), device time of the cycle (s), timer, record type, and the
+#: true attitude quaternion at the end of the filter's delay (scalar first, earth to
+#: sensor).
 TruthRow = tuple[int, int, float, int, int, np.ndarray]
 
 
@@ -187,9 +195,10 @@ class TruthLog:
         Returns:
             Copies of every column, oldest record first: ``time_ns`` (host ns of the
             record's calculation cycle), ``value_ns`` (host ns of the instant its values
-            describe: ``time_ns`` less the filter delay), ``device_s``, ``timer``,
-            ``code`` and ``quaternion`` (the true attitude at ``value_ns``, scalar first,
-            earth to sensor).
+            describe: ``time_ns`` less the filter delay, and for DeltaAngle and
+            DeltaVelocity, integrals over the output period, half that period more),
+            ``device_s``, ``timer``, ``code`` and ``quaternion`` (the true attitude at
+            ``time_ns`` less the filter delay, scalar first, earth to sensor).
         """
         with self._lock:
             if self._rows:
@@ -401,8 +410,10 @@ class SimUnit:
 
         Args:
             data: The bytes.
-            now: When they arrived, host monotonic seconds.
+            now: When they arrived, host monotonic seconds (its link's latency later
+                they reach the unit).
         """
+        now += self.config.link_latency_s
         if now < self._ready or not data:
             return
         if self.mode in (Mode.SLEEP, Mode.DEEP_SLEEP):
@@ -440,7 +451,8 @@ class SimUnit:
             now: Host monotonic seconds; not before the last call's.
 
         Returns:
-            (baud, bytes) runs, in the order they went out.
+            (baud, bytes) runs, in the order they went out: those that finished crossing
+            the line its link's latency before ``now``.
         """
         while self._queue:
             arrived, raw = self._queue[0]
@@ -453,7 +465,7 @@ class SimUnit:
             self._execute(raw, at)
         if self.planned_until < now + URGENT_S:
             self.plan(now)
-        return self._transmit(now)
+        return self._transmit(now - self.config.link_latency_s)
 
     @property
     def planned_until(self) -> float:
@@ -502,6 +514,8 @@ class SimUnit:
                 self.records_sent += 1
                 seg.truth = None
             done = min(len(seg.data), int((now - seg.start) * seg.rate + STEP_SLACK))
+            if self.config.usb and done < len(seg.data):
+                done = seg.sent  # its own USB port hands the host a record whole
             if done > seg.sent:
                 chunk = seg.data[seg.sent : done]
                 if out and out[-1][0] == seg.baud:
@@ -530,8 +544,10 @@ class SimUnit:
         code = self.continuous_command
         records, truths = self._records(code, cycles)
         size = REPLIES[code].length
+        delay = self.config.processing_delay_s
         for i, at in enumerate(self._host_times(cycles * CALCULATION_CYCLE_S).tolist()):
-            self._schedule(at, records[i * size : (i + 1) * size], truths[i], skippable=True)
+            self._schedule(at + delay, records[i * size : (i + 1) * size], truths[i],
+                           skippable=True)
         self._stream_from = float(self.host_time((cycles[-1] + 1) * CALCULATION_CYCLE_S))
 
     def _start_stream(self, code: int, at: float) -> None:
@@ -544,8 +560,9 @@ class SimUnit:
         """Seconds by which accel/gyro-derived and magnetometer values lag their cycle.
 
         A moving average of M samples at 1 kHz delays by exactly (M - 1)/2 ms at every
-        frequency; its amplitude response (Equations 2-5) at the motion model's
-        <= 0.5 Hz is 1 within 1e-4 for any width up to 32, so the filter is modelled
+        frequency; its amplitude response (Equations 2-5, ``convert.fir_response``) at
+        the motion model's <= 0.5 Hz is 1 within 5e-4, and at a hand's <= 0.8 Hz
+        (``handheld``) within 1.1e-3, for any width up to 32, so the filter is modelled
         as that time shift alone, and noise as white noise averaged over M samples.
 
         Returns:
@@ -565,14 +582,25 @@ class SimUnit:
         At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
         if not self.config.filter_model:
-            return self.motion.sample(device, period, only=names)
+            return self.motion.sample(self._motion_time(device), period, only=names)
         delay, mag_delay = self.filter_delays()
         widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
         gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
-        sample = self.motion.sample(device - delay, period, gain, names)
+        sample = self.motion.sample(self._motion_time(device - delay), period, gain, names)
         if "mag" in names and mag_delay != delay:
-            sample["mag"] = self.motion.magnetometer(device - mag_delay, gain[2])
+            sample["mag"] = self.motion.magnetometer(self._motion_time(device - mag_delay),
+                                                     gain[2])
         return sample
+
+    def _motion_time(self, device: np.ndarray) -> np.ndarray:
+        """The motion's time at device times: its own, or a shared body's.
+
+        A body several units share moves in host seconds since power-up: units that
+        power up together see one motion, whatever their clocks.
+        """
+        if self.config.motion.mounting is None:
+            return device
+        return self._host_times(device) - self._t0
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:
         """The bytes of one record of ``code`` per calculation cycle, and their truth."""
@@ -583,7 +611,10 @@ class SimUnit:
         columns = {"timer": timers, **{name: self._reported(name, sample) for name in names}}
         data = encode_replies(code, columns, len(cycles), self.little_endian)
         wall = self._host_times(device) * 1e9 + self._wall_offset_ns
-        valued = self._host_times(device - self.filter_delays()[0]) * 1e9 + self._wall_offset_ns
+        # integrals over the period (DeltaAngle, DeltaVelocity) describe its middle
+        middle = self.period / 2 if REPLIES[code].integral else 0.0
+        valued = self._host_times(device - self.filter_delays()[0] - middle) * 1e9 \
+            + self._wall_offset_ns
         truths = list(zip(wall.astype(np.int64).tolist(), valued.astype(np.int64).tolist(),
                           device.tolist(), timers.tolist(), [code] * len(cycles),
                           sample["quaternion"], strict=True))
@@ -644,7 +675,7 @@ class SimUnit:
     def _reply_data(self, code: int, at: float) -> None:
         cycle = np.array([self._cycle_after(at)])
         data, truths = self._records(code, cycle)
-        self._schedule(at, data, truths[0])
+        self._schedule(at + self.config.processing_delay_s, data, truths[0])
 
     def _timer_now(self, at: float) -> int:
         return int(self.timer_at(self._cycle_at(at)))

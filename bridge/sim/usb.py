@@ -67,8 +67,9 @@ class UartDelivery(HostDelivery):
 class UsbDelivery(HostDelivery):
     """The unit's own USB port: the host's frame grid on top of latency and stalls.
 
-    The host controller polls the device once per frame on the host's clock, so bytes
-    finished at t reach the driver at the first frame boundary at or after t.
+    The host controller polls the device once per frame on the host's clock, and the unit
+    hands it whole records, so a record finished at t reaches the driver at the first
+    frame boundary at or after t.
 
     Attributes:
         frame_s: The frame period (1 ms: full speed).
@@ -256,16 +257,13 @@ class UsbLink(HostDriver):
         return self.frame_time(self.frame_index(t))
 
     def push(self, data: bytes, finished: float, byte_s: float = 0.0) -> None:
-        """Hand over bytes the unit sent back to back (see ``HostDriver.push``)."""
-        if not data:
-            return
-        chunk = _Chunk(finished - (len(data) - 1) * byte_s, byte_s, data)
-        done = 0
-        while done < len(data):  # split at the frames the bytes finished by
-            frame = self.frame_at(chunk.at(done))
-            n = max(done + 1, chunk.ready(frame))
-            self._pending.append(_Chunk(frame, 0.0, data[done:n]))
-            done = n
+        """Hand over a record the unit finished at ``finished`` (see ``HostDriver.push``).
+
+        The unit's own port hands the host controller whole records: the record reaches
+        the driver at the first frame boundary at or after its last byte, never split.
+        """
+        if data:
+            self._pending.append(_Chunk(self.frame_at(finished), 0.0, data))
 
 
 class AdapterLink(UsbLink):

@@ -6,7 +6,7 @@
 - ``OnlineClock``: valid (ticks, rx_ns) -> ``time_ns``, the host-clock instant the
   values describe, robust to late delivery, following drift; ``state`` for status.
 - ``Timeline``: both in one, fed once per framer batch with (timer, rx_ns).
-- ``OfflineClock``: the recorder's second pass, one epoch at once, using records on
+- ``OfflineClock``: the export's second pass, one epoch at once, using records on
   both sides of each.
 - ``RealtimeTrack`` / ``RealtimeReads``: each instant from the raw monotonic clock onto
   the host's realtime clock, naming its steps and slews (``ClockChange``).
@@ -23,7 +23,7 @@ first. The time model behind it all: docs/design/time.md.
 
 from bridge.timing.clock import ClockState, OnlineClock
 from bridge.timing.links import Inferred, infer_transport
-from bridge.timing.offline import OfflineClock
+from bridge.timing.offline import Estimate, OfflineClock
 from bridge.timing.rate import RateWindow
 from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads, RealtimeTrack
 from bridge.timing.stream import (
@@ -33,11 +33,15 @@ from bridge.timing.stream import (
     Timed,
     TimedFew,
     filter_delay_ns,
+    period_middle_ns,
+    record_delay_ns,
 )
 from bridge.timing.timeline import Timeline, TimelineBatch
 from bridge.timing.unwrap import TimerUnwrapper, TimingEvent, TimingKind, Unwrapped
 
-__all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Inferred", "OfflineClock",
+__all__ = ["TRANSPORTS", "ChangeKind", "ClockChange", "ClockState", "Estimate", "Inferred",
+           "OfflineClock",
            "OnlineClock", "RateWindow", "RealtimeReads", "RealtimeTrack", "Settings",
            "StreamTiming", "Timed", "TimedFew", "Timeline", "TimelineBatch", "TimerUnwrapper",
-           "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport"]
+           "TimingEvent", "TimingKind", "Unwrapped", "filter_delay_ns", "infer_transport",
+           "period_middle_ns", "record_delay_ns"]

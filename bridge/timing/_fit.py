@@ -1,13 +1,16 @@
-"""The line fits under the clocks: lower envelopes, the USB frame grid, the staircase.
+"""The line fits of the clocks: lower envelopes, the USB frame grid, the bounds' polygon.
 
 Shared by ``OnlineClock`` (``bridge.timing.clock``) and ``OfflineClock``
-(``bridge.timing.offline``), so that both fit one way. A record's point is its ticks
-and an upper bound on its sample instant (host ns); every line here lies under the
-points. The geometry (the lower hull, the frame staircase, the polygon of the lines the
-points allow): docs/design/time.md.
+(``bridge.timing.offline``), so that both fit one way. A record's bounds are its ticks
+and when it was on the line by, or not yet (host ns); the lines here pass between them,
+or lie under the upper ones where there are no others. The geometry (the lower hull,
+the frame grid, the polygon of the lines the bounds allow): docs/design/time.md.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,21 +21,10 @@ _MAX_STEPS = 32  # passes a search may take; a few find the answer, rounding may
 _START_PPM = 2.0  # the first bracket around the last fit's rate
 GRID_BIN_NS = 1_000
 _PINNED_NS = 100_000  # a polygon this narrow at the newest record needs no longer window
-_GRID_MARGIN_NS = 100_000  # snap this much before the estimated frame boundary
+FRAME_DOUBT_NS = 10_000  # how far a frame boundary may be from where the reads put it
+NO_BOUND = -(2**62)  # a record with no lower bound
 BUCKET_TICKS = TICKS_PER_SECOND // 4
 _GRID_GUARD_NS = 25_000  # residuals this close to a frame are not trusted as same-frame
-_PARTIAL_SHARE = 0.1  # of a window's records with a read ending inside: pinned to bytes
-
-
-def pinned_by_bytes(gain: np.ndarray) -> bool:
-    """Whether enough records had a read end inside them for the points' envelope to be the line.
-
-    ``gain``: the line time of the bytes that read did not hold, 0 where none did.
-    Behind a USB-serial adapter whose packets happen to end with records (a 16 ms
-    latency timer, records that divide its packet) the frames alone carry the time, as
-    on native USB.
-    """
-    return bool(len(gain)) and float(np.count_nonzero(gain)) >= _PARTIAL_SHARE * len(gain)
 
 
 def uncovered_half(residual: np.ndarray, frame: int) -> float:
@@ -55,17 +47,35 @@ def grid_histogram(y: np.ndarray, frame: int) -> np.ndarray:
 def grid_phase(histogram: np.ndarray, frame: int) -> int:
     """Where in the frame the boundary lies, from the receive times folded onto it.
 
-    It is the edge the times lie least far after. Their total distance after bin edge e
-    is sum(h c) - e sum(h) + frame (the times in bins before e); the first term is the
-    same for every edge and left out.
+    It is the edge the times lie least far after: no read comes before the frame that
+    carried its bytes. Their total distance after bin edge e is sum(h c) - e sum(h) +
+    frame (the times in bins before e); the first term is the same for every edge and
+    left out.
     """
     h = np.asarray(histogram, np.float64)
     cost = frame * (np.cumsum(h) - h) - float(h.sum()) * GRID_BIN_NS * np.arange(len(h))
-    return int(np.argmin(cost)) * GRID_BIN_NS + GRID_BIN_NS // 2 - _GRID_MARGIN_NS
+    return int(np.argmin(cost)) * GRID_BIN_NS
 
 
-def snap_to(y: np.ndarray, phase: int, frame: int) -> np.ndarray:
-    return np.asarray((y - phase) // frame * frame + phase + _GRID_MARGIN_NS)
+def frame_after(y: np.ndarray, edge: int, frame: int) -> np.ndarray:
+    """No earlier than the frame boundary that delivered reads received at ``y``.
+
+    Boundaries lie at ``edge`` + k ``frame``, known to ``FRAME_DOUBT_NS``: a read within
+    that of the next boundary may have been delivered by it. An upper bound on when the
+    read's bytes were on the line.
+    """
+    d = FRAME_DOUBT_NS
+    return np.asarray(edge + (y - edge + d) // frame * frame + d)
+
+
+def frame_before(y: np.ndarray, edge: int, frame: int) -> np.ndarray:
+    """No later than the frame boundary that delivered reads received at ``y``.
+
+    A read within ``FRAME_DOUBT_NS`` after a boundary may have been delivered by the one
+    before. A lower bound on when the bytes the read did not hold were still to come.
+    """
+    d = FRAME_DOUBT_NS
+    return np.asarray(edge + (y - edge - d) // frame * frame - d)
 
 
 def bucket_minima(x: np.ndarray, y: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
@@ -98,84 +108,144 @@ def bucket_lows(x: np.ndarray, y: np.ndarray, rate: float) -> np.ndarray:
     return lowest[np.concatenate(([True], kb[1:] != kb[:-1]))]
 
 
-def best_centre(x: np.ndarray, y: np.ndarray, at: int, frame: int, prior: float,
-                spans: list[tuple[int, int]],
-                ppm: float = MAX_PPM) -> tuple[int, int, float, float, float] | None:
-    """``_polygon_centre`` over the shortest span that pins the line at ``at``.
+@dataclass(frozen=True)
+class Bounds:
+    """Points a line of the unit's clock passes between, as ticks and host ns.
 
-    ``spans`` are index ranges, shortest first; where none pins the line, the one that
-    pins it best. A unit whose phase sweeps the frame is pinned by a short span, which
-    wander bends least; a unit that beats slowly needs a long one. Slopes are searched
-    within ``ppm`` of ``prior``.
+    The line lies not above any upper point (``xh``, ``yh``: a record was on the line by
+    then) and above every lower point (``xl``, ``yl``: it was not yet). Each pair is
+    sorted by ticks.
     """
-    best: tuple[int, int, float, float, float] | None = None
-    for lo, hi in spans:
-        found = _polygon_centre(x[lo:hi], y[lo:hi], at, frame, prior, ppm)
-        if found is not None and (best is None or found[3] < best[3]):
+
+    xh: np.ndarray
+    yh: np.ndarray
+    xl: np.ndarray
+    yl: np.ndarray
+
+    def between(self, start: int, end: int) -> Bounds:
+        """The points with ticks in [start, end)."""
+        h = np.searchsorted(self.xh, [start, end])
+        ll = np.searchsorted(self.xl, [start, end])
+        return Bounds(self.xh[h[0]:h[1]], self.yh[h[0]:h[1]], self.xl[ll[0]:ll[1]],
+                      self.yl[ll[0]:ll[1]])
+
+
+def framed_bounds(xh: np.ndarray, yh: np.ndarray, xl: np.ndarray, yl: np.ndarray,
+                  frame: int) -> Bounds:
+    """The bounds of records read over frames that carry every byte ready when polled.
+
+    ``xh``, ``yh``: each quarter second's tightest upper bound; ``xl``, ``yl``: its
+    tightest lower bound where it has one. Below each tightest upper bound a frame (and
+    the frames' doubt either side) is a lower bound too: the record read soonest after
+    the frame that carried it came within a frame of it.
+    """
+    xs = np.concatenate([xl, xh])
+    ys = np.concatenate([yl, yh - frame - 2 * FRAME_DOUBT_NS])
+    order = np.argsort(xs, kind="stable")
+    return Bounds(xh, yh, xs[order], ys[order])
+
+
+class Centre(NamedTuple):
+    """The middle of every line some bounds allow, judged at ticks ``at``.
+
+    ``value``: host ns there; ``rate``: the middle of the slopes allowed (ns per tick);
+    ``extent``: how far apart the highest and lowest allowed lines are there (ns), the
+    honest doubt of ``value`` (twice its most error); ``rates``: the spread of the
+    slopes allowed.
+    """
+
+    at: int
+    value: int
+    rate: float
+    extent: float
+    rates: float
+
+
+def best_centre(bounds: Bounds, at: int, prior: float, spans: list[tuple[int, int]],
+                ppm: float = MAX_PPM) -> Centre | None:
+    """``polygon_centre`` over the shortest span of ticks that pins the line at ``at``.
+
+    ``spans`` are [start, end) ranges of ticks, shortest first; where none pins the line,
+    the one that pins it best. A unit whose phase sweeps the frame is pinned by a short
+    span, which wander bends least; a unit that beats slowly needs a long one. Slopes are
+    searched within ``ppm`` of ``prior``.
+    """
+    best: Centre | None = None
+    for start, end in spans:
+        found = polygon_centre(bounds.between(start, end), at, prior, ppm)
+        if found is not None and (best is None or found.extent < best.extent):
             best = found
-        if best is not None and best[3] < _PINNED_NS:
+        if best is not None and best.extent < _PINNED_NS:
             break
     return best
 
 
-def _polygon_centre(x: np.ndarray, y: np.ndarray, now: int, frame: int, prior: float,
-                   ppm: float = MAX_PPM) -> tuple[int, int, float, float, float] | None:
-    """The middle of every line the frame staircase allows, judged at ticks ``now``.
+def polygon_centre(bounds: Bounds, now: int, prior: float,
+                   ppm: float = MAX_PPM) -> Centre | None:
+    """The middle of every straight line that passes between ``bounds``, judged at ``now``.
 
-    Each point (read in the frame that carried it) says the line lies at most one
-    frame under it and not above it. When one straight line can meet all of
-    them, the lines that do form a polygon; its extent at ``now`` is the honest
-    uncertainty there (returned after the slope, then the slopes' spread), and its
-    middle the estimate: half a frame wide for a unit
-    that has never crossed a frame boundary, narrowing with every crossing. When
-    no straight line fits (the rate wandered within the window), None.
+    When one straight line can pass between all the points, the lines that do form a
+    polygon in (offset, slope); its extent at ``now`` is the honest uncertainty there and
+    its middle the estimate. Where the points come from frames alone, a unit that has
+    never crossed a frame boundary leaves half a frame of doubt, narrowing with every
+    crossing; reads that end inside records pin it to a byte time. When no straight line
+    fits (the rate wandered within the span), or nothing bounds it from one side, None.
 
-    Every search is over a piecewise-linear function of the slope r, convex or
-    concave: each step follows the linear piece it stands on to where that piece
-    would give the answer, so a few passes over the points find it exactly.
+    Every search is over a piecewise-linear function of the slope r, convex or concave:
+    each step follows the linear piece it stands on to where that piece would give the
+    answer, so a few passes over the points find it exactly.
     """
-    if len(x) < 2:
+    b = bounds
+    if len(b.xh) < 2 or len(b.xl) < 2:
         return None
-    newest = int(y[-1])
-    dx = (x - now).astype(np.float64)
-    dy = (y - newest).astype(np.float64)  # in integers first: ns since 1970 exceed float64's
-    band = _Band(dx, dy)
+    newest = int(b.yh[-1])
+    # in integers first: ns since 1970 exceed float64's
+    dxh, dyh = (b.xh - now).astype(np.float64), (b.yh - newest).astype(np.float64)
+    dxl, dyl = (b.xl - now).astype(np.float64), (b.yl - newest).astype(np.float64)
+    band = _Band(dxh, dyh, dxl, dyl)
     lo, hi = prior * (1 - ppm * 1e-6), prior * (1 + ppm * 1e-6)
     best = band.narrowest(lo, hi)
-    if band.width(best)[0] > frame:
+    if band.width(best)[0] > band.tie(best):
         return None
-    low_rate, high_rate = band.reach(best, lo, frame), band.reach(best, hi, frame)
-    r_top, _ = _peak(dx, dy, low_rate, high_rate, band.ranges)
-    r_bottom, _ = _peak(-dx, -dy, low_rate, high_rate, band.ranges)
-    top = float((dy - r_top * dx).min())
-    bottom = float((dy - r_bottom * dx).max()) - frame
-    return (now, newest + round((top + bottom) / 2), (low_rate + high_rate) / 2, top - bottom,
-            high_rate - low_rate)
+    low_rate, high_rate = band.reach(best, lo, 0.0), band.reach(best, hi, 0.0)
+    r_top, _ = _peak(dxh, dyh, low_rate, high_rate, band.ranges)
+    r_bottom, _ = _peak(-dxl, -dyl, low_rate, high_rate, band.ranges)
+    top = float((dyh - r_top * dxh).min())
+    bottom = float((dyl - r_bottom * dxl).max())
+    return Centre(now, newest + round((top + bottom) / 2), (low_rate + high_rate) / 2,
+                  top - bottom, high_rate - low_rate)
 
 
 class _Band:
-    """The spread of ``dy - r dx`` over the points, a convex function of the slope r.
+    """How far the lower points rise above the upper ones for a line of slope r.
 
-    And the linear piece of it at each r (its value and slope there).
+    ``max(yl - r xl) - min(yh - r xh)``, a convex function of r: a line of slope r passes
+    between the points where it is not above 0. And the linear piece of it at each r
+    (its value and slope there).
     """
 
-    def __init__(self, dx: np.ndarray, dy: np.ndarray) -> None:
-        self.dx, self.dy = dx, dy
-        self._v = np.empty_like(dy)
-        self.ranges = _ranges(dx, dy)
+    def __init__(self, dxh: np.ndarray, dyh: np.ndarray, dxl: np.ndarray,
+                 dyl: np.ndarray) -> None:
+        self.dxh, self.dyh, self.dxl, self.dyl = dxh, dyh, dxl, dyl
+        self._vh = np.empty_like(dyh)
+        self._vl = np.empty_like(dyl)
+        (xh, yh), (xl, yl) = _ranges(dxh, dyh), _ranges(dxl, dyl)
+        self.ranges = (max(xh, xl), max(yh, yl))
 
     def tie(self, r: float) -> float:
         return _tie(self.ranges, r)
 
     def width(self, r: float) -> tuple[float, float]:
-        v = self._v
-        np.multiply(r, self.dx, out=v)
-        np.subtract(self.dy, v, out=v)
-        top, bottom = int(v.argmax()), int(v.argmin())
-        return float(v[top] - v[bottom]), float(self.dx[bottom] - self.dx[top])
+        vh, vl = self._vh, self._vl
+        np.multiply(r, self.dxh, out=vh)
+        np.subtract(self.dyh, vh, out=vh)
+        np.multiply(r, self.dxl, out=vl)
+        np.subtract(self.dyl, vl, out=vl)
+        under, over = int(vh.argmin()), int(vl.argmax())
+        return float(vl[over] - vh[under]), float(self.dxh[under] - self.dxl[over])
 
     def narrowest(self, lo: float, hi: float) -> float:
-        """The r in [lo, hi] where the spread is least.
+        """The r in [lo, hi] where the width is least.
 
         That is where the lines of the pieces on either side of it cross, unless a piece
         there is higher.
@@ -200,10 +270,10 @@ class _Band:
         return (lo + hi) / 2
 
     def reach(self, inside: float, outside: float, level: float) -> float:
-        """The r between ``inside`` (spread <= level) and ``outside`` where the spread is ``level``.
+        """The r between ``inside`` (width <= level) and ``outside`` where the width is ``level``.
 
         ``outside`` if it never gets there. From the outside each piece's line lies under
-        the convex spread, so following it never overshoots.
+        the convex width, so following it never overshoots.
         """
         r = outside
         w, s = self.width(r)
@@ -290,3 +360,4 @@ def _peak(dx: np.ndarray, dy: np.ndarray, lo: float, hi: float,
         else:
             i, lo = k, r
     return (lo + hi) / 2, True
+

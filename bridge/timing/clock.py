@@ -1,12 +1,14 @@
 """Online estimate of the instant each record was sampled, on the host clock.
 
-A record is received after it was sampled, never before: the receive time of a read is
-an upper bound on the sample instant of every record in it. ``OnlineClock`` fits the
-line ``host = offset + rate * ticks`` under a sliding window of such points: late reads
-(OS latency, a burst after a stall) lie above it and do not move it, and the window
-follows a rate that wanders. Over USB the receive times are first snapped to the 1 ms
-frames that carried them. How the line is found (the lower hull, the frame staircase and
-the polygon of the lines it allows, reads that end inside a record): docs/design/time.md.
+A record is received after it was on the line, never before: the receive time of a read
+is an upper bound on the start of every record in it. Over USB frames that carry every
+byte ready when polled, a read is also a lower bound on the bytes it did not hold: they
+were not there at its frame. ``OnlineClock`` takes the middle of the lines ``host =
+offset + rate * ticks`` that pass between those bounds over a sliding window (on a UART,
+where only upper bounds hold, the line under them): late reads (OS latency, a burst
+after a stall) do not move it, the window follows a rate that wanders, and the spread
+of the lines it allows says how sure it is. How the bounds and the line are found:
+docs/design/time.md.
 
 Arithmetic is on integers and float64 in a fixed order, and the fit is redone
 only at ticks-determined points, so the output depends on the records alone,
@@ -26,15 +28,19 @@ import numpy.typing as npt
 from bridge.protocol.table import TICKS_PER_SECOND
 from bridge.timing._fit import (
     BUCKET_TICKS,
+    FRAME_DOUBT_NS,
     GRID_BIN_NS,
     MAX_PPM,
+    NO_BOUND,
+    Bounds,
+    Centre,
     best_centre,
     bucket_lows,
-    bucket_minima,
+    frame_after,
+    frame_before,
+    framed_bounds,
     grid_histogram,
     grid_phase,
-    pinned_by_bytes,
-    snap_to,
     uncovered_half,
 )
 from bridge.timing._fit import support_slope as support_slope  # tests/ import it from here
@@ -62,13 +68,17 @@ class ClockState:
 
     ``offset_ns``: host minus nominal device time at the latest record; ``drift_ppm``:
     the device clock's rate error against the host's (positive: the unit's clock runs
-    fast); ``spread_ns``: the median latency above the fit; ``samples``: points used.
+    fast); ``spread_ns``: the median latency above the fit; ``samples``: points used;
+    ``uncertainty_ns``: the most the latest instants can be off by, as the reads bound
+    them (half the spread of the lines they allow; 0: not known, where reads bound
+    records from one side only).
     """
 
     offset_ns: int
     drift_ppm: float
     spread_ns: int
     samples: int
+    uncertainty_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -98,79 +108,94 @@ class _Line:
 class OnlineClock:
     """Maps unwrapped ticks to host ns, one ``update`` per batch of valid records.
 
-    Each record's point is the least upper bound on its sample instant that its reads
-    give: the completing read's receive time (snapped to its frame) less ``floor_ns``,
-    or, where ``update`` is given one, an earlier read that ended inside the record
-    (snapped to its frame) less the line time of the bytes it held.
+    Each record gives an upper bound on when its first byte was on the line: the read that
+    completed it (snapped to its frame, where frames carry the bytes) less ``floor_ns``,
+    or, where ``update`` is given one, an earlier read that ended inside the record (also
+    snapped) less the line time of the bytes it held. Where frames deliver every byte that
+    is ready (``prompt``), a read that ended inside a record or right where it begins also
+    bounds it from below: the bytes it did not hold were still to come when its frame was
+    polled. A UART's reads bound records from above only: a driver may hold bytes a while.
 
     Args:
-        filter_delay_ns: The unit's moving-average delay, (M - 1) / 2 ms for filter
-            width M (0xDB).
-        floor_ns: The least time from sample to receive the transport allows: a serial
-            line's time for the record (len * 10 / baud s, a UART or behind an adapter);
-            on the unit's own USB port len * 1 us.
+        delay_ns: From the instant a record's values describe to its first byte on the
+            line: the moving-average filter's (M - 1) / 2 ms for filter width M (0xDB)
+            and the unit's processing delay (``bridge.timing.stream.record_delay_ns``).
+        floor_ns: The least time from the record's first byte to its receipt the transport
+            allows: a serial line's time for the record (len * 10 / baud s, a UART or
+            behind an adapter); on the unit's own USB port len * 1 us.
         frame_ns: The USB frame (1,000,000) where frames carry the bytes (own port or
             adapter), 0 on a UART.
         window_s: Seconds of records the fit looks at; None: 60 on a serial line, 300
             over USB frames.
         refit_s: How often the line is fitted again, in seconds of the unit's clock.
         serial: The bytes crossed a serial line before those frames (a USB-serial
-            adapter): reads that end mid-record pin each record to about a byte time at
-            every frame, so the lower envelope of the snapped points is the line, as on
-            a plain serial line.
+            adapter): a read can end inside a record.
+        byte_ns: A serial line's byte time, by which a record's next byte was still to
+            come when a read ended inside it (behind an adapter).
+        prompt: Each frame carries every byte (on the unit's own port, every whole
+            record) that is ready when it is polled: the unit's own USB port and an
+            adapter with a 1 ms latency timer; not one with a longer timer, which holds
+            bytes back until a packet fills (there only the records read soonest after a
+            frame bound the line from below, within a frame).
 
     Raises:
-        ValueError: A negative delay, floor or frame, or a window or refit period that
-            is not positive.
+        ValueError: A negative delay, floor, frame or byte time, or a window or refit
+            period that is not positive.
     """
 
-    def __init__(self, filter_delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
+    def __init__(self, delay_ns: int = 0, floor_ns: int = 0, frame_ns: int = 0,
                  window_s: float | None = None, refit_s: float = 1.0,
-                 serial: bool = False) -> None:
-        if filter_delay_ns < 0 or floor_ns < 0 or frame_ns < 0:
-            raise ValueError("filter_delay_ns, floor_ns and frame_ns must be >= 0")
+                 serial: bool = False, byte_ns: float = 0.0, prompt: bool = True) -> None:
+        if delay_ns < 0 or floor_ns < 0 or frame_ns < 0 or byte_ns < 0:
+            raise ValueError("delay_ns, floor_ns, frame_ns and byte_ns must be >= 0")
         self.serial = serial
         if window_s is None:
             window_s = _FRAME_WINDOW_S if frame_ns else _LINE_WINDOW_S
         if window_s <= 0 or refit_s <= 0:
             raise ValueError("window_s and refit_s must be positive")
-        self.filter_delay_ns = int(filter_delay_ns)
+        self.delay_ns = int(delay_ns)
         self.floor_ns = int(floor_ns)
         self.frame_ns = int(frame_ns)
+        self.byte_ns = float(byte_ns)
+        self.prompt = prompt
         self._window = round(window_s * TICKS_PER_SECOND)
         self._refit = round(refit_s * TICKS_PER_SECOND)
         bins = max(1, self.frame_ns // GRID_BIN_NS)
         self._grid = np.zeros(bins if self.frame_ns else 0)
         self._rate = float(NS_PER_TICK)
         self._last_ns: int | None = None  # the latest instant given out
-        #: When a list, each fit over the frame staircase adds (its ticks, the extent of
-        #: the lines it allowed at them; inf when no straight line fitted): the doubt of
-        #: the instants it gives out until the next fit.
+        #: When a list, each fit over frames adds (its ticks, the extent of the lines its
+        #: bounds allowed at them; inf when no straight line fitted): the doubt of the
+        #: instants it gives out until the next fit.
         self.fits: list[tuple[int, float]] | None = None
         self.reset()
 
     def reset(self) -> None:
         """Start over after the tick base changed (device reset); keep rate and grid."""
+        # per record: ticks; on a UART its least upper bound, over frames the receive
+        # time of the read that completed it, its partial read's and that read's lead
+        # (the line time of the record's bytes it held: the floor where there is none)
         self._x = np.zeros(0, np.int64)
         self._y = np.zeros(0, np.int64)
-        # with frames, each record's partial read: receive time less the floor, and the
-        # line time of the bytes it did not hold (zero where there is none)
-        self._q = np.zeros(0, np.int64)
-        self._g = np.zeros(0, np.int64)
+        self._p = np.zeros(0, np.int64)
+        self._lead = np.zeros(0, np.int64)
         self._new_x: list[int] = []
         self._new_y: list[int] = []
-        self._new_q: list[int] = []
-        self._new_g: list[int] = []
+        self._new_p: list[int] = []
+        self._new_lead: list[int] = []
         self._line: _Line | None = None
+        self._uncertainty = 0  # ``ClockState.uncertainty_ns`` of the line
         self._next_fit: int | None = None
         self._pinned: int | None = None  # ticks of the last fit that pinned the rate
-        self._snapped = np.zeros(0, np.int64)  # the window's receive times, snapped
-        self._phase: int | None = None
-        self._parts = False  # whether the snapped points take the partial reads in
-        # bucket minima of the whole quarter seconds gone by, and the first bucket not
-        # yet taken: each is found once, at the first fit after it is complete
+        self._edge: int | None = None  # where the frames fall, as the bounds were found
+        self._hi = np.zeros(0, np.int64)  # the window's bounds on each record's start
+        self._lo = np.zeros(0, np.int64)
+        # each quarter second's tightest bounds (the upper's, the lower's, the lower
+        # points' ticks), found once, at the first fit after it is complete
         self._lows_x = np.zeros(0, np.int64)
         self._lows_y = np.zeros(0, np.int64)
+        self._highs_x = np.zeros(0, np.int64)
+        self._highs_y = np.zeros(0, np.int64)
         self._lows_to: int | None = None
         # receive times above the last fit, for ``state``: worked out only when asked
         self._latency: Callable[[], np.ndarray] = lambda: np.zeros(0)
@@ -186,7 +211,7 @@ class OnlineClock:
         latency = self._latency()
         spread = int(np.median(latency)) if len(latency) else 0
         return ClockState(offset, (NS_PER_TICK / line.rate - 1.0) * 1e6, spread,
-                          len(self._x))
+                          len(self._x), self._uncertainty)
 
     def horizon(self, rx_ns: int) -> int | None:
         """The most ticks a record received at ``rx_ns`` can carry by the model.
@@ -210,10 +235,11 @@ class OnlineClock:
         Args:
             ticks: The records' unwrapped ticks, increasing.
             rx_ns: The receive time of the read that completed each.
-            part_ns: Per record, an earlier read that ended inside it (the completing
-                read where there is none).
-            part_lead_ns: The line time of the bytes that read held (the floor where
-                there is none).
+            part_ns: Per record, an earlier read that ended inside it or right where it
+                begins (the completing read where there is none).
+            part_lead_ns: The line time of the record's bytes that read held: 0 where it
+                held none (it ended where the record begins), the floor where there is
+                none.
 
         Returns:
             Host ns, filter delay taken out, each after the one before it (and after
@@ -274,10 +300,10 @@ class OnlineClock:
         Long runs on one line go through NumPy (``x``: ``xs`` as an array, if the caller
         has it).
         """
-        floor, delay = self.floor_ns, self.filter_delay_ns
-        if parts is not None and not self.frame_ns:  # no frames: the least bound at once
-            ys = [min(r, p - lead + floor) for r, p, lead in zip(ys, *parts, strict=True)]
-        keep_parts = self.serial and self.frame_ns
+        floor, delay, frames = self.floor_ns, self.delay_ns, self.frame_ns
+        if parts is not None and not frames:  # no frames: the least upper bound at once
+            ys = [min(r, p - lead + floor) if lead > 0 else r
+                  for r, p, lead in zip(ys, *parts, strict=True)]
         out: list[int] = []
         i = 0
         while i < len(xs):
@@ -291,14 +317,16 @@ class OnlineClock:
                 else:
                     out += [line.at_one(t) - delay for t in xs[i:j]]
             self._new_x += xs[i : j + 1]
-            self._new_y += [r - floor for r in ys[i : j + 1]]
-            if keep_parts:
+            if not frames:
+                self._new_y += [r - floor for r in ys[i : j + 1]]
+            else:
+                self._new_y += ys[i : j + 1]
                 if parts is None:
-                    self._new_q += self._new_y[len(self._new_q):]
-                    self._new_g += [0] * (len(self._new_y) - len(self._new_g))
+                    self._new_p += ys[i : j + 1]
+                    self._new_lead += [floor] * (min(j + 1, len(xs)) - i)
                 else:
-                    self._new_q += [p - floor for p in parts[0][i : j + 1]]
-                    self._new_g += [floor - lead for lead in parts[1][i : j + 1]]
+                    self._new_p += parts[0][i : j + 1]
+                    self._new_lead += parts[1][i : j + 1]
             if j >= len(xs):
                 break
             self._fit(xs[j])
@@ -327,58 +355,123 @@ class OnlineClock:
 
     # --- fitting -------------------------------------------------------------------------
     def _fit(self, now: int) -> None:
-        new_y = np.array(self._new_y, np.int64)
+        fresh = len(self._new_x)
         self._x = np.concatenate([self._x, np.array(self._new_x, np.int64)])
-        self._y = np.concatenate([self._y, new_y])
+        self._y = np.concatenate([self._y, np.array(self._new_y, np.int64)])
         self._new_x, self._new_y = [], []
         keep = int(np.searchsorted(self._x, now - self._window))
         self._x, self._y = self._x[keep:], self._y[keep:]
-        if self.serial and self.frame_ns:
-            self._q = np.concatenate([self._q, np.array(self._new_q, np.int64)])[keep:]
-            self._g = np.concatenate([self._g, np.array(self._new_g, np.int64)])[keep:]
-            self._new_q, self._new_g = [], []
         span = int(self._x[-1] - self._x[0])
         step = self._refit if span >= _WARM_S * TICKS_PER_SECOND else self._refit // 10
         self._next_fit = now + max(1, step)
-        # Frames alone carry the time unless reads ending inside records pin them to bytes.
-        staircase = self.frame_ns and not (self.serial and pinned_by_bytes(self._g))
-        upper = self._snap(new_y, keep, not staircase) if self.frame_ns else self._y
-        if not staircase and self.frame_ns:  # the envelope over a serial line's window
-            start = int(np.searchsorted(self._x, now - _LINE_WINDOW_S * TICKS_PER_SECOND))
-            x, upper = self._x[start:], upper[start:]
-            span = int(x[-1] - x[0])
-        else:
-            x = self._x
-        x_ref = int(x[0]) + span // 2
-        y_ref = int(upper[0])
-        bias = 0.0
-        if staircase:
-            bx, by = self._bucket_minima(upper)
-            centre = self._centre(bx, by)
-            if self.fits is not None:
-                self.fits.append((now, math.inf if centre is None else centre[3]))
-            if centre is not None:
-                self._rate = centre[2]
-                self._line = _Line(centre[0], centre[1], centre[2], 0.0)
-                y, x, fit = self._y, self._x, self._line
-                self._latency = lambda: y - fit.at(x)
-                return
-            line = self._frame_fit(bx.tolist(), by.tolist())
-            if line is not None:
-                x_ref, y_ref, self._rate = line
+        if not self.frame_ns:
+            self._envelope(self._x, self._y, span >= 2 * TICKS_PER_SECOND, 0)
+            return
+        self._p = np.concatenate([self._p, np.array(self._new_p, np.int64)])[keep:]
+        self._lead = np.concatenate([self._lead, np.array(self._new_lead, np.int64)])[keep:]
+        self._new_p, self._new_lead = [], []
+        self._bound(fresh, keep)
+        bounds = self._buckets()
+        centre = self._centre(bounds)
+        if self.fits is not None:
+            self.fits.append((now, math.inf if centre is None else centre.extent))
+        if centre is not None:
+            self._rate = centre.rate
+            self._line = _Line(centre.at, centre.value, centre.rate, 0.0)
+            self._uncertainty = math.ceil(centre.extent / 2)
+            y, x, fit, floor = self._y, self._x, self._line, self.floor_ns
+            self._latency = lambda: y - floor - fit.at(x)
+            return
+        # no straight line meets every bound (the rate wandered across the window):
+        # the frame staircase's latest whole step gives the slope, its envelope the level
+        line = self._frame_fit(bounds.xh.tolist(), bounds.yh.tolist())
+        if line is not None:
+            self._rate = line[2]
+        self._envelope(self._x, self._hi, False, self.frame_ns)
+
+    def _envelope(self, x: np.ndarray, upper: np.ndarray, slope: bool, frame: int) -> None:
+        """The lower envelope of upper bounds as the line, judged at the middle of ``x``.
+
+        With ``slope``, its slope is found too (else the rate so far stands); with
+        ``frame``, half of the frame the points leave uncovered is taken off (the line is
+        somewhere in it).
+        """
+        span = int(x[-1] - x[0])
+        x_ref, y_ref = int(x[0]) + span // 2, int(upper[0])
         dx = (x - x_ref).astype(np.float64)
         dy = (upper - y_ref).astype(np.float64)
-        if not staircase and span >= 2 * TICKS_PER_SECOND:
+        if slope:
             self._rate = support_slope(dx, dy, self._rate)
         level = float(np.min(dy - self._rate * dx))
         residual = dy - self._rate * dx - level
-        if staircase:
-            bias = uncovered_half(residual[dx >= 0], self.frame_ns)
+        bias = uncovered_half(residual[dx >= 0], frame) if frame else 0.0
         y, rate = self._y[len(self._y) - len(x):], self._rate
-        self._latency = lambda: (y - y_ref).astype(np.float64) - rate * dx - level
+        shift = self.floor_ns if frame else 0
+        self._latency = lambda: (y - shift - y_ref).astype(np.float64) - rate * dx - level
         self._line = _Line(x_ref, y_ref + round(level), self._rate, bias)
+        # over frames the line is somewhere in the part left uncovered, taken off by half;
+        # on a UART reads bound records from above only: not known
+        self._uncertainty = math.ceil(bias) + FRAME_DOUBT_NS if frame else 0
 
-    def _centre(self, x: np.ndarray, y: np.ndarray) -> tuple[int, int, float, float, float] | None:
+    def _bound(self, fresh: int, dropped: int) -> None:
+        """Each record's bounds on its start (``_hi``, ``_lo``), from its reads' frames.
+
+        The frames are found from the receive times (``grid_phase``); the newest
+        ``fresh`` records' bounds are added to the window's, which lost its first
+        ``dropped``, unless the frames moved: then every bound is found anew.
+        """
+        frame = self.frame_ns
+        self._grid *= _GRID_DECAY
+        self._grid += grid_histogram(self._y[len(self._y) - fresh:], frame)
+        edge = grid_phase(self._grid, frame)
+        start = len(self._x) - fresh
+        if edge == self._edge and len(self._hi) - dropped == start >= 0:
+            hi, lo = self._bounds_of(start, edge)
+            self._hi = np.concatenate([self._hi[dropped:], hi])
+            self._lo = np.concatenate([self._lo[dropped:], lo])
+        else:
+            self._hi, self._lo = self._bounds_of(0, edge)
+            self._lows_to = None
+        self._edge = edge
+
+    def _bounds_of(self, start: int, edge: int) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds of the window's records from ``start`` on (see ``record_bounds``)."""
+        return record_bounds(self._y[start:], self._p[start:], self._lead[start:], edge,
+                             self.frame_ns, self.floor_ns, self.byte_ns if self.serial else 0.0,
+                             self.prompt)
+
+    def _buckets(self) -> Bounds:
+        """Each whole quarter second's tightest bounds (``framed_bounds``), each found once.
+
+        A bucket's are found at the first fit after it was complete and kept (with that
+        fit's rate) while it stays in the window: the window is minutes long, a fit adds
+        a second.
+        """
+        x, rate = self._x, self._rate
+        first, newest = int(x[0]) // BUCKET_TICKS, int(x[-1]) // BUCKET_TICKS
+        start = 0 if self._lows_to is None else \
+            int(np.searchsorted(x, self._lows_to * BUCKET_TICKS))
+        if self._lows_to is None:
+            self._lows_x = self._highs_x = np.zeros(0, np.int64)
+            self._lows_y = self._highs_y = np.zeros(0, np.int64)
+        xs, his, los = x[start:], self._hi[start:], self._lo[start:]
+        whole = (xs // BUCKET_TICKS > first) & (xs // BUCKET_TICKS < newest)
+        xs, his, los = xs[whole], his[whole], los[whole]
+        lows = bucket_lows(xs, his, rate) if len(xs) else np.zeros(0, np.int64)
+        known = los > NO_BOUND
+        highs = bucket_lows(xs[known], -los[known], -rate) if known.any() \
+            else np.zeros(0, np.int64)
+        old = int(np.searchsorted(self._lows_x, (first + 1) * BUCKET_TICKS))
+        old_high = int(np.searchsorted(self._highs_x, (first + 1) * BUCKET_TICKS))
+        self._lows_x = np.concatenate([self._lows_x[old:], xs[lows]])
+        self._lows_y = np.concatenate([self._lows_y[old:], his[lows]])
+        self._highs_x = np.concatenate([self._highs_x[old_high:], xs[known][highs]])
+        self._highs_y = np.concatenate([self._highs_y[old_high:], los[known][highs]])
+        self._lows_to = newest
+        return framed_bounds(self._lows_x, self._lows_y, self._highs_x, self._highs_y,
+                             self.frame_ns)
+
+    def _centre(self, bounds: Bounds) -> Centre | None:
         """``best_centre`` at the newest record over the last quarter, half or whole window.
 
         Once a fit has pinned the rate, slopes are only searched as far from it as a
@@ -386,14 +479,13 @@ class OnlineClock:
         view, the points alone would allow far more.
         """
         now = int(self._x[-1])
-        starts = np.searchsorted(x, [now - self._window // part for part in (4, 2, 1)]).tolist()
         ppm = MAX_PPM
         if self._pinned is not None:
             ppm = min(MAX_PPM, _RATE_FLOOR_PPM
                       + _SLEW_PPM_S * (now - self._pinned) / TICKS_PER_SECOND)
-        centre = best_centre(x, y, now, self.frame_ns, self._rate,
-                             [(a, len(x)) for a in starts], ppm)
-        if centre is not None and centre[4] < _PINNED_PPM * 1e-6 * NS_PER_TICK:
+        spans = [(now - self._window // part, now + 1) for part in (4, 2, 1)]
+        centre = best_centre(bounds, now, self._rate, spans, ppm)
+        if centre is not None and centre.rates < _PINNED_PPM * 1e-6 * NS_PER_TICK:
             self._pinned = now
         return centre
 
@@ -416,57 +508,45 @@ class OnlineClock:
             return None
         return a[0], a[1], (b[1] - a[1]) / (b[0] - a[0])
 
-    def _snap(self, new_y: np.ndarray, dropped: int, parts: bool) -> np.ndarray:
-        """Receive times moved down to the USB frame that carried them.
 
-        With ``parts``, the partial reads' bounds where they are less. The window's older
-        points keep their snapped times while the grid's phase and ``parts`` stay put
-        (the window lost its first ``dropped`` points since the last fit); when either
-        changes, every bucket minimum is found anew.
-        """
-        self._grid *= _GRID_DECAY
-        self._grid += grid_histogram(new_y, self.frame_ns)
-        phase = grid_phase(self._grid, self.frame_ns)
-        old = len(self._y) - len(new_y)
-        if (phase, parts) == (self._phase, self._parts) \
-                and len(self._snapped) - dropped == old >= 0:
-            fresh = self._least(old, phase, parts)
-            self._snapped = np.concatenate([self._snapped[dropped:], fresh])
-        else:
-            self._snapped = self._least(0, phase, parts)
-            self._lows_to = None
-        self._phase, self._parts = phase, parts
-        return self._snapped
+def record_bounds(rx_ns: np.ndarray, part_ns: np.ndarray, part_lead_ns: np.ndarray,
+                  edge: int, frame: int, floor: int, byte_ns: float,
+                  prompt: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds on when each record's first byte was on the line, from its reads' frames.
 
-    def _least(self, start: int, phase: int, parts: bool) -> np.ndarray:
-        """The window's points from ``start`` on, snapped: each record's least bound."""
-        frame = self.frame_ns
-        full = snap_to(self._y[start:], phase, frame)
-        if not parts:
-            return full
-        return np.asarray(np.minimum(full, snap_to(self._q[start:], phase, frame)
-                                     + self._g[start:]))
+    A read holds every byte its frame carried (``frame_after``): the record was on the
+    line by that frame less the line time of its bytes the read held (the whole record
+    for the read that completed it). Where frames carry every byte that is ready, the
+    next byte a read did not hold was still to come at the frame before it
+    (``frame_before``): a read that ended inside a record, or right where it begins,
+    bounds the record from below by that frame less the line time up to that next byte
+    (``byte_ns`` more than it held; on the unit's own USB port, where records come
+    whole, the record's transfer).
 
-    def _bucket_minima(self, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``bucket_minima`` of the window, each bucket's found once.
+    Args:
+        rx_ns: The receive time of the read that completed each record.
+        part_ns: Each record's partial read (the completing read where there is none).
+        part_lead_ns: The line time of the record's bytes the partial read held: 0 where
+            it ended where the record begins, ``floor`` where there is none.
+        edge: Where the frames fall (``grid_phase``).
+        frame: The frame, ns.
+        floor: The record's line time (its transfer on the unit's own USB port).
+        byte_ns: A serial line's byte time; 0 on the unit's own USB port.
+        prompt: Whether frames carry every byte that is ready (else reads give no lower
+            bounds: an adapter with a long latency timer holds bytes back).
 
-        A bucket's minimum is found at the first fit after it was complete and kept (with
-        that fit's rate) while it stays in the window: the window is minutes long, a fit
-        adds a second.
-        """
-        x = self._x
-        first, newest = int(x[0]) // BUCKET_TICKS, int(x[-1]) // BUCKET_TICKS
-        if self._lows_to is None:
-            self._lows_x, self._lows_y = bucket_minima(x, upper, self._rate)
-        else:
-            start = int(np.searchsorted(x, self._lows_to * BUCKET_TICKS))
-            lows = bucket_lows(x[start:], upper[start:], self._rate) + start
-            lows = lows[(x[lows] // BUCKET_TICKS > first) & (x[lows] // BUCKET_TICKS < newest)]
-            old = int(np.searchsorted(self._lows_x, (first + 1) * BUCKET_TICKS))
-            self._lows_x = np.concatenate([self._lows_x[old:], x[lows]])
-            self._lows_y = np.concatenate([self._lows_y[old:], upper[lows]])
-        self._lows_to = newest
-        return self._lows_x, self._lows_y
+    Returns:
+        The upper and the lower bounds, ns; ``NO_BOUND`` where a record has no lower one.
+    """
+    hi = frame_after(rx_ns, edge, frame) - floor
+    inside = (part_lead_ns > 0) & (part_lead_ns < floor)
+    if inside.any():
+        hi = np.where(inside, np.minimum(hi, frame_after(part_ns, edge, frame) - part_lead_ns),
+                      hi)
+    next_ns = round(byte_ns) if byte_ns else floor
+    lo = np.where((part_lead_ns < floor) & prompt,
+                  frame_before(part_ns, edge, frame) - part_lead_ns - next_ns, NO_BOUND)
+    return np.asarray(hi, np.int64), np.asarray(lo, np.int64)
 
 
 def _lower_hull(x: list[int], y: list[int]) -> list[tuple[int, int]]:

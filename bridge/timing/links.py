@@ -4,12 +4,14 @@ A capture from another program says nothing of its link, yet the clock model nee
 it: a frame clock to take out on USB, a line time to take out on a serial line. The
 reads tell: on a UART, reads that end mid-record fit the line at one baud rate; over
 USB, reads crowd just after the host's 1 ms frames; an adapter shows in whole 62-byte
-packets, a 16 ms latency timer, or records completed a byte time later per byte still
-to come. The evidence and the order it is weighed in: docs/design/time.md.
+packets, a 16 ms latency timer, or reads that end inside records, which the unit's own
+USB port never gives (it hands over whole records). The evidence and the order it is
+weighed in: docs/design/time.md.
 
-Known blind spot: a 1 ms-timer adapter at 921,600 baud carrying 1 kHz, its unit
-within a few ppm of the host over the capture, reads as the unit's own USB port
-(its records cross the line within a frame, as USB's do).
+Blind spot: an adapter whose frames never once fell inside a record over the whole
+capture (a unit in step with the host's frames, its records shorter than the gaps
+between them) reads as the unit's own USB port; nothing in its reads tells the two
+apart.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import numpy as np
 from bridge.device.link import ADAPTER_PACKET_BYTES, DEFAULT_LATENCY_TIMER_MS
 from bridge.protocol.framer import Framer
 from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+from bridge.timing._fit import frame_after, grid_histogram, grid_phase
 from bridge.timing.stream import USB_FRAME_NS
-from bridge.timing.unwrap import TIMER_MODULUS
+from bridge.timing.unwrap import NS_PER_TICK, TIMER_MODULUS
 
 _BIN_NS = 10_000
 _WINDOW_BINS = 10  # reads counted within 0.1 ms either side of a phase
@@ -34,11 +37,13 @@ _TIMER_GAPS = 0.3  # fraction of reads a 16 ms timer's length after the one befo
 _LINE_READS = 50  # neighbouring mid-record reads needed to judge a serial line
 _LINE_SPAN_NS = 1e9  # neighbours this close on the unit's clock (its error adds little)
 _LINE_FIT = 0.6  # byte times: a UART fits within ~1/3, frames several
-_MID_RECORD = 0.25  # reads ending mid-record: more than the unit's own USB port gives
-_BEAT_NS = 3_000_000  # the unit's clock beat this far through the frames: splits are fair
-_MANY_PARTS = 0.05  # split records in three reads or more: more than the next frame's worth
-_PACE_NS = 5_000  # per byte: slower than any USB payload rate, faster than any UART
-_STALL_NS = 20_000_000  # a completion this late waited out a stall
+_FRAMED_FIT = 1.2  # byte times: reads at their frames lie within one, a wrong rate spreads
+_STRETCH_NS = 60_000_000_000
+_WRAPS = 2  # times k must jump back within a stretch
+# reads ending mid-record, which the unit's own USB port never gives: more than a damaged
+# byte here and there makes
+_SPLIT_READS = 20
+_SPLIT_SHARE = 0.002
 BAUD_GUESSES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
 
 
@@ -47,13 +52,14 @@ class Inferred:
     """The link a capture's reads show, with what showed it.
 
     ``transport`` as ``Settings.transport``; ``latency_timer_ms`` an adapter's;
-    ``evidence`` one line; ``baud`` a UART's, where its reads show it.
+    ``evidence`` one line; ``baud`` a serial line's (a UART's or behind an adapter),
+    where its reads show it.
     """
 
     transport: str
     latency_timer_ms: int | None
     evidence: str
-    baud: int | None = None  # a UART's, where its reads show it
+    baud: int | None = None  # a serial line's, where its reads show it
 
     def describe(self) -> str:
         """One line for people.
@@ -123,8 +129,8 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
     packets = float(np.mean((sizes % ADAPTER_PACKET_BYTES == 0) & (sizes > 0)))
     period_s = float(np.median(np.diff(ticks))) / TICKS_PER_SECOND if len(ticks) > 1 else 1.0
     rate, against_unit = _unit_fit(ticks, completions)
-    line = _line_fit(ticks, rate, rx_ns[mid], got[mid], inside[mid],
-                     [b for b in BAUD_GUESSES if b / 10 * period_s >= length])
+    bauds = [b for b in BAUD_GUESSES if b / 10 * period_s >= length]
+    line = _line_fit(ticks, rate, rx_ns[mid], got[mid], inside[mid], bauds)
     host = crowding(completions)
     unit = crowding(against_unit)
     noise = _SIGMAS * np.sqrt(4 * _WINDOW_BINS * _BIN_NS / USB_FRAME_NS / len(completions))
@@ -143,38 +149,18 @@ def infer_transport(rx_ns: np.ndarray, data: Sequence[bytes], record: int,
         return Inferred("usb-serial", DEFAULT_LATENCY_TIMER_MS, f"{why}; {said}; " + (
             f"{packets:.0%} are whole 62-byte packets" if packets > _PACKETS else
             f"{timer_gaps:.0%} come 16 ms after the one before"))
-    pace = _line_pace(completions, rx_ns[mid], length - got[mid], inside[mid])
-    if pace is not None and pace > _PACE_NS:
-        return Inferred("usb-serial", 1, f"{why}; {said}, the rest of each record "
-                                         f"{pace / 1e3:.0f} us a byte later")
-    # How often a read ends mid-record tells the line's pace only where the unit's clock
-    # beats through the frames; one that stays in step with them may split every record
-    # at one place, which on its own USB port leaves the rest for the next frame alone.
-    drift_ns = abs(rate - 1.0) * (completions[-1] - completions[0])
-    parts = np.bincount(inside[mid], minlength=len(starts)) if mid.any() else np.zeros(1)
-    many = float(np.mean(parts[parts > 0] > 1)) if (parts > 0).any() else 0.0
-    if ends_mid > _MID_RECORD and (drift_ns > _BEAT_NS or many > _MANY_PARTS):
-        return Inferred("usb-serial", 1, f"{why}; {said}")
+    # The unit's own USB port hands over whole records: a read that ends inside one is a
+    # serial line's, behind an adapter. Each such read holds every byte that had crossed
+    # the line by its frame, so it fits the line at the adapter's baud rate as a UART's
+    # read does at its own time.
+    if int(mid.sum()) >= _SPLIT_READS and ends_mid >= _SPLIT_SHARE:
+        edge = grid_phase(grid_histogram(completions, USB_FRAME_NS), USB_FRAME_NS)
+        baud = _framed_baud(ticks[inside[mid]], rate,
+                            frame_after(rx_ns[mid], edge, USB_FRAME_NS), got[mid], bauds)
+        return Inferred("usb-serial", 1, f"{why}; {said}" + (
+            f", each holding every byte the line had carried by its frame at {baud} baud"
+            if baud else ""), baud)
     return Inferred("usb", None, f"{why}; {said}")
-
-
-def _line_pace(completions: np.ndarray, mid_at: np.ndarray, left: np.ndarray,
-               mid_record: np.ndarray) -> float | None:
-    """How much later a record split by a read is completed per byte still to come (ns).
-
-    A serial line's byte time behind an adapter, next to nothing on the unit's own USB
-    port (the rest of the record is there at the next frame). None: too few to tell.
-    """
-    inside = mid_record < len(completions)
-    wait = completions[mid_record[inside]] - mid_at[inside]
-    left = left[inside]
-    keep = wait < _STALL_NS
-    if keep.sum() < _LINE_READS or np.ptp(left[keep]) == 0:
-        return None
-    x, y = left[keep].astype(float), wait[keep].astype(float)
-    slope, offset = np.polyfit(x, y, 1)
-    error = np.std(y - (offset + slope * x)) / (np.std(x) * np.sqrt(len(x)))
-    return float(slope) if slope > _SIGMAS * error else None
 
 
 def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
@@ -205,6 +191,54 @@ def _line_fit(ticks: np.ndarray, rate: float, mid_at: np.ndarray,
         spread[baud] = float(np.median(np.abs(np.diff(start)[near])))
     baud = min(spread, key=spread.__getitem__)  # a wrong byte time spreads with the count
     return spread[baud] / (1e10 / baud), baud
+
+
+def _framed_baud(ticks: np.ndarray, rate: float, frames: np.ndarray, held: np.ndarray,
+                 bauds: Sequence[int]) -> int | None:
+    """The baud rate at which reads that end inside records, at their frames, fit the line.
+
+    A read at frame F holding k bytes of a record says the record began within a byte
+    time before F less k byte times: at the true byte time these instants, less the
+    unit's clock, lie within a byte time (and a tick of its timer) of each other; at
+    another, they spread by the difference times the spread of k. Judged over minute-long
+    stretches in which k takes values back and forth (several frames inside a record, or a
+    phase that sweeps the frame); None where no baud rate stands out: a unit crawling
+    against the frames moves k as steadily as a rate error would.
+
+    Args:
+        ticks: The split records' ticks.
+        rate: Host seconds per second of the unit's clock (``_unit_fit``).
+        frames: The frame each read's bytes came at (upper bound).
+        held: The record's bytes each read held.
+        bauds: The baud rates that carry the stream.
+    """
+    at = ticks / TICKS_PER_SECOND * 1e9 * rate
+    stretch = (at // _STRETCH_NS).astype(np.int64)
+    spread = {}
+    for baud in bauds:
+        start = frames - held * (1e10 / baud) - at
+        widths = []
+        for k in np.unique(stretch):
+            here = stretch == k
+            # k must jump back here and there: a unit crawling against the frames
+            # splits its records at a byte that moves steadily, and a steady drift of k
+            # is what a rate error does too
+            if here.sum() < _LINE_READS or (np.abs(np.diff(held[here])) >= 3).sum() < _WRAPS:
+                continue
+            # less a line: the rate is known only to what frames quantise it to
+            x, y = at[here] - at[here][0], start[here] - start[here][0]
+            slope, offset = np.polyfit(x, y, 1)
+            widths.append(float(np.ptp(np.percentile(y - slope * x - offset, [5, 95]))))
+        if widths:
+            spread[baud] = float(np.median(widths))
+    if not spread:
+        return None
+    ranked = sorted(spread, key=spread.__getitem__)
+    best = ranked[0]
+    clear = len(ranked) == 1 or spread[ranked[1]] > 2 * spread[best]
+    # within a byte time, and the timer's tick: a record's ticks are its cycle's to a tick
+    fits = spread[best] < _FRAMED_FIT * 1e10 / best + NS_PER_TICK
+    return best if fits and clear else None
 
 
 def _unit_fit(ticks: np.ndarray, completions: np.ndarray) -> tuple[float, np.ndarray]:

@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bridge.protocol.codec import Batch
-from bridge.protocol.table import REPLIES, TICKS_PER_SECOND
+from bridge.protocol.table import PROCESSING_DELAY_S, REPLIES, TICKS_PER_SECOND
 from bridge.timing.clock import ClockState
+from bridge.timing.offline import OfflineClock
 from bridge.timing.realtime import ClockChange, RealtimeReads, RealtimeTrack
 from bridge.timing.timeline import Timeline
 from bridge.timing.unwrap import TimingEvent
@@ -38,6 +39,43 @@ def filter_delay_ns(filter_width: int) -> int:
         The delay, which every ``time_ns`` has taken out: the instant the values describe.
     """
     return (filter_width - 1) * 500_000
+
+
+def period_middle_ns(record: int, decimation: int) -> int:
+    """How much earlier a record's values are than an instantaneous record's of its cycle.
+
+    DeltaAngle and DeltaVelocity integrate over the output period (``ReplySpec.integral``):
+    they describe its middle, half a period before the cycle; other records, 0.
+
+    Args:
+        record: The data record.
+        decimation: The output period in 1 ms cycles (0xDB ``decimation``).
+
+    Returns:
+        The difference, ns.
+    """
+    return decimation * 500_000 if REPLIES[record].integral else 0
+
+
+def record_delay_ns(filter_width: int, record: int | None = None, decimation: int = 1) -> int:
+    """From the instant a record's values describe to its first byte on the line.
+
+    The filter's delay (``filter_delay_ns``), then the unit's calculation before it sends
+    (``PROCESSING_DELAY_S``): the clock model finds when records start on the line, and
+    this is what it takes out. A record of integrals over the output period
+    (DeltaAngle, DeltaVelocity: ``ReplySpec.integral``) describes the period's middle,
+    half a period earlier.
+
+    Args:
+        filter_width: The accel and gyro filter's width M (0xDB ``filter_width``).
+        record: The data record; None: one of instantaneous values.
+        decimation: The output period in 1 ms cycles (0xDB ``decimation``).
+
+    Returns:
+        The delay, ns.
+    """
+    middle = 0 if record is None else period_middle_ns(record, decimation)
+    return filter_delay_ns(filter_width) + round(PROCESSING_DELAY_S * 1e9) + middle
 
 
 @dataclass(frozen=True)
@@ -75,6 +113,11 @@ class Settings:
         return filter_delay_ns(self.filter_width)
 
     @property
+    def delay_ns(self) -> int:
+        """From the instant the values describe to the record's first byte (``record_delay_ns``)."""
+        return record_delay_ns(self.filter_width, self.record, self.decimation)
+
+    @property
     def floor_ns(self) -> int:
         """The least time a record takes to reach the host.
 
@@ -91,13 +134,25 @@ class Settings:
         """The bytes crossed a serial line before any USB frames (a USB-serial adapter)."""
         return self.transport == "usb-serial"
 
-    @property
-    def by_bytes(self) -> bool:
-        """Whether reads that end inside records time them (a serial line's bytes).
+    def offline_clock(self) -> OfflineClock:
+        """The export's second pass for records with these settings.
 
-        On the unit's own USB port the frames alone do.
+        Returns:
+            An ``OfflineClock`` told the delay, floor and link these settings decide.
         """
-        return self.transport != "usb"
+        return OfflineClock(self.delay_ns, self.floor_ns, self.frame_ns, serial=self.serial,
+                            byte_ns=self.byte_ns, prompt=self.prompt)
+
+    @property
+    def prompt(self) -> bool:
+        """Whether each USB frame carries every byte that is ready when it is polled.
+
+        The unit's own port hands over each record whole at the first frame after it;
+        an adapter does so with a 1 ms latency timer (FTDI's, where set so) or none
+        (CDC-ACM bridges), and holds bytes back up to a longer one.
+        """
+        return self.transport == "usb" or (self.transport == "usb-serial"
+                                           and (self.latency_timer_ms or 1) <= 1)
 
     @property
     def byte_ns(self) -> float:
@@ -127,14 +182,18 @@ class Timed:
     """One batch's valid records with their ticks, sample instants and receive times.
 
     ``time_ns`` and ``rx_ns`` are on the realtime clock (the batch's own ``rx_ns`` are the
-    raw clock's); ``events`` what the timeline found, ``dropped`` samples missing (gaps),
-    ``invalid`` records dropped for a corrupt timer.
+    raw clock's); ``part``: each record's partial read as an ImuSample carries it
+    (``part_rx_mono_raw_ns``, ``part_lead_ns``: the read and the line time of the bytes
+    it held, the completing read and the whole record's where there is none); ``events``
+    what the timeline found, ``dropped`` samples missing (gaps), ``invalid`` records
+    dropped for a corrupt timer.
     """
 
     batch: Batch
     ticks: np.ndarray
     time_ns: np.ndarray
     rx_ns: np.ndarray
+    part: tuple[np.ndarray, np.ndarray]
     events: list[TimingEvent] = field(default_factory=list)
     dropped: int = 0
     invalid: int = 0
@@ -147,6 +206,7 @@ class TimedFew:
     ticks: list[int]
     time_ns: list[int]
     rx_ns: list[int]
+    part: tuple[list[int], list[int]]
     events: list[TimingEvent]
 
 
@@ -166,9 +226,9 @@ class StreamTiming:
         self.host = RealtimeTrack() if host is None else host
         self.timeline: Timeline | None = None
         self.settings: Settings | None = None
-        #: (record length, floor ns, byte ns) where partial reads time records, fixed by
-        #: the settings and so worked out once, not per read
-        self._parts: tuple[int, int, float] | None = None
+        #: (record length, floor ns, byte ns), with which partial reads time records,
+        #: fixed by the settings and so worked out once, not per read
+        self._parts = (0, 0, 0.0)
 
     @property
     def state(self) -> ClockState | None:
@@ -190,14 +250,15 @@ class StreamTiming:
             raise ValueError(f"transport {settings.transport!r}: use one of {TRANSPORTS}")
         period = settings.period_ticks
         if self.timeline is None:
-            self.timeline = Timeline(period, frame_ns=settings.frame_ns, serial=settings.serial)
+            self.timeline = Timeline(period, frame_ns=settings.frame_ns, serial=settings.serial,
+                                     byte_ns=settings.byte_ns, prompt=settings.prompt)
         elif restarted or period != self.timeline.unwrapper.period_ticks:
             self.timeline.expect_discontinuity(period)
-        self.timeline.clock.filter_delay_ns = settings.filter_delay_ns
-        self.timeline.clock.floor_ns = settings.floor_ns
+        clock = self.timeline.clock
+        clock.delay_ns, clock.floor_ns = settings.delay_ns, settings.floor_ns
+        clock.byte_ns, clock.prompt = settings.byte_ns, settings.prompt
         self.settings = settings
-        self._parts = (REPLIES[settings.record].length, settings.floor_ns, settings.byte_ns) \
-            if settings.by_bytes else None
+        self._parts = (REPLIES[settings.record].length, settings.floor_ns, settings.byte_ns)
 
     def hear(self, raws: list[int], reals: list[int]) -> list[ClockChange]:
         """The next reads' stamps on both clocks, before their records are processed.
@@ -224,7 +285,7 @@ class StreamTiming:
             The valid records with their ticks and realtime instants, and the events.
         """
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if batch.part_ns is None or batch.part_bytes is None or self._parts is None:
+        if batch.part_ns is None or batch.part_bytes is None:
             timed = self.timeline.update(batch["timer"], batch.rx_ns)
         else:
             timed = self.timeline.update(batch["timer"], batch.rx_ns, batch.part_ns,
@@ -235,7 +296,14 @@ class StreamTiming:
             batch = batch.select(keep)
         map_array = self.host.map_array
         return Timed(batch, timed.ticks[keep], map_array(timed.time_ns[keep], batch.rx_ns),
-                     map_array(batch.rx_ns, batch.rx_ns), timed.events, timed.dropped, invalid)
+                     map_array(batch.rx_ns, batch.rx_ns), self._carried(batch), timed.events,
+                     timed.dropped, invalid)
+
+    def _carried(self, batch: Batch) -> tuple[np.ndarray, np.ndarray]:
+        """The records' partial reads as their ImuSamples carry them (``Timed.part``)."""
+        assert self.settings is not None
+        part_ns, part_bytes = batch.partial()
+        return part_ns, self.settings.part_lead_ns(part_bytes)
 
     def process_few(self, timers: list[int], rx_ns: list[int],
                     part_ns: list[int] | None = None, part_bytes: list[int] | None = None
@@ -253,14 +321,16 @@ class StreamTiming:
             period after the last; None: nothing changed, ``process`` them.
         """
         assert self.timeline is not None and self.settings is not None, "configure() first"
-        if part_ns is None or part_bytes is None or self._parts is None:
+        length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
+        if part_ns is None or part_bytes is None:
             run = self.timeline.update_few(timers, rx_ns)
+            carried = (rx_ns, [floor] * len(rx_ns))
         else:
-            length, floor, byte_ns = self._parts  # as Settings.part_lead_ns, in integers
             leads = [floor - round((length - k) * byte_ns) for k in part_bytes]
             run = self.timeline.update_few(timers, rx_ns, (part_ns, leads))
+            carried = (part_ns, leads)
         if run is None:
             return None
         ticks, instants, events = run
         host = self.host.map
-        return TimedFew(ticks, host(instants, rx_ns), host(rx_ns, rx_ns), events)
+        return TimedFew(ticks, host(instants, rx_ns), host(rx_ns, rx_ns), carried, events)

@@ -37,18 +37,21 @@ class Timeline:
 
     Args:
         period_ticks: The output period in ticks (decimation x 62.5); None if unknown.
-        filter_delay_ns: As ``OnlineClock``'s.
+        delay_ns: As ``OnlineClock``'s.
         floor_ns: As ``OnlineClock``'s.
         frame_ns: As ``OnlineClock``'s.
         window_s: As ``OnlineClock``'s.
         serial: As ``OnlineClock``'s.
+        byte_ns: As ``OnlineClock``'s.
+        prompt: As ``OnlineClock``'s.
     """
 
-    def __init__(self, period_ticks: float | None, filter_delay_ns: int = 0,
+    def __init__(self, period_ticks: float | None, delay_ns: int = 0,
                  floor_ns: int = 0, frame_ns: int = 0, window_s: float | None = None,
-                 serial: bool = False) -> None:
+                 serial: bool = False, byte_ns: float = 0.0, prompt: bool = True) -> None:
         self.unwrapper = TimerUnwrapper(period_ticks)
-        self.clock = OnlineClock(filter_delay_ns, floor_ns, frame_ns, window_s, serial=serial)
+        self.clock = OnlineClock(delay_ns, floor_ns, frame_ns, window_s, serial=serial,
+                                 byte_ns=byte_ns, prompt=prompt)
 
     @property
     def state(self) -> ClockState:

@@ -105,14 +105,18 @@ class TimedSamples:
         ticks: Their unwrapped device timer.
         time_ns: The host-clock instants their values describe, ns.
         rx_ns: Their completing reads' receive times on the realtime clock, ns.
+        part: Their partial reads, as ImuSamples carry them (``part_rx_mono_raw_ns``,
+            ``part_lead_ns``).
     """
 
     def __init__(self, records: Batch | Records, ticks: np.ndarray | list[int],
-                 time_ns: np.ndarray | list[int], rx_ns: np.ndarray | list[int]) -> None:
+                 time_ns: np.ndarray | list[int], rx_ns: np.ndarray | list[int],
+                 part: tuple[np.ndarray, np.ndarray] | tuple[list[int], list[int]]) -> None:
         self.records = records
         self.tick_values = ticks
         self.time_values = time_ns
         self.rx_values = rx_ns
+        self.part_values = part
 
     @functools.cached_property
     def batch(self) -> Batch:
@@ -135,13 +139,22 @@ class TimedSamples:
         """The completing reads' receive times on the realtime clock, ns, int64."""
         return np.asarray(self.rx_values, np.int64)
 
-    def lists(self) -> tuple[list[int], list[int], list[int]]:
-        """Ticks, instants and receive times in plain integers, as a live read's come.
+    @functools.cached_property
+    def part(self) -> tuple[np.ndarray, np.ndarray]:
+        """The partial reads as ImuSamples carry them (raw stamp, line time held)."""
+        return (np.asarray(self.part_values[0], np.int64),
+                np.asarray(self.part_values[1], np.int64))
+
+    def lists(self) -> tuple[list[int], list[int], list[int], list[int], list[int]]:
+        """Ticks, instants, receive times and partial reads in plain integers.
+
+        As a live read's come.
 
         Returns:
-            (ticks, time_ns, rx_ns).
+            (ticks, time_ns, rx_ns, part_rx_mono_raw_ns, part_lead_ns).
         """
-        return _plain(self.tick_values), _plain(self.time_values), _plain(self.rx_values)
+        return (_plain(self.tick_values), _plain(self.time_values), _plain(self.rx_values),
+                _plain(self.part_values[0]), _plain(self.part_values[1]))
 
 
 def _plain(values: np.ndarray | list[int]) -> list[int]:
@@ -530,7 +543,8 @@ class Pipeline:
                 for ev in few.events:
                     self._event(EventKind(ev.kind), ticks=ev.ticks, count=ev.count)
                 self.counters.samples += len(records)
-                self.sink.samples(TimedSamples(records, few.ticks, few.time_ns, few.rx_ns))
+                self.sink.samples(TimedSamples(records, few.ticks, few.time_ns, few.rx_ns,
+                                                few.part))
                 return
             records = records.batch()
         timed = self.timing.process(records)
@@ -540,7 +554,8 @@ class Pipeline:
         self.counters.dropped += timed.dropped
         if len(timed.batch):
             self.counters.samples += len(timed.batch)
-            self.sink.samples(TimedSamples(timed.batch, timed.ticks, timed.time_ns, timed.rx_ns))
+            self.sink.samples(TimedSamples(timed.batch, timed.ticks, timed.time_ns, timed.rx_ns,
+                                            timed.part))
 
     def _run_actions(self, session: Session) -> None:
         assert self.info is not None

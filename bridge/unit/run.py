@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.bus.session import ZenohOptions
 from bridge.exceptions import CaptureError, NameTaken, UnsupportedUnit
-from bridge.recorder.rawcapture import RawCaptureWriter
 from bridge.unit.pipeline import Options, Pipeline
 
 if TYPE_CHECKING:  # its module reads message definitions: loaded only with --ros2
@@ -142,7 +142,7 @@ class UnitBridge:
             if self.metrics is not None:
                 from bridge.bus.metrics import Health, MetricsServer
 
-                health = Health()
+                health = Health(latencies=["publish"])
                 closing.enter_context(MetricsServer(self.metrics, health))
             return self._run(stop, duration_s, give_up_after_s, health)
 
@@ -175,7 +175,10 @@ class UnitBridge:
             pipeline = Pipeline(self.options, sink, on_read=sink.read)
             sink.attach(pipeline)
             if health is not None:
+                publish = health.latencies["publish"]
                 sink.on_status(health.status)
+                sink.on_stamped(lambda unit, received_ns, published_ns: publish.observe(
+                    unit, [(published_ns - received_ns) / 1e9]))
             if self.capture is not None:
                 capture = self.capture
                 sink.on_unit(lambda name, meta: self._open_capture(writer, capture, name, meta))

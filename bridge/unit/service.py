@@ -22,7 +22,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from bridge import __version__
-from bridge._text import counted
+from bridge._text import counted, number
+from bridge.archive.rawcapture import capture_metadata
 from bridge.bus.events import LEVEL
 from bridge.bus.gx3_pb2 import Event, HostClock, Info, Status
 from bridge.device import clock
@@ -32,7 +33,6 @@ from bridge.device.session import Session, UnitInfo
 from bridge.exceptions import DeviceError, NameTaken
 from bridge.protocol.codec import Records
 from bridge.protocol.table import Mode
-from bridge.recorder.rawcapture import capture_metadata
 from bridge.unit.pipeline import EventKind, Pipeline, TimedSamples, UnitEvent, UnitState
 
 if TYPE_CHECKING:  # Zenoh is imported once a unit is up: the CLI's help stays quick
@@ -119,10 +119,13 @@ def _status_message(unit: str, port: str, info: UnitInfo | None, status: dict[st
         msg.command = info.record
         msg.output_rate_hz = info.output_hz
         msg.baud = info.baud
-    if model is not None:
-        msg.clock_offset_ns = int(model.offset_ns)
+    if model is not None and model.offset_ns:
+        # the model is fitted on the raw clock: the offset on the realtime clock, as the
+        # samples' time_ns are, at the latest read
+        msg.clock_offset_ns = int(model.offset_ns) + (status.get("host_offset_ns") or 0)
         msg.clock_drift_ppm = float(model.drift_ppm)
         msg.clock_spread_ns = float(model.spread_ns)
+        msg.time_uncertainty_ns = int(model.uncertainty_ns)
     if sync is not None:
         msg.host_clock.CopyFrom(_host_clock_message(sync, status.get("host_offset_ns")))
     return msg
@@ -196,6 +199,7 @@ class BusSink:
         self._info: UnitInfo | None = None
         self._listeners: list[Callable[[str, dict[str, str]], None]] = []
         self._status_listeners: list[Callable[[Status], None]] = []
+        self._stamp_listeners: list[Callable[[str, int, int], None]] = []
         self._lines = _EventLines()
 
     def attach(self, pipeline: Pipeline) -> None:
@@ -243,7 +247,7 @@ class BusSink:
             self.session, self.unit, prefix=self.prefix,
             cache_samples=max(1, round(self.cache_s * info.output_hz)),
             on_command=_command_handler(self.pipeline), allow_commands=self.allow_commands,
-            raw=self.raw)
+            raw=self.raw, on_stamped=self._stamped)
         if self.ros2_options is not None:
             from bridge.ros2.rmw import UnitTopics
 
@@ -304,7 +308,7 @@ class BusSink:
                 self.publisher.publish_records(samples.records, *samples.lists())
             else:
                 self.publisher.publish_samples(samples.batch, samples.ticks, samples.time_ns,
-                                               samples.rx_ns)
+                                               samples.rx_ns, samples.part)
             if self.ros2 is not None:
                 self.ros2.publish(samples.batch, samples.time_ns)
 
@@ -341,6 +345,21 @@ class BusSink:
         """
         self._status_listeners.append(listener)
 
+    def on_stamped(self, listener: Callable[[str, int, int], None]) -> None:
+        """Tell ``listener`` of each put stamped with its publish time (one in 16).
+
+        Args:
+            listener: Hears ``(unit, received_ns, published_ns)``: when the read that
+                completed the put's last record was received, and when the put returned
+                (``bridge.bus.publish.UnitPublisher``).
+        """
+        self._stamp_listeners.append(listener)
+
+    def _stamped(self, received_ns: int, published_ns: int) -> None:
+        if self.unit is not None:
+            for listener in self._stamp_listeners:
+                listener(self.unit, received_ns, published_ns)
+
     def close(self) -> None:
         """Log the gaps held back, and undeclare the publishers."""
         self._lines.flush(None)
@@ -360,8 +379,9 @@ class BusSink:
         if self.pipeline is None or self.unit is None:
             return f"{self.port}: no unit brought up"
         c = self.pipeline.counters
-        return (f"{self.unit}: {c.samples} samples, {c.dropped} dropped, "
-                f"{c.reconnects} reconnects, {c.checksum_failures} checksum failures")
+        return (f"{self.unit}: {counted(c.samples, 'sample')}, {number(c.dropped)} dropped, "
+                f"{counted(c.reconnects, 'reconnect')}, "
+                f"{counted(c.checksum_failures, 'checksum failure')}")
 
 
 def _name_from_serial(serial: str) -> str:

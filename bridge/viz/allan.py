@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.recorder.allan import FLICKER_FLOOR
-from bridge.recorder.noise import SensorNoise, UnitNoise, stretch_text
+from bridge.analysis.allan import FLICKER_FLOOR
+from bridge.analysis.noise import SensorNoise, UnitNoise, stretch_text
 
 __all__ = ["write_allan_plot"]
 

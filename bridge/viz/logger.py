@@ -29,7 +29,7 @@ from bridge.bus.gx3_pb2 import Event, HostClock, Status
 from bridge.device.clock import HostSync
 from bridge.protocol import convert
 from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.viz import layout
+from bridge.viz import layout, thin
 from bridge.viz.layout import DEVICE_TIME, PLOT, TIME
 
 NS_PER_TICK = 1_000_000_000 // TICKS_PER_SECOND  # 16,000 exactly
@@ -111,6 +111,11 @@ def _sample_series(columns: Mapping[str, np.ndarray], n: int) -> dict[str, np.nd
     return series
 
 
+def _parts(rows: np.ndarray, size: int) -> list[np.ndarray]:
+    """``rows`` in pieces of ``size`` at most (none when there are none)."""
+    return [rows[at:at + size] for at in range(0, len(rows), size)]
+
+
 @dataclass
 class _Pending:
     """Batches of one unit and record type gathered since ``since`` (monotonic seconds)."""
@@ -118,6 +123,22 @@ class _Pending:
     since: float
     parts: list[dict[str, np.ndarray]] = field(default_factory=list)
     rows: int = 0
+
+
+@dataclass
+class _Kept:
+    """What thinning kept of one unit and record type since ``since``, not sent yet.
+
+    Gathered into sends of up to ``max_rows`` rows, as full-rate samples are: a send per
+    batch of a few bins would make chunks of a few rows, mostly overhead.
+    """
+
+    since: float
+    #: each line's entity -> pieces of (time_ns, device_ns, value) of its rows
+    lines: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = field(
+        default_factory=dict)
+    scene: list[dict[str, np.ndarray]] = field(default_factory=list)  # the bins' first rows
+    rows: int = 0  # of the line with the most
 
 
 class RerunLogger:
@@ -130,6 +151,13 @@ class RerunLogger:
     writing hours of data to a file is better served by latency_s of a few seconds
     (bigger chunks: a smaller file) and ``write_footer=False`` (Rerun otherwise keeps an
     index entry per chunk in memory until the file is closed).
+
+    With ``max_rate_hz``, samples are thinned for a recording of any length
+    (``bridge.viz.thin``): each plotted line keeps the least and the greatest value of
+    each 1/max_rate_hz s bin, at the instants they happened, and the scene each bin's
+    first attitude and arrows; status and events are kept whole. A bin is kept once a
+    later sample closes it (or on ``flush``), and what is kept is sent as samples are:
+    ``max_rows`` rows or ``latency_s`` after the first, at most.
 
     Args:
         target: A RecordingStream the caller set up (spawned viewer, gRPC connection,
@@ -144,13 +172,18 @@ class RerunLogger:
         latency_s: The longest a sample waits before it is sent.
         max_rows: Rows of one unit and record type sent at once, at most.
         write_footer: Whether a file the logger opens gets Rerun's footer.
+        max_rate_hz: Thin samples to bins this many a second; None: every sample.
+
+    Raises:
+        ValueError: ``max_rate_hz`` is not above 0.
     """
 
     def __init__(self, target: rr.RecordingStream | str | os.PathLike[str],
                  units: Iterable[str] = (), *, application_id: str = "gx3",
                  recording_id: str | None = None, window_s: float | None = None,
                  latency_s: float = 0.25, max_rows: int = 4096,
-                 write_footer: bool = True) -> None:
+                 write_footer: bool = True, max_rate_hz: float | None = None) -> None:
+        self.bin_ns = None if max_rate_hz is None else thin.bin_width_ns(max_rate_hz)
         if isinstance(target, rr.RecordingStream):
             self.recording, self._owned = target, False
         else:
@@ -161,6 +194,7 @@ class RerunLogger:
         self.latency_s = latency_s
         self.max_rows = max_rows
         self._pending: dict[tuple[str, int], _Pending] = {}
+        self._kept: dict[tuple[str, int], _Kept] = {}
         self._lock = threading.Lock()
         self._blueprint_lock = threading.Lock()
         self._units: dict[str, int] = {}
@@ -375,13 +409,24 @@ class RerunLogger:
             due = [key for key, p in self._pending.items() if now is None
                    or p.rows >= self.max_rows or now - p.since >= self.latency_s]
             taken = [(key, self._pending.pop(key)) for key in due]
-        for (unit, _), pending in taken:
+        width_ns = self.bin_ns
+        for key, pending in taken:
             parts = pending.parts
             record = parts[0] if len(parts) == 1 else {
                 c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
-            for start in range(0, pending.rows, self.max_rows):
-                self._send_samples(unit, {c: v[start:start + self.max_rows]
-                                          for c, v in record.items()})
+            if width_ns is None:
+                for start in range(0, pending.rows, self.max_rows):
+                    self._send_samples(key[0], {c: v[start:start + self.max_rows]
+                                                for c, v in record.items()})
+                continue
+            carried = self._thin(key, record, width_ns, now)
+            if now is not None and len(carried["ticks"]):
+                with self._lock:  # first among what came since: the bin it ends is open
+                    pending = self._pending.setdefault(key, _Pending(now))
+                    pending.parts.insert(0, carried)
+                    pending.rows += len(carried["ticks"])
+        if width_ns is not None:
+            self._send_kept(now)
         if taken:
             self._send_blueprint()
 
@@ -395,7 +440,12 @@ class RerunLogger:
             self._style(plot, unit, index)
             for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
                 rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=line))
-        body = layout.body_path(unit)
+        self._send_scene(unit, record, time_ns, device_ns, indexes)
+
+    def _send_scene(self, unit: str, record: Mapping[str, np.ndarray], time_ns: np.ndarray,
+                    device_ns: np.ndarray, indexes: list[rr.TimeColumn]) -> None:
+        """The attitude and the arrows of rows (``indexes``: their timelines)."""
+        rec, body = self.recording, layout.body_path(unit)
         xyzw = _sensor_to_earth(record)
         if xyzw is not None:
             ok = np.isfinite(xyzw).all(axis=1)
@@ -407,6 +457,60 @@ class RerunLogger:
                 vectors = np.asarray(record[name], np.float32) * np.float32(scale)
                 rec.send_columns(f"{body}/{arrow}", indexes=indexes,
                                  columns=rr.Arrows3D.columns(vectors=vectors))
+
+    def _thin(self, key: tuple[str, int], record: dict[str, np.ndarray], width_ns: int,
+              now: float | None) -> dict[str, np.ndarray]:
+        """Keep each ``width_ns`` bin's extremes of every line, and its first row.
+
+        Unless ``now`` is None (a flush), the last bin stays open: the rows it still needs
+        are returned, to go first in the next batch; else nothing is.
+        """
+        unit = key[0]
+        index = self._units[unit]
+        if (np.diff(record["time_ns"]) < 0).any():  # a late batch: bins need time order
+            order = np.argsort(record["time_ns"], kind="stable")
+            record = {c: v[order] for c, v in record.items()}
+        time_ns = np.asarray(record["time_ns"], np.int64)
+        device_ns = np.asarray(record["ticks"], np.int64) * NS_PER_TICK
+        bins = thin.Bins.of(time_ns, width_ns, hold_last=now is not None)
+        extremes, lines = [], {}
+        for plot, values in _sample_series(record, len(time_ns)).items():
+            self._style(plot, unit, index)
+            for path, line in zip(layout.plot_paths(plot, unit), values.T, strict=True):
+                rows = bins.extremes(line)
+                extremes.append(rows)
+                rows = rows[rows < bins.cut]
+                lines[path] = (time_ns[rows], device_ns[rows], line[rows])
+        firsts = bins.firsts
+        with self._lock:
+            kept = self._kept.setdefault(key, _Kept(time.monotonic() if now is None else now))
+            for path, piece in lines.items():
+                kept.lines.setdefault(path, []).append(piece)
+            kept.scene.append({c: v[firsts] for c, v in record.items()})
+            kept.rows += max((len(t) for t, _, _ in lines.values()), default=len(firsts))
+        carried = bins.carried(extremes)
+        return {c: v[carried] for c, v in record.items()}
+
+    def _send_kept(self, now: float | None) -> None:
+        """Send what thinning kept that is due at ``now`` (all of it for None)."""
+        with self._lock:
+            due = [key for key, k in self._kept.items() if now is None
+                   or k.rows >= self.max_rows or now - k.since >= self.latency_s]
+            taken = [(key, self._kept.pop(key)) for key in due]
+        rec = self.recording
+        for (unit, _), kept in taken:
+            for path, pieces in kept.lines.items():
+                time_ns, device_ns, values = (np.concatenate([p[i] for p in pieces])
+                                              for i in range(3))
+                for part in _parts(np.arange(len(time_ns)), self.max_rows):
+                    rec.send_columns(path, indexes=_indexes(time_ns[part], device_ns[part]),
+                                     columns=rr.Scalars.columns(scalars=values[part]))
+            scene = {c: np.concatenate([p[c] for p in kept.scene]) for c in kept.scene[0]}
+            time_ns = np.asarray(scene["time_ns"], np.int64)
+            device_ns = np.asarray(scene["ticks"], np.int64) * NS_PER_TICK
+            for part in _parts(np.arange(len(time_ns)), self.max_rows):
+                self._send_scene(unit, {c: v[part] for c, v in scene.items()}, time_ns[part],
+                                 device_ns[part], _indexes(time_ns[part], device_ns[part]))
 
     def _log_host_clock(self, unit: str, items: Sequence[Status]) -> None:
         """The statuses where the unit's host clock state changed, as text log entries."""

@@ -15,7 +15,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from bridge.recorder.magcal import IRONED, IronCalibration, UnitIron
+from bridge.analysis.magcal import IRONED, IronCalibration, UnitIron
 from bridge.viz.logger import RerunLogger
 
 #: Points drawn at most: enough to see the shape, few enough to stay quick.
@@ -118,8 +118,20 @@ class IronedLogger(RerunLogger):
         Raises:
             ValueError: A column is missing, or the columns differ in length.
         """
+        super().log_samples(unit, code, self.ironed(unit, columns))
+
+    def ironed(self, unit: str, columns: Mapping[str, np.ndarray]) -> Mapping[str, np.ndarray]:
+        """A batch's columns, the unit's mag and stab_mag corrected where it has a calibration.
+
+        Args:
+            unit: The unit.
+            columns: As ``RerunLogger.log_samples`` takes them.
+
+        Returns:
+            The columns, corrected (the same columns for a unit without one).
+        """
         iron = self._irons.get(unit)
-        if iron is not None:
-            columns = {name: iron.correct(value).astype(value.dtype) if name in IRONED
-                       else value for name, value in columns.items()}
-        super().log_samples(unit, code, columns)
+        if iron is None:
+            return columns
+        return {name: iron.correct(value).astype(value.dtype) if name in IRONED else value
+                for name, value in columns.items()}

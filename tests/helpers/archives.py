@@ -7,12 +7,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bridge.archive.rawcapture import RawCaptureWriter
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.protocol.codec import Batch
-from bridge.recorder.rawcapture import RawCaptureWriter
-from bridge.recorder.reader import ArchiveReader, read_archive
-from bridge.recorder.writer import ArchiveWriter
 from tests.helpers.records import T0, synthetic_batch
 
 PERIOD = 10_000_000  # ns between a unit's samples in the fleet: 100 Hz

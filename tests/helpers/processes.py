@@ -60,9 +60,9 @@ def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
 
 def published(stderr: bytes, unit: str) -> int:
     """The samples a bridge says it published, from its closing summary line."""
-    found = re.search(rf"^{unit}: (\d+) samples", stderr.decode(), re.M)
+    found = re.search(rf"^{unit}: ([\d,]+) samples", stderr.decode(), re.M)
     assert found, stderr.decode()
-    return int(found.group(1))
+    return int(found.group(1).replace(",", ""))
 
 
 class Stderr:

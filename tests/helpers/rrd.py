@@ -24,6 +24,30 @@ def plot_values(store: Any, plot: str, unit: str) -> np.ndarray:
                                      .to_pylist())[:, 0] for path in layout.plot_paths(plot, unit)])
 
 
+def scalar_lines(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Every plotted line in a recording: its entity -> (time ns, value) of its rows, in time
+    order; read chunk by chunk with Rerun's own reader (a 10-minute fleet's recording in a
+    second, where a query per entity takes many)."""
+    parts: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    with warnings.catch_warnings():  # a recorder's --rrd has no footer
+        warnings.filterwarnings("ignore", message="RRD file has no footer")
+        chunks = list(RrdReader(path).stream())
+    for chunk in chunks:
+        if "time" not in chunk.timeline_names:
+            continue
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" in batch.schema.names:
+            parts.setdefault(chunk.entity_path, []).append((
+                batch.column("time").cast(pa.int64()).to_numpy(),
+                batch.column("Scalars:scalars").flatten().to_numpy()))
+    out = {}
+    for entity, pieces in parts.items():
+        times = np.concatenate([t for t, _ in pieces])
+        order = np.argsort(times, kind="stable")
+        out[entity] = times[order], np.concatenate([v for _, v in pieces])[order]
+    return out
+
+
 def blueprint_views(path: Path) -> list[set[tuple[str, str]]]:
     """(view class, origin) of every view, one set per blueprint in the file."""
     reader = RrdReader(path)

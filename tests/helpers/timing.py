@@ -6,11 +6,11 @@ from functools import cache
 
 import numpy as np
 
-from bridge.protocol.table import REPLIES
+from bridge.protocol.table import PROCESSING_DELAY_S, REPLIES
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from bridge.timing import Timeline
+from bridge.timing import Timeline, record_delay_ns
 
 FRAME_NS = 1_000_000
 WARM_NS = 30_000_000_000
@@ -31,21 +31,33 @@ def usb_capture(ppm: float, wander: float, seconds: float, phase_s: float,
     return synthesize(config, usb, seconds)
 
 
-def filter_delay_ns(capture: SyntheticCapture) -> int:
-    """How far the unit's moving-average filter delays what its records describe."""
-    return (capture.config.stored.sampling.filter_width - 1) * 500_000
+def phase_for_crossing(ppm: float, first_s: float) -> float:
+    """The USB frame phase (s) at which a 100 Hz unit's records first cross a frame
+    boundary ``first_s`` into a capture, and then every 1 ms / ``ppm`` us a second.
+
+    The unit's own port hands a record over at the first frame after its last byte: its
+    cycle's instant, the processing delay and its transfer on; a fast unit's records come
+    earlier against the frames by ``ppm`` microseconds a second.
+    """
+    done = PROCESSING_DELAY_S + FLOOR_NS / 1e9
+    return (done - ppm * 1e-6 * first_s) % 0.001
+
+
+def delay_ns(capture: SyntheticCapture) -> int:
+    """From the instant ``capture``'s records describe to their first byte on the line."""
+    return record_delay_ns(capture.config.stored.sampling.filter_width)
 
 
 def late_errors(capture: SyntheticCapture, time_ns: np.ndarray) -> np.ndarray:
     """|estimate - the instant the values describe| after the warm-up."""
-    truth = capture.truth["time_ns"] - filter_delay_ns(capture)
+    truth = capture.truth["value_ns"]
     late = truth >= truth[0] + WARM_NS
     return np.asarray(np.abs(time_ns - truth)[late])
 
 
 def make_timeline(capture: SyntheticCapture, frame_ns: int = FRAME_NS) -> Timeline:
     """The online clock's timeline for ``capture``'s unit and link."""
-    return Timeline(625, filter_delay_ns=filter_delay_ns(capture), floor_ns=FLOOR_NS,
+    return Timeline(625, delay_ns=delay_ns(capture), floor_ns=FLOOR_NS,
                     frame_ns=frame_ns)
 
 

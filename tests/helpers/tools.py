@@ -10,10 +10,12 @@ import pytest
 
 
 def tool(name: str, package: str) -> str:
-    """A daemon's path; without it the test is skipped, except in CI, where it fails.
+    """A daemon's path; without it the test is skipped, except where it must run: fails.
 
     .ci/run unpacks Debian's packages into the folder GX3_TOOLS names (installing and
-    starting nothing); elsewhere the system's are used where they are installed.
+    starting nothing); elsewhere the system's are used where they are installed. With
+    GX3_TOOLS set (as .ci/run sets it, whether or not CI is) or in CI, a missing daemon
+    fails the test: a check skipped there would pass without having run.
 
     Args:
         name: The program (chronyd, ptp4l, prometheus).
@@ -28,6 +30,7 @@ def tool(name: str, package: str) -> str:
         found = shutil.which(name, path=where)
         if found:
             return found
-    if os.environ.get("CI"):
-        pytest.fail(f"{name} is missing: .ci/run unpacks Debian's {package} into GX3_TOOLS")
+    if tools or os.environ.get("CI"):
+        pytest.fail(f"{name} is missing: .ci/run unpacks Debian's {package} into GX3_TOOLS"
+                    + (f" ({tools} has none)" if tools else ""))
     pytest.skip(f"{name} is not installed (Debian's {package})")

@@ -26,15 +26,16 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from bridge._text import counted
+from bridge._text import counted, number
+from bridge.archive.walk import is_mcap
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info, Status
 from bridge.exceptions import LogImportError
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer, FramerStats, other_byte_order
 from bridge.protocol.table import DATA_CODES, TICKS_PER_SECOND
-from bridge.recorder.writer import ArchiveWriter
-from bridge.timing.stream import filter_delay_ns
+from bridge.timing.stream import filter_delay_ns, period_middle_ns
 from bridge.timing.unwrap import NS_PER_TICK
 
 __all__ = ["Imported", "LogFile", "import_logs", "name_time", "parse_start"]
@@ -98,7 +99,8 @@ class Imported:
         Returns:
             The lines.
         """
-        by_type = ", ".join(f"0x{code:02X}×{n:,}" for code, n in sorted(self.samples.items()))
+        by_type = ", ".join(f"0x{code:02X}×{number(n)}"
+                            for code, n in sorted(self.samples.items()))
         span = (self.last_ns - self.first_ns) / 1e9
         events = ", ".join(counted(n, kind, "glitches" if kind == "glitch" else None)
                            for kind, n in sorted(self.events.items()))
@@ -111,8 +113,8 @@ class Imported:
                 f"{'from the log' if self.decimation_from_log else 'by the timer'}")
         return (f"{self.unit}: {total} ({by_type or 'none'}) at {rate} over {span:,.1f} s; "
                 f"{events or 'no gap'}{lost}; {delay}\n"
-                f"checksum failures: {self.stats.checksum_failures}; bytes skipped: "
-                f"{self.stats.bytes_skipped:,} of {self.stats.bytes_fed:,}")
+                f"checksum failures: {number(self.stats.checksum_failures)}; bytes skipped: "
+                f"{number(self.stats.bytes_skipped)} of {number(self.stats.bytes_fed)}")
 
 
 def parse_start(text: str) -> int:
@@ -236,7 +238,7 @@ class _Timeline:
             self._learn_period(batch["timer"])
         fast = self._ticks_at_once(batch)
         if fast is not None:
-            return fast, self.origin_ns + fast * NS_PER_TICK, None
+            return fast, self.origin_ns + fast * NS_PER_TICK - self._middle(batch.code), None
         timers = batch["timer"].astype(np.int64).tolist()
         ticks = np.empty(len(timers), np.int64)
         origins = np.empty(len(timers), np.int64)  # a reset in the batch changes it
@@ -270,7 +272,12 @@ class _Timeline:
                     self.last_ticks += step
             ticks[i], origins[i] = self.last_ticks, self.origin_ns
             self.last_timer, self.last_code = timer, batch.code
-        return ticks, origins + ticks * NS_PER_TICK, None if keep.all() else keep
+        return (ticks, origins + ticks * NS_PER_TICK - self._middle(batch.code),
+                None if keep.all() else keep)
+
+    def _middle(self, code: int) -> int:
+        """How much earlier records of ``code`` describe than their cycle (``period_middle_ns``)."""
+        return period_middle_ns(code, self.result.decimation)
 
     def _ticks_at_once(self, batch: Batch) -> np.ndarray | None:
         """``ticks`` of a batch with no reset or glitch in it (nearly all), at once."""
@@ -361,11 +368,13 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         What was imported.
 
     Raises:
-        LogImportError: No record in the logs, a start missing, a reset whose time
-            the logs cannot tell, or more restarts than resets.
+        LogImportError: A log is an MCAP file, every log is empty, no record in the
+            logs, a start missing, a reset whose time the logs cannot tell, or more
+            restarts than resets.
         OSError: A log cannot be read.
         ArchiveError: The archive cannot be written.
     """
+    _check_logs(logs)
     result = Imported(unit)
     framer = Framer(_EXPECT, little_endian=little_endian)
     timeline = _Timeline(unit, result, restarts)
@@ -423,6 +432,23 @@ def import_logs(logs: Sequence[LogFile], out: Path, unit: str, prefix: str = "gx
         raise
     writer.close()
     return result
+
+
+def _check_logs(logs: Sequence[LogFile]) -> None:
+    """Refuse, saying what they are, logs that are no unit's bytes at all.
+
+    An archive given by mistake would otherwise be "not a 3DM-GX3 byte log", and an
+    empty log hold no record: neither says what to do.
+    """
+    for log in logs:
+        if is_mcap(log.path):
+            raise LogImportError(f"{log.path} is an MCAP archive, not a byte log: gx3 "
+                                 "export, rrd and allan read it as it is (a raw capture "
+                                 "of a bridge's: gx3 replay)")
+    if all(log.path.stat().st_size == 0 for log in logs):
+        what = "is empty" if len(logs) == 1 else "are all empty"
+        raise LogImportError(f"{', '.join(str(log.path) for log in logs)} {what}: nothing "
+                             "to import")
 
 
 def _nothing_found(logs: Sequence[LogFile], little_endian: bool) -> str:

@@ -4,7 +4,7 @@ The file is MCAP as rosbag2's MCAP storage writes it (profile ``ros2``, schema e
 ``ros2msg`` with the message definitions embedded, message encoding ``cdr``): per unit
 ``/<prefix>/<unit>/imu`` (``sensor_msgs/msg/Imu``) and, for records with a magnetometer,
 ``/<prefix>/<unit>/mag`` (``sensor_msgs/msg/MagneticField``). It is built from the rows
-of :func:`bridge.recorder.tables.sample_table`, so it holds exactly the samples a table
+of :func:`bridge.export.tables.sample_table`, so it holds exactly the samples a table
 export with the same options holds, stamped with the same ``time_ns``; each message is
 logged and published at its stamp, and messages are in log-time order.
 
@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from bridge.archive.mcap_writer import McapWriter
+from bridge.archive.writer import LIBRARY
 from bridge.bus.codec import elements
-from bridge.recorder.describe import QUANTITY_ORDER, flat_names
-from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.writer import LIBRARY
+from bridge.export.describe import QUANTITY_ORDER, flat_names
 from bridge.ros2 import messages
 from bridge.ros2.noise import ImuCovariance
 
@@ -80,7 +80,8 @@ def _quantities(table: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.
 def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
                distro: str = messages.DEFAULT_DISTRO,
                covariances: Mapping[str, ImuCovariance] | None = None,
-               metadata: Mapping[str, Mapping[str, str]] | None = None) -> Ros2Written:
+               metadata: Mapping[str, Mapping[str, str]] | None = None,
+               frames: Mapping[str, str] | None = None) -> Ros2Written:
     """Write the samples of an export table as a ROS 2 bag.
 
     Args:
@@ -91,6 +92,8 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
         covariances: Per unit, its Imu covariances (``imu_covariance``); a unit not
             in it gets 0 (unknown).
         metadata: MCAP metadata records to add, by name (``gx3.noise``).
+        frames: Per unit, the unit whose frame its messages are in (a mounted unit's
+            are in its reference's, ``gx3 export --mounts``); a unit not in it: its own.
 
     Returns:
         How many messages of each type the bag got.
@@ -114,7 +117,7 @@ def write_ros2(table: dict[str, np.ndarray], path: Path, prefix: str = "gx3", *,
             sent: dict[tuple[str, str], int] = {}  # messages, the next one's sequence number
             for unit in sorted(set(units.tolist())):
                 unit_rows = np.flatnonzero(units == unit)
-                frame = messages.frame_id(unit, prefix)
+                frame = messages.frame_id((frames or {}).get(unit, unit), prefix)
                 for at in range(0, len(unit_rows), SLICE):
                     rows = unit_rows[at : at + SLICE]
                     columns = _quantities(table, rows)

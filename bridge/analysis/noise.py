@@ -6,7 +6,7 @@ times are kept, as float32 and integer columns (36 bytes a sample, never a Pytho
 object each), and the file's chunks are dropped as they are decoded. Each unit's
 samples are then cut into contiguous stretches wherever its timer does not step by one
 sample period (a gap, a reset, a rollover: never bridged), checked for motion, and
-handed to ``bridge.recorder.allan``; several units share the cores, a unit a process.
+handed to ``bridge.analysis.allan``; several units share the cores (``units_noise``).
 
 A Kalibr ``imu.yaml`` (``kalibr_yaml``) holds the worst axis of each sensor, in
 Kalibr's units (m/s², rad/s; densities per √Hz, random walks per s per √Hz), with the
@@ -17,25 +17,26 @@ axis, bias instability, the span and stretches used) goes under one extra key,
 
 from __future__ import annotations
 
-import multiprocessing
+import functools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from bridge._text import counted, utc_text
-from bridge.exceptions import CalibrationError
-from bridge.protocol.convert import STANDARD_GRAVITY
-from bridge.protocol.table import TICKS_PER_SECOND
-from bridge.recorder.allan import (
+from bridge._text import counted, number, utc_text
+from bridge._workers import Workers, share_out
+from bridge.analysis.allan import (
     MIN_FACTOR,
     AllanSums,
     NoiseFit,
     averaging_factors,
     read_off,
 )
-from bridge.recorder.reader import ArchiveReader
+from bridge.archive.reader import ArchiveReader
+from bridge.exceptions import CalibrationError
+from bridge.protocol.convert import STANDARD_GRAVITY
+from bridge.protocol.table import TICKS_PER_SECOND
 
 __all__ = ["NOISE_KEYS", "SensorNoise", "UnitNoise", "UnitSamples", "collect_samples",
            "kalibr_yaml", "stretch_text", "unit_noise", "units_noise"]
@@ -340,21 +341,37 @@ def unit_noise(samples: UnitSamples, start_ns: int | None = None,
         stretches=tuple(used), samples=len(order), warnings=tuple(warnings))
 
 
-#: The jobs of ``units_noise``, for forked workers to find as they were (not pickled)
-_JOBS: list[tuple[UnitSamples, int | None, int | None]] = []
-
-
-def _one(job: int) -> UnitNoise | CalibrationError:
+def _noise_or_refusal(samples: UnitSamples, start_ns: int | None, end_ns: int | None
+                      ) -> UnitNoise | CalibrationError:
+    """``unit_noise``, or the error that refused it (the caller says which unit)."""
     try:
-        return unit_noise(*_JOBS[job])
-    except CalibrationError as exc:  # handed back whole: the caller says which unit
+        return unit_noise(samples, start_ns, end_ns)
+    except CalibrationError as exc:
         return exc
+
+
+@dataclass(frozen=True)
+class _Found:
+    """A worker's result for one unit: its place in the caller's list, and its noise."""
+
+    index: int
+    noise: UnitNoise | CalibrationError
+
+
+def _noise_share(share: list[tuple[int, UnitSamples]], send: Callable[[_Found], None],
+                 start_ns: int | None, end_ns: int | None) -> None:
+    """The noise of a worker's units, sent unit by unit."""
+    for index, samples in share:
+        send(_Found(index, _noise_or_refusal(samples, start_ns, end_ns)))
 
 
 def units_noise(units: Sequence[UnitSamples], start_ns: int | None = None,
                 end_ns: int | None = None, jobs: int | None = None
                 ) -> list[UnitNoise | CalibrationError]:
-    """``unit_noise`` of several units, a unit a process on the cores.
+    """``unit_noise`` of several units, shared out among processes on the cores.
+
+    Forked workers find the samples read here as they were; only the results come back
+    (``bridge._workers``).
 
     Args:
         units: Their samples.
@@ -364,17 +381,20 @@ def units_noise(units: Sequence[UnitSamples], start_ns: int | None = None,
 
     Returns:
         Each unit's noise, or the error that refused it, in the order given.
+
+    Raises:
+        CalibrationError: A worker process stopped (killed, out of memory).
     """
-    _JOBS[:] = [(u, start_ns, end_ns) for u in units]
-    try:
-        jobs = min(len(_JOBS), max(1, (os.cpu_count() or 1) if jobs is None else jobs))
-        if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-            return [_one(i) for i in range(len(_JOBS))]
-        # forked workers share the samples read here; only the results come back
-        with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            return pool.map(_one, range(len(_JOBS)), chunksize=1)
-    finally:
-        _JOBS.clear()
+    jobs = min(len(units), max(1, (os.cpu_count() or 1) if jobs is None else jobs))
+    if jobs <= 1:
+        return [_noise_or_refusal(u, start_ns, end_ns) for u in units]
+    shares = share_out(list(enumerate(units)), [len(u) for u in units], jobs)
+    work = functools.partial(_noise_share, start_ns=start_ns, end_ns=end_ns)
+    found: dict[int, UnitNoise | CalibrationError] = {}
+    with Workers(work, shares, error=CalibrationError, what="noise") as sent:
+        for result in sent:
+            found[result.index] = result.noise
+    return [found[i] for i in range(len(units))]
 
 
 def _number(value: float) -> str:
@@ -455,7 +475,7 @@ def stretch_text(noise: UnitNoise) -> str:
     Returns:
         One line: samples and hours used, and in how many stretches.
     """
-    return (f"{noise.used_samples:,} of {counted(noise.samples, 'sample')} "
+    return (f"{number(noise.used_samples)} of {counted(noise.samples, 'sample')} "
             f"({noise.used_seconds / 3600:.2f} h at {noise.rate_hz:.4g} Hz) in "
             f"{counted(len(noise.stretches), 'contiguous stretch', 'contiguous stretches')}")
 

@@ -2,6 +2,8 @@
 
 One place decides, for every command (``docs/design/archive.md``):
 
+- an output's extension names what is written into it (``named_format``): a name that
+  says Parquet never holds an archive;
 - an output that is one of the command's inputs (the same file, by device and inode,
   whatever the path says) is refused, even when the user allows replacing;
 - an existing file is replaced only when the user says so (``force``), and never
@@ -21,12 +23,68 @@ import errno
 import fcntl
 import os
 import stat
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
 from bridge.exceptions import OutputRefused
+
+#: What a file of each extension the product writes holds.
+FORMATS = {
+    ".mcap": "an MCAP archive", ".rrd": "a Rerun recording", ".parquet": "a Parquet table",
+    ".csv": "a CSV table", ".json": "a JSON file", ".yaml": "a YAML file",
+    ".yml": "a YAML file", ".png": "a PNG image",
+}
+
+
+def named_format(path: Path, *suffixes: str) -> str:
+    """The extension of the output ``path``, if it is one of ``suffixes``, else refused.
+
+    A file's extension is what the user, their tools and their file manager go by: an
+    archive written under a ``.parquet`` name would be opened as a table and fail, or be
+    mistaken for one and deleted. Every command's outputs go through this one rule.
+
+    Args:
+        path: The output the user named.
+        suffixes: The extensions of what the command writes there (``.mcap``), each one
+            of ``FORMATS``.
+
+    Returns:
+        Its extension, lower-case.
+
+    Raises:
+        OutputRefused: Its extension is none of them; the message names those that are.
+    """
+    suffix = path.suffix.lower()
+    if suffix in suffixes:
+        return suffix
+    kinds = list(dict.fromkeys(FORMATS[s] for s in suffixes))
+    raise OutputRefused(f"{path}: this writes {_either(kinds)}; name the file "
+                        f"{_either(list(suffixes))}")
+
+
+def named_folder(path: Path) -> Path:
+    """``path`` as a folder for a run's files, refused if its extension names a file.
+
+    Args:
+        path: The folder the user named.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        OutputRefused: Its extension is one a file the product writes has (``.mcap``).
+    """
+    if path.suffix.lower() in FORMATS:
+        raise OutputRefused(f"{path}: this writes a folder of files, and {path.suffix} "
+                            "names a file; give a folder name without it")
+    return path
+
+
+def _either(words: Sequence[str]) -> str:
+    """``a``, ``a or b``, ``a, b or c``."""
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} or {words[-1]}"
 
 
 def lock_holder(path: Path) -> int | None:

@@ -3,7 +3,7 @@
 A recorder killed mid-run leaves an MCAP file without summary or index, maybe with a
 half-written chunk at the end; a damaged disk leaves a finished file with a corrupt
 chunk. Tools that seek (``make_reader``, most viewers) refuse both. Repair copies what
-``bridge.recorder.reader`` can read (schemas, channels, every message of every intact
+``bridge.archive.reader`` can read (schemas, channels, every message of every intact
 chunk, metadata, attachments) into a new file with chunk index and summary, and says
 what was lost.
 """
@@ -15,8 +15,11 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+from bridge._text import counted
+from bridge.archive.explain import describe_damage
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.walk import read_archive
 from bridge.exceptions import ArchiveError, ArchiveReadError
-from bridge.recorder.reader import ArchiveReader, describe_damage, read_archive
 
 
 @dataclass(frozen=True)
@@ -40,15 +43,18 @@ class RepairReport:
             The report, as ``gx3 repair`` prints it.
         """
         state = "was finished" if self.was_complete else f"was not finished ({self.problem})"
-        return (f"{self.source} {state}: recovered {self.messages} messages on "
-                f"{self.channels} channels from {self.chunks} chunks, dropped "
-                f"{self.dropped_bytes} bytes; wrote {self.output}"
+        return (f"{self.source} {state}: recovered {counted(self.messages, 'message')} on "
+                f"{counted(self.channels, 'channel')} from {counted(self.chunks, 'chunk')}, "
+                f"dropped {counted(self.dropped_bytes, 'byte')}; wrote {self.output}"
                 + (f"\n{self.damage}" if self.damage else ""))
 
 
 def default_output(source: Path) -> Path:
-    """Where a repair writes by default: ``run.mcap`` gives ``run.repaired.mcap``."""
-    return source.with_name(f"{source.stem}.repaired{source.suffix or '.mcap'}")
+    """Where a repair writes by default: ``run.mcap`` gives ``run.repaired.mcap``.
+
+    An archive under another name still gives an ``.mcap`` file, the name of what it is.
+    """
+    return source.with_name(f"{source.stem}.repaired.mcap")
 
 
 def repair(source: Path, output: Path | None = None) -> RepairReport:

@@ -13,11 +13,14 @@ become underscores) so they cannot collide with another system's:
   forward-left-up body frame of the unit is ``gx3_<unit>`` (bridge/ros2/messages.py).
 
 Units stand side by side along east, ``spacing`` metres apart, in the order they were
-first seen, so their axes do not overlap on screen.
+first seen, so their axes do not overlap on screen. A unit's frames come at most a few
+times a second (``frame_picks``: on a grid of the unit's own sample times), which is
+all a viewer shows, whatever the unit's rate.
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Mapping
 
@@ -30,8 +33,10 @@ from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from bridge.bus.codec import record_quantities
 from bridge.bus.keys import PREFIX
 from bridge.protocol.convert import euler_to_quaternion, m_to_quaternion, sensor_to_earth_xyzw
+from bridge.protocol.table import DATA_CODES
 from bridge.ros2.messages import frame_id
 
 #: gx3_world -> gx3_world_ned: a half turn about (north + east) / √2 of ENU, which maps
@@ -84,6 +89,54 @@ def sensor_to_earth(columns: Mapping[str, np.ndarray]) -> np.ndarray:
     else:
         q = euler_to_quaternion(columns["euler"])
     return sensor_to_earth_xyzw(q)
+
+
+@functools.cache
+def framed(code: int) -> bool:
+    """Whether samples of record type ``code`` carry an attitude (and become frames)."""
+    return code in DATA_CODES and has_attitude(record_quantities(code))
+
+
+def frame_picks(times: np.ndarray, due: int | None,
+                period: int) -> tuple[list[int], int | None]:
+    """Which of a unit's attitude samples (at ``times``) become frames, and the next tick due.
+
+    The picks are the first sample at or after each tick of a grid ``period`` apart,
+    from the first sample on, so frames come exactly 1/period a second whatever the
+    unit's clock drift (a grid from each pick would wait for the sample after, at
+    9.9996 ms steps 20 Hz instead of 25). A tick with no sample of its own is skipped;
+    time going back more than two periods (a reset) starts the grid again. Times that
+    never go back (the usual case) let it jump from frame to frame, each sample's
+    successor found for all at once.
+    """
+    if not period:
+        return list(range(len(times))), due
+    if len(times) and (len(times) < 2 or bool((np.diff(times) >= 0).all())):
+        first = int(times[0])
+        if due is None or first < due - 2 * period:
+            due = first
+        i = int(np.searchsorted(times, due))
+        after = np.maximum(np.searchsorted(times, _next_tick(times, due, period)),
+                           np.arange(1, len(times) + 1)).tolist()
+        picks: list[int] = []
+        while i < len(times):
+            picks.append(i)
+            i = after[i]
+        return picks, (int(_next_tick(times[picks[-1:]], due, period)[0]) if picks else due)
+    picks = []
+    for i, t in enumerate(times.tolist()):
+        if due is None or t < due - 2 * period:
+            due = t
+        if t >= due:
+            picks.append(i)
+            due = int(_next_tick(np.array([t]), due, period)[0])
+    return picks, due
+
+
+def _next_tick(times: np.ndarray, due: int, period: int) -> np.ndarray:
+    """The first tick of the grid through ``due`` (``period`` apart) after each time."""
+    times = np.asarray(times, np.int64)
+    return due + ((times - due) // period + 1) * period
 
 
 def frame_messages(unit: str, slot: int, time_ns: np.ndarray, xyzw: np.ndarray,

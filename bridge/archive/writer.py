@@ -28,26 +28,26 @@ from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message import DecodeError, Message
 
 from bridge import __version__
-from bridge.bus.codec import decode_batch, parse, record_quantities
+from bridge.archive.eventlog import LOG_CLASS, log_message
+from bridge.archive.frames import (
+    FRAME_CLASS,
+    MARKER_CLASS,
+    frame_messages,
+    frame_picks,
+    framed,
+    marker_messages,
+    root_message,
+    sensor_to_earth,
+)
+from bridge.archive.mcap_writer import McapWriter
+from bridge.archive.outputs import create_locked, refuse_if_written
+from bridge.archive.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
+from bridge.bus.codec import decode_batch, parse
 from bridge.bus.gx3_pb2 import Event, ImuSample, Info, Status
 from bridge.bus.keys import ENCODINGS, PREFIX, check_prefix, unit_of
 from bridge.bus.schema import file_descriptor_set
 from bridge.device import clock
 from bridge.exceptions import ArchiveError, OutputRefused
-from bridge.protocol.table import DATA_CODES
-from bridge.recorder.eventlog import LOG_CLASS, log_message
-from bridge.recorder.frames import (
-    FRAME_CLASS,
-    MARKER_CLASS,
-    frame_messages,
-    has_attitude,
-    marker_messages,
-    root_message,
-    sensor_to_earth,
-)
-from bridge.recorder.mcap_writer import McapWriter
-from bridge.recorder.outputs import create_locked, refuse_if_written
-from bridge.recorder.rawcapture import LATE_READS, RAW_CLOCK, RAW_ENCODING
 
 T = TypeVar("T")
 PROTOBUF = "protobuf"
@@ -167,54 +167,6 @@ def stamps(unit: str, payloads: Sequence[bytes]) -> tuple[list[str], np.ndarray,
             np.array([f[2] for f in found], np.int64))
 
 
-@functools.cache
-def _framed(code: int) -> bool:
-    """Whether samples of record type ``code`` carry an attitude (and become frames)."""
-    return code in DATA_CODES and has_attitude(record_quantities(code))
-
-
-def frame_picks(times: np.ndarray, due: int | None,
-                period: int) -> tuple[list[int], int | None]:
-    """Which of a unit's attitude samples (at ``times``) become frames, and the next tick due.
-
-    The picks are the first sample at or after each tick of a grid ``period`` apart,
-    from the first sample on, so frames come exactly 1/period a second whatever the
-    unit's clock drift (a grid from each pick would wait for the sample after, at
-    9.9996 ms steps 20 Hz instead of 25). A tick with no sample of its own is skipped;
-    time going back more than two periods (a reset) starts the grid again. Times that
-    never go back (the usual case) let it jump from frame to frame, each sample's
-    successor found for all at once.
-    """
-    if not period:
-        return list(range(len(times))), due
-    if len(times) and (len(times) < 2 or bool((np.diff(times) >= 0).all())):
-        first = int(times[0])
-        if due is None or first < due - 2 * period:
-            due = first
-        i = int(np.searchsorted(times, due))
-        after = np.maximum(np.searchsorted(times, _next_tick(times, due, period)),
-                           np.arange(1, len(times) + 1)).tolist()
-        picks: list[int] = []
-        while i < len(times):
-            picks.append(i)
-            i = after[i]
-        return picks, (int(_next_tick(times[picks[-1:]], due, period)[0]) if picks else due)
-    picks = []
-    for i, t in enumerate(times.tolist()):
-        if due is None or t < due - 2 * period:
-            due = t
-        if t >= due:
-            picks.append(i)
-            due = int(_next_tick(np.array([t]), due, period)[0])
-    return picks, due
-
-
-def _next_tick(times: np.ndarray, due: int, period: int) -> np.ndarray:
-    """The first tick of the grid through ``due`` (``period`` apart) after each time."""
-    times = np.asarray(times, np.int64)
-    return due + ((times - due) // period + 1) * period
-
-
 @dataclass
 class _File:
     """One open MCAP file and the ids registered in it."""
@@ -322,7 +274,7 @@ class ArchiveWriter:
     # -- files ---------------------------------------------------------------------------
 
     def _open(self) -> None:
-        """Create the next file exclusively and lock it (``bridge.recorder.outputs``).
+        """Create the next file exclusively and lock it (``bridge.archive.outputs``).
 
         An existing one is never truncated; split parts continue after those already there.
         """
@@ -517,7 +469,7 @@ class ArchiveWriter:
             payloads: Their bytes, as published.
             receive_ns: When they were received, host ns: one time for all, or one each.
             publish_ns: Raw reads' stamps on the raw monotonic clock, their publish times
-                (``bridge.recorder.rawcapture``); by default the receive times are.
+                (``bridge.archive.rawcapture``); by default the receive times are.
 
         Raises:
             ValueError: The key is not one the archive has a channel for, a payload is
@@ -612,10 +564,10 @@ class ArchiveWriter:
         """
         code_list = codes.tolist()
         kinds = set(code_list)
-        if not any(map(_framed, kinds)):
+        if not any(map(framed, kinds)):
             return
-        eligible = (None if all(map(_framed, kinds))
-                    else [i for i, c in enumerate(code_list) if _framed(c)])
+        eligible = (None if all(map(framed, kinds))
+                    else [i for i, c in enumerate(code_list) if framed(c)])
         times = log_ns if eligible is None else log_ns[eligible]
         picks, due = frame_picks(times, self._frame_due.get(unit), self.frame_period_ns)
         if due is not None:

@@ -11,8 +11,6 @@ metadata. The columns one by one: ``docs/design/archive.md``.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -20,82 +18,63 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from bridge.archive.outputs import named_format
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.samples import ArchivedSamples
 from bridge.bus.codec import elements
 from bridge.bus.gx3_pb2 import Event, Info
+from bridge.export.describe import (
+    ALIGNED_SEPARATOR,
+    QUANTITY_ORDER,
+    About,
+    column_metadata,
+    csv_header,
+    flat_names,
+    unit_labels,
+)
 from bridge.protocol.convert import (
     euler_to_quaternion,
     m_to_quaternion,
     quaternion_to_euler,
     quaternion_to_m,
 )
-from bridge.recorder.describe import (
-    ALIGNED_SEPARATOR,
-    QUANTITY_ORDER,
-    About,
-    column_metadata,
-    flat_names,
-    unit_labels,
-)
-from bridge.recorder.reader import ArchivedSamples, ArchiveReader
-from bridge.timing.offline import OfflineClock
+from bridge.timing.offline import Estimate
 from bridge.timing.realtime import RealtimeReads
 from bridge.timing.stream import TRANSPORTS, Settings
 
 #: Offline re-estimate of sample times: (unit, its columns ``ticks``, ``time_ns`` (live),
-#: ``rx_ns`` and ``rx_mono_raw_ns``, in the order they were received) -> time_ns, int64
-#: ns; None keeps that unit's live times.
-ReEstimate = Callable[[str, Mapping[str, np.ndarray]], np.ndarray | None]
+#: ``rx_ns``, ``rx_mono_raw_ns`` and the partial reads, in the order they were received)
+#: -> time_ns and each one's uncertainty, int64 ns; None keeps that unit's live times.
+ReEstimate = Callable[[str, Mapping[str, np.ndarray]], Estimate | None]
 
 FORMATS = (".parquet", ".csv")
 
 
-@dataclass(frozen=True)
-class TimeBound:
-    """A --start/--end bound: absolute host time in ns, or seconds from the first sample."""
-
-    ns: int
-    relative: bool
-
-    def resolve(self, first_ns: int) -> int:
-        """The bound in host ns, for a recording whose first sample is at ``first_ns``."""
-        return first_ns + self.ns if self.relative else self.ns
-
-
-def parse_time(text: str) -> TimeBound:
-    """``2026-11-22T02:50:00Z`` (ISO 8601; no zone = UTC) or ``12.5`` (s from the start)."""
-    try:
-        return TimeBound(round(float(text) * 1e9), relative=True)
-    except ValueError:
-        pass
-    try:
-        when = datetime.fromisoformat(text)
-    except ValueError:
-        raise ValueError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z nor "
-                         "seconds from the start such as 12.5") from None
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
-    delta = when - datetime(1970, 1, 1, tzinfo=UTC)
-    return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
-                     + delta.microseconds * 1000, relative=False)
-
-
 def _unit_times(unit: str, blocks: Sequence[ArchivedSamples],
-                re_estimate: ReEstimate | None) -> list[np.ndarray]:
-    """Best time_ns of each block of one unit: live, or re-estimated over the whole unit."""
-    live = [b.columns["time_ns"] for b in blocks]
+                re_estimate: ReEstimate | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Best time_ns of each block of one unit and how sure each is.
+
+    Live (uncertainty not known, 0), or re-estimated over the whole unit.
+    """
+    live = [(b.columns["time_ns"], np.zeros(len(b), np.int64)) for b in blocks]
     if re_estimate is None:
         return live
     columns = {name: np.concatenate([b.columns[name] for b in blocks])
-               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns")}
+               for name in ("ticks", "time_ns", "rx_ns", "rx_mono_raw_ns", "part_rx_mono_raw_ns",
+                            "part_lead_ns")}
     raw = columns["rx_mono_raw_ns"]
     # the raw clock orders reads truly; the realtime clock may have been stepped back
     order = np.argsort(raw if (raw > 0).all() else columns["rx_ns"], kind="stable")
     found = re_estimate(unit, {name: col[order] for name, col in columns.items()})
     if found is None:
         return live
-    estimate = np.empty(len(raw), np.int64)
-    estimate[order] = np.asarray(found, np.int64)
-    return np.split(estimate, np.cumsum([len(b) for b in blocks])[:-1])
+    cuts = np.cumsum([len(b) for b in blocks])[:-1]
+    out = []
+    for values in found:
+        column = np.empty(len(raw), np.int64)
+        column[order] = values
+        out.append(np.split(column, cuts))
+    return list(zip(*out, strict=True))
 
 
 def last_info(archive: ArchiveReader, unit: str) -> Info | None:
@@ -130,9 +109,10 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     """Each unit's sample instants re-estimated over the whole recording.
 
     The live estimate only had the past. A unit is timed with the settings of its
-    archived Info; units without one keep their live times, and so do units behind a
-    USB-serial adapter: the archive keeps each record's completing read only, not the
-    reads that ended inside it, which timed it live to a byte.
+    archived Info; units without one keep their live times. Each sample carries the read
+    that ended inside its record, or right where it begins, where there was one
+    (``part_rx_mono_raw_ns``): with it the records are bounded as live, to a byte time
+    behind a USB-serial adapter.
 
     Where the samples carry their reads' raw-clock stamps, the unit's clock is fitted
     against the raw clock and each instant mapped onto the realtime clock as live
@@ -146,22 +126,25 @@ def offline_times(archive: ArchiveReader) -> ReEstimate:
     Returns:
         The re-estimate, for ``sample_table``'s ``re_estimate``.
     """
-    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    def estimate(unit: str, columns: Mapping[str, np.ndarray]) -> Estimate | None:
         ticks, rx_ns, raw = columns["ticks"], columns["rx_ns"], columns["rx_mono_raw_ns"]
         settings = _unit_settings(archive, unit)
-        if settings is None or settings.serial or len(ticks) < 2:
+        if settings is None or len(ticks) < 2:
             return None
-        clock = OfflineClock(settings.filter_delay_ns, settings.floor_ns, settings.frame_ns)
         on_raw = bool((raw > 0).all())
         order = np.argsort(ticks, kind="stable")
-        instants = clock.smooth(ticks[order], (raw if on_raw else rx_ns)[order])
+        rx = (raw if on_raw else rx_ns)[order]
+        part, lead = columns["part_rx_mono_raw_ns"][order], columns["part_lead_ns"][order]
+        has = (part > 0) & on_raw  # recorded, on the raw clock the rest is timed on
+        instants, doubt = settings.offline_clock().estimate(
+            ticks[order], rx, np.where(has, part, rx), np.where(has, lead, settings.floor_ns))
         if on_raw:
             reads, first = np.unique(raw, return_index=True)
             track = RealtimeReads(reads, rx_ns[first])
             live_offset = columns["time_ns"][order] - instants
             instants = track.map_array(instants, raw[order], sides=live_offset)
-        out = np.empty(len(ticks), np.int64)
-        out[order] = instants
+        out = Estimate(np.empty(len(ticks), np.int64), np.empty(len(ticks), np.int64))
+        out.time_ns[order], out.uncertainty_ns[order] = instants, doubt
         return out
 
     return estimate
@@ -185,12 +168,14 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     Returns:
         Column name -> one value per row: ``unit``, ``command``, ``timer``, ``ticks``,
         ``time_ns`` (the best estimate of the sample instant: the live estimate unless a
-        re-estimate is given), ``live_time_ns`` (as the bridge published it), ``rx_ns``
-        (host receive time), then each quantity any exported record holds, flattened
-        (``accel_x``, ``m11`` .. ``m33``, ``roll``, ``q0``, ``temperature_0``, ...), NaN
-        where a record lacks it. Temperatures are A/D codes stored as float32 (exact),
-        so that they can be missing too. Orientation columns keep the manual's
-        convention: M maps earth (NED) to sensor, the quaternion is scalar first.
+        re-estimate is given), ``time_uncertainty_ns`` (the most ``time_ns`` can be off
+        by, as the reads bound it; 0: not known), ``live_time_ns`` (as the bridge
+        published it), ``rx_ns`` (host receive time), then each quantity any exported
+        record holds, flattened (``accel_x``, ``m11`` .. ``m33``, ``roll``, ``q0``,
+        ``temperature_0``, ...), NaN where a record lacks it. Temperatures are A/D codes
+        stored as float32 (exact), so that they can be missing too. Orientation columns
+        keep the manual's convention: M maps earth (NED) to sensor, the quaternion is
+        scalar first.
     """
     blocks = archive.samples(units, codes)
     by_unit: dict[str, list[ArchivedSamples]] = {}
@@ -199,7 +184,8 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     times = {u: _unit_times(u, bs, re_estimate) for u, bs in by_unit.items()}
     unit_names = sorted(by_unit)
     ordered = [(b, t) for u in unit_names for b, t in zip(by_unit[u], times[u], strict=True)]
-    time_ns = np.concatenate([t for _, t in ordered]) if ordered else np.zeros(0, np.int64)
+    time_ns, doubt = (np.concatenate([t[i] for _, t in ordered]) if ordered
+                      else np.zeros(0, np.int64) for i in range(2))
     keep = np.ones(len(time_ns), bool)
     if start_ns is not None:
         keep &= time_ns >= start_ns
@@ -213,6 +199,7 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
         "timer": _cat(ordered, "timer", np.uint32),
         "ticks": _cat(ordered, "ticks", np.int64),
         "time_ns": time_ns,
+        "time_uncertainty_ns": doubt,
         "live_time_ns": _cat(ordered, "time_ns", np.int64),
         "rx_ns": _cat(ordered, "rx_ns", np.int64),
     }
@@ -234,7 +221,8 @@ def sample_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     return out
 
 
-def _cat(ordered: list[tuple[ArchivedSamples, np.ndarray]], name: str, dtype: type) -> np.ndarray:
+def _cat(ordered: list[tuple[ArchivedSamples, tuple[np.ndarray, np.ndarray]]], name: str,
+         dtype: type) -> np.ndarray:
     if not ordered:
         return np.zeros(0, dtype)
     return np.concatenate([b.columns[name] for b, _ in ordered]).astype(dtype)
@@ -268,27 +256,6 @@ def event_table(archive: ArchiveReader, units: Iterable[str] | None = None,
     }
 
 
-def check_format(path: Path, bag: bool = False) -> str:
-    """The table format named by the file's extension, or a one-line error.
-
-    Args:
-        path: The file to write.
-        bag: The error also names .mcap, for a command that writes a ROS 2 bag there.
-
-    Returns:
-        The extension, lower-case.
-
-    Raises:
-        ValueError: The extension names no table format.
-    """
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise ValueError(f"{path}: unknown output format {suffix or '(no extension)'!r}; "
-                         "name the file .parquet or .csv"
-                         + (" (a table), or .mcap (a ROS 2 bag)" if bag else ""))
-    return suffix
-
-
 def _arrow(col: np.ndarray) -> pa.Array:
     if col.dtype.kind in "OU":  # names: stored once per file, not once per row
         return pa.array(col.astype(str), pa.string()).dictionary_encode()
@@ -316,7 +283,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
     """Write columns as Parquet (zstd) or CSV, chosen by the file's extension.
 
     A ``time_utc`` timestamp goes beside ``time_ns``; in Parquet, each column's unit and
-    frame and ``about`` go in as metadata.
+    frame and ``about`` go in as metadata, in CSV each column's unit into its header
+    (``csv_header``: ``accel_x [g]``).
 
     Args:
         columns: The table (``sample_table``, ``event_table``, ``align_table``).
@@ -324,9 +292,9 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         about: The file's provenance: archive, units, options.
 
     Raises:
-        ValueError: The extension names no format this writes.
+        OutputRefused: The extension names no format this writes.
     """
-    suffix = check_format(path)
+    suffix = named_format(path, *FORMATS)
     labels = unit_labels(about.infos) if about else {}
     fields, arrays = [], []
     for name, col in columns.items():
@@ -343,7 +311,8 @@ def write_table(columns: dict[str, np.ndarray], path: Path, about: About | None 
         pq.write_table(table, path, compression="zstd", column_encoding=encodings,
                        use_dictionary=[f.name for f in fields if f.name not in encodings])
     else:
-        pa_csv.write_csv(table, path)
+        pa_csv.write_csv(table.rename_columns([csv_header(f.name, labels) for f in fields]),
+                         path)
 
 
 # -- aligning units on one time grid ---------------------------------------------------------

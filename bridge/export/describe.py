@@ -5,7 +5,9 @@ Its column names, each column's physical unit and frame, and the file's provenan
 later, or by someone who never saw this project, explains itself.
 
 Column names are lower-case identifiers that no DuckDB keyword and no pandas DataFrame
-attribute takes, so they work unquoted in SQL and with pandas attribute access.
+attribute takes, so they work unquoted in SQL and with pandas attribute access. A CSV
+file, which has no metadata, carries each column's unit in its header instead
+(``csv_header``).
 """
 
 from __future__ import annotations
@@ -59,6 +61,9 @@ _HEAD: dict[str, tuple[str, str]] = {
                       "each unit's clock re-estimated over the whole recording (live times "
                       "where the unit's Info is not archived), filter delay taken out"),
     "time_utc": ("ns", "time_ns as a UTC timestamp"),
+    "time_uncertainty_ns": ("ns", "the most time_ns can be off by, as the reads bound it "
+                                  "(time_ns is the middle of the instants they allow); 0: "
+                                  "not known (a UART's reads bound records from one side)"),
     "live_time_ns": ("ns", "time_ns as the bridge published it live (from the past only)"),
     "rx_ns": ("ns", "host receive time (ns since the Unix epoch) of the read that completed "
                     "the record; includes transport latency"),
@@ -167,6 +172,29 @@ def column_metadata(name: str, labels: Mapping[str, str]) -> dict[str, str]:
     return {k: v for k, v in about.items() if v}
 
 
+def csv_header(name: str, labels: Mapping[str, str]) -> str:
+    """A CSV column's header: its name, and its physical unit in brackets, ``accel_x [g]``.
+
+    A CSV file has no metadata to hold the units, so they go where a spreadsheet shows
+    them and where every reader (pandas, polars, DuckDB, pyarrow) takes them with no
+    option: the one header line. A column with no unit keeps its bare name (``unit``,
+    ``m11``, ``q0``), as does one whose name ends in its unit already (``time_ns``) and
+    ``time_utc``, whose values carry their zone and which readers then parse as
+    timestamps by themselves.
+
+    Args:
+        name: The column's name (as in Parquet).
+        labels: Each unit's column prefix in aligned output (``unit_labels``).
+
+    Returns:
+        The header.
+    """
+    unit = column_metadata(name, labels).get("physical_unit", "unitless")
+    if unit == "unitless" or name == "time_utc" or name.endswith(f"_{unit}"):
+        return name
+    return f"{name} [{unit}]"
+
+
 @dataclass(frozen=True)
 class About:
     """The file-level facts of an export: which archive, which units, which options."""
@@ -176,6 +204,7 @@ class About:
     options: Mapping[str, object] = field(default_factory=dict)
     mag_cal: Mapping[str, object] = field(default_factory=dict)  # unit -> calibration file
     noise: Mapping[str, object] = field(default_factory=dict)  # the noise file, covariances
+    mounts: Mapping[str, object] = field(default_factory=dict)  # the mounts file applied
 
     def metadata(self) -> dict[str, str]:
         """Parquet file metadata.
@@ -183,7 +212,8 @@ class About:
         Returns:
             Key-value pairs, values JSON where structured: schema version, product,
             conventions, source archive, export options, the units' Info,
-            calibrations and the noise file with the covariances it gives.
+            calibrations, the noise file with the covariances it gives, and the mounts
+            file applied.
         """
         labels = unit_labels(self.infos)
         units = {u: {"column_prefix": labels[u],
@@ -193,6 +223,8 @@ class About:
         extra = {"gx3.mag_cal": json.dumps(dict(self.mag_cal))} if self.mag_cal else {}
         if self.noise:
             extra["gx3.noise"] = json.dumps(dict(self.noise))
+        if self.mounts:
+            extra["gx3.mounts"] = json.dumps(dict(self.mounts))
         return {
             "gx3.schema": SCHEMA_VERSION,
             "gx3.product": f"gx3-bridge {importlib.metadata.version('gx3-bridge')}",

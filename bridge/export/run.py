@@ -1,14 +1,15 @@
 """What ``gx3 export`` runs: an archive's samples to a table or a ROS 2 bag, as one job.
 
 ``Export`` checks a request before anything is read or written (the formats, what goes
-with what, the span, the record types, the calibration files), then ``write`` turns
-an archive, read with ``read_samples_archive``, into the output and the events table;
-``run`` does all of it with safe outputs (each appears when complete, nothing is left
-if it fails). The tables and their writers are ``bridge.recorder.tables``'s::
+with what, the span, the record types, the calibration files), then ``write`` turns an
+archive, read with ``bridge.archive.read_samples_archive``, into the output and the
+events table; ``run`` does all of it with safe outputs (each appears when complete,
+nothing is left if it fails). The tables and their writers are
+``bridge.export.tables``'s::
 
     from pathlib import Path
 
-    from bridge.recorder.export import Export
+    from bridge.export import Export
 
     done = Export(Path("fleet.mcap"), Path("fleet.parquet"), align_hz=100).run()
     print(done.text())
@@ -23,20 +24,23 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bridge._text import counted
-from bridge.recorder.describe import ALIGNED_SEPARATOR, About, unit_labels
-from bridge.recorder.magcal import UnitIron, apply, read_document, with_heading
-from bridge.recorder.reader import ArchiveReader, describe_problem, read_archive
-from bridge.recorder.ros2_export import Ros2Written, write_ros2
-from bridge.recorder.tables import (
-    TimeBound,
+from bridge._text import counted, number
+from bridge.analysis.magcal import UnitIron, apply, read_document, with_heading
+from bridge.analysis.mounts import read_mounts
+from bridge.archive.outputs import named_format
+from bridge.archive.reader import ArchiveReader
+from bridge.archive.times import TimeSpan
+from bridge.archive.walk import read_samples_archive
+from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
+from bridge.export.mounted import shift_times, turn_units
+from bridge.export.ros2_bag import Ros2Written, write_ros2
+from bridge.export.tables import FORMATS as TABLES
+from bridge.export.tables import (
     align_table,
     archive_prefix,
-    check_format,
     event_table,
     last_info,
     offline_times,
-    parse_time,
     sample_table,
     write_table,
 )
@@ -46,40 +50,14 @@ from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance, read_nois
 if TYPE_CHECKING:
     from bridge.bus.gx3_pb2 import Info
 
-__all__ = ["Export", "Exported", "read_samples_archive"]
+__all__ = ["Export", "Exported"]
 
 #: What ``--format`` takes.
 FORMATS = ("parquet", "csv", "ros2")
+#: The extensions of what an export writes: a table, or a ROS 2 bag (.mcap).
+SUFFIXES = (*TABLES, ".mcap")
 
 
-def read_samples_archive(path: Path, on_read: Callable[[int], None] | None = None,
-                         on_problem: Callable[[str], None] | None = None,
-                         on_blocks: Callable[[ArchiveReader], None] | None = None
-                         ) -> ArchiveReader:
-    """Read an archive to take samples from; one with nothing readable is refused.
-
-    Args:
-        path: The archive.
-        on_read: Hears the bytes read so far, as the reading goes (a progress bar).
-        on_problem: Hears, once, what is wrong with an archive that was cut short or
-            damaged, and what to do about it; the readable rest is read.
-        on_blocks: Streams it chunk by chunk instead of keeping it (``read_archive``).
-
-    Returns:
-        Everything readable in the archive.
-
-    Raises:
-        ArchiveReadError: The file is missing, empty, unreadable or not MCAP at all.
-        ValueError: Nothing in it can be read as messages.
-    """
-    archive = read_archive(path, on_read, on_blocks=on_blocks)
-    if not archive.message_count:
-        raise ValueError(f"{path}: nothing readable in it ({archive.problem or 'no messages'})"
-                         "; is it an archive written by gx3?")
-    problem = describe_problem(archive)
-    if problem and on_problem is not None:
-        on_problem(f"{problem}; `gx3 repair` makes a finished copy")
-    return archive
 
 
 def _code(code: int | str) -> int:
@@ -172,13 +150,15 @@ class Exported:
         """
         of = f"{counted(self.samples, 'sample')} of {counted(self.units, 'unit')} to {self.output}"
         if self.bag is not None:
-            text = f"wrote {self.bag.imu} Imu and {self.bag.mag} MagneticField messages of {of}"
+            text = (f"wrote {number(self.bag.imu)} Imu and {number(self.bag.mag)} "
+                    f"MagneticField messages of {of}")
         elif self.align_hz is not None:
-            text = f"wrote {self.instants} instants at {self.align_hz:g} Hz of {of}"
+            text = (f"wrote {counted(self.instants or 0, 'instant')} at {self.align_hz:g} Hz "
+                    f"of {of}")
         else:
             text = f"wrote {of}"
         if self.events_path is not None:
-            text += f"; {self.events} events to {self.events_path}"
+            text += f"; {counted(self.events, 'event')} to {self.events_path}"
         return text
 
 
@@ -207,12 +187,18 @@ class Export:
             the file and those covariances in its ``gx3.noise`` metadata. A CSV file has
             nowhere to record it and is refused.
         ros2_distro: The ROS 2 distribution of a bag (``jazzy``, ``humble``); bags only.
+        mounts: A mounts file (``gx3 align``): each unit it names is put in the
+            reference's axes and on its time; a Parquet table or a bag records the file
+            and its SHA-256 (``gx3.mounts``), and a bag's messages of those units are in
+            the reference's frame. A CSV file has nowhere to record it and is refused.
 
     Raises:
-        ValueError: The request cannot be met: a calibration or noise file that cannot
-            be read, a format or extension that does not fit, --align with a bag, the
-            events table on the output's own file, a record type or time that is not
-            one, --noise with a CSV file, --ros2-distro with a table.
+        OutputRefused: An output's extension names none of the formats it can hold.
+        ValueError: The request cannot be met: a calibration, noise or mounts file that
+            cannot be read, a format that does not fit the output's extension, --align
+            with a bag, the events table on the output's own file, a record type or time
+            that is not one, an end before the start (TimeSpanError), --noise or --mounts
+            with a CSV file, --ros2-distro with a table.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -220,17 +206,17 @@ class Export:
                  start: str | None = None, end: str | None = None,
                  align_hz: float | None = None, events: Path | None = None,
                  mag_cal: Sequence[Path] = (), noise: Path | None = None,
-                 ros2_distro: str | None = None) -> None:
+                 ros2_distro: str | None = None, mounts: Path | None = None) -> None:
         self.archive, self.output, self.events = archive, output, events
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
         self.irons: list[UnitIron] = [read_document(path) for path in mag_cal]
+        named_format(output, *SUFFIXES)
         self.ros2 = _wants_ros2(output, output_format)
         if self.ros2 and align_hz is not None:
             raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
                              "own time (leave out --align or --format ros2)")
         if not self.ros2:
-            check_format(output, bag=True)
             if ros2_distro is not None:
                 raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a table "
                                  "is the same for every ROS (leave it out or --format ros2)")
@@ -238,16 +224,20 @@ class Export:
                 raise ValueError("--noise is recorded in a Parquet table's metadata or used "
                                  "in a ROS 2 bag; a CSV file has no metadata to record it "
                                  "in (write .parquet, or leave out --noise)")
+            if mounts is not None and output.suffix.lower() == ".csv":
+                raise ValueError("--mounts changes the samples, and a table records which "
+                                 "file did in its metadata; a CSV file has none (write "
+                                 ".parquet, or leave out --mounts)")
         self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
         self.noise = None if noise is None else read_noise(noise)
+        self.mounts = None if mounts is None else read_mounts(mounts)
         if events is not None:
-            check_format(events)
+            named_format(events, *TABLES)
             if events.absolute() == output.absolute():
                 raise ValueError(f"--events {events} is the table's own file; give it "
                                  "another name")
         self.types = [_code(c) for c in types] if types else None
-        self._start: TimeBound | None = parse_time(start) if start else None
-        self._end: TimeBound | None = parse_time(end) if end else None
+        self.span = TimeSpan(start, end)
 
     def read(self, on_read: Callable[[int], None] | None = None,
              on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
@@ -280,14 +270,17 @@ class Export:
             What was written.
 
         Raises:
-            ValueError: No samples match, a calibration's unit has none, or a sample's
-                time does not fit a ROS time stamp.
+            ValueError: No samples match, the end is not after the start
+                (TimeSpanError), a calibration's unit has none, a mounts file names a unit
+                the archive lacks, or a sample's time does not fit a ROS time stamp.
             OSError: An output cannot be written.
         """
-        first = data.first_sample_ns() or 0
-        lo_ns = self._start.resolve(first) if self._start else None
-        hi_ns = self._end.resolve(first) if self._end else None
-        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, offline_times(data))
+        lo_ns, hi_ns = self.span.resolve(data.first_sample_ns() or 0)
+        times = offline_times(data)
+        if self.mounts is not None:
+            self.mounts.check_units(data.units())
+            times = shift_times(times, self.mounts)
+        table = sample_table(data, self.units, self.types, lo_ns, hi_ns, times)
         rows = len(table["time_ns"])
         if not rows:
             raise ValueError(f"{self.archive}: no samples match (units: "
@@ -296,6 +289,8 @@ class Export:
         names = sorted(set(table["unit"].tolist()))
         irons = self.irons
         apply(table, irons)
+        if self.mounts is not None:
+            turn_units(table, self.mounts)
         infos = {u: last_info(data, u) for u in names}
         covariances: dict[str, ImuCovariance] = {}
         noted: dict[str, object] = {}
@@ -308,15 +303,20 @@ class Export:
             "units": self.units, "types": self.types, "start": self.start, "end": self.end,
             "start_ns": lo_ns, "end_ns": hi_ns, "align_hz": self.align_hz,
             "time_ns": "re-estimated"},
-            {iron.unit: iron.content for iron in irons}, noted)
+            {iron.unit: iron.content for iron in irons}, noted,
+            {} if self.mounts is None else self.mounts.provenance())
         done = Exported(self.output, rows, len(names), events_path=self.events,
                         notes=tuple(notes))
         if self.ros2:
-            record = {"gx3.noise": {k: v if isinstance(v, str) else json.dumps(v)
-                                    for k, v in noted.items()}} if noted else None
+            records = {name: {k: v if isinstance(v, str) else json.dumps(v)
+                              for k, v in content.items()}
+                       for name, content in (("gx3.noise", noted), ("gx3.mounts",
+                                             about.mounts)) if content}
+            frames = {} if self.mounts is None else dict.fromkeys(self.mounts.units,
+                                                                  self.mounts.reference)
             done = replace(done, bag=write_ros2(
                 table, table_file, archive_prefix(data), distro=self.distro,
-                covariances=covariances, metadata=record))
+                covariances=covariances, metadata=records or None, frames=frames))
         elif self.align_hz is not None:
             table = align_table(table, self.align_hz)
             if irons:
@@ -354,7 +354,7 @@ class Export:
             ValueError: Nothing matches, or what matches cannot be exported as asked.
             OSError: An output cannot be written.
         """
-        from bridge.recorder.outputs import staged
+        from bridge.archive.outputs import staged
 
         with ExitStack() as outputs:
             table_file = outputs.enter_context(staged(self.output, [self.archive], force))

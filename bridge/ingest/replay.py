@@ -11,32 +11,28 @@ understood from its bytes and receive times. How, and what is inferred from what
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
-import multiprocessing
 import os
-import pickle
-import signal
-import threading
-import time
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from queue import Empty
-from typing import Any
 
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from bridge._workers import Workers, share_out
+from bridge.archive.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
+from bridge.archive.reader import ArchiveReader, Messages
+from bridge.archive.walk import read_archive, summary_counts
+from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
 from bridge.bus.gx3_pb2 import Event, Info
 from bridge.exceptions import ArchiveReadError, ReplayError, UnusableCapture
 from bridge.protocol.codec import Batch
 from bridge.protocol.framer import Framer
-from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, TICKS_PER_SECOND
-from bridge.recorder.rawcapture import LATE_READS, REALTIME_FROM_NS, capture_metadata
-from bridge.recorder.reader import ArchiveReader, Messages, read_archive, summary_counts
-from bridge.recorder.writer import ArchiveWriter
+from bridge.protocol.table import DATA_CODES, DEFAULT_BAUD, MAX_OUTPUT_HZ, TICKS_PER_SECOND
 from bridge.timing.links import infer_transport
 from bridge.timing.realtime import ChangeKind, ClockChange, RealtimeReads
 from bridge.timing.steps import find_steps, raw_like, unwrap_timer
@@ -52,8 +48,6 @@ _SNIFF_READS = 400
 _INFER_READS = 500_000  # minutes of reads: plenty to tell the link by
 _GROUP = 4096  # records timed and encoded together
 _FEED_BYTES = 1 << 20  # reads framed together
-_QUEUED = 64  # message groups a worker may have waiting for the writer
-_JOIN_S = 5.0  # a killed worker is gone at once; this only bounds a stuck kernel call
 
 #: Where replayed messages go: key, payloads, receive time (one, or one per payload).
 Emit = Callable[[str, Sequence[bytes], "np.ndarray | int"], None]
@@ -181,6 +175,10 @@ class _UnitReplay:
         self.timing = StreamTiming(self.host)
         self._pending: list[Batch] = []
         self._pending_records = 0
+        #: the Info's flags and magnetometer filter width beyond ``settings``: the
+        #: capture's metadata's until a 0xDB reply in it says otherwise
+        self._flags = int(capture.metadata.get("flags", "0"))
+        self._mag_filter_width = 0  # not known
 
     # --- what the capture says, or what its bytes show ----------------------------------
     def _initial_settings(self, little_endian: bool, transport: str | None) -> Settings:
@@ -206,7 +204,15 @@ class _UnitReplay:
         link = infer_transport(self.steady[:_INFER_READS],
                                self.capture.data[:_INFER_READS], record, little_endian)
         self.result.inferred.append(link.describe())
-        return replace(settings, transport=link.transport, baud=link.baud or DEFAULT_BAUD,
+        baud = link.baud
+        if baud is None and link.transport != "usb":
+            # the line's pace did not show: the manual's pairing of rate and baud rate
+            rate = 1000 / decimation
+            baud = next((b for b, most in sorted(MAX_OUTPUT_HZ.items()) if most >= rate),
+                        max(MAX_OUTPUT_HZ))
+            self.result.inferred.append(f"baud {baud} (the manual's Table 5 pairs "
+                                        f"{rate:g} Hz with it; the reads did not show it)")
+        return replace(settings, transport=link.transport, baud=baud or DEFAULT_BAUD,
                        latency_timer_ms=link.latency_timer_ms)
 
     def _sniff_batches(self, little_endian: bool) -> list[Batch]:
@@ -270,9 +276,10 @@ class _UnitReplay:
         s, meta = self.settings, self.capture.metadata
         info = Info(unit=self.capture.unit, port=meta.get("port", ""), baud=s.baud,
                     command=s.record, decimation=s.decimation, filter_width=s.filter_width,
-                    flags=int(meta.get("flags", "0")), output_rate_hz=1000 / s.decimation,
+                    flags=self._flags, output_rate_hz=1000 / s.decimation,
                     firmware_text=meta.get("firmware", ""), link=s.transport,
-                    latency_timer_ms=s.latency_timer_ms or 0, bring_up_time_ns=at_ns)
+                    latency_timer_ms=s.latency_timer_ms or 0, bring_up_time_ns=at_ns,
+                    mag_filter_width=self._mag_filter_width)
         emit(f"{prefix}/{self.capture.unit}/info", [info.SerializeToString()], at_ns)
 
     def run(self, emit: Emit, prefix: str) -> Replayed:
@@ -320,6 +327,8 @@ class _UnitReplay:
             self.settings = replace(self.settings,
                                     decimation=max(1, int(batch["decimation"][-1])),
                                     filter_width=max(1, int(batch["filter_width"][-1])))
+            self._flags = int(batch["flags"][-1])
+            self._mag_filter_width = int(batch["mag_filter_width"][-1])
             if self.timing.timeline is not None:
                 self.timing.configure(self.settings, restarted=True)
         elif batch.code == SET_CONTINUOUS:
@@ -327,6 +336,11 @@ class _UnitReplay:
             self.timing.configure(self.settings, restarted=True)
         elif batch.code == TIMER and self.timing.timeline is not None:
             self.timing.configure(self.settings, restarted=True)
+        if batch.code in (SAMPLING, SET_CONTINUOUS):
+            # the unit's own word on its settings, as its bridge publishes Info after
+            # bring-up: what the archive's readers (the export's timing) go by
+            read = batch.rx_ns[-1:]
+            self._info(emit, prefix, int(self.host.map_array(read, read)[0]))
 
     def _clock_changed(self, change: ClockChange, emit: Emit, prefix: str) -> None:
         """A step or slew of the host clock, as the live bridge published it."""
@@ -352,7 +366,8 @@ class _UnitReplay:
             return
         payloads = encode_batch(unit, timed.batch, timed.ticks, timed.time_ns, timed.rx_ns,
                                 timed.batch.rx_ns if self.capture.raw_ns is not None
-                                else np.zeros(len(timed.batch), np.int64))
+                                else np.zeros(len(timed.batch), np.int64),
+                                timed.part if self.capture.raw_ns is not None else None)
         emit(f"{prefix}/{unit}/imu", payloads, timed.rx_ns)
         self.result.samples += len(payloads)
 
@@ -493,111 +508,65 @@ def _unit_tasks(paths: list[Path]) -> list[_Task]:
     return tasks
 
 
+@dataclass(frozen=True)
+class _Emitted:
+    """Messages of one key a worker replayed, for the archive (what ``Emit`` takes)."""
+
+    key: str
+    payloads: list[bytes]
+    receive_ns: np.ndarray | int
+
+
+@dataclass(frozen=True)
+class _UnitDone:
+    """A unit a worker replayed: its result, with its file's place and its raw topic.
+
+    Results are put in the order each unit has replayed alone.
+    """
+
+    index: int
+    topic: str
+    result: Replayed
+
+
 def _replay_in_workers(tasks: list[_Task], out: Path, prefix: str,
                        on_unit: Callable[[Replayed], None] | None,
                        on_samples: Callable[[int], None] | None,
                        jobs: int, transport: str | None) -> list[Replayed]:
     """``replay`` with the tasks shared out by weight among ``jobs`` processes.
 
-    They start before the archive writer's thread does (a process with threads forks
-    badly). A bounded queue brings their messages here, so memory stays flat.
+    They start before the archive writer's thread does (``Workers``), and their messages
+    are archived here as they come.
     """
-    shares: list[list[_Task]] = [[] for _ in range(jobs)]
-    loads = [0] * jobs
-    for task in sorted(tasks, key=lambda t: -t.weight):
-        least = loads.index(min(loads))
-        shares[least].append(task)
-        loads[least] += task.weight
-    methods = multiprocessing.get_all_start_methods()
-    context = multiprocessing.get_context("fork" if "fork" in methods else None)
-    queue: multiprocessing.Queue[tuple[str, Any]] = context.Queue(_QUEUED)
-    workers = [context.Process(target=_worker,
-                               args=(share, prefix, queue, os.getpid(), transport), daemon=True)
-               for share in shares]
-    done: list[tuple[int, str, Replayed]] = []
-    try:
-        for w in workers:
-            w.start()
-        with _archive(out, prefix) as writer:
-            emit = _counted(writer.write_many, on_samples)
-            running = len(workers)
-            while running:
-                try:
-                    kind, item = queue.get(timeout=1.0)
-                except Empty:
-                    dead = [w.exitcode for w in workers if w.exitcode not in (None, 0)]
-                    if dead:
-                        raise ReplayError(f"a replay worker stopped (exit code {dead[0]}); "
-                                          "try again with --jobs 1") from None
-                    continue
-                if kind == "emit":
-                    emit(*item)
-                elif kind == "unit":
-                    done.append(item)
-                    if on_unit is not None:
-                        on_unit(item[2])
-                elif kind == "error":
-                    raise item
-                else:
-                    running -= 1
-    finally:
-        # however this ends (Ctrl-C may land anywhere, a start included), no worker is
-        # left behind and none is waited on for ever: those still running are killed
-        started = [w for w in workers if w.pid is not None]
-        for w in started:
-            if w.exitcode is None:
-                w.kill()
-        for w in started:
-            w.join(_JOIN_S)
-        queue.close()
-    return [result for _, _, result in sorted(done, key=lambda d: (d[0], d[1]))]
+    shares = share_out(tasks, [t.weight for t in tasks], jobs)
+    work = functools.partial(_replay_share, prefix=prefix, transport=transport)
+    done: list[_UnitDone] = []
+    with Workers(work, shares, error=ReplayError, what="replay") as sent, \
+            _archive(out, prefix) as writer:
+        emit = _counted(writer.write_many, on_samples)
+        for message in sent:
+            if isinstance(message, _Emitted):
+                emit(message.key, message.payloads, message.receive_ns)
+            else:
+                done.append(message)
+                if on_unit is not None:
+                    on_unit(message.result)
+    return [d.result for d in sorted(done, key=lambda d: (d.index, d.topic))]
 
 
-def _worker(tasks: list[_Task], prefix: str,
-            queue: multiprocessing.Queue[tuple[str, Any]], parent: int,
-            transport: str | None) -> None:
-    """Replay ``tasks`` into ``queue``.
-
-    Each unit's result goes with its file's place and its raw topic, the order it has
-    replayed alone. Ctrl-C is the caller's to handle (it ends the workers and removes
-    its output), and its SIGTERM ends a worker at once.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    threading.Thread(target=_end_when_orphaned, args=(parent,), daemon=True).start()
+def _replay_share(tasks: list[_Task], send: Callable[[_Emitted | _UnitDone], None],
+                  prefix: str, transport: str | None) -> None:
+    """Replay ``tasks`` in a worker, sending their messages and each unit's result."""
 
     def emit(key: str, payloads: Sequence[bytes], receive_ns: np.ndarray | int) -> None:
-        queue.put(("emit", (key, list(payloads), receive_ns)))
+        send(_Emitted(key, list(payloads), receive_ns))
 
     # one read of a file for all of its units this worker has (None: every unit)
     files: dict[tuple[int, Path], list[str] | None] = {}
     for task in tasks:
         key = (task.index, task.path)
         files[key] = None if task.topic is None else [*(files.get(key) or []), task.topic]
-    try:
-        for (index, path), topics in files.items():
-            for capture in captures(path, prefix, topics):
-                result = _UnitReplay(capture, transport).run(emit, prefix)
-                queue.put(("unit", (index, capture.topic, result)))
-    except Exception as exc:  # every error reaches the caller, to say as it would alone
-        queue.put(("error", _sendable(exc)))
-    queue.put(("end", None))
-
-
-def _sendable(exc: Exception) -> Exception:
-    """``exc``, or its words in one that pickles: the queue would drop it otherwise."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-    except Exception:
-        return RuntimeError(f"{type(exc).__name__}: {exc}")
-    return exc
-
-
-def _end_when_orphaned(parent: int) -> None:
-    """End a worker whose caller is gone (killed).
-
-    Nobody will read what it sends, and it would wait on the full queue for ever.
-    """
-    while os.getppid() == parent:
-        time.sleep(1.0)
-    os._exit(1)
+    for (index, path), topics in files.items():
+        for capture in captures(path, prefix, topics):
+            result = _UnitReplay(capture, transport).run(emit, prefix)
+            send(_UnitDone(index, capture.topic, result))

@@ -17,10 +17,10 @@ from typing import IO, Any, TypeVar
 
 from mcap.writer import CompressionType, Writer
 
+from bridge.archive.outputs import create_locked
 from bridge.bus.gx3_pb2 import Info
 from bridge.exceptions import CaptureError, OutputRefused
 from bridge.protocol.table import Mode
-from bridge.recorder.outputs import create_locked
 
 T = TypeVar("T")
 RAW_ENCODING = "application/octet-stream"
