@@ -30,9 +30,11 @@ _HISTORY = 20  # half seconds of envelope the level before a step is judged from
 _BREAK_TICKS = 600 * TICKS_PER_SECOND  # a timer jump longer than this starts anew
 _SIDE_TICKS = 3 * TICKS_PER_SECOND  # the stretch either side a step is measured over
 _GUARD_TICKS = TICKS_PER_SECOND // 20  # left out next to a step: reads may be on either clock
-import os
-_JUMP_NS = int(os.environ.get("JUMP_US", "300")) * 1000  # the envelope this far below the records next to a step has jumped
-_NEAR_TICKS = int(float(os.environ.get("NEAR_S", "0.1")) * TICKS_PER_SECOND)  # the records next to a step its envelope is taken from
+# on a link with frames the envelope jumps by a frame (1 ms) and its fine structure spans
+# a few hundred µs at most (an adapter's packets), so a third of a frame tells a jump; a
+# tenth of a second holds records at each phase of a 1 ms frame even at 25 Hz
+_JUMP_NS = 300_000  # the envelope this far below the records next to a step has jumped
+_NEAR_TICKS = TICKS_PER_SECOND // 10  # the records next to a step its envelope is taken from
 _TRUST_NS = 50_000  # a record this far under a measured line is not on its clock
 _READ_RECORDS = 4096  # records one read holds at most (a backlog's), looked back over
 _RATE_PPM = 150.0  # the unit's rate is within this of nominal (the manual: 100)
