@@ -16,6 +16,7 @@ import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -33,6 +34,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, HostDelivery, UartDelivery, UsbDelivery
+from bridge.timing.steps import find_steps, unwrap_timer
 from tests.helpers.archives import samples_in, write_capture
 from tests.helpers.processes import GX3, bridge_process
 from tests.helpers.units import FIVE_HUNDRED_HZ, FIVE_HUNDRED_HZ_PERIOD
@@ -169,9 +171,12 @@ def test_every_event_kind_has_a_severity() -> None:
 SECOND_NS = 10**9
 #: The host clock's steps while another program captured (virtual ns from the capture's
 #: start, by how much): back and forward 50 ms, forward and two seconds later back 5 ms,
-#: forward a second, and back a second as a leap second steps it
+#: forward a second, and back a second as a leap second steps it. None comes within a
+#: tenth of a second of a frame staircase's jump on these links (every 28.5 s at 35 ppm),
+#: which would make it a frame out: how often that happens is
+#: ``test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_step``'s
 CAPTURE_STEPS = ((60 * SECOND_NS, -STEP_NS), (80 * SECOND_NS, STEP_NS),
-                 (100 * SECOND_NS, 5_000_000), (102 * SECOND_NS, -5_000_000),
+                 (110 * SECOND_NS, 5_000_000), (112 * SECOND_NS, -5_000_000),
                  (130 * SECOND_NS, SECOND_NS), (155 * SECOND_NS, -SECOND_NS))
 CAPTURE_S = 175.0
 CAPTURE_SETTLED_NS = 55 * SECOND_NS  # the clock model's first fit, before any step
@@ -185,6 +190,43 @@ CAPTURE_LINKS: dict[tuple[str, int], tuple[HostDelivery, int, int]] = {
     ("usb-serial", 100): (AdapterDelivery(latency_timer_s=0.001, frame_phase_s=0.0007, seed=7),
                           0xCC, 115_200),
     ("usb-serial", 500): (AdapterDelivery(frame_phase_s=0.0007, seed=7), 0xDF, 115_200),
+}
+FRAME_NS = 1_000_000
+
+
+class Floor(NamedTuple):
+    """What a link's reads let a step be measured to (``STEP_FLOORS``).
+
+    Attributes:
+        size_us: How far its size may be off.
+        framed: The share of steps that may be a whole frame out.
+        placed: How many records from the one it came at its first may be placed.
+    """
+
+    size_us: float
+    framed: float
+    placed: int
+
+
+#: Per link and rate, what a step can be measured to. A UART's least-delayed reads come
+#: a byte time or so after the record, so the envelope's lines either side are the
+#: unit's clock to tens of µs (measured: 29 µs at most at 100 Hz, 9 µs at 500 Hz). Over
+#: USB frames (native USB, adapters) receive times are frame-quantized: the envelope is
+#: a staircase and gives a step only to within a frame, but the frames' phase moves by
+#: the step and gives the rest to the µs (measured: 9 µs at most). Its floor is the
+#: frame: a jump of the staircase (every 28.5 s at 35 ppm) that comes with the step is
+#: taken for part of it, measured 1 step in 120 behind the 1 ms adapter and none on
+#: native USB. Behind a 16 ms adapter whose line is nearly full (0xDF at 500 Hz on
+#: 115200 baud: 99.8 %) reads are 62-byte packets, a record may wait 6 ms, and the
+#: treads are sparse for seconds after each jump: 8 steps in 120 were a frame out, and
+#: the records of a 5 ms step's first 44 ms could not be told from late ones.
+STEP_FLOORS: dict[tuple[str, int], Floor] = {
+    ("uart", 100): Floor(60.0, 0.0, 1),
+    ("uart", 500): Floor(20.0, 0.0, 1),
+    ("usb", 100): Floor(20.0, 0.02, 1),
+    ("usb", 500): Floor(20.0, 0.02, 1),
+    ("usb-serial", 100): Floor(20.0, 0.02, 1),
+    ("usb-serial", 500): Floor(20.0, 0.15, 30),
 }
 
 
@@ -200,6 +242,11 @@ class SteppedReplay:
             from the capture's start.
         sent: How many records the unit sent.
         period: Ticks from one record to the next.
+        floors: The link's ``STEP_FLOORS``.
+        frame_ns: The USB frame that carried the reads, 0 on a UART.
+        ticks: Each record's ticks, as the unit sent them.
+        rx_ns: The receive time of the read that completed each, on a clock that never
+            stepped.
     """
 
     name: str
@@ -208,6 +255,10 @@ class SteppedReplay:
     since_ns: np.ndarray
     sent: int
     period: int
+    floors: Floor
+    frame_ns: int
+    ticks: np.ndarray
+    rx_ns: np.ndarray
 
     def off_ms(self) -> np.ndarray:
         """Each sample's |time_ns - its true instant on the stepped clock|, ms."""
@@ -242,15 +293,24 @@ def stepped_replay(request: pytest.FixtureRequest,
     archive = read_archive(path / "out.mcap")
     table = sample_table(archive, ["u1"])
     table = {k: v[np.argsort(table["ticks"], kind="stable")] for k, v in table.items()}
+    timers, rx = cap.records()
     return SteppedReplay(f"{link} at {hz} Hz", table, [e for _, e in archive.events(["u1"])],
                          cap.truth["value_ns"] - WALL_NS, len(cap.truth["timer"]),
-                         TICKS_PER_SECOND // hz)
+                         TICKS_PER_SECOND // hz, STEP_FLOORS[request.param],
+                         0 if link == "uart" else FRAME_NS,
+                         unwrap_timer(timers)[0], rx)
 
 
 def test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_step(
         stepped_replay: SteppedReplay) -> None:
     """Every sample is kept, no gap or reset is made up, and each step is named with its
-    size to within a tenth of a millisecond."""
+    size to within the link's floor (``STEP_FLOORS``).
+
+    And wherever a step comes: a step forward by 5 ms and two seconds later back, at 30
+    places 4.7 s apart (falling at every phase of a frame staircase's period), is found
+    once, its first record placed, and sized within the link's floor, or, as rarely as
+    the link's staircase jumps with it, a frame out.
+    """
     run = stepped_replay
     assert len(run.samples["ticks"]) == run.sent, "samples were dropped"
     assert set(np.diff(run.samples["ticks"]).tolist()) == {run.period}
@@ -259,12 +319,35 @@ def test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_s
     assert len(named) == len(CAPTURE_STEPS), named
     off_us = [(size - by) / 1e3 for size, (_, by) in zip(named, CAPTURE_STEPS, strict=True)]
     print(f"{run.name}: each step's size off by {', '.join(f'{e:+.1f}' for e in off_us)} us")
-    assert max(abs(e) for e in off_us) <= 100, off_us
+    assert max(abs(e) for e in off_us) <= run.floors.size_us, off_us
+
+    placed: list[int] = []
+    sized: list[float] = []
+    framed = 0
+    places = (20 + 4.7 * np.arange(30)) * SECOND_NS
+    for at in places:
+        steps = ((int(at), 5_000_000), (int(at) + 2 * SECOND_NS, -5_000_000))
+        shift = sum(np.where(run.rx_ns - WALL_NS >= when, by, 0) for when, by in steps)
+        found = find_steps(run.ticks, run.rx_ns + shift, run.frame_ns)
+        assert len(found) == len(steps), (at, found)
+        for (first, size), (when, by) in zip(found, steps, strict=True):
+            if abs(abs(size - by) - run.frame_ns) < abs(size - by):
+                framed += 1  # a jump of the staircase came with it
+                continue
+            placed.append(first - int(np.argmax(run.rx_ns - WALL_NS >= when)))
+            sized.append(abs(size - by) / 1e3)
+    print(f"{run.name}: {2 * len(places)} steps anywhere sized off by "
+          f"{np.percentile(sized, 50):.1f} us at p50, {np.percentile(sized, 99):.1f} us at p99, "
+          f"{max(sized):.1f} us at most, first records placed up to {max(np.abs(placed))} "
+          f"records out; {framed} a frame out")
+    assert max(np.abs(placed)) <= run.floors.placed
+    assert max(sized) <= run.floors.size_us
+    assert framed <= run.floors.framed * len(places) * 2
 
 
 def test_time_ns_of_a_capture_with_realtime_stamps_only_follows_the_stepped_clock(
         stepped_replay: SteppedReplay) -> None:
-    """Away from each step, time_ns is within a quarter of a millisecond of the truth on
+    """Away from each step, time_ns is within a tenth of a millisecond of the truth on
     the stepped clock, as a live bridge's would be; near it, at most the sample the step
     came at is off by more than 2 ms."""
     run = stepped_replay
@@ -273,5 +356,5 @@ def test_time_ns_of_a_capture_with_realtime_stamps_only_follows_the_stepped_cloc
     p99 = float(np.percentile(off[away], 99))
     print(f"{run.name}: time_ns off by {p99:.4f} ms at p99 away from the steps, "
           f"{off[away].max():.4f} ms at most")
-    assert p99 <= 0.25
+    assert p99 <= 0.1
     assert (off > 2).sum() <= len(CAPTURE_STEPS), "more than the sample at each step is off"

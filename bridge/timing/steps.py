@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.timing._fit import grid_histogram, grid_phase
 from bridge.timing.unwrap import NS_PER_TICK
 
 THRESHOLD_NS = 2_000_000
@@ -58,17 +59,20 @@ def unwrap_timer(timer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([[0], np.cumsum(step)]), np.concatenate([[0], breaks])
 
 
-def find_steps(ticks: np.ndarray, rx_ns: np.ndarray) -> list[tuple[int, int]]:
+def find_steps(ticks: np.ndarray, rx_ns: np.ndarray, frame_ns: int = 0) -> list[tuple[int, int]]:
     """Each step of the clock that stamped ``rx_ns``.
 
     The half-second envelope tells roughly where a step is and that it is one
     (``_envelope_steps``); the lines under the records either side then place its first
     record (``_located``) and measure it to microseconds (``_settled``), where half a
-    second of envelope leaves it a millisecond or more out.
+    second of envelope leaves it a millisecond or more out. Over USB frames, the shift of
+    the frames' phase gives the size within a frame exactly (``_on_grid``).
 
     Args:
         ticks: The ticks of records of one epoch, in the order they were read.
         rx_ns: Their receive times on the (realtime) clock that may have stepped.
+        frame_ns: The USB frame where frames carried the reads (native USB, an adapter),
+            0 on a UART.
 
     Returns:
         Per step, the index of the first record on the new clock and the step's size in
@@ -90,6 +94,8 @@ def find_steps(ticks: np.ndarray, rx_ns: np.ndarray) -> list[tuple[int, int]]:
     bounds = [0, *[first for first, _ in located], len(rx)]
     steps = [_settled(ticks, rx, bounds[k], first, bounds[k + 2], size)
              for k, (first, size) in enumerate(located)]
+    if frame_ns:
+        steps = [(first, _on_grid(ticks, rx, first, size, frame_ns)) for first, size in steps]
     return [step for step in steps if abs(step[1]) >= THRESHOLD_NS]  # else latency misled
 
 
@@ -210,6 +216,35 @@ def _settled(ticks: np.ndarray, rx: np.ndarray, begin: int, first: int, end: int
     first = _placed(ticks, rx, first, lines)
     lines = _measured(ticks, rx, begin, first, end, 0) or lines
     return first, lines[1].level - lines[0].level  # both anchored at its first record
+
+
+def _on_grid(ticks: np.ndarray, rx: np.ndarray, first: int, size: int, frame: int) -> int:
+    """The step at record ``first`` sized by how far it moved the frames' phase.
+
+    Reads over USB come at the host controller's frames, which the realtime clock's step
+    does not move: only their stamps move, by the step, so the phase of the frames the
+    reads come at moves by the step modulo a frame, measured to a microsecond over the
+    reads right either side. The envelope's size (within half a frame, where no jump of
+    the frame staircase comes with the step) gives the whole frames.
+
+    Args:
+        ticks: Every record's ticks.
+        rx: Every record's receive time, ns.
+        first: The step's first record.
+        size: Its size as the envelope's lines measured it, ns.
+        frame: The USB frame, ns.
+
+    Returns:
+        The step's size, ns.
+    """
+    before = _stretch(ticks, 0, first, -_SIDE_TICKS)
+    after = _stretch(ticks, len(ticks), first, _SIDE_TICKS)
+    if before[0] >= before[1] or after[0] >= after[1]:
+        return size
+    phase_before, phase_after = (grid_phase(grid_histogram(rx[lo:hi], frame), frame)
+                                 for lo, hi in (before, after))
+    moved = (phase_after - phase_before) % frame
+    return moved + frame * round((size - moved) / frame)
 
 
 def _placed(ticks: np.ndarray, rx: np.ndarray, first: int,
