@@ -170,14 +170,15 @@ def test_every_event_kind_has_a_severity() -> None:
 
 SECOND_NS = 10**9
 #: The host clock's steps while another program captured (virtual ns from the capture's
-#: start, by how much): back and forward 50 ms, forward and two seconds later back 5 ms,
-#: forward a second, and back a second as a leap second steps it. None comes within a
-#: tenth of a second of a frame staircase's jump on these links (every 28.5 s at 35 ppm),
-#: which would make it a frame out: how often that happens is
+#: start, by how much): back and forward about 50 ms, forward and two seconds later back
+#: about 5 ms, forward about a second, and back a second as a leap second steps it; none
+#: a whole number of USB frames, as a clock's steps seldom are. None comes within a
+#: tenth of a second of a frame staircase's jump on these links (every 28.5 s at 35
+#: ppm), which would make it a frame out: how often that happens is
 #: ``test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_step``'s
-CAPTURE_STEPS = ((60 * SECOND_NS, -STEP_NS), (80 * SECOND_NS, STEP_NS),
-                 (110 * SECOND_NS, 5_000_000), (112 * SECOND_NS, -5_000_000),
-                 (130 * SECOND_NS, SECOND_NS), (155 * SECOND_NS, -SECOND_NS))
+CAPTURE_STEPS = ((60 * SECOND_NS, -50_270_000), (80 * SECOND_NS, 49_830_000),
+                 (110 * SECOND_NS, 5_370_000), (112 * SECOND_NS, -4_690_000),
+                 (130 * SECOND_NS, SECOND_NS + 450_000), (155 * SECOND_NS, -SECOND_NS))
 CAPTURE_S = 175.0
 CAPTURE_SETTLED_NS = 55 * SECOND_NS  # the clock model's first fit, before any step
 #: Per link and rate: how the unit's bytes reach the host, the record it streams (one its
@@ -223,10 +224,10 @@ class Floor(NamedTuple):
 STEP_FLOORS: dict[tuple[str, int], Floor] = {
     ("uart", 100): Floor(60.0, 0.0, 1),
     ("uart", 500): Floor(20.0, 0.0, 1),
-    ("usb", 100): Floor(20.0, 0.02, 1),
-    ("usb", 500): Floor(20.0, 0.02, 1),
-    ("usb-serial", 100): Floor(20.0, 0.02, 1),
-    ("usb-serial", 500): Floor(20.0, 0.15, 30),
+    ("usb", 100): Floor(40.0, 0.02, 1),
+    ("usb", 500): Floor(40.0, 0.02, 1),
+    ("usb-serial", 100): Floor(40.0, 0.02, 1),
+    ("usb-serial", 500): Floor(40.0, 0.15, 30),
 }
 
 
@@ -306,7 +307,8 @@ def test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_s
     """Every sample is kept, no gap or reset is made up, and each step is named with its
     size to within the link's floor (``STEP_FLOORS``).
 
-    And wherever a step comes: a step forward by 5 ms and two seconds later back, at 30
+    And wherever a step comes: a step forward by 5.37 ms and two seconds later back by
+    4.69 ms, at 30
     places 4.7 s apart (falling at every phase of a frame staircase's period), is found
     once, its first record placed, and sized within the link's floor, or, as rarely as
     the link's staircase jumps with it, a frame out.
@@ -326,7 +328,7 @@ def test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_s
     framed = 0
     places = (20 + 4.7 * np.arange(30)) * SECOND_NS
     for at in places:
-        steps = ((int(at), 5_000_000), (int(at) + 2 * SECOND_NS, -5_000_000))
+        steps = ((int(at), 5_370_000), (int(at) + 2 * SECOND_NS, -4_690_000))
         shift = sum(np.where(run.rx_ns - WALL_NS >= when, by, 0) for when, by in steps)
         found = find_steps(run.ticks, run.rx_ns + shift, run.frame_ns)
         assert len(found) == len(steps), (at, found)

@@ -31,10 +31,11 @@ _HISTORY = 20  # half seconds of envelope the level before a step is judged from
 _BREAK_TICKS = 600 * TICKS_PER_SECOND  # a timer jump longer than this starts anew
 _SIDE_TICKS = 3 * TICKS_PER_SECOND  # the stretch either side a step is measured over
 _GUARD_TICKS = TICKS_PER_SECOND // 20  # left out next to a step: reads may be on either clock
-# on a link with frames the envelope jumps by a frame (1 ms) and its fine structure spans
-# a few hundred µs at most (an adapter's packets), so a third of a frame tells a jump; a
-# tenth of a second holds records at each phase of a 1 ms frame even at 25 Hz
+# a frame's jump of the envelope (1 ms) stands out of a tread's fine structure, a few
+# hundred µs at most (an adapter's packets): a third of a frame tells it
 _JUMP_NS = 300_000  # the envelope this far below the records next to a step has jumped
+# the staircase jumps every few tens of seconds (a frame / the unit's rate error), so a
+# tenth of a second next to a step rarely holds a jump, and holds several reads at 100 Hz
 _NEAR_TICKS = TICKS_PER_SECOND // 10  # the records next to a step its envelope is taken from
 _TRUST_NS = 50_000  # a record this far under a measured line is not on its clock
 _READ_RECORDS = 4096  # records one read holds at most (a backlog's), looked back over
@@ -95,7 +96,9 @@ def find_steps(ticks: np.ndarray, rx_ns: np.ndarray, frame_ns: int = 0) -> list[
     steps = [_settled(ticks, rx, bounds[k], first, bounds[k + 2], size)
              for k, (first, size) in enumerate(located)]
     if frame_ns:
-        steps = [(first, _on_grid(ticks, rx, first, size, frame_ns)) for first, size in steps]
+        bounds = [0, *[first for first, _ in steps], len(rx)]
+        steps = [(first, _on_grid(ticks, rx, (bounds[k], first, bounds[k + 2]), size, frame_ns))
+                 for k, (first, size) in enumerate(steps)]
     return [step for step in steps if abs(step[1]) >= THRESHOLD_NS]  # else latency misled
 
 
@@ -218,27 +221,30 @@ def _settled(ticks: np.ndarray, rx: np.ndarray, begin: int, first: int, end: int
     return first, lines[1].level - lines[0].level  # both anchored at its first record
 
 
-def _on_grid(ticks: np.ndarray, rx: np.ndarray, first: int, size: int, frame: int) -> int:
-    """The step at record ``first`` sized by how far it moved the frames' phase.
+def _on_grid(ticks: np.ndarray, rx: np.ndarray, at: tuple[int, int, int], size: int,
+             frame: int) -> int:
+    """A step sized by how far it moved the phase of the frames the reads came at.
 
-    Reads over USB come at the host controller's frames, which the realtime clock's step
-    does not move: only their stamps move, by the step, so the phase of the frames the
-    reads come at moves by the step modulo a frame, measured to a microsecond over the
-    reads right either side. The envelope's size (within half a frame, where no jump of
-    the frame staircase comes with the step) gives the whole frames.
+    Reads over USB come at the host controller's frames, which a step of the realtime
+    clock does not move: only their stamps move, by the step, so the phase of the frames
+    moves by the step modulo a frame, measured to a microsecond over the few seconds of
+    reads either side. The envelope's size (within half a frame, unless a jump of the
+    frame staircase came with the step) gives the whole frames.
 
     Args:
         ticks: Every record's ticks.
         rx: Every record's receive time, ns.
-        first: The step's first record.
-        size: Its size as the envelope's lines measured it, ns.
+        at: The previous step's first record (0: none), this step's, and the next step's
+            (the number of records: none).
+        size: The step's size as the envelope's lines measured it, ns.
         frame: The USB frame, ns.
 
     Returns:
         The step's size, ns.
     """
-    before = _stretch(ticks, 0, first, -_SIDE_TICKS)
-    after = _stretch(ticks, len(ticks), first, _SIDE_TICKS)
+    begin, first, end = at
+    before = _stretch(ticks, begin, first, -_SIDE_TICKS, _GUARD_TICKS)
+    after = _stretch(ticks, end, first, _SIDE_TICKS, _GUARD_TICKS)
     if before[0] >= before[1] or after[0] >= after[1]:
         return size
     phase_before, phase_after = (grid_phase(grid_histogram(rx[lo:hi], frame), frame)
