@@ -209,18 +209,18 @@ class Floor(NamedTuple):
     placed: int
 
 
-#: Per link and rate, what a step can be measured to. A UART's least-delayed reads come
-#: a byte time or so after the record, so the envelope's lines either side are the
-#: unit's clock to tens of µs (measured: 29 µs at most at 100 Hz, 9 µs at 500 Hz). Over
-#: USB frames (native USB, adapters) receive times are frame-quantized: the envelope is
-#: a staircase and gives a step only to within a frame, but the frames' phase moves by
-#: the step and gives the rest to the µs (measured: 9 µs at most). Its floor is the
-#: frame: a jump of the staircase (every 28.5 s at 35 ppm) that comes with the step is
-#: taken for part of it, measured 1 step in 120 behind the 1 ms adapter and none on
-#: native USB. Behind a 16 ms adapter whose line is nearly full (0xDF at 500 Hz on
-#: 115200 baud: 99.8 %) reads are 62-byte packets, a record may wait 6 ms, and the
-#: treads are sparse for seconds after each jump: 8 steps in 120 were a frame out, and
-#: the records of a 5 ms step's first 44 ms could not be told from late ones.
+#: Per link and rate, what a step can be measured to (docs/design/time.md has the
+#: measured values; the test prints them). A UART's least-delayed reads come a byte
+#: time or so after the record, so the envelope's lines either side are the unit's
+#: clock to µs. Over USB frames (native USB, adapters) receive times are
+#: frame-quantized: the envelope is a staircase and gives a step only to within a
+#: frame, and the frames' phase, which moves by the step, gives the rest to the µs. Its
+#: floor is the frame: a jump of the staircase (every 28.5 s at 35 ppm) within a tenth
+#: of a second of the step is taken for part of it. Behind a 16 ms adapter whose line is
+#: nearly full (0xDF at 500 Hz on 115200 baud: 99.8 %) reads are 62-byte packets, a
+#: record may wait 6 ms, the treads are sparse for seconds after each jump (more steps
+#: a frame out), and the records after a step of a few ms are not told from late ones
+#: until one comes promptly.
 STEP_FLOORS: dict[tuple[str, int], Floor] = {
     ("uart", 100): Floor(60.0, 0.0, 1),
     ("uart", 500): Floor(20.0, 0.0, 1),
@@ -308,10 +308,9 @@ def test_a_capture_with_realtime_stamps_only_keeps_every_sample_and_names_each_s
     size to within the link's floor (``STEP_FLOORS``).
 
     And wherever a step comes: a step forward by 5.37 ms and two seconds later back by
-    4.69 ms, at 30
-    places 4.7 s apart (falling at every phase of a frame staircase's period), is found
-    once, its first record placed, and sized within the link's floor, or, as rarely as
-    the link's staircase jumps with it, a frame out.
+    4.69 ms, at 30 places 4.7 s apart (falling at every phase of a frame staircase's
+    period), is found once, its first record placed, and sized within the link's floor,
+    or, as rarely as the link's staircase jumps with it, a frame out.
     """
     run = stepped_replay
     assert len(run.samples["ticks"]) == run.sent, "samples were dropped"
