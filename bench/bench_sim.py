@@ -1,7 +1,9 @@
 """Benchmark: one emulator process serving N units in continuous mode at 1 kHz.
 
-Run by hand: `python bench/bench_sim.py [--units 16] [--seconds 10]`. Starts
-`gx3 sim --pty` in its own process (as a user would), opens every pty at
+Run by hand: `python bench/bench_sim.py [--units 16] [--seconds 10] [--code 0xC2]
+[--noise]`. Starts `gx3 sim --pty` in its own process (as a user would; --noise gives
+every unit sensor noise and bias random walks, which its filter chain then averages),
+opens every pty at
 921,600 baud, reads them all from one thread, and reports per unit the record
 rate achieved, records lost, and the pacing jitter: the spread of each record's
 arrival time (the time of the read that completed it) around a straight-line fit
@@ -44,12 +46,17 @@ def main() -> None:
     parser.add_argument("--units", type=int, default=16)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--code", default="0xC2", help="continuous record type")
+    parser.add_argument("--noise", action="store_true",
+                        help="give the units noise densities and random walks")
     args = parser.parse_args()
+    noise = ["--accel-noise-density", "0.002", "--accel-random-walk", "0.0002",
+             "--gyro-noise-density", "0.0001", "--gyro-random-walk", "0.00001"]
     code = int(args.code, 0)
     gx3 = shutil.which("gx3") or str(Path(sys.executable).with_name("gx3"))
     proc = subprocess.Popen(
         [gx3, "sim", "--pty", "--units", str(args.units), "--continuous-preset", args.code,
-         "--mode-preset", "2", "--decimation", "1", "--flags", "0", "--baud", "921600"],
+         "--mode-preset", "2", "--decimation", "1", "--flags", "0", "--baud", "921600",
+         *(noise if args.noise else [])],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     ports: list[serial.Serial] = []
     try:
@@ -92,7 +99,9 @@ def main() -> None:
         rates.append(len(ticks) / elapsed)
         bad += framer.stats.checksum_failures
     res = np.concatenate(residuals) * 1e3
-    print(f"{args.units} units x 0x{code:02X} at 1000 Hz, 921600 baud, {elapsed:.1f} s")
+    print(f"{args.units} units x 0x{code:02X} at 1000 Hz, 921600 baud, "
+          f"{'noise and random walks' if args.noise else 'no noise'}, {elapsed:.1f} s; "
+          f"load average {os.getloadavg()[0]:.2f}")
     print(f"  records/s per unit: min {min(rates):.1f}  mean {np.mean(rates):.1f}  "
           f"total {sum(rates):.0f}")
     print(f"  records lost (timer gaps): {lost}  checksum failures: {bad}")

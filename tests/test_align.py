@@ -11,12 +11,15 @@ import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.rosbag1 import Reader
+from rosbags.typesys import Stores, get_typestore
 
 from bridge.analysis.align import MAX_GRID_HZ
 from bridge.analysis.mounts import Mounts, read_mounts
@@ -42,6 +45,7 @@ UNITS = [
              link_latency_s=0.0032, delivery=UsbDelivery(seed=4, frame_phase_s=0.00052)),
 ]
 OTHERS = [u.name for u in UNITS[1:]]
+NOETIC = get_typestore(Stores.ROS1_NOETIC)
 
 
 @dataclass
@@ -174,22 +178,36 @@ def test_export_turns_the_attitude_into_the_references(
 
 def test_a_bag_with_mounts_is_in_the_references_frame(aligned: Aligned,
                                                       tmp_path: Path) -> None:
-    out = tmp_path / "mounted.ros2.mcap"
-    done = gx3("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
-               "--start", "10", "--end", "11")
-    assert done.returncode == 0, done.stderr
+    """ROS 2 and ROS 1 alike: every unit's Imu messages in the reference's frame, and the
+    mounts file recorded (a metadata record; a latched String on /gx3/gx3_mounts)."""
+    for out in (tmp_path / "mounted.ros2.mcap", tmp_path / "mounted.bag"):
+        done = gx3("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
+                   "--start", "10", "--end", "11")
+        assert done.returncode == 0, done.stderr
     frames: dict[str, set[str]] = {}
-    with out.open("rb") as f:
+    with (tmp_path / "mounted.ros2.mcap").open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         for _, channel, _, decoded in reader.iter_decoded_messages():
             frames.setdefault(channel.topic, set()).add(decoded.header.frame_id)
-    assert {topic: names for topic, names in frames.items() if "imu" in topic} == {
-        f"/gx3/{u.name}/imu": {f"gx3_{REF}"} for u in UNITS}
+    expected = {f"/gx3/{u.name}/imu": {f"gx3_{REF}"} for u in UNITS}
+    assert {topic: names for topic, names in frames.items() if "imu" in topic} == expected
     record = records["gx3.mounts"]
     assert record["sha256"] == hashlib.sha256(aligned.path.read_bytes()).hexdigest()
     assert json.loads(record["units"])["late"]["time_shift_s"] == pytest.approx(-0.0032,
                                                                                 abs=2e-4)
+    ros1: dict[str, set[str]] = {}
+    latched: list[Any] = []
+    with Reader(tmp_path / "mounted.bag") as bag:
+        for connection, _, data in bag.messages():
+            message: Any = NOETIC.deserialize_ros1(data, connection.msgtype)
+            if connection.topic == "/gx3/gx3_mounts":
+                latched.append(json.loads(message.data))
+            else:
+                ros1.setdefault(connection.topic, set()).add(message.header.frame_id)
+    assert {topic: names for topic, names in ros1.items() if "imu" in topic} == expected
+    assert len(latched) == 1 and latched[0]["sha256"] == record["sha256"]
+    assert latched[0]["units"] == json.loads(record["units"])
 
 
 def test_export_refuses_mounts_into_a_csv_file(aligned: Aligned, tmp_path: Path) -> None:

@@ -18,14 +18,16 @@ from bridge.analysis.mounts import read_mounts
 from bridge.archive.writer import ArchiveWriter
 from bridge.exceptions import AlignmentError
 from bridge.protocol.convert import STANDARD_GRAVITY
-from bridge.protocol.table import TICKS_PER_SECOND
+from bridge.protocol.table import DEFAULT_FILTER_WIDTH, TICKS_PER_SECOND
 from bridge.sim.archived import archive_samples
-from bridge.sim.motion import Motion, MotionConfig, Mounting, handheld
+from bridge.sim.motion import Motion, MotionConfig, Mounting, SignalChain, handheld
 from tests.helpers.processes import gx3
 
 T0 = 1_763_000_000_000_000_000
 FLIPPED = Mounting.turned((180.0, 0.0, 90.0), (0.3, -0.1, 0.2), 3)
 REFERENCE = Mounting(3)
+#: Every unit's filter as it leaves the factory: the noise its samples carry at each rate.
+CHAIN = SignalChain(DEFAULT_FILTER_WIDTH)
 
 
 def _motion(mounting: Mounting, seed: int = 1, noise: float = 0.0005,
@@ -42,7 +44,7 @@ def _sampled(name: str, motion: Motion, rate_hz: float, seconds: float = 60.0,
     """A unit's rates and forces at its own rate, stamped ``late_s`` late, with jitter."""
     rng = np.random.default_rng(len(name))
     t = np.arange(0.0, seconds, 1.0 / rate_hz) + rng.uniform(0, 1.0 / rate_hz)
-    s = motion.sample(t, 1.0 / rate_hz, only=("accel", "ang_rate"))
+    s = motion.sample(t, 1.0 / rate_hz, CHAIN, only=("accel", "ang_rate"))
     stamps = t + late_s + rng.normal(0.0, jitter_s, len(t)) if jitter_s else t + late_s
     return UnitMotion(name, T0 + np.round(stamps * 1e9).astype(np.int64), s["ang_rate"],
                       s["accel"] * STANDARD_GRAVITY)
@@ -89,7 +91,7 @@ def test_rates_from_delta_records_are_timed_at_their_periods_middle() -> None:
     integrals over each period, over the period, stand for the rate at its middle."""
     period = 0.01
     t = np.arange(0.0, 60.0, period) + 0.0031
-    deltas = _motion(FLIPPED, seed=2).sample(t, period, only=("delta_ang", "delta_vel"))
+    deltas = _motion(FLIPPED, seed=2).sample(t, period, CHAIN, only=("delta_ang", "delta_vel"))
     table = {"unit": np.array(["unit"] * len(t)), "ticks": np.round(
         t * TICKS_PER_SECOND).astype(np.int64), "time_ns": T0 + np.round(
         (t - period / 2) * 1e9).astype(np.int64)}
@@ -168,7 +170,7 @@ def refusals(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (["ref", "later"], "m.yaml", "ref and later: they have no samples at the same time"),
     (["still1", "still2"], "m.yaml", "the body stood still; record it turned by hand"),
     (["spun1", "spun2"], "m.yaml", "turned about one axis only (its z axis)"),
-    (["ref", "unit"], "m.json", "gx3 align writes YAML; name the output .yaml"),
+    (["ref", "unit"], "m.json", "this writes a YAML file; name the file .yaml or .yml"),
 ])
 def test_refusals_are_one_line_and_write_nothing(refusals: Path, tmp_path: Path,
                                                  units: list[str], output: str,

@@ -173,7 +173,7 @@ def test_bad_input_gives_one_line_errors(fleet: tuple[Path, Written], tmp_path: 
              for says, f in _bad_files(tmp_path).items()]
     cases += [
         (["export", path, "-o", tmp_path / "o.xlsx"],
-         "name the file .parquet, .csv or .mcap"),
+         "name the file .parquet, .csv, .mcap or .bag"),
         (["export", path, "-o", tmp_path / "o.csv", "--start", "noon"], "neither an ISO time"),
         (["export", path, "-o", tmp_path / "o.csv", "--unit", "nobody"], "no samples match"),
         (["export", path, "-o", tmp_path / "no" / "o.csv"], "does not exist"),

@@ -133,7 +133,7 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     with (tmp_path / "bag.mcap").open("rb") as f:
         imu = [m for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()])
                .iter_decoded_messages() if c.topic.endswith("/imu")]
-    assert f"wrote {total} Imu" in bag.stderr and len(imu) == total, bag.stderr
+    assert f"wrote {total:,} Imu" in bag.stderr and len(imu) == total, bag.stderr
     stamps = np.sort([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
     truth = logged.truth("value_ns")
     nearest = truth[np.clip(np.searchsorted(truth, stamps), 0, len(truth) - 1)]

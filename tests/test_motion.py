@@ -20,6 +20,7 @@ from bridge.sim.motion import (
     RAW_ZERO_CODE,
     Motion,
     MotionConfig,
+    SignalChain,
     tumbling,
 )
 
@@ -273,13 +274,74 @@ def test_noise_is_gaussian_with_the_configured_spread(samples: dict[str, np.ndar
         error = noisy[name] - samples[name]
         np.testing.assert_allclose(error.std(axis=0), sigma, rtol=0.1)
         assert np.abs(error.mean(axis=0)).max() < 4 * sigma / math.sqrt(T.size)
-    np.testing.assert_allclose(
-        noisy["delta_ang"] - samples["delta_ang"],
-        (noisy["ang_rate"] - samples["ang_rate"]) * PERIOD,
-        atol=1e-15,
-    )
     np.testing.assert_array_equal(noisy["stab_mag"], samples["stab_mag"])
     np.testing.assert_array_equal(noisy["m"], samples["m"])
+
+
+def test_a_delta_sums_the_noise_of_every_cycle_of_its_period() -> None:
+    """DeltaAng and DeltaVel integrate the 1 kHz samples of their period, noise and all:
+    the cycles between two records count, not the record's own sample times the period."""
+    config = MotionConfig(seed=7, noise_accel_g=0.01, noise_gyro_rad_s=0.002)
+    chain = SignalChain(filter_width=4)
+    every = np.arange(2000, 2400) * CALCULATION_CYCLE_S  # each cycle, 1 ms apart
+    noise = (Motion(config).sample(every, CALCULATION_CYCLE_S, chain)["ang_rate"]
+             - Motion(MotionConfig(seed=7)).sample(every, CALCULATION_CYCLE_S, chain)["ang_rate"])
+    ends = every[9::10]
+    deltas = [Motion(c).sample(ends, 0.01, chain)["delta_ang"] for c in (config,
+                                                                     MotionConfig(seed=7))]
+    summed = noise.reshape(-1, 10, 3).sum(axis=1) * CALCULATION_CYCLE_S
+    np.testing.assert_allclose(deltas[0] - deltas[1], summed, rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize(("width", "decimation"), [(15, 1), (32, 2), (15, 5), (8, 4), (15, 20),
+                                                   (1, 10)])
+def test_the_chain_averages_the_sensor_noise_cycle_by_cycle(width: int, decimation: int) -> None:
+    """The moving average of M calculation cycles, every D-th sent (the manual's Filtering):
+    each sample's spread is the cycle's over sqrt(M), neighbours M - D cycles apart share
+    (M - D)/M of it, and a density reads back over long averages as N, or N sqrt(D/M)
+    when D > M leaves cycles out."""
+    density = 1e-3
+    motion = Motion(MotionConfig(seed=9, static=True, gyroscope_noise_density=density))
+    still = Motion(MotionConfig(seed=9, static=True))
+    t = np.arange(1, 200_001) * decimation * CALCULATION_CYCLE_S
+    chain = SignalChain(filter_width=width, mag_filter_width=width)
+    period = decimation * CALCULATION_CYCLE_S
+    y = (motion.sample(t, period, chain, only=["ang_rate"])["ang_rate"]
+         - still.sample(t, period, chain, only=["ang_rate"])["ang_rate"])
+    cycle = density * math.sqrt(1000.0)
+    np.testing.assert_allclose(y.std(axis=0), cycle / math.sqrt(width), rtol=0.02)
+    shared = np.mean([np.corrcoef(y[1:, i], y[:-1, i])[0, 1] for i in range(3)])
+    assert shared == pytest.approx(max(width - decimation, 0) / width, abs=0.01)
+    block = 2000 // decimation  # means of 2 s
+    means = y[: len(y) // block * block].reshape(-1, block, 3).mean(axis=1)
+    read = means.std() * math.sqrt(block * period)
+    assert read == pytest.approx(density * math.sqrt(max(decimation / width, 1.0)), rel=0.05)
+
+
+def test_coning_makes_delta_ang_the_rotation_vector_of_the_turn() -> None:
+    """With coning and sculling (0xDB flag bit 1), a tumbling unit's DeltaAngles chain up
+    to its attitude exactly, and its DeltaVelocities, each taken into the earth frame at
+    its period's start, sum to the integral of the earth-frame specific force; without,
+    they are the plain integrals, which miss the coning and sculling terms."""
+    motion = Motion(tumbling(MotionConfig(seed=4)))
+    period, n = 0.02, 250
+    ends = 5.0 + period * np.arange(1, n + 1)
+    start_m = motion.sample(np.array([5.0]), period)["m"][0]
+    errors = {}
+    for coning in (True, False):
+        chain = SignalChain(coning_sculling=coning)
+        d = motion.sample(ends, period, chain)
+        m, velocity = start_m, np.zeros(3)
+        for theta, dv in zip(d["delta_ang"], d["delta_vel"], strict=True):
+            velocity += m.T @ dv
+            m = _expm_skew(-theta) @ m
+        fine = np.linspace(5.0, ends[-1], 200_001)
+        force = np.einsum("nji,nj->ni", motion.sample(fine, period)["m"],
+                          motion.sample(fine, period)["accel"])
+        errors[coning] = (float(np.abs(m - d["m"][-1]).max()),
+                          float(np.abs(velocity - _simpson(force, fine[1] - fine[0])).max()))
+    assert errors[True][0] < 1e-11 and errors[True][1] < 1e-9
+    assert errors[False][0] > 1e-4 and errors[False][1] > 1e-4
 
 
 def test_rejects_bad_arguments(motion: Motion) -> None:

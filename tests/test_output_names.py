@@ -31,16 +31,17 @@ CASES = [
     (["record", "-o", "{d}/fleet.mcap", "--rrd", "{d}/fleet.mcap.rrd2", *NOBODY],
      "this writes a Rerun recording; name the file .rrd"),
     (["export", "{d}/a.mcap", "-o", "{d}/table.txt"],
-     "this writes a Parquet table, a CSV table or an MCAP archive; name the file .parquet, "
-     ".csv or .mcap"),
+     "this writes a Parquet table, a CSV table, an MCAP archive or a ROS 1 bag; name the "
+     "file .parquet, .csv, .mcap or .bag"),
     (["export", "{d}/a.mcap", "-o", "{d}/t.csv", "--events", "{d}/events.mcap"],
      "name the file .parquet or .csv"),
     (["rrd", "{d}/a.mcap", "-o", "{d}/a.mcap2"], "name the file .rrd"),
     (["view", "--save", "{d}/live.mcap", *NOBODY], "name the file .rrd"),
     (["allan", "{d}/a.mcap", "-o", "{d}/imu.json"],
      "this writes a YAML file; name the file .yaml or .yml"),
-    (["allan", "{d}/a.mcap", "-o", "{d}/imu.yaml", "--plot", "{d}/allan.svg"],
-     "this writes a PNG image; name the file .png"),
+    (["allan", "{d}/a.mcap", "-o", "{d}/imu.yaml", "--plot", "{d}/allan.jpg"],
+     "this writes a PNG image, an SVG image or a PDF document; name the file .png, .svg or "
+     ".pdf"),
     (["allan", "{d}/a.mcap", "-u", "a", "-u", "b", "-o", "{d}/imu_{unit}.csv"],
      "name the file .yaml or .yml"),
     (["calibrate-mag", "{d}/a.mcap", "-o", "{d}/iron.yaml"],

@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.archive.walk import read_archive
-from bridge.export import ros2_bag
+from bridge.export import bags
 from bridge.export.ros2_bag import write_ros2
 from bridge.export.tables import sample_table
 from bridge.ingest.replay import replay
@@ -39,6 +39,7 @@ from tests.helpers.rotations import rotation
 #: with its rate (no accel).
 UNITS = {"u0": 0xCC, "u1": 0xC2, "u2": 0xCF}
 UNIT_RATE_HZ = 100.0  # decimation 10
+ORIENTATION_STDDEV = 0.02  # rad
 EARTH_FIELD_GAUSS = (0.2, 0.0, 0.45)  # north-east-down
 #: The ROS world (ENU) of a GX3 earth (NED) vector, and the ROS body (FLU) of a GX3 body
 #: (FRD) vector, written out here rather than taken from the code under test.
@@ -164,7 +165,7 @@ def test_a_long_export_is_encoded_in_slices_to_the_same_bag(
         fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     table = sample_table(read_archive(fleet.archive), re_estimate=None)
     write_ros2(table, tmp_path / "whole.mcap")
-    monkeypatch.setattr(ros2_bag, "SLICE", 97)
+    monkeypatch.setattr(bags, "SLICE", 97)
     write_ros2(table, tmp_path / "sliced.mcap")
     whole, sliced = read_bag(tmp_path / "whole.mcap"), read_bag(tmp_path / "sliced.mcap")
     assert sliced.raw == whole.raw and sliced.sequence == whole.sequence
@@ -316,7 +317,7 @@ def test_rerun_plots_the_imu_topics_as_time_series(
 
 @pytest.mark.parametrize(("args", "says"), [
     (["-o", "{d}/b.parquet", "--format", "ros2"], "--format ros2 writes a .mcap file"),
-    (["-o", "{d}/b.mcap", "--format", "hdf5"], "--format hdf5: give parquet, csv or ros2"),
+    (["-o", "{d}/b.mcap", "--format", "hdf5"], "--format hdf5: give parquet, csv, ros2, ros1"),
     (["-o", "{d}/b.mcap", "--align", "100"], "--align makes a table"),
 ])
 def test_a_bad_ros2_request_is_a_one_line_error(fleet: Fleet, tmp_path: Path, args: list[str],
@@ -340,39 +341,47 @@ def test_an_existing_bag_is_kept_without_force(fleet: Fleet, tmp_path: Path) -> 
 @pytest.fixture(scope="module")
 def noisy(fleet: Fleet, tmp_path_factory: pytest.TempPathFactory) -> tuple[Bag, str, Path]:
     """The fleet as a ROS 2 bag with a noise file measured at 200 Hz (the units run at
-    100 Hz), and what gx3 export said."""
+    100 Hz) and an orientation standard deviation, and what gx3 export said."""
     folder = tmp_path_factory.mktemp("noisy")
     noise = kalibr_yaml(folder / "imu.yaml", extra="allan_fit: {tau: [0.1, 1.0]}\n")
     out = folder / "fleet.ros2.mcap"
-    done = gx3("export", fleet.archive, "-o", out, "--noise", noise)
+    done = gx3("export", fleet.archive, "-o", out, "--noise", noise,
+               "--orientation-stddev", str(ORIENTATION_STDDEV))
     assert done.returncode == 0, done.stderr
     return read_bag(out), done.stderr, noise
+
+
+def _diagonal(variance: float) -> list[float]:
+    return [variance, 0, 0, 0, variance, 0, 0, 0, variance]
 
 
 def test_noise_gives_variances_of_density_squared_times_the_units_rate(
         exported: tuple[Bag, dict[str, np.ndarray], Path],
         noisy: tuple[Bag, str, Path]) -> None:
     """Read back by mcap-ros2-support: σ² = N² · 100 Hz (the units' rate from their Info,
-    not the file's 200 Hz) on the diagonal of every quantity a record carries, 0 off it;
-    -1 in element 0 for the orientation (no attitude accuracy in the manual) and for a
-    quantity a record lacks. Every value but the covariances is the noise-less bag's."""
+    not the file's 200 Hz; their decimation, 10, is under their filter width, 15) on the
+    diagonal of every quantity a record carries, 0 off it; the orientation's variance
+    given where a record carries one (u0's M, u2's Euler angles), and -1 in element 0
+    for a quantity a record lacks (u1's orientation, u2's accel). Every value but the
+    covariances is the noise-less bag's."""
     plain, _, _ = exported
     bag, stderr, _ = noisy
-    gyro = [GYRO_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0, GYRO_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0,
-            GYRO_DENSITY**2 * UNIT_RATE_HZ]
-    accel = [ACCEL_DENSITY**2 * UNIT_RATE_HZ, 0, 0, 0, ACCEL_DENSITY**2 * UNIT_RATE_HZ, 0, 0,
-             0, ACCEL_DENSITY**2 * UNIT_RATE_HZ]
+    gyro = _diagonal(GYRO_DENSITY**2 * UNIT_RATE_HZ)
+    accel = _diagonal(ACCEL_DENSITY**2 * UNIT_RATE_HZ)
     assert gyro[0] == pytest.approx(3.6e-7) and accel[0] == pytest.approx(6.4e-5)
-    unknown = [-1.0] + [0.0] * 8
-    carries = {"u0": ("accel", "rate"), "u1": ("accel", "rate"), "u2": ("rate",)}
+    orientation = _diagonal(ORIENTATION_STDDEV**2)
+    lacks = [-1.0] + [0.0] * 8
+    carries = {"u0": ("orientation", "accel", "rate"), "u1": ("accel", "rate"),
+               "u2": ("orientation", "rate")}
     for unit, has in carries.items():
         decoded = bag.decoded[f"/gx3/{unit}/imu"]
         assert len(decoded) > 900
         for m in decoded:
-            assert list(m.orientation_covariance) == unknown
-            assert list(m.angular_velocity_covariance) == (gyro if "rate" in has else unknown)
+            assert list(m.orientation_covariance) == (orientation if "orientation" in has
+                                                      else lacks)
+            assert list(m.angular_velocity_covariance) == (gyro if "rate" in has else lacks)
             assert list(m.linear_acceleration_covariance) == (accel if "accel" in has
-                                                              else unknown)
+                                                              else lacks)
         before = plain.decoded[f"/gx3/{unit}/imu"]
         np.testing.assert_array_equal(stamps(decoded), stamps(before))
         np.testing.assert_array_equal(orientations(decoded), orientations(before))
@@ -380,8 +389,18 @@ def test_noise_gives_variances_of_density_squared_times_the_units_rate(
             np.testing.assert_array_equal(vectors(decoded, field), vectors(before, field))
     assert bag.raw["/gx3/u0/mag"] == plain.raw["/gx3/u0/mag"]
     for unit in UNITS:
-        assert (f"unit {unit}: its covariances use its output rate, 100 Hz (its Info), not "
-                f"imu.yaml's update_rate, {FILE_RATE_HZ:g} Hz") in stderr
+        assert (f"unit {unit}: its covariances use its output rate, 100 Hz, and filter width, "
+                f"15 (its Info), not imu.yaml's update_rate, {FILE_RATE_HZ:g} Hz") in stderr
+
+
+def test_without_noise_an_orientation_is_unknown_not_absent(
+        exported: tuple[Bag, dict[str, np.ndarray], Path]) -> None:
+    """REP-145: a covariance nobody measured is all 0; -1 in element 0 says the message
+    has no orientation at all, and robot_localization would then drop it."""
+    bag = exported[0]
+    for unit, has in (("u0", True), ("u1", False), ("u2", True)):
+        for m in bag.decoded[f"/gx3/{unit}/imu"]:
+            assert list(m.orientation_covariance) == [0.0 if has else -1.0] + [0.0] * 8
 
 
 def test_the_bag_names_the_noise_file_it_used(noisy: tuple[Bag, str, Path]) -> None:
@@ -394,8 +413,9 @@ def test_the_bag_names_the_noise_file_it_used(noisy: tuple[Bag, str, Path]) -> N
     assert "allan_fit" not in record
     units = json.loads(record["units"])
     assert sorted(units) == sorted(UNITS)
-    assert units["u1"]["rate_hz"] == UNIT_RATE_HZ
+    assert units["u1"]["rate_hz"] == UNIT_RATE_HZ and units["u1"]["filter_width"] == 15
     assert units["u1"]["angular_velocity_covariance"][4] == GYRO_DENSITY**2 * UNIT_RATE_HZ
+    assert float(record["orientation_stddev"]) == ORIENTATION_STDDEV
 
 
 def test_without_noise_the_bag_has_no_noise_record(
@@ -447,4 +467,4 @@ def test_a_parquet_table_records_the_noise_file_and_keeps_its_samples(
     assert record["file"] == str(noise) and record["gyroscope_noise_density"] == GYRO_DENSITY
     assert record["units"]["u1"]["linear_acceleration_covariance"][8] == (
         ACCEL_DENSITY**2 * UNIT_RATE_HZ)
-    assert record["units"]["u1"]["orientation_covariance"][0] == -1.0
+    assert record["units"]["u1"]["orientation_covariance"] == _diagonal(0.0)

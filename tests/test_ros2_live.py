@@ -422,8 +422,9 @@ def test_a_humble_subscriber_gets_the_units_imu_with_its_covariances(
         sessions: tuple[zenoh.Session, zenoh.Session], tmp_path: Path) -> None:
     """A subscriber on the exact key a Humble node declares receives every Imu, and the
     Humble node's graph sees TypeHashNotSupported tokens; nothing goes out on Jazzy's key.
-    Decoded with rosbags' Humble types: σ² = N² · the rate given (250 Hz), -1 in element 0
-    of the orientation; a record without accel: -1 there too."""
+    Decoded with rosbags' Humble types: σ² = N² · the rate given (250 Hz: decimation 4,
+    under the filter width 15), the orientation (M) 0, unknown; a record without accel:
+    -1 in element 0 there."""
     there, here = sessions
     humble_key = "0/gx3/imu1/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported"
     jazzy_key = f"0/gx3/imu1/imu/{IMU_TYPE}/{IMU_HASH}"
@@ -442,7 +443,7 @@ def test_a_humble_subscriber_gets_the_units_imu_with_its_covariances(
     noise = read_noise(kalibr_yaml(tmp_path / "imu.yaml"))
     topics = UnitTopics(there, 0, "gx3", "imu1", "humble", noise)
     try:
-        topics.use_rate(250.0)
+        topics.use_settings(250.0, 15)
         assert topics.imu.key == humble_key
         wait_for(lambda: topics.imu.matched, 20, "the Humble subscriber")
         zid = str(there.info.zid())
@@ -466,7 +467,7 @@ def test_a_humble_subscriber_gets_the_units_imu_with_its_covariances(
     gyro_var, accel_var = GYRO_DENSITY**2 * 250.0, ACCEL_DENSITY**2 * 250.0
     for k, m in enumerate(decoded):
         assert m.header.stamp.nanosec == int(stamps[k] % 10**9)
-        assert list(m.orientation_covariance) == [-1.0] + [0.0] * 8
+        assert list(m.orientation_covariance) == [0.0] * 9
         assert list(m.angular_velocity_covariance) == [gyro_var, 0, 0, 0, gyro_var, 0, 0, 0,
                                                        gyro_var]
         accel_cov = ([-1.0] + [0.0] * 8 if k == 3
@@ -477,9 +478,10 @@ def test_a_humble_subscriber_gets_the_units_imu_with_its_covariances(
 
 
 def test_gx3_bridge_ros2_humble_with_noise(tmp_path: Path) -> None:
-    """`gx3 bridge --ros2 --ros2-distro humble --noise imu.yaml` on an emulated unit at
-    100 Hz (its decimation 10): a Humble subscriber's key gets Imu messages whose
-    covariances are N² · 100 Hz, the unit's rate, not the file's 200 Hz."""
+    """`gx3 bridge --ros2 --ros2-distro humble --noise imu.yaml --orientation-stddev 0.05`
+    on an emulated unit at 100 Hz (its decimation 10, under its filter width 15): a
+    Humble subscriber's key gets Imu messages whose covariances are N² · 100 Hz, the
+    unit's rate, not the file's 200 Hz, and 0.05² on its orientation's diagonal."""
     noise = kalibr_yaml(tmp_path / "imu.yaml")
     received: list[bytes] = []
     with _still_unit_behind_router(tmp_path, "ROS0002") as (pty, client, here):
@@ -487,7 +489,8 @@ def test_gx3_bridge_ros2_humble_with_noise(tmp_path: Path) -> None:
             "0/gx3/imu_2/imu/sensor_msgs::msg::dds_::Imu_/TypeHashNotSupported",
             lambda s: received.append(s.payload.to_bytes()))
         with bridge_process(pty, client, "--unit", "imu-2", "--ros2", "--ros2-distro",
-                            "humble", "--noise", str(noise)) as bridge:
+                            "humble", "--noise", str(noise), "--orientation-stddev",
+                            "0.05") as bridge:
             wait_for(lambda: len(received) >= 20, 60, "Humble Imu messages")
         assert bridge.returncode == 0, bridge.stderr.read() if bridge.stderr else ""
         sub.undeclare()
@@ -500,6 +503,7 @@ def test_gx3_bridge_ros2_humble_with_noise(tmp_path: Path) -> None:
                                                        gyro_var]
         assert list(m.linear_acceleration_covariance) == [accel_var, 0, 0, 0, accel_var, 0,
                                                           0, 0, accel_var]
-        assert m.orientation_covariance[0] == -1.0
+        assert list(m.orientation_covariance) == pytest.approx([0.0025, 0, 0, 0, 0.0025, 0,
+                                                                0, 0, 0.0025])
         force = [m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
         assert np.linalg.norm(force) == pytest.approx(9.80665, abs=0.05)  # still: g alone

@@ -7,11 +7,19 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bridge.exceptions import Gx3Error, NoiseFileError
-from bridge.ros2.noise import imu_covariance, read_noise
-from tests.helpers.noise import ACCEL_DENSITY, FILE_RATE_HZ, GYRO_DENSITY, kalibr_yaml
+from bridge.ros2.noise import imu_covariance, read_noise, sample_variance
+from bridge.sim.motion import Motion, MotionConfig
+from tests.helpers.noise import (
+    ACCEL_DENSITY,
+    FILE_RATE_HZ,
+    GYRO_DENSITY,
+    kalibr_yaml,
+    unit_samples,
+)
 from tests.helpers.processes import gx3
 
 
@@ -28,21 +36,51 @@ def test_the_kalibr_keys_are_read_and_any_other_key_is_ignored(tmp_path: Path) -
     assert "allan_fit" not in provenance and "unit_serial" not in provenance
 
 
-def test_variances_are_density_squared_times_the_rate(tmp_path: Path) -> None:
-    """σ² = N² · rate on the diagonal, 0 off it; the orientation: -1 in element 0, since
-    the manual states no attitude accuracy for any model."""
+def test_variances_follow_the_rate_and_the_filter(tmp_path: Path) -> None:
+    """σ² = N² · 1000 Hz / min(D, M) on the diagonal, 0 off it: N² · rate while the
+    decimation D is at most the filter width M, N² · 1000 Hz / M once D > M. The
+    orientation: all 0 (unknown, REP-145), or the square of a standard deviation given."""
     noise = read_noise(kalibr_yaml(tmp_path / "imu.yaml"))
-    for rate in (100.0, 500.0, 1.0):
-        cov = imu_covariance(noise, rate)
-        assert cov.rate_hz == rate
+    for rate, width, per_n2 in ((100.0, 15, 100.0), (1000.0, 15, 1000.0), (500.0, 2, 500.0),
+                                (100.0, 4, 250.0), (1.0, 32, 1000.0 / 32)):
+        cov = imu_covariance(noise, rate, width)
+        assert (cov.rate_hz, cov.filter_width) == (rate, width)
         for values, density in ((cov.angular_velocity, GYRO_DENSITY),
                                 (cov.linear_acceleration, ACCEL_DENSITY)):
             assert len(values) == 9
-            assert [values[i] for i in (0, 4, 8)] == [density**2 * rate] * 3
+            assert [values[i] for i in (0, 4, 8)] == pytest.approx([density**2 * per_n2] * 3)
             assert [values[i] for i in (1, 2, 3, 5, 6, 7)] == [0.0] * 6
-        assert cov.orientation == (-1.0, 0, 0, 0, 0, 0, 0, 0, 0)
+        assert cov.orientation == (0.0,) * 9
+    assert imu_covariance(noise, 100.0, 15, 0.02).orientation == pytest.approx(
+        (4e-4, 0, 0, 0, 4e-4, 0, 0, 0, 4e-4))
+    unknown = imu_covariance(None, 100.0, 15, 0.02)
+    assert unknown.angular_velocity == unknown.linear_acceleration == (0.0,) * 9
+    for bad in ((noise, 0.0, 15), (noise, 100.0, 0)):
+        with pytest.raises(ValueError, match="cannot give a variance"):
+            imu_covariance(*bad)
     with pytest.raises(ValueError, match="cannot give a variance"):
-        imu_covariance(noise, 0.0)
+        imu_covariance(noise, 100.0, 15, -0.1)
+
+
+@pytest.mark.parametrize(("rate", "width"), [(200, 15), (250, 8), (100, 4), (50, 15)])
+def test_the_variance_is_what_a_white_filter_needs_of_the_units_samples(
+        rate: int, width: int) -> None:
+    """What the covariance is for: a filter that takes the samples as white sums them, and
+    a sum of n white samples of variance σ² varies by n σ². The emulated unit's samples
+    (the sensor's density through its filter, every D-th cycle sent), summed a second at
+    a time for 50 minutes: n σ² to 5 % with σ² = sample_variance, whether D < M (the
+    samples share cycles) or D > M (they miss some)."""
+    density = 1e-3
+    samples = unit_samples(Motion(MotionConfig(seed=6, static=True,
+                                               gyroscope_noise_density=density)),
+                           rate, width, 3000)
+    y = samples.join()[3].astype(np.float64)
+    sums = y.reshape(-1, rate, 3).sum(axis=1)
+    variance = sample_variance(density, rate, width)
+    found = float(sums.var(axis=0).mean()) / rate
+    assert found == pytest.approx(variance, rel=0.05)
+    if 1000 // rate > width:  # independent samples: their own variance is the same number
+        assert np.allclose(y.var(axis=0), variance, rtol=0.02)
 
 
 @pytest.mark.parametrize(("content", "says"), [
@@ -126,6 +164,8 @@ def test_gx3_bridge_refuses_a_bad_noise_file_in_one_line(tmp_path: Path) -> None
 @pytest.mark.parametrize(("args", "says"), [
     (["--noise", "{noise}"], "--noise is for the --ros2 topics: add --ros2"),
     (["--ros2-distro", "humble"], "--ros2-distro is for the --ros2 topics: add --ros2"),
+    (["--orientation-stddev", "0.02"],
+     "--orientation-stddev is for the --ros2 topics: add --ros2"),
     (["--ros2", "--ros2-distro", "iron"], "give humble or jazzy"),
 ])
 def test_gx3_bridge_ros2_options_need_ros2_and_a_known_distro(
@@ -136,8 +176,9 @@ def test_gx3_bridge_ros2_options_need_ros2_and_a_known_distro(
 
 
 def test_gx3_export_refuses_what_a_table_cannot_hold(tmp_path: Path) -> None:
-    """A CSV file has no metadata to record the noise file in; a table has no ROS
-    distribution. Nothing is written."""
+    """A CSV file has no metadata to record the noise file or an orientation's standard
+    deviation in; a table and a ROS 1 bag have no ROS 2 distribution; a format is
+    written only to its own extension. Nothing is written."""
     noise = kalibr_yaml(tmp_path / "imu.yaml")
     _refused(gx3("export", tmp_path / "a.mcap", "-o", tmp_path / "t.csv", "--noise", noise),
              "a CSV file has no metadata", "write .parquet")
@@ -145,4 +186,11 @@ def test_gx3_export_refuses_what_a_table_cannot_hold(tmp_path: Path) -> None:
                  "--ros2-distro", "humble"), "--ros2-distro humble is for a ROS 2 bag")
     _refused(gx3("export", tmp_path / "a.mcap", "-o", tmp_path / "b.mcap",
                  "--ros2-distro", "rolling"), "give humble or jazzy")
+    _refused(gx3("export", tmp_path / "a.mcap", "-o", tmp_path / "t.csv",
+                 "--orientation-stddev", "0.02"), "--orientation-stddev is recorded in a "
+             "Parquet table's metadata or used in a ROS bag")
+    _refused(gx3("export", tmp_path / "a.mcap", "-o", tmp_path / "b.bag",
+                 "--ros2-distro", "humble"), "a ROS 1 bag has Noetic's messages")
+    _refused(gx3("export", tmp_path / "a.mcap", "-o", tmp_path / "b.bag", "--format", "ros2"),
+             "--format ros2 writes a .mcap file; name the output b.mcap")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["imu.yaml"]

@@ -200,7 +200,7 @@ def test_signal_stops_it_with_a_summary(run_sim: Callable[..., Sim],
     code, stderr = sim.stop(sig)
     assert code == 0, stderr
     assert "Traceback" not in stderr
-    assert re.search(r"SIGTEST: 1 records sent", stderr), stderr
+    assert re.search(r"SIGTEST: 1 record sent", stderr), stderr
 
 
 def test_state_file_keeps_the_mode_preset(run_sim: Callable[..., Sim], tmp_path: Path) -> None:

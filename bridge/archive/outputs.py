@@ -34,7 +34,8 @@ from bridge.exceptions import OutputRefused
 FORMATS = {
     ".mcap": "an MCAP archive", ".rrd": "a Rerun recording", ".parquet": "a Parquet table",
     ".csv": "a CSV table", ".json": "a JSON file", ".yaml": "a YAML file",
-    ".yml": "a YAML file", ".png": "a PNG image",
+    ".yml": "a YAML file", ".png": "a PNG image", ".svg": "an SVG image",
+    ".pdf": "a PDF document", ".bag": "a ROS 1 bag",
 }
 
 

@@ -91,9 +91,12 @@ def decode_samples(blocks: Iterable[Block], channels: Iterable[ChannelInfo],
             if not parts:
                 continue
             cols = _decode(unit, code, parts)
-        order = np.argsort(np.concatenate([b.log_time[p] for b, p in parts]), kind="stable")
-        out.append(ArchivedSamples(unit, code, {k: v[order] for k, v in cols.items()},
-                                   np.concatenate([b.publish_time[p] for b, p in parts])[order]))
+        log_time = np.concatenate([b.log_time[p] for b, p in parts])
+        received = np.concatenate([b.publish_time[p] for b, p in parts])
+        if len(log_time) > 1 and (log_time[1:] < log_time[:-1]).any():  # else as they are
+            order = np.argsort(log_time, kind="stable")
+            cols, received = {k: v[order] for k, v in cols.items()}, received[order]
+        out.append(ArchivedSamples(unit, code, cols, received))
     return out
 
 

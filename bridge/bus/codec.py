@@ -453,7 +453,6 @@ def decode_batch(unit: str, code: int,
     """
     lay = layout(code, unit)
     n = len(payloads)
-    recs = np.zeros(n, lay.dtype)
     if isinstance(payloads, np.ndarray):
         size = payloads.size // n if n else lay.size
         header = next((h for h in HEADERS if layout(code, unit, h).size == size), HEADER)
@@ -461,6 +460,10 @@ def decode_batch(unit: str, code: int,
         raw = payloads.reshape(n, -1)
         good = _constant_bytes_hold(bulk, raw) if bulk.size == raw.shape[1] \
             else np.zeros(n, bool)
+        if header == HEADER and good.all() and raw.flags.c_contiguous:
+            return _columns(lay, raw.reshape(-1).view(lay.dtype))  # every row as it is
+    recs = np.zeros(n, lay.dtype)
+    if isinstance(payloads, np.ndarray):
         rows = raw[good].reshape(-1).view(bulk.dtype)
         for name in (*header, *bulk.quantities):
             recs[name][good] = rows[name]

@@ -87,13 +87,15 @@ def export(
     archive: Annotated[Path, typer.Argument(metavar="ARCHIVE.mcap",
                                             help="Archive (.mcap) written by gx3.")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, or a "
-                                               ".mcap ROS 2 bag (--format ros2); it appears "
-                                               "when complete.")],
+        "--output", "-o", metavar="FILE", help="File to write: a .parquet or .csv table, a "
+                                               ".mcap ROS 2 bag or a .bag ROS 1 bag; it "
+                                               "appears when complete.")],
     output_format: Annotated[str | None, typer.Option(
         "--format", metavar="FORMAT",
-        help="parquet, csv or ros2 (sensor_msgs/Imu and MagneticField in an MCAP bag that "
-             "ros2 bag play reads). Default: from the output's extension (.mcap: ros2).")
+        help="parquet, csv, ros2 (sensor_msgs/Imu and MagneticField in an MCAP bag that "
+             "ros2 bag play reads) or ros1 (the same messages in a ROS 1 .bag, which "
+             "Kalibr, allan_variance_ros and imu_utils read). Default: from the output's "
+             "extension (.mcap: ros2, .bag: ros1); one that does not match is refused.")
     ] = None,
     unit: Annotated[list[str] | None, typer.Option(
         "--unit", "-u", metavar="NAME",
@@ -129,14 +131,24 @@ def export(
         help="The units' measured noise, Kalibr's imu.yaml (gx3 allan writes one; keys "
              "accelerometer_noise_density, accelerometer_random_walk, "
              "gyroscope_noise_density, gyroscope_random_walk, update_rate; others are "
-             "ignored). ROS 2 bag: each Imu's angular_velocity_covariance and "
-             "linear_acceleration_covariance diagonals become noise density² x the unit's "
-             "output rate from its Info (1000 Hz / decimation; the file's update_rate only "
-             "for a unit without Info), orientation_covariance -1 in element 0 (the manual "
-             "states no attitude accuracy), and the bag's gx3.noise metadata names the "
-             "file. Parquet: the samples are unchanged; gx3.noise metadata records the file "
-             "and the covariances it gives. CSV: refused (no metadata to record it in).")
+             "ignored). ROS bags: each Imu's angular_velocity_covariance and "
+             "linear_acceleration_covariance diagonals become noise density² x 1000 Hz / "
+             "min(D, M), D the unit's decimation and M its filter width from its Info "
+             "(density² x the output rate while D ≤ M: the samples share cycles; the "
+             "samples' own variance once D > M; the file's update_rate and the factory's "
+             "width 15 only for a unit without Info), and the bag's gx3.noise metadata "
+             "(ROS 1: a latched std_msgs/String on /PREFIX/gx3_noise) names the file. "
+             "Parquet: the samples are unchanged; gx3.noise metadata records the file and "
+             "the covariances it gives. CSV: refused (no metadata to record it in).")
     ] = None,
+    orientation_stddev: Annotated[float | None, typer.Option(
+        "--orientation-stddev", metavar="RAD", min=0.0,
+        help="Standard deviation of the units' orientation about each axis, in radians: "
+             "the orientation_covariance diagonal of every Imu that carries an "
+             "orientation (0xC8, 0xCC, 0xCE, 0xDF, ...) becomes its square (the manual "
+             "states no attitude accuracy; REP-145 leaves it all 0, unknown, unless one "
+             "is given). Records without an orientation keep -1 in element 0. Recorded "
+             "as --noise is; CSV: refused.")] = None,
     mounts: Annotated[Path | None, typer.Option(
         "--mounts", metavar="MOUNTS.yaml",
         help="How units on one body are mounted (gx3 align writes it): each unit it names "
@@ -146,18 +158,25 @@ def export(
              "by time_shift_s onto the reference's time; --start and --end see the moved "
              "times. Lever arms are not applied: accel stays the specific force where the "
              "unit sits. Parquet: the file, its SHA-256 and what it holds go in the "
-             "gx3.mounts metadata; ROS 2 bag: the same as a gx3.mounts metadata record, "
-             "and those units' messages are in the reference's frame; CSV: refused (no "
-             "metadata to record it in).")] = None,
+             "gx3.mounts metadata; ROS bags: the same as a gx3.mounts metadata record "
+             "(ROS 1: a latched std_msgs/String on /PREFIX/gx3_mounts), and those units' "
+             "messages are in the reference's frame; CSV: refused (no metadata to record "
+             "it in).")] = None,
     ros2_distro: Annotated[str | None, typer.Option(
         "--ros2-distro", metavar="humble|jazzy",
         help="ROS 2 distribution of the bag's message definitions (--format ros2 only); "
              "Humble's and Jazzy's definitions of Imu and MagneticField are the same, so "
              "the bag is too. Default: jazzy.")] = None,
+    merge: Annotated[Path | None, typer.Option(
+        "--merge", metavar="CAMERA.bag",
+        help="Also copy every topic and message of this ROS 1 bag (the camera's, as ROS "
+             "recorded it) into the .bag written, unchanged: Kalibr reads the images and "
+             "the IMU from one bag. --format ros1 only; the bag itself is not touched.")
+    ] = None,
     force: ForceOpt = False,
 ) -> None:
     """Export samples to Parquet or CSV, one row per sample, every unit on one timeline,
-    or to a ROS 2 bag.
+    or to a ROS 2 or ROS 1 bag.
 
     Columns: unit, command, timer, ticks, time_ns (ns since the Unix epoch, each unit's
     clock re-estimated over the whole recording), time_utc (the same as a UTC
@@ -181,8 +200,14 @@ def export(
     world east-north-up; orientation body to world, linear acceleration as specific force in
     m/s² (+9.81 up when level), angular velocity rad/s, field tesla; covariance element
     0 is -1 for a quantity the record lacks; the other covariances are 0 (unknown)
-    unless --noise gives them. header.stamp and the log time are the time_ns a table
-    export with the same options gives.
+    unless --noise or --orientation-stddev gives them. header.stamp and the log time are
+    the time_ns a table export with the same options gives.
+
+    ROS 1 (--format ros1, a .bag: what Kalibr, allan_variance_ros and imu_utils read):
+    the same topics, frames, stamps, covariances and messages with ROS 1 Noetic's
+    definitions, header.seq counting each topic's messages from 0; the metadata records
+    of --noise and --mounts are latched std_msgs/String (JSON) on /gx3/gx3_noise and
+    /gx3/gx3_mounts; --merge copies the camera's bag in, so that Kalibr finds both in one.
     """
     from bridge.export.run import SUFFIXES, Export
     from bridge.export.tables import FORMATS as TABLES
@@ -190,15 +215,16 @@ def export(
     try:  # the request is checked before anything is read or written
         job = Export(archive, output, output_format=output_format, units=unit,
                      types=record_type, start=start, end=end, align_hz=align, events=events,
-                     mag_cal=mag_cal or (), noise=noise, ros2_distro=ros2_distro,
-                     mounts=mounts)
+                     mag_cal=mag_cal or (), noise=noise,
+                     orientation_stddev=orientation_stddev, ros2_distro=ros2_distro,
+                     merge=merge, mounts=mounts)
     except ValueError as exc:  # what the export refuses is a ValueError: exit 2
         raise fail(str(exc)) from None
     with ExitStack() as outputs:
-        table_file = outputs.enter_context(written(output, [archive], force,
+        table_file = outputs.enter_context(written(output, job.inputs(), force,
                                                    suffixes=SUFFIXES))
         events_file = (None if events is None else outputs.enter_context(
-            written(events, [archive], force, suffixes=TABLES)))
+            written(events, job.inputs(), force, suffixes=TABLES)))
         try:
             done = job.write(read_with_progress(archive), table_file, events_file)
         except ValueError as exc:  # the archive or the samples cannot give what was asked

@@ -118,13 +118,20 @@ def run_bridge(
         "--noise", metavar="IMU.yaml",
         help="The unit's measured noise, Kalibr's imu.yaml (gx3 allan writes one): each "
              "--ros2 Imu's angular_velocity_covariance and linear_acceleration_covariance "
-             "diagonals become noise density² x the unit's output rate (1000 Hz / "
-             "decimation, as brought up; not the file's update_rate), and "
-             "orientation_covariance gets -1 in element 0 (the manual states no attitude "
-             "accuracy). Without it every covariance is 0, which sensor_msgs/Imu reads as "
-             "unknown. A file without accelerometer_noise_density, "
-             "accelerometer_random_walk, gyroscope_noise_density, gyroscope_random_walk "
-             "and update_rate is refused (exit 2).")] = None,
+             "diagonals become noise density² x 1000 Hz / min(D, M), D the unit's "
+             "decimation and M its filter width as brought up (density² x the output "
+             "rate while D ≤ M; not the file's update_rate). Without it they are 0, which "
+             "sensor_msgs/Imu reads as unknown. A file without "
+             "accelerometer_noise_density, accelerometer_random_walk, "
+             "gyroscope_noise_density, gyroscope_random_walk and update_rate is refused "
+             "(exit 2).")] = None,
+    orientation_stddev: Annotated[float | None, typer.Option(
+        "--orientation-stddev", metavar="RAD", min=0.0,
+        help="Standard deviation of the unit's orientation about each axis, in radians: "
+             "the orientation_covariance diagonal of every --ros2 Imu that carries an "
+             "orientation becomes its square (the manual states no attitude accuracy; "
+             "without it the covariance is 0, unknown, as REP-145 has it). Records "
+             "without an orientation keep -1 in element 0.")] = None,
     allow_commands: Annotated[bool, typer.Option(
         "--allow-commands", help="Carry out operator commands that arrive over Zenoh "
                                  "(gx3 configure --unit …); refused otherwise.")] = False,
@@ -162,7 +169,8 @@ def run_bridge(
     samples also go out as ROS 2 messages (REP-103 frames: body FLU, world ENU) on
     rmw_zenoh's keys (Jazzy's, or Humble's with --ros2-distro humble), with its
     attachments (sequence, time, GID: what ROS 2 reads) and graph tokens; --noise gives
-    their Imu messages covariances measured on the unit. Keeps
+    their Imu messages covariances measured on the unit, --orientation-stddev one for
+    the orientation. Keeps
     streaming through pulled cables and resets. Ctrl-C or SIGTERM stop continuous
     mode and close the port.
 
@@ -184,7 +192,7 @@ def run_bridge(
     if new_baud is not None and new_baud not in BAUD_RATES:
         raise fail(f"--new-baud {new_baud}: use one of " + ", ".join(map(str, BAUD_RATES)))
     for given, name in ((ros2_domain, "--ros2-domain"), (ros2_distro, "--ros2-distro"),
-                        (noise, "--noise")):
+                        (noise, "--noise"), (orientation_stddev, "--orientation-stddev")):
         if given is not None and not ros2:
             raise fail(f"{name} is for the --ros2 topics: add --ros2")
     ros2_options = None
@@ -194,7 +202,8 @@ def run_bridge(
 
         measured = None if noise is None else read_noise(noise)  # exit 2 if unusable
         try:
-            ros2_options = Ros2Options(ros2_domain or 0, ros2_distro or "jazzy", measured)
+            ros2_options = Ros2Options(ros2_domain or 0, ros2_distro or "jazzy", measured,
+                                       orientation_stddev)
         except ValueError as exc:  # a distribution that is not one
             raise fail(f"--ros2-distro: {exc}") from None
     if transport not in ("auto", *TRANSPORTS):

@@ -21,8 +21,9 @@ from bridge.cli.common import (
 )
 
 _PLACEHOLDER = "{unit}"
+#: What -o writes (Kalibr's imu.yaml), and the pictures --plot draws, by extension.
 _YAML = (".yaml", ".yml")
-_PNG = (".png",)
+_PICTURES = (".png", ".svg", ".pdf")
 
 
 def _per_unit(option: str, path: Path, units: list[str]) -> dict[str, Path]:
@@ -39,9 +40,9 @@ def allan(
         metavar="ARCHIVE.mcap",
         help="Archive of the unit standing still (recorded, replayed or repaired).")],
     output: Annotated[Path, typer.Option(
-        "--output", "-o", metavar="FILE",
-        help="Kalibr imu.yaml to write; it appears when complete. With several units, "
-             "{unit} in the name stands for each.")],
+        "--output", "-o", metavar="FILE.yaml",
+        help="Kalibr imu.yaml to write (.yaml or .yml); it appears when complete. With "
+             "several units, {unit} in the name stands for each.")],
     unit: Annotated[list[str] | None, typer.Option(
         "--unit", "-u", metavar="NAME",
         help="A unit to measure; repeat for several. Default: every unit in the "
@@ -49,7 +50,8 @@ def allan(
     plot: Annotated[Path | None, typer.Option(
         "--plot", metavar="FILE.png",
         help="Also draw the Allan deviation of each axis, log-log, with the lines and "
-             "points Kalibr reads (PNG; {unit} as in --output).")] = None,
+             "points Kalibr reads and the span fitted: .png, .svg or .pdf, as the name "
+             "says ({unit} as in --output).")] = None,
     start: StartOpt = None,
     end: EndOpt = None,
     jobs: Annotated[int | None, typer.Option(
@@ -63,15 +65,21 @@ def allan(
     temperature: minutes give the white noise densities, hours (3 or more; 8 for a tight
     estimate) the bias random walks. The overlapping Allan deviation of each axis of the
     accelerometer (m/s²) and the gyroscope (rad/s) is computed over the contiguous
-    stretches of the recording: gaps, resets and timer rollovers cut it, and are never
-    bridged. As Kalibr's wiki defines them, the noise density is the slope -1/2 line at
-    τ = 1 s and the random walk the slope +1/2 line at τ = 3 s, in continuous-time units;
-    the worst axis of each sensor goes into Kalibr's four keys, beside the unit's ROS 2
-    topic (as gx3 export names it) and its rate. Each axis's values, the bias instability
-    (the flat minimum) and its τ, the τ range and the data used go under the key
-    gx3_allan, which Kalibr ignores. A unit that moved is refused (exit 2), saying when;
-    a recording too short for the random walks gives them with a warning saying how
-    long to record.
+    stretches of the recording: gaps and resets cut it, and are never bridged (a timer
+    rollover does not: its step is exact). As Kalibr's wiki defines them, the noise
+    density is the slope -1/2 line at τ = 1 s and the random walk the slope +1/2 line at
+    τ = 3 s, in continuous-time units. The unit averages M calculation cycles (its
+    filter width, from its Info; the factory's 15, with a warning, if the archive has
+    none) and sends every D-th: that shapes the curve at short τ, so the fit models it
+    exactly and starts at 10 × (M + D) ms; the densities are the sensor's own, whatever
+    the rate and width. The worst axis of each sensor goes into Kalibr's four keys,
+    beside the unit's ROS 2 topic (as gx3 export names it) and its rate. Each axis's
+    values, the bias instability (the flat minimum) and its τ, M, D, the τ range fitted
+    and the data used go under the key gx3_allan, which Kalibr ignores. A unit that
+    moved (its specific force off 1 g, turning, or its one-second means wandering) is
+    refused (exit 2), saying when; so is a curve with no white noise in it, rather than
+    a density of 0. A recording too short for the random walks gives them with a
+    warning saying how long to record.
     """
     from bridge.analysis.noise import (
         UnitSamples,
@@ -89,7 +97,7 @@ def allan(
 
     span = TimeSpan(start, end)
     asked = list(dict.fromkeys(unit)) if unit else None
-    for option, path, suffixes in (("--output", output, _YAML), ("--plot", plot, _PNG)):
+    for option, path, suffixes in (("--output", output, _YAML), ("--plot", plot, _PICTURES)):
         if path is None:  # refused before hours of reading, not after
             continue
         named_format(path, *suffixes)
@@ -129,8 +137,8 @@ def allan(
             from bridge.viz.allan import write_allan_plot
 
             with written(plots[name], [archive, outputs[name]], force,
-                         suffixes=_PNG) as temp:
-                write_allan_plot(temp, result)
+                         suffixes=_PICTURES) as temp:
+                write_allan_plot(temp, result, plots[name].suffix.lower().lstrip("."))
         for warning in result.warnings:
             err.print(f"[yellow]warning:[/] unit {name}: {warning}")
         acc, gyr = result.accelerometer, result.gyroscope
@@ -138,7 +146,7 @@ def allan(
             f"wrote {outputs[name]}"
             + (f" and {plots[name]}" if name in plots else "")
             + f": unit {name}, accelerometer N {acc.noise_density:.3g} m/s²/√Hz, "
-            f"K {acc.random_walk:.3g} m/s³/√Hz; gyroscope N {gyr.noise_density:.3g} "
-            f"rad/s/√Hz, K {gyr.random_walk:.3g} rad/s²/√Hz; from {stretch_text(result)}")
+            f"K {acc.walk_text()} m/s³/√Hz; gyroscope N {gyr.noise_density:.3g} "
+            f"rad/s/√Hz, K {gyr.walk_text()} rad/s²/√Hz; from {stretch_text(result)}")
     if refusals:
         raise typer.Exit(REFUSED)

@@ -97,12 +97,14 @@ def rrd(
     left out with a warning.
     """
     from bridge.analysis.mounts import read_mounts
+    from bridge.archive.outputs import named_format
     from bridge.archive.times import parse_time
     from bridge.archive.walk import sample_span
     from bridge.exceptions import ArchiveReadError
     from bridge.viz.review import plan
     from bridge.viz.thin import bin_width_ns
 
+    named_format(output, ".rrd")  # refused before the archive is read
     irons = _irons(mag_cal)
     mounted = None if mounts is None else read_mounts(mounts)  # a refusal is exit 2
     if not archive.is_file():

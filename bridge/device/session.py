@@ -34,6 +34,7 @@ from bridge.protocol.framer import Framer
 from bridge.protocol.table import (
     BAUD_RATES,
     DATA_CODES,
+    DEFAULT_FILTER_WIDTH,
     ERROR_CODE,
     REPLIES,
     TICKS_PER_SECOND,
@@ -101,6 +102,11 @@ class UnitInfo:
     def output_hz(self) -> float:
         """Records a second: 1000 Hz / decimation."""
         return 1000.0 / max(1, self.sampling.get("decimation", 1))
+
+    @property
+    def filter_width(self) -> int:
+        """The accel and gyro filter width M (0xDB); the factory's if not read."""
+        return self.sampling.get("filter_width", 0) or DEFAULT_FILTER_WIDTH
 
     @property
     def stream_record(self) -> int:

@@ -1,4 +1,4 @@
-"""Archives out to other formats: Parquet and CSV tables, ROS 2 bags, and ``gx3 export``."""
+"""Archives out to other formats: Parquet and CSV tables, ROS 2 and ROS 1 bags, gx3 export."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ from typing import TYPE_CHECKING
 
 from bridge._lazy import imported
 from bridge.archive.times import TimeSpan
+from bridge.export.bags import BagWritten
 from bridge.export.describe import About
+from bridge.export.ros1_bag import write_ros1
 from bridge.export.ros2_bag import Ros2Written, write_ros2
 
 if TYPE_CHECKING:
@@ -22,6 +24,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "About",
+    "BagWritten",
     "Export",
     "Exported",
     "Ros2Written",
@@ -32,6 +35,7 @@ __all__ = [
     "sample_table",
     "shift_times",
     "turn_units",
+    "write_ros1",
     "write_ros2",
     "write_table",
 ]

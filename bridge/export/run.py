@@ -1,4 +1,4 @@
-"""What ``gx3 export`` runs: an archive's samples to a table or a ROS 2 bag, as one job.
+"""What ``gx3 export`` runs: an archive's samples to a table or a ROS bag, as one job.
 
 ``Export`` checks a request before anything is read or written (the formats, what goes
 with what, the span, the record types, the calibration files), then ``write`` turns an
@@ -18,6 +18,7 @@ nothing is left if it fails). The tables and their writers are
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
@@ -31,9 +32,11 @@ from bridge.archive.outputs import named_format
 from bridge.archive.reader import ArchiveReader
 from bridge.archive.times import TimeSpan
 from bridge.archive.walk import read_samples_archive
+from bridge.export.bags import BagWritten
 from bridge.export.describe import ALIGNED_SEPARATOR, About, unit_labels
 from bridge.export.mounted import shift_times, turn_units
-from bridge.export.ros2_bag import Ros2Written, write_ros2
+from bridge.export.ros1_bag import check_merge, write_ros1
+from bridge.export.ros2_bag import write_ros2
 from bridge.export.tables import FORMATS as TABLES
 from bridge.export.tables import (
     align_table,
@@ -44,6 +47,7 @@ from bridge.export.tables import (
     sample_table,
     write_table,
 )
+from bridge.protocol.table import DEFAULT_FILTER_WIDTH
 from bridge.ros2.messages import DEFAULT_DISTRO, check_distro
 from bridge.ros2.noise import ImuCovariance, ImuNoise, imu_covariance, read_noise
 
@@ -52,12 +56,12 @@ if TYPE_CHECKING:
 
 __all__ = ["Export", "Exported"]
 
-#: What ``--format`` takes.
-FORMATS = ("parquet", "csv", "ros2")
-#: The extensions of what an export writes: a table, or a ROS 2 bag (.mcap).
-SUFFIXES = (*TABLES, ".mcap")
-
-
+#: What ``--format`` takes, and the extension of the file each writes.
+FORMATS = {"parquet": ".parquet", "csv": ".csv", "ros2": ".mcap", "ros1": ".bag"}
+#: The extensions of what an export writes: a table, or a ROS 2 (.mcap) or ROS 1 bag.
+SUFFIXES = tuple(FORMATS.values())
+#: The formats that are ROS bags.
+BAGS = ("ros2", "ros1")
 
 
 def _code(code: int | str) -> int:
@@ -70,18 +74,26 @@ def _code(code: int | str) -> int:
         raise ValueError(f"{code!r} is not a number such as 0xC8") from None
 
 
-def _wants_ros2(output: Path, given: str | None) -> bool:
-    """Whether ``given`` (or else the output's extension) asks for a ROS 2 bag."""
-    suffix = output.suffix.lower()
+def _output_format(output: Path, given: str | None) -> str:
+    """The format ``given`` asks for, or else the output's extension names.
+
+    Returns:
+        A key of ``FORMATS``.
+
+    Raises:
+        OutputRefused: The extension names none of the formats.
+        ValueError: No such format, or an extension that is not the format's.
+    """
+    suffix = named_format(output, *SUFFIXES)
     if given is None:
-        return suffix == ".mcap"
-    if given.lower() not in FORMATS:
-        raise ValueError(f"--format {given}: give parquet, csv or ros2")
-    wanted = ".mcap" if given.lower() == "ros2" else f".{given.lower()}"
-    if suffix != wanted:
-        raise ValueError(f"--format {given} writes a {wanted} file; name the output "
-                         f"{output.with_suffix(wanted).name}")
-    return wanted == ".mcap"
+        return next(name for name, extension in FORMATS.items() if extension == suffix)
+    name = given.lower()
+    if name not in FORMATS:
+        raise ValueError(f"--format {given}: give {', '.join(FORMATS)}")
+    if suffix != FORMATS[name]:
+        raise ValueError(f"--format {given} writes a {FORMATS[name]} file; name the output "
+                         f"{output.with_suffix(FORMATS[name]).name}")
+    return name
 
 
 def _output_rate(info: Info | None) -> float | None:
@@ -93,25 +105,31 @@ def _output_rate(info: Info | None) -> float | None:
     return 1000.0 / info.decimation if info.decimation else None
 
 
-def _unit_covariances(noise: ImuNoise, infos: dict[str, Info | None]
+def _unit_covariances(noise: ImuNoise | None, orientation_stddev: float | None,
+                      infos: dict[str, Info | None]
                       ) -> tuple[dict[str, ImuCovariance], list[str]]:
-    """Each unit's Imu covariances at its own output rate, and what a person should know.
+    """Each unit's Imu covariances at its own rate and width, and what a person should know.
 
-    The rate is the unit's, from its Info: the one its samples came at. The noise file's
-    ``update_rate`` serves only a unit whose archive holds no Info.
+    The rate and the filter width are the unit's, from its Info: those its samples came
+    with. A unit whose archive holds no Info gets the noise file's ``update_rate`` and
+    the factory's width.
     """
     covariances, notes = {}, []
     for unit, info in sorted(infos.items()):
-        rate = _output_rate(info)
-        if rate is None:
-            rate = noise.update_rate_hz
-            notes.append(f"unit {unit}: the archive holds no Info to give its output rate; "
-                         f"its covariances use {noise.path.name}'s update_rate, {rate:g} Hz")
-        elif abs(rate - noise.update_rate_hz) > 1e-6 * rate:
-            notes.append(f"unit {unit}: its covariances use its output rate, {rate:g} Hz "
-                         f"(its Info), not {noise.path.name}'s update_rate, "
-                         f"{noise.update_rate_hz:g} Hz")
-        covariances[unit] = imu_covariance(noise, rate)
+        rate, width = _output_rate(info), info.filter_width if info is not None else 0
+        if noise is not None and (rate is None or not width):
+            notes.append(f"unit {unit}: the archive holds no Info to give its output rate "
+                         f"and filter width; its covariances use {noise.path.name}'s "
+                         f"update_rate, {noise.update_rate_hz:g} Hz, and the factory's "
+                         f"width, {DEFAULT_FILTER_WIDTH}")
+        elif noise is not None and rate is not None \
+                and abs(rate - noise.update_rate_hz) > 1e-6 * rate:
+            notes.append(f"unit {unit}: its covariances use its output rate, {rate:g} Hz, "
+                         f"and filter width, {width} (its Info), not {noise.path.name}'s "
+                         f"update_rate, {noise.update_rate_hz:g} Hz")
+        fallback = noise.update_rate_hz if noise is not None else 1000.0
+        covariances[unit] = imu_covariance(noise, rate or fallback,
+                                           width or DEFAULT_FILTER_WIDTH, orientation_stddev)
     return covariances, notes
 
 
@@ -123,24 +141,26 @@ class Exported:
         output: The table or bag.
         samples: The samples exported.
         units: How many units they are of.
-        bag: With a ROS 2 bag: its messages of each type; None for a table.
+        bag: With a ROS bag: its messages of each type; None for a table.
         align_hz: With an aligned table: its rate, Hz.
         instants: With an aligned table: its rows (instants of the grid).
         events_path: The events table, if one was asked for.
         events: The events in it.
-        notes: What a person should know about how it was made (which rate the
-            covariances use).
+        notes: What a person should know about how it was made (which rate and filter
+            width the covariances use).
+        merged: With a ROS 1 bag: the bag merged into it, if one was.
     """
 
     output: Path
     samples: int
     units: int
-    bag: Ros2Written | None = None
+    bag: BagWritten | None = None
     align_hz: float | None = None
     instants: int | None = None
     events_path: Path | None = None
     events: int = 0
     notes: tuple[str, ...] = ()
+    merged: Path | None = None
 
     def text(self) -> str:
         """What was written, in one line for a person.
@@ -152,6 +172,8 @@ class Exported:
         if self.bag is not None:
             text = (f"wrote {number(self.bag.imu)} Imu and {number(self.bag.mag)} "
                     f"MagneticField messages of {of}")
+            if self.merged is not None:
+                text += f", and {number(self.bag.merged)} messages of {self.merged}"
         elif self.align_hz is not None:
             text = (f"wrote {counted(self.instants or 0, 'instant')} at {self.align_hz:g} Hz "
                     f"of {of}")
@@ -163,7 +185,7 @@ class Exported:
 
 
 class Export:
-    """One export of an archive's samples: a Parquet or CSV table, or a ROS 2 bag.
+    """One export of an archive's samples: a Parquet or CSV table, or a ROS 2 or ROS 1 bag.
 
     A table has one row per sample, every unit on one timeline (``align_hz``: one row
     per instant of a common grid); a bag has sensor_msgs/Imu and MagneticField messages.
@@ -171,8 +193,10 @@ class Export:
 
     Args:
         archive: The archive (.mcap) gx3 wrote.
-        output: The file to write: .parquet or .csv, or .mcap for a ROS 2 bag.
-        output_format: ``parquet``, ``csv`` or ``ros2``; None: from ``output``'s extension.
+        output: The file to write: .parquet or .csv, .mcap for a ROS 2 bag, .bag for a
+            ROS 1 bag.
+        output_format: A key of ``FORMATS`` (``parquet``, ``csv``, ``ros2``, ``ros1``);
+            None: from ``output``'s extension.
         units: Only these units; None: every unit.
         types: Only records of these commands (numbers, or text such as ``0xCC``); None:
             every type.
@@ -183,10 +207,16 @@ class Export:
         mag_cal: Iron calibrations (``gx3 calibrate-mag`` files), one per unit: its
             readings are corrected and a table gains its heading.
         noise: The units' measured noise, Kalibr's imu.yaml: a bag's Imu messages carry
-            the covariances it gives at each unit's output rate; a Parquet table records
-            the file and those covariances in its ``gx3.noise`` metadata. A CSV file has
-            nowhere to record it and is refused.
-        ros2_distro: The ROS 2 distribution of a bag (``jazzy``, ``humble``); bags only.
+            the covariances it gives at each unit's output rate and filter width; a
+            Parquet table records the file and those covariances in its ``gx3.noise``
+            metadata. A CSV file has nowhere to record it and is refused.
+        orientation_stddev: The standard deviation of the units' orientation about each
+            axis, rad: a bag's Imu messages that carry an orientation get its square on
+            their orientation covariance's diagonal (else all 0: unknown); recorded as
+            ``noise`` is.
+        ros2_distro: The ROS 2 distribution of a ROS 2 bag (``jazzy``, ``humble``).
+        merge: A ROS 1 bag (the camera's) to copy into a ROS 1 bag whole, so that one
+            bag holds what Kalibr reads.
         mounts: A mounts file (``gx3 align``): each unit it names is put in the
             reference's axes and on its time; a Parquet table or a bag records the file
             and its SHA-256 (``gx3.mounts``), and a bag's messages of those units are in
@@ -197,8 +227,10 @@ class Export:
         ValueError: The request cannot be met: a calibration, noise or mounts file that
             cannot be read, a format that does not fit the output's extension, --align
             with a bag, the events table on the output's own file, a record type or time
-            that is not one, an end before the start (TimeSpanError), --noise or --mounts
-            with a CSV file, --ros2-distro with a table.
+            that is not one, an end before the start (TimeSpanError), --noise,
+            --orientation-stddev or --mounts with a CSV file, a negative standard
+            deviation, --ros2-distro with another format, --merge with another format
+            or a bag that cannot be read.
     """
 
     def __init__(self, archive: Path, output: Path, *, output_format: str | None = None,
@@ -206,28 +238,42 @@ class Export:
                  start: str | None = None, end: str | None = None,
                  align_hz: float | None = None, events: Path | None = None,
                  mag_cal: Sequence[Path] = (), noise: Path | None = None,
-                 ros2_distro: str | None = None, mounts: Path | None = None) -> None:
+                 orientation_stddev: float | None = None,
+                 ros2_distro: str | None = None, merge: Path | None = None,
+                 mounts: Path | None = None) -> None:
         self.archive, self.output, self.events = archive, output, events
         self.units = None if units is None else list(units)
         self.start, self.end, self.align_hz = start, end, align_hz
         self.irons: list[UnitIron] = [read_document(path) for path in mag_cal]
-        named_format(output, *SUFFIXES)
-        self.ros2 = _wants_ros2(output, output_format)
-        if self.ros2 and align_hz is not None:
-            raise ValueError("--align makes a table; a ROS 2 bag keeps every sample at its "
-                             "own time (leave out --align or --format ros2)")
-        if not self.ros2:
-            if ros2_distro is not None:
-                raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a table "
-                                 "is the same for every ROS (leave it out or --format ros2)")
-            if noise is not None and output.suffix.lower() == ".csv":
-                raise ValueError("--noise is recorded in a Parquet table's metadata or used "
-                                 "in a ROS 2 bag; a CSV file has no metadata to record it "
-                                 "in (write .parquet, or leave out --noise)")
-            if mounts is not None and output.suffix.lower() == ".csv":
-                raise ValueError("--mounts changes the samples, and a table records which "
-                                 "file did in its metadata; a CSV file has none (write "
-                                 ".parquet, or leave out --mounts)")
+        self.format = _output_format(output, output_format)
+        if self.format in BAGS and align_hz is not None:
+            raise ValueError("--align makes a table; a ROS bag keeps every sample at its "
+                             f"own time (leave out --align or --format {self.format})")
+        if ros2_distro is not None and self.format != "ros2":
+            raise ValueError(f"--ros2-distro {ros2_distro} is for a ROS 2 bag; a "
+                             + ("ROS 1 bag has Noetic's messages" if self.format == "ros1"
+                                else "table is the same for every ROS")
+                             + " (leave it out or --format ros2)")
+        for option, given in (("--noise", noise), ("--orientation-stddev", orientation_stddev)):
+            if given is not None and self.format == "csv":
+                raise ValueError(f"{option} is recorded in a Parquet table's metadata or "
+                                 "used in a ROS bag; a CSV file has no metadata to record "
+                                 f"it in (write .parquet, or leave out {option})")
+        if mounts is not None and self.format == "csv":
+            raise ValueError("--mounts changes the samples, and a table records which "
+                             "file did in its metadata; a CSV file has none (write "
+                             ".parquet, or leave out --mounts)")
+        if orientation_stddev is not None and not (math.isfinite(orientation_stddev)
+                                                   and orientation_stddev >= 0):
+            raise ValueError(f"--orientation-stddev {orientation_stddev}: give the standard "
+                             "deviation of the orientation in radians, 0 or more")
+        self.orientation_stddev = orientation_stddev
+        if merge is not None and self.format != "ros1":
+            raise ValueError(f"--merge {merge} copies a ROS 1 bag into a ROS 1 bag; write a "
+                             ".bag (or --format ros1), or leave out --merge")
+        if merge is not None:
+            check_merge(merge)
+        self.merge = merge
         self.distro = check_distro(ros2_distro or DEFAULT_DISTRO)
         self.noise = None if noise is None else read_noise(noise)
         self.mounts = None if mounts is None else read_mounts(mounts)
@@ -238,6 +284,14 @@ class Export:
                                  "another name")
         self.types = [_code(c) for c in types] if types else None
         self.span = TimeSpan(start, end)
+
+    def inputs(self) -> list[Path]:
+        """The files the export reads, which no output may be.
+
+        Returns:
+            The archive, and the bag to merge if there is one.
+        """
+        return [self.archive] if self.merge is None else [self.archive, self.merge]
 
     def read(self, on_read: Callable[[int], None] | None = None,
              on_problem: Callable[[str], None] | None = None) -> ArchiveReader:
@@ -295,9 +349,11 @@ class Export:
         covariances: dict[str, ImuCovariance] = {}
         noted: dict[str, object] = {}
         notes: list[str] = []
-        if self.noise is not None:
-            covariances, notes = _unit_covariances(self.noise, infos)
-            noted = self.noise.provenance() | {
+        if self.noise is not None or self.orientation_stddev is not None:
+            covariances, notes = _unit_covariances(self.noise, self.orientation_stddev,
+                                                   infos)
+            noted = (self.noise.provenance() if self.noise is not None else {}) | {
+                "orientation_stddev": self.orientation_stddev,
                 "units": {u: c.as_dict() for u, c in covariances.items()}}
         about = About(self.archive, infos, {
             "units": self.units, "types": self.types, "start": self.start, "end": self.end,
@@ -307,16 +363,22 @@ class Export:
             {} if self.mounts is None else self.mounts.provenance())
         done = Exported(self.output, rows, len(names), events_path=self.events,
                         notes=tuple(notes))
-        if self.ros2:
-            records = {name: {k: v if isinstance(v, str) else json.dumps(v)
-                              for k, v in content.items()}
-                       for name, content in (("gx3.noise", noted), ("gx3.mounts",
-                                             about.mounts)) if content}
-            frames = {} if self.mounts is None else dict.fromkeys(self.mounts.units,
-                                                                  self.mounts.reference)
+        prefix = archive_prefix(data)
+        records = {name: content for name, content in (("gx3.noise", noted),
+                                                       ("gx3.mounts", about.mounts))
+                   if content}
+        frames = {} if self.mounts is None else dict.fromkeys(self.mounts.units,
+                                                              self.mounts.reference)
+        if self.format == "ros2":
             done = replace(done, bag=write_ros2(
-                table, table_file, archive_prefix(data), distro=self.distro,
-                covariances=covariances, metadata=records or None, frames=frames))
+                table, table_file, prefix, distro=self.distro, covariances=covariances,
+                metadata={name: {k: v if isinstance(v, str) else json.dumps(v)
+                                 for k, v in content.items()}
+                          for name, content in records.items()} or None, frames=frames))
+        elif self.format == "ros1":
+            done = replace(done, merged=self.merge, bag=write_ros1(
+                table, table_file, prefix, covariances=covariances, metadata=records,
+                frames=frames, merge=self.merge))
         elif self.align_hz is not None:
             table = align_table(table, self.align_hz)
             if irons:
@@ -326,7 +388,7 @@ class Export:
             done = replace(done, align_hz=self.align_hz, instants=len(table["time_ns"]))
         elif irons:
             table = with_heading(table, units=[i.unit for i in irons])
-        if not self.ros2:
+        if self.format not in BAGS:
             write_table(table, table_file, about)
         if events_file is not None:
             events = event_table(data, self.units, lo_ns, hi_ns)
@@ -357,7 +419,7 @@ class Export:
         from bridge.archive.outputs import staged
 
         with ExitStack() as outputs:
-            table_file = outputs.enter_context(staged(self.output, [self.archive], force))
+            table_file = outputs.enter_context(staged(self.output, self.inputs(), force))
             events_file = (None if self.events is None else
-                           outputs.enter_context(staged(self.events, [self.archive], force)))
+                           outputs.enter_context(staged(self.events, self.inputs(), force)))
             return self.write(self.read(on_read, on_problem), table_file, events_file)

@@ -56,6 +56,8 @@ class Flag(IntEnum):
 
 
 DEFAULT_FLAGS = Flag.ORIENTATION | Flag.CONING_SCULLING
+#: The accel and gyro filter width a unit leaves the factory with (0xDB byte 9).
+DEFAULT_FILTER_WIDTH = 15
 
 #: The 0xDA self-test bits the manual names (its list is cut short after bit 3): a set
 #: bit means the function is within specification.

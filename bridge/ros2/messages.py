@@ -12,10 +12,10 @@ publishing alike:
   magnetic field tesla (the GX3 reports gauss).
 - A quantity a record does not carry (a NaN row, or a column that is absent) is marked
   the way sensor_msgs documents it: element 0 of its covariance is -1, its value the
-  message's default. Without a measured noise (``bridge.ros2.noise``) the other
-  covariances are all 0, which sensor_msgs/Imu defines as "covariance unknown"; with
-  one, angular velocity and linear acceleration carry its variances and the orientation
-  -1 in element 0 (the manual gives no attitude accuracy to derive one from).
+  message's default. A quantity it carries has the covariance ``bridge.ros2.noise``
+  gives (angular velocity and linear acceleration from a measured noise, the
+  orientation from a standard deviation given), or else all 0, which sensor_msgs/Imu
+  defines as "covariance unknown" (REP-145).
 
 Messages are CDR (little-endian, XCDR1, the encapsulation rosbag2 and rmw use), built for
 a whole batch at once with NumPy: every message of one frame id has the same layout, so
@@ -247,8 +247,20 @@ def _stamp_layout(frame: str, doubles: int) -> np.dtype:
     })
 
 
-def _messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[bytes]:
-    """CDR bytes of one message per row: header stamped ``time_ns``, then the row."""
+def cdr_messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[bytes]:
+    """CDR bytes of one message per row: a std_msgs/Header stamped ``time_ns``, then the row.
+
+    Args:
+        time_ns: Each message's stamp, int ns since 1970.
+        frame: The header's frame id.
+        doubles: (n, k) float64: the message's fields after its header.
+
+    Returns:
+        One message per row.
+
+    Raises:
+        ValueError: A stamp is outside the range of builtin_interfaces/Time.
+    """
     t = np.asarray(time_ns, np.int64).reshape(-1)
     layout = _stamp_layout(frame, doubles.shape[1])
     out = np.zeros(len(t), layout)
@@ -267,16 +279,24 @@ def _messages(time_ns: npt.ArrayLike, frame: str, doubles: np.ndarray) -> list[b
     return [data[i : i + size] for i in range(0, len(data), size)]
 
 
-def _imu_doubles(columns: Mapping[str, np.ndarray], n: int,
-                 covariance: ImuCovariance | None = None) -> np.ndarray:
-    """(n, 37) float64 of Imu after its header, in ROS frames and units.
+def imu_values(columns: Mapping[str, np.ndarray], n: int,
+               covariance: ImuCovariance | None = None) -> np.ndarray:
+    """The fields of n Imu messages after their header, in ROS frames and units.
 
-    Orientation x y z w and its covariance, angular velocity and its covariance, linear
-    acceleration and its covariance; element 0 of a covariance -1 where the record lacks
-    the quantity, else ``covariance``'s (all 0, "unknown", without one).
+    What ROS 1 and ROS 2 messages alike carry, in the messages' order.
 
-    ``columns``: the record's quantities as the GX3 gives them (``accel`` g, ``ang_rate``
-    rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN rows are absent.
+    Args:
+        columns: The records' quantities as the GX3 gives them (``accel`` g,
+            ``ang_rate`` rad/s, ``m`` / ``quaternion`` / ``euler``), (n, ...) each; NaN
+            rows are absent.
+        n: How many records.
+        covariance: The unit's covariances for the quantities a record carries; None:
+            all 0 (unknown).
+
+    Returns:
+        (n, 37) float64: orientation x y z w and its covariance, angular velocity and
+        its covariance, linear acceleration and its covariance; element 0 of a
+        covariance -1 where the record lacks the quantity.
     """
     out = np.zeros((n, 37))
     m = _earth_to_sensor(columns, n)
@@ -331,7 +351,7 @@ def imu_cdr_batch(time_ns: npt.ArrayLike, frame: str, columns: Mapping[str, np.n
         ValueError: A stamp is outside the range of builtin_interfaces/Time.
     """
     n = len(np.asarray(time_ns).reshape(-1))
-    return _messages(time_ns, frame, _imu_doubles(columns, n, covariance))
+    return cdr_messages(time_ns, frame, imu_values(columns, n, covariance))
 
 
 def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike],
@@ -354,11 +374,32 @@ def imu_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike],
     return imu_cdr_batch([time_ns], frame, one, covariance)[0]
 
 
-def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
-                  columns: Mapping[str, np.ndarray]) -> list[bytes]:
-    """CDR ``sensor_msgs/msg/MagneticField`` of each record.
+def mag_values(columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+    """The fields of n MagneticField messages after their header.
 
     The field in tesla in the body FLU frame, covariance 0 (unknown).
+
+    Args:
+        columns: The records' ``mag``, or else ``stab_mag``, in gauss, (n, 3).
+        n: How many records.
+
+    Returns:
+        (n, 12) float64: the field, then its covariance.
+
+    Raises:
+        ValueError: A record carries no field (give only those ``has_mag`` picks).
+    """
+    field, present = _rows(columns, MAGNETOMETER, n, 3)
+    if not present.all():
+        raise ValueError("a record without a magnetic field cannot be a MagneticField message")
+    doubles = np.zeros((n, 12))
+    doubles[:, 0:3] = _body_flu(field) * TESLA_PER_GAUSS
+    return doubles
+
+
+def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
+                  columns: Mapping[str, np.ndarray]) -> list[bytes]:
+    """CDR ``sensor_msgs/msg/MagneticField`` of each record (``mag_values``).
 
     Args:
         time_ns: Each record's stamp, int ns since 1970.
@@ -373,15 +414,4 @@ def mag_cdr_batch(time_ns: npt.ArrayLike, frame: str,
             stamp is outside the range of builtin_interfaces/Time.
     """
     t = np.asarray(time_ns, np.int64).reshape(-1)
-    field, present = _rows(columns, MAGNETOMETER, len(t), 3)
-    if not present.all():
-        raise ValueError("a record without a magnetic field cannot be a MagneticField message")
-    doubles = np.zeros((len(t), 12))
-    doubles[:, 0:3] = _body_flu(field) * TESLA_PER_GAUSS
-    return _messages(t, frame, doubles)
-
-
-def _mag_cdr(time_ns: int, frame: str, columns: Mapping[str, npt.ArrayLike]) -> bytes:
-    """One record's CDR ``sensor_msgs/msg/MagneticField``."""
-    one = {k: np.asarray(v, np.float64)[None] for k, v in columns.items()}
-    return mag_cdr_batch([time_ns], frame, one)[0]
+    return cdr_messages(t, frame, mag_values(columns, len(t)))

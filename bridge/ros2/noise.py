@@ -1,17 +1,26 @@
 """A unit's measured sensor noise (Kalibr's ``imu.yaml``), and the covariances it gives.
 
 ``gx3 allan`` (or Kalibr's own tools) writes the white-noise densities and bias random
-walks of a unit's accelerometers and gyros as Kalibr's ``imu.yaml``. A ROS consumer wants
-the variance of one sample instead: for white noise of density N sampled at ``rate``
-Hz, σ² = N² · rate (the density times the square root of the sample rate is the
-standard deviation of one sample). The rate is the unit's actual output rate (1000 Hz /
-decimation, from its Info), not the file's ``update_rate``: the samples the messages
-carry come at the unit's rate, and a file measured at another rate still gives the
-density, which does not depend on the rate.
+walks of a unit's accelerometers and gyros as Kalibr's ``imu.yaml``: ``gx3 allan``'s
+are the sensor's own, whatever rate and filter width they were measured at. A ROS
+consumer wants the variance of one sample instead, for a filter that takes the samples
+as white. That depends on the unit's filter as well as its rate (``sample_variance``):
+a GX3 averages M calculation cycles (1 kHz, each of variance N² · 1000 Hz after the
+fixed first stage) and sends every D-th. When D <= M, neighbouring samples share cycles
+and are not white; the white-equivalent variance, the one that gives the density N
+over time, is N² · rate (their own, N² · 1000 Hz / M, is smaller, and their correlation
+makes up the rest). When D > M, they share none and are independent, each of variance
+N² · 1000 Hz / M: more than N² · rate, since each misses D - M of its D cycles. One
+formula holds both: σ² = N² · 1000 Hz / min(D, M). The rate and width are the unit's
+own (1000 Hz / decimation and the filter width, from its Info), not the file's
+``update_rate``: the samples the messages carry come with them.
 
-The orientation has no such measurement: the 3DM-GX3 manual states no attitude accuracy
-for any model, so its covariance keeps element 0 at -1 (REP-145: no estimate to
-trust) rather than a number nobody measured.
+An orientation has no such measurement: the 3DM-GX3 manual states no attitude accuracy
+for any model. REP-145 makes an unknown covariance all zeros unless a parameter
+overrides it (``orientation_stddev``, as MicroStrain's, Xsens's and VectorNav's ROS
+drivers take one); element 0 of -1 says instead that a message has no orientation at
+all, and robot_localization then drops it, so it is kept for records without one
+(``bridge.ros2.messages``).
 """
 
 from __future__ import annotations
@@ -31,8 +40,53 @@ GYRO_WALK = "gyroscope_random_walk"  # rad/s²/√Hz
 UPDATE_RATE = "update_rate"  # Hz
 ROSTOPIC = "rostopic"
 _NUMBERS = (ACCEL_DENSITY, ACCEL_WALK, GYRO_DENSITY, GYRO_WALK, UPDATE_RATE)
-#: A covariance whose quantity has no estimate to trust (sensor_msgs/Imu, REP-145).
-NO_ESTIMATE = (-1.0, *(0.0,) * 8)
+#: The rate of the calculation cycles a GX3's moving average takes, Hz.
+FILTER_RATE_HZ = 1000.0
+
+
+def sample_variance(density: float, rate_hz: float, filter_width: int) -> float:
+    """The variance of one sample, for a filter that takes the samples as white.
+
+    σ² = N² · 1000 Hz / min(D, M) = N² · max(rate, 1000 Hz / M): the white-equivalent
+    N² · rate while the decimation D is at most the width M, the samples' own variance
+    N² · 1000 Hz / M once D > M leaves cycles out (the module's docstring says why).
+
+    Args:
+        density: N, the sensor's white noise density (unit/√Hz).
+        rate_hz: The unit's output rate (1000 Hz / D).
+        filter_width: M, its filter width (1 to 32).
+
+    Returns:
+        The variance, in the unit squared.
+
+    Raises:
+        ValueError: The rate or the width is not a positive number.
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"an output rate of {rate_hz} Hz cannot give a variance")
+    if not filter_width >= 1:
+        raise ValueError(f"a filter width of {filter_width} cannot give a variance")
+    return density**2 * max(rate_hz, FILTER_RATE_HZ / filter_width)
+
+
+def white_equivalent_density(density: float, rate_hz: float, filter_width: int) -> float:
+    """The density that gives ``sample_variance`` as density² · rate.
+
+    What a tool that takes a density and a rate (Kalibr, VINS, OpenVINS) needs for the
+    samples: the sensor's density while D <= M, more once D > M.
+
+    Args:
+        density: N, the sensor's white noise density.
+        rate_hz: The unit's output rate.
+        filter_width: M, its filter width.
+
+    Returns:
+        The density, in N's unit.
+
+    Raises:
+        ValueError: The rate or the width is not a positive number.
+    """
+    return math.sqrt(sample_variance(density, rate_hz, filter_width) / rate_hz)
 
 
 @dataclass(frozen=True)
@@ -77,12 +131,16 @@ class ImuCovariance:
 
     Attributes:
         rate_hz: The output rate the variances are for.
-        orientation: rad²; element 0 -1: no estimate to trust.
-        angular_velocity: (rad/s)², the diagonal σ² = N² · rate.
-        linear_acceleration: (m/s²)², the diagonal σ² = N² · rate.
+        filter_width: The filter width they are for.
+        orientation: rad²; all 0 (unknown) unless an orientation standard deviation
+            was given.
+        angular_velocity: (rad/s)², the diagonal ``sample_variance``; all 0 (unknown)
+            without a measured noise.
+        linear_acceleration: (m/s²)², likewise.
     """
 
     rate_hz: float
+    filter_width: int
     orientation: tuple[float, ...]
     angular_velocity: tuple[float, ...]
     linear_acceleration: tuple[float, ...]
@@ -91,9 +149,11 @@ class ImuCovariance:
         """The covariances as an output records them.
 
         Returns:
-            JSON-ready: ``rate_hz`` and the three covariances, 9 numbers each.
+            JSON-ready: ``rate_hz``, ``filter_width`` and the three covariances, 9
+            numbers each.
         """
-        return {"rate_hz": self.rate_hz, "orientation_covariance": list(self.orientation),
+        return {"rate_hz": self.rate_hz, "filter_width": self.filter_width,
+                "orientation_covariance": list(self.orientation),
                 "angular_velocity_covariance": list(self.angular_velocity),
                 "linear_acceleration_covariance": list(self.linear_acceleration)}
 
@@ -102,28 +162,42 @@ def _diagonal(variance: float) -> tuple[float, ...]:
     return (variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, variance)
 
 
-def imu_covariance(noise: ImuNoise, rate_hz: float) -> ImuCovariance:
-    """The covariances of a unit's samples at its output rate.
+def imu_covariance(noise: ImuNoise | None, rate_hz: float, filter_width: int,
+                   orientation_stddev: float | None = None) -> ImuCovariance:
+    """The covariances of a unit's samples at its output rate and filter width.
 
     The same noise on each axis (Kalibr gives one density per sensor), uncorrelated:
     a diagonal. Axis signs change between the GX3's frame and ROS's, which leaves a
     diagonal as it is.
 
     Args:
-        noise: The unit's measured noise.
+        noise: The unit's measured noise; None: angular velocity and linear
+            acceleration unknown (0).
         rate_hz: The unit's output rate (1000 Hz / decimation).
+        filter_width: Its filter width M.
+        orientation_stddev: The orientation's standard deviation about each axis, rad;
+            None: unknown (0).
 
     Returns:
         The covariances.
 
     Raises:
-        ValueError: The rate is not a positive number.
+        ValueError: The rate or width is not a positive number, or the standard
+            deviation is negative or not finite.
     """
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"an output rate of {rate_hz} Hz cannot give a variance")
-    return ImuCovariance(rate_hz, NO_ESTIMATE,
-                         _diagonal(noise.gyro_noise_density ** 2 * rate_hz),
-                         _diagonal(noise.accel_noise_density ** 2 * rate_hz))
+    sample_variance(1.0, rate_hz, filter_width)  # checks the rate and the width
+    if orientation_stddev is not None and not (math.isfinite(orientation_stddev)
+                                               and orientation_stddev >= 0):
+        raise ValueError(f"an orientation standard deviation of {orientation_stddev} rad "
+                         "cannot give a variance; give a number of radians, 0 or more")
+    zero = _diagonal(0.0)
+    return ImuCovariance(
+        rate_hz, filter_width,
+        zero if orientation_stddev is None else _diagonal(orientation_stddev**2),
+        zero if noise is None else _diagonal(
+            sample_variance(noise.gyro_noise_density, rate_hz, filter_width)),
+        zero if noise is None else _diagonal(
+            sample_variance(noise.accel_noise_density, rate_hz, filter_width)))
 
 
 def _number(content: dict[object, object], key: str, path: Path) -> float:

@@ -6,6 +6,7 @@ One value that ``gx3 bridge --ros2`` hands through the unit's bridge to its topi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from bridge.ros2.messages import DEFAULT_DISTRO, check_distro
@@ -19,16 +20,25 @@ class Ros2Options:
     Attributes:
         domain: The ROS domain id (``ROS_DOMAIN_ID``), 0 to 232.
         distro: The distribution of the subscribers' rmw_zenoh: ``jazzy`` or ``humble``.
-        noise: The unit's measured noise (``read_noise``), for the Imu covariances;
-            None: they stay 0 (unknown).
+        noise: The unit's measured noise (``read_noise``), for the Imu's angular
+            velocity and linear acceleration covariances; None: they stay 0 (unknown).
+        orientation_stddev: The orientation's standard deviation about each axis, rad,
+            for the orientation covariance of the Imu that carry one; None: it stays 0
+            (unknown).
 
     Raises:
-        ValueError: The distribution is not one of ``DISTROS``.
+        ValueError: The distribution is not one of ``DISTROS``, or the standard deviation
+            is negative.
     """
 
     domain: int = 0
     distro: str = DEFAULT_DISTRO
     noise: ImuNoise | None = None
+    orientation_stddev: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "distro", check_distro(self.distro))
+        if self.orientation_stddev is not None and not (
+                math.isfinite(self.orientation_stddev) and self.orientation_stddev >= 0):
+            raise ValueError(f"{self.orientation_stddev} rad is not a standard deviation; "
+                             "give the orientation's in radians, 0 or more")

@@ -317,7 +317,9 @@ class UnitTopics:
     ``/<prefix>/<unit>/imu`` and, for records with a magnetometer,
     ``sensor_msgs/MagneticField`` on ``/<prefix>/<unit>/mag``, in the frame the archive's
     ROS 2 export uses. With the unit's measured noise, each Imu carries the covariances
-    it gives at the unit's output rate (``use_rate``, at each bring-up).
+    it gives at the unit's output rate and filter width (``use_settings``, at each
+    bring-up); with an orientation standard deviation, those that carry an orientation
+    its variance.
 
     Args:
         session: The Zenoh session.
@@ -325,7 +327,10 @@ class UnitTopics:
         prefix: The key prefix (``gx3``).
         unit: The unit's name.
         distro: The ROS 2 distribution of the subscribers (``jazzy``, ``humble``).
-        noise: The unit's measured noise; None: covariances all 0 (unknown).
+        noise: The unit's measured noise; None: angular velocity and linear
+            acceleration covariances 0 (unknown).
+        orientation_stddev: The orientation's standard deviation about each axis, rad;
+            None: its covariance 0 (unknown).
 
     Raises:
         ValueError: The domain is outside 0 to ``MAX_DOMAIN``, or the distribution is
@@ -333,9 +338,11 @@ class UnitTopics:
     """
 
     def __init__(self, session: zenoh.Session, domain: int, prefix: str, unit: str,
-                 distro: str = DEFAULT_DISTRO, noise: ImuNoise | None = None) -> None:
+                 distro: str = DEFAULT_DISTRO, noise: ImuNoise | None = None,
+                 orientation_stddev: float | None = None) -> None:
         self.frame = frame_id(unit, prefix)
         self.noise = noise
+        self.orientation_stddev = orientation_stddev
         self.covariance: ImuCovariance | None = None
         self.node = Ros2Node(session, domain,
                              f"{ros_token(prefix)}_bridge_{ros_token(unit)}", distro=distro)
@@ -346,21 +353,24 @@ class UnitTopics:
             self.node.close()
             raise
 
-    def use_rate(self, rate_hz: float) -> None:
-        """Give the Imu messages the noise's covariances at the unit's output rate.
+    def use_settings(self, rate_hz: float, filter_width: int) -> None:
+        """Give the Imu messages their covariances at the unit's rate and filter width.
 
         Args:
             rate_hz: The unit's output rate (1000 Hz / decimation), as brought up.
+            filter_width: Its filter width M, as brought up.
 
         Raises:
-            ValueError: The rate is not a positive number.
+            ValueError: The rate or the width is not a positive number.
         """
-        if self.noise is not None:
-            self.covariance = imu_covariance(self.noise, rate_hz)
-            if abs(rate_hz - self.noise.update_rate_hz) > 1e-6 * rate_hz:
-                _log.info("%s: the Imu covariances use the unit's output rate, %g Hz, not "
-                          "%s's update_rate, %g Hz", self.frame, rate_hz,
-                          self.noise.path.name, self.noise.update_rate_hz)
+        if self.noise is None and self.orientation_stddev is None:
+            return
+        self.covariance = imu_covariance(self.noise, rate_hz, filter_width,
+                                         self.orientation_stddev)
+        if self.noise is not None and abs(rate_hz - self.noise.update_rate_hz) > 1e-6 * rate_hz:
+            _log.info("%s: the Imu covariances use the unit's output rate, %g Hz, and filter "
+                      "width, %d, not %s's update_rate, %g Hz", self.frame, rate_hz,
+                      filter_width, self.noise.path.name, self.noise.update_rate_hz)
 
     def publish(self, batch: RecordBatch, time_ns: np.ndarray) -> None:
         """Publish the records of a batch.

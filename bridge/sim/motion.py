@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -35,7 +35,70 @@ _gauss_legendre = functools.cache(np.polynomial.legendre.leggauss)
 #: Seconds between the knots of the bias random walk, which is linear between them: far
 #: below the averaging times at which a random walk shows in an Allan deviation.
 WALK_KNOT_S = 1.0
+#: Calculation cycles a second: the rate of the samples the fixed first filter stage gives.
+CYCLES_PER_S = round(1.0 / CALCULATION_CYCLE_S)
 _WALK_SALT = 0x5EED_7A1C_0FF5_E7B1  # keys the walk's normals apart from the white noise's
+_MAG_SALT = 0x3A61_C0DE_9E37_79B9  # and the magnetometer's from the accel and gyro's
+_MASK64 = (1 << 64) - 1
+#: Indexes (calculation cycles, walk knots) whose normals one generator draws at once.
+NORMALS_BLOCK = 1024
+#: The instantaneous accel and gyro readings, computed when any of them is asked for.
+_POINT_READINGS = frozenset({"accel", "ang_rate", "raw_accel", "raw_ang_rate"})
+
+
+@dataclass(frozen=True)
+class SignalChain:
+    """What a unit does to its sensors' signals before it sends them (the manual's Filtering).
+
+    Noise and the bias random walk enter at the sensor. The fixed first stage, a 30 kHz
+    30-tap moving average read once a 1 ms calculation cycle, gives each cycle the mean
+    of that cycle's 30 sensor samples: for white noise of density N, one normal of
+    variance N² · 1000 Hz a cycle, independent from cycle to cycle, which is exactly
+    what 30 normals averaged give (so the emulator draws that one). The second stage
+    averages the last ``filter_width`` (M) cycles' samples; a record every D cycles (the
+    decimation) sends the newest average. The motion's slow signal passes the moving
+    average as its exact group delay, (M - 1)/2 cycles (Equation 2's gain,
+    ``convert.fir_response``, is 1 within 5e-4 at its <= 0.5 Hz and 1.1e-3 at a hand's
+    <= 0.8 Hz, ``handheld``, for any width up to 32), and so does the bias walk, linear
+    between knots 1 s apart; the noise is averaged sample by sample. The magnetometer's
+    chain is the same with its own width Mm. The analog anti-alias filters ahead of the
+    ADC (226 Hz and up, Table 6) are not modelled: they change nothing at the averaging
+    times a noise figure is read at.
+
+    DeltaAngle and DeltaVelocity sum the filtered 1 kHz rates and accelerations of the
+    D cycles of their period (each cycle's sample is the first stage's mean over that
+    cycle, so the signal's part is the exact integral over the period). With coning and
+    sculling (0xDB flag bit 1, "Full 1kHz Coning and Sculling integration"), the sum is
+    corrected as a strapdown integration at 1 kHz corrects it: DeltaAngle becomes the
+    rotation vector of the attitude change over the period, not the integral of the
+    rate, and DeltaVelocity the integral of the specific force carried into the body
+    frame at the period's start. The manual names the corrections but not their
+    algorithm; these are what a 1 kHz integration converges to.
+
+    Attributes:
+        filter_width: M, the accel and gyro moving average's width (0xDB, 1 to 32).
+        mag_filter_width: Mm, the magnetometer's (0xDB, 1 to 32).
+        coning_sculling: Whether DeltaAngle and DeltaVelocity are corrected for coning
+            and sculling (0xDB flag bit 1).
+    """
+
+    filter_width: int = 1
+    mag_filter_width: int = 1
+    coning_sculling: bool = False
+
+    def delays(self) -> tuple[float, float]:
+        """Seconds by which the moving averages delay the slow signal: (M-1)/2 cycles.
+
+        Returns:
+            (accel and gyro delay, magnetometer delay), seconds.
+        """
+        return ((self.filter_width - 1) / 2 * CALCULATION_CYCLE_S,
+                (self.mag_filter_width - 1) / 2 * CALCULATION_CYCLE_S)
+
+
+#: A bare sensor: no moving average, deltas the plain integral (what ``Motion`` gives
+#: unless a unit's chain is asked for).
+SENSOR = SignalChain()
 
 
 @dataclass(frozen=True)
@@ -44,13 +107,14 @@ class MotionConfig:
 
     static freezes the seed's attitude (zero rate, gravity-only accel). The biases are
     the sensor's own true offsets, added to what it reports, so that a stationary bias
-    capture (0xCD) has something to find. Noise is white Gaussian, zero by default:
-    noise_accel_g and noise_gyro_rad_s per 1 ms calculation cycle (the unit's filter
-    averages it down), or, in Kalibr's continuous-time units (what ``gx3 allan`` reads
-    off), a white noise density (m/s²/√Hz, rad/s/√Hz: each output sample's noise is the
-    density over the square root of its period) and a bias random walk (m/s³/√Hz,
-    rad/s²/√Hz: the bias wanders from zero at t = 0 as a Wiener process, linear between
-    knots WALK_KNOT_S apart).
+    capture (0xCD) has something to find. Noise is white Gaussian at the sensor, zero by
+    default, and reaches the records through the unit's filters (``SignalChain``):
+    noise_accel_g, noise_gyro_rad_s and noise_mag_gauss are the spread of one 1 ms
+    calculation cycle's sample before the moving average of M; the densities are in
+    Kalibr's continuous-time units (what ``gx3 allan`` reads off): a white noise
+    density (m/s²/√Hz, rad/s/√Hz) and a bias random walk (m/s³/√Hz, rad/s²/√Hz: the bias
+    wanders from zero at t = 0 as a Wiener process, linear between knots WALK_KNOT_S
+    apart).
     earth_field_gauss is north-east-down. The magnetometer sits among hard and soft iron:
     it reads soft_iron @ true + hard_iron (soft_iron row-major), what a host-side iron
     calibration has to undo. spin_rad_s adds steady roll and yaw turns to the sway, so a
@@ -166,14 +230,6 @@ def tumbling(config: MotionConfig) -> MotionConfig:
     return replace(config, attitude_amplitude_rad=1.0, spin_rad_s=(0.7, 0.45))
 
 
-def _splitmix64(x: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
-    """SplitMix64: a well-mixed 64-bit hash that NumPy applies to whole arrays."""
-    x = x + np.uint64(0x9E3779B97F4A7C15)
-    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
-
-
 def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int,
                band_hz: tuple[float, float]) -> tuple[FloatArray, ...]:
     """Amplitudes, angular frequencies and phases, (3, k) each, of k terms per axis."""
@@ -183,20 +239,84 @@ def _sinusoids(rng: np.random.Generator, axis_amp: FloatArray, k: int,
             rng.uniform(0.0, 2.0 * np.pi, (3, k)))
 
 
-def _time_keyed_normals(seed: int, t: FloatArray, count: int) -> FloatArray:
-    """(n, count) standard normals that depend only on (seed, t rounded to 1 us).
+class _KeyedNormals:
+    """Standard normals, ``count`` per integer index, that depend only on (seed, index).
 
-    Hashing the time stamp, not drawing from a generator, makes a sample's noise
-    independent of its batch; Box-Muller turns the hashed uniforms into normals.
+    Drawn ``NORMALS_BLOCK`` indexes at a time by a generator seeded with (seed, block),
+    not from one stream, so an index's normals are the same whatever batch asks for
+    them, at the cost of a generator a block; the last few blocks are kept, since the
+    batches of a stream share them.
+
+    Args:
+        seed: Keys the normals.
+        count: Normals per index.
     """
-    micros = np.round(t * 1e6).astype(np.int64).view(np.uint64)
-    key = _splitmix64(np.array([seed & 0xFFFF_FFFF_FFFF_FFFF], dtype=np.uint64))
-    pairs = (count + 1) // 2
-    streams = np.arange(1, 2 * pairs + 1, dtype=np.uint64) * np.uint64(0xD1B54A32D192ED03)
-    bits = _splitmix64(streams ^ _splitmix64(micros ^ key)[:, None])
-    u = ((bits >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0**-53  # uniform in (0, 1)
-    radius, angle = np.sqrt(-2.0 * np.log(u[:, :pairs])), 2.0 * np.pi * u[:, pairs:]
-    return np.concatenate([radius * np.cos(angle), radius * np.sin(angle)], axis=1)[:, :count]
+
+    _KEPT = 8
+
+    def __init__(self, seed: int, count: int) -> None:
+        self.seed, self.count = seed & _MASK64, count
+        self._blocks: dict[int, FloatArray] = {}
+
+    def _block(self, block: int) -> FloatArray:
+        if block not in self._blocks:
+            if len(self._blocks) >= self._KEPT:
+                del self._blocks[next(iter(self._blocks))]
+            generator = np.random.Generator(np.random.PCG64(
+                np.random.SeedSequence([self.seed, block & _MASK64])))
+            self._blocks[block] = generator.standard_normal((NORMALS_BLOCK, self.count))
+        return self._blocks[block]
+
+    def __call__(self, index: npt.NDArray[np.int64]) -> FloatArray:
+        """(n, count) normals of the indexes ``index``."""
+        blocks = index // NORMALS_BLOCK
+        drawn, where = np.unique(blocks, return_inverse=True)
+        table = np.concatenate([self._block(b) for b in drawn.tolist()])
+        out: FloatArray = table[where * NORMALS_BLOCK + index % NORMALS_BLOCK]
+        return out
+
+
+def _averaged_normals(normals: _KeyedNormals, cycles: npt.NDArray[np.int64],
+                      weights: FloatArray) -> FloatArray:
+    """Per cycle k: the cycles up to k, (k - W, k], weighted: sum_i weights[i] z[k - W + 1 + i].
+
+    z are ``normals`` per cycle, so the result is a pure function of (seed, k). Where the
+    windows overlap, each cycle's normals are taken once for all of them; apart (a
+    decimation past the width), only the windows' are.
+
+    Returns:
+        (n, count).
+    """
+    width = len(weights)
+    first, last = int(cycles.min()) + 1 - width, int(cycles.max())
+    if last - first + 1 <= len(cycles) * width:
+        z = normals(np.arange(first, last + 1, dtype=np.int64))
+        windows = np.lib.stride_tricks.sliding_window_view(z, width, axis=0)[cycles + 1 - width
+                                                                               - first]
+    else:
+        index = (cycles[:, None] + np.arange(1 - width, 1, dtype=np.int64)).reshape(-1)
+        windows = normals(index).reshape(len(cycles), width, normals.count).swapaxes(1, 2)
+    out: FloatArray = np.einsum("ncw,w->nc", windows, weights)  # not BLAS: no threads
+    return out
+
+
+def _cycles(t: FloatArray) -> npt.NDArray[np.int64]:
+    """The calculation cycles nearest device times ``t``: what keys their noise."""
+    return np.round(t * CYCLES_PER_S).astype(np.int64)
+
+
+def _rotation_vector(r: FloatArray) -> FloatArray:
+    """(n, 3) rotation vectors (axis times angle, up to pi) of (n, 3, 3) rotations.
+
+    From the skew part, sin(angle) times the axis, and the trace, stable at small angles.
+    """
+    skew = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                           r[:, 1, 0] - r[:, 0, 1]], axis=1)
+    sine = np.linalg.norm(skew, axis=1)
+    angle = np.arctan2(sine, 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0))
+    scale = np.divide(angle, sine, out=np.ones_like(angle), where=sine > 0.0)
+    out: FloatArray = skew * scale[:, None]
+    return out
 
 
 def _times(t: npt.ArrayLike) -> FloatArray:
@@ -217,10 +337,16 @@ class Motion:
 
     Args:
         config: What the unit experiences; None: the default motion.
+        body_time: Maps the device seconds ``sample`` and ``magnetometer`` take to the
+            seconds the motion runs on: a body several units share moves in host seconds
+            since power-up, while each unit's cycles, its filter's delay and its noise
+            keep its own clock's. None: the same seconds.
     """
 
-    def __init__(self, config: MotionConfig | None = None) -> None:
+    def __init__(self, config: MotionConfig | None = None,
+                 body_time: Callable[[FloatArray], FloatArray] | None = None) -> None:
         self.config = cfg = config if config is not None else MotionConfig()
+        self._body_time = body_time
         mounting = cfg.mounting
         rng = np.random.default_rng(cfg.seed if mounting is None else mounting.body_seed)
         # The draws and their order define each seed's trajectory: keep them stable.
@@ -255,6 +381,17 @@ class Motion:
         self._walk_sigma = np.repeat([cfg.accelerometer_random_walk / STANDARD_GRAVITY,
                                       cfg.gyroscope_random_walk], 3) * math.sqrt(WALK_KNOT_S)
         self._walk_knots = np.zeros((1, 6))
+        # the spread of one calculation cycle's sample, after the first filter stage:
+        # accel [g], gyro [rad/s], mag [gauss], 3 each
+        root = math.sqrt(CYCLES_PER_S)
+        self._cycle_sigma = np.repeat([
+            math.hypot(cfg.noise_accel_g,
+                       cfg.accelerometer_noise_density / STANDARD_GRAVITY * root),
+            math.hypot(cfg.noise_gyro_rad_s, cfg.gyroscope_noise_density * root),
+            cfg.noise_mag_gauss], 3)
+        self._cycle_normals = _KeyedNormals(cfg.seed, 6)
+        self._mag_normals = _KeyedNormals(cfg.seed ^ _MAG_SALT, 3)
+        self._knot_normals = _KeyedNormals(cfg.seed ^ _WALK_SALT, 6)
         self._mount = None if mounting is None else (
             mounting.matrix, np.asarray(mounting.lever_arm_m, np.float64))
 
@@ -294,15 +431,19 @@ class Motion:
         return accel
 
     def _attitude(self, t: FloatArray) -> FloatArray:
-        """The unit's true M at times t, through its mounting, (n, 3, 3)."""
+        """The unit's true M at device times t, through its mounting, (n, 3, 3)."""
+        if self._body_time is not None:
+            t = self._body_time(t)
         m = convert.euler_to_m(self.euler_and_rates(t)[0])
         return m if self._mount is None else self._mount[0] @ m
 
     def _kinematics(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """True M, body rate [rad/s] and specific force [g] at times t, shape (n,).
+        """True M, body rate [rad/s] and specific force [g] at device times t, shape (n,).
 
         A mounted unit's: the body's turned by its mounting, the force at its lever arm.
         """
+        if self._body_time is not None:
+            t = self._body_time(t)
         euler, euler_rate = self.euler_and_rates(t)
         droll, dpitch, dyaw = euler_rate.T
         m = convert.euler_to_m(euler)
@@ -339,22 +480,23 @@ class Motion:
             n += 1
         return n
 
-    def _noise(self, t: FloatArray, gain: tuple[float, float, float],
-               period: float = math.inf) -> FloatArray:
-        """(n, 9) accel, gyro and mag noise at t.
+    def _chain_noise(self, cycles: npt.NDArray[np.int64], width: int, span: int = 0,
+                     mag: bool = False) -> FloatArray:
+        """The white noise a chain's moving average of ``width`` leaves at ``cycles``.
 
-        Each per-cycle sigma times its gain, with the white noise density over the
-        square root of the output ``period`` added in quadrature (the same normals: zero
-        densities leave the noise, and so the emulator's bytes, as they were).
+        span 0: each cycle's average, what a sample reports (accel and gyro: (n, 6); with
+        ``mag`` the magnetometer's, (n, 3)); span D: the sum of the averages of the D
+        cycles up to each, times the cycle, what a delta over D cycles adds (n, 6).
         """
-        cfg = self.config
-        root = math.sqrt(period)
-        sigma = np.repeat([
-            math.hypot(cfg.noise_accel_g * gain[0],
-                       cfg.accelerometer_noise_density / STANDARD_GRAVITY / root),
-            math.hypot(cfg.noise_gyro_rad_s * gain[1], cfg.gyroscope_noise_density / root),
-            cfg.noise_mag_gauss * gain[2]], 3)
-        return sigma * _time_keyed_normals(cfg.seed, t, 9) if sigma.any() else np.zeros((1, 9))
+        sigma = self._cycle_sigma[6:9] if mag else self._cycle_sigma[0:6]
+        if not sigma.any():
+            return np.zeros((len(cycles), len(sigma)))
+        weights = np.full(width, 1.0 / width)
+        if span:
+            weights = np.convolve(np.ones(span), weights) * CALCULATION_CYCLE_S
+        normals = self._mag_normals if mag else self._cycle_normals
+        noise: FloatArray = sigma * _averaged_normals(normals, cycles, weights)
+        return noise
 
     def bias_walk(self, t: npt.ArrayLike) -> FloatArray:
         """The accel [g] and gyro [rad/s] bias random walk at device times ``t``.
@@ -376,9 +518,8 @@ class Motion:
         need = math.floor(float(at.max(initial=0.0))) + 2
         have = len(self._walk_knots)
         if need > have:
-            index = np.arange(have, need, dtype=np.float64)
-            steps = self._walk_sigma * _time_keyed_normals(
-                self.config.seed ^ _WALK_SALT, index, 6)
+            index = np.arange(have, need, dtype=np.int64)
+            steps = self._walk_sigma * self._knot_normals(index)
             self._walk_knots = np.concatenate(
                 [self._walk_knots, self._walk_knots[-1] + np.cumsum(steps, axis=0)])
         whole = np.floor(at).astype(np.int64)
@@ -387,21 +528,20 @@ class Motion:
                             + self._walk_knots[whole + 1] * frac)
         return walk
 
-    def magnetometer(self, t: npt.ArrayLike, gain: float = 1.0) -> FloatArray:
+    def magnetometer(self, t: npt.ArrayLike, chain: SignalChain = SENSOR) -> FloatArray:
         """The mag reading alone: what ``sample`` gives, at less cost.
 
         Args:
-            t: Device times [s], shape (n,).
-            gain: Scales the magnetometer noise (a filter averaging M samples: 1/sqrt(M)).
+            t: Device times of the calculation cycles the readings are sent at [s], (n,).
+            chain: The unit's filters (its mag moving average delays and averages).
 
         Returns:
             The readings [gauss], (n, 3), sensor frame.
         """
         t = _times(t)
-        m = self._attitude(t)
+        m = self._attitude(t - chain.delays()[1])
         field = self._ironed(m @ np.asarray(self.config.earth_field_gauss, dtype=np.float64))
-        noise: FloatArray = self._noise(t, (0.0, 0.0, gain))[:, 6:9]
-        return field + noise
+        return field + self._chain_noise(_cycles(t), chain.mag_filter_width, mag=True)
 
     def _ironed(self, field: FloatArray) -> FloatArray:
         """The true body-frame field as the magnetometer reads it among the unit's iron."""
@@ -409,22 +549,57 @@ class Motion:
         out: FloatArray = field @ soft.T + np.asarray(self.config.hard_iron_gauss)
         return out
 
-    def sample(self, t: npt.ArrayLike, period: float,
-               noise_gain: tuple[float, float, float] = (1.0, 1.0, 1.0),
-               only: Collection[str] | None = None) -> dict[str, np.ndarray]:
-        """Everything the unit can report at device times ``t``.
+    def _deltas(self, seen: FloatArray, m: FloatArray, cycles: npt.NDArray[np.int64],
+                period: float, chain: SignalChain) -> tuple[FloatArray, FloatArray]:
+        """DeltaAng and DeltaVel over the ``period`` up to each instant ``seen``.
 
-        DeltaAng and DeltaVel integrate over [t - period, t] by Gauss-Legendre
-        quadrature, and C spans the last 1 ms calculation cycle. Biases and noise affect
-        only the sensor readings (accel, ang_rate, mag, deltas, raw codes), never M or C.
+        The signal by Gauss-Legendre quadrature over [seen - period, seen] (``m``: the
+        attitude at ``seen``), with the chain's coning and sculling; the biases and the
+        walk at the period's middle times the period; the chain's noise summed over the
+        period's cycles.
+        """
+        cfg = self.config
+        half = 0.5 * period
+        nodes, weights = _gauss_legendre(self._node_count(half))
+        delta_ang = np.asarray(cfg.gyro_bias_rad_s) * period
+        delta_vel = np.asarray(cfg.accel_bias_g) * period
+        start = self._attitude(seen - period) if chain.coning_sculling else None
+        turned, pushed = np.zeros((len(seen), 3)), np.zeros((len(seen), 3))
+        for node, weight in zip(nodes, weights, strict=True):
+            node_m, node_rate, node_force = self._kinematics(seen + half * (node - 1.0))
+            if start is None:
+                turned = turned + half * weight * node_rate
+            else:  # sculling: summed in the earth frame, then turned into the start's
+                node_force = np.einsum("nji,nj->ni", node_m, node_force)
+            pushed = pushed + half * weight * node_force
+        if start is not None:  # coning: the rotation vector of the attitude change
+            turned = _rotation_vector(start @ m.swapaxes(1, 2))
+            pushed = np.einsum("nij,nj->ni", start, pushed)
+        delta_ang, delta_vel = delta_ang + turned, delta_vel + pushed
+        noise = self._chain_noise(cycles, chain.filter_width,
+                                  max(1, round(period * CYCLES_PER_S)))
+        if self._walk_sigma.any():
+            noise = noise + self.bias_walk(seen - half) * period
+        return delta_ang + noise[:, 3:6], delta_vel + noise[:, 0:3]
+
+    def sample(self, t: npt.ArrayLike, period: float, chain: SignalChain = SENSOR,
+               only: Collection[str] | None = None) -> dict[str, np.ndarray]:
+        """Everything the unit can report at the calculation cycles at device times ``t``.
+
+        Values pass the unit's ``chain``: the signal describes the instant its filter
+        delay before ``t``, the noise is averaged cycle by cycle (``SignalChain``), and
+        DeltaAng and DeltaVel cover the ``period`` before that instant. C spans the last
+        1 ms calculation cycle. Biases, the walk and noise affect only the sensor
+        readings (accel, ang_rate, mag, deltas, raw codes), never M or C. The noise of a
+        cycle is keyed by its index, ``t`` rounded to the cycle.
 
         Args:
-            t: Device times [s], shape (n,).
-            period: The output sample period [s].
-            noise_gain: Scales the accel, gyro and mag noise (a filter averaging M
-                samples: 1/sqrt(M)).
-            only: At least these quantities: DeltaAng and DeltaVel's quadrature and C's
-                previous orientation, most of the cost, are computed only when asked
+            t: Device times of the cycles [s], shape (n,).
+            period: The output sample period [s]: D cycles for the deltas' noise.
+            chain: What the unit's filters do; the default, a bare sensor.
+            only: At least these quantities: the accel and gyro readings, DeltaAng and
+                DeltaVel's quadrature, C's previous orientation, the magnetometer, Euler
+                angles and the quaternion, most of the cost, are computed only when asked
                 for (every value is the same either way); None: everything.
 
         Returns:
@@ -439,43 +614,37 @@ class Motion:
             raise ValueError(f"period must be positive, got {period}")
         cfg = self.config
         gyro_bias, accel_bias = np.asarray(cfg.gyro_bias_rad_s), np.asarray(cfg.accel_bias_g)
-
-        m, rate, force = self._kinematics(t)
-        stab_mag = m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64)
-
-        stab_mag = self._ironed(stab_mag)
-        noise = self._noise(t, noise_gain, period)
-        if self._walk_sigma.any():
-            noise = noise + np.pad(self.bias_walk(t), ((0, 0), (0, 3)))
-        accel = force + accel_bias + noise[:, 0:3]
-        ang_rate = rate + gyro_bias + noise[:, 3:6]
+        delay, mag_delay = chain.delays()
+        seen, cycles = t - delay, _cycles(t)
+        m, rate, force = self._kinematics(seen)
+        stab_mag = self._ironed(m @ np.asarray(cfg.earth_field_gauss, dtype=np.float64))
         out: dict[str, np.ndarray] = {}
+        if only is None or not _POINT_READINGS.isdisjoint(only):
+            noise = self._chain_noise(cycles, chain.filter_width)
+            if self._walk_sigma.any():
+                noise = noise + self.bias_walk(seen)
+            accel = force + accel_bias + noise[:, 0:3]
+            ang_rate = rate + gyro_bias + noise[:, 3:6]
+            out |= {"ang_rate": ang_rate, "accel": accel,
+                    "raw_accel": np.clip(RAW_ZERO_CODE + accel * RAW_ACCEL_CODES_PER_G, 0,
+                                         RAW_MAX_CODE),
+                    "raw_ang_rate": np.clip(RAW_ZERO_CODE + ang_rate * RAW_GYRO_CODES_PER_RAD_S,
+                                            0, RAW_MAX_CODE)}
         if only is None or "delta_ang" in only or "delta_vel" in only:
-            # Gauss-Legendre quadrature over [t - period, t] of the biased rate and force
-            half = 0.5 * period
-            nodes, weights = _gauss_legendre(self._node_count(half))
-            delta_ang, delta_vel = gyro_bias * period, accel_bias * period
-            for node, weight in zip(nodes, weights, strict=True):
-                _, node_rate, node_force = self._kinematics(t + half * (node - 1.0))
-                delta_ang = delta_ang + half * weight * node_rate
-                delta_vel = delta_vel + half * weight * node_force
-            out["delta_ang"] = delta_ang + noise[:, 3:6] * period
-            out["delta_vel"] = delta_vel + noise[:, 0:3] * period
+            out["delta_ang"], out["delta_vel"] = self._deltas(seen, m, cycles, period, chain)
         if only is None or "c" in only:
-            m_prev = self._attitude(t - CALCULATION_CYCLE_S)
+            m_prev = self._attitude(seen - CALCULATION_CYCLE_S)
             out["c"] = m @ m_prev.swapaxes(1, 2)
+        if only is None or "mag" in only:
+            out["mag"] = (self.magnetometer(t, chain) if mag_delay != delay else stab_mag
+                          + self._chain_noise(cycles, chain.mag_filter_width, mag=True))
+        if only is None or "euler" in only:
+            out["euler"] = convert.m_to_euler(m)
+        if only is None or "quaternion" in only:
+            out["quaternion"] = convert.m_to_quaternion(m)
         return out | {
             "m": m,
-            "euler": convert.m_to_euler(m),
-            "quaternion": convert.m_to_quaternion(m),
-            "ang_rate": ang_rate,
-            "accel": accel,
-            "mag": stab_mag + noise[:, 6:9],
             "stab_accel": -m[:, :, 2],
             "stab_mag": stab_mag,
-            "raw_accel": np.clip(RAW_ZERO_CODE + accel * RAW_ACCEL_CODES_PER_G, 0, RAW_MAX_CODE),
-            "raw_ang_rate": np.clip(
-                RAW_ZERO_CODE + ang_rate * RAW_GYRO_CODES_PER_RAD_S, 0, RAW_MAX_CODE
-            ),
             "temperature": np.tile(self._temperature, (t.shape[0], 1)),
         }

@@ -12,7 +12,15 @@ from pathlib import Path
 from typing import Any
 
 from bridge.exceptions import StateFileError
-from bridge.protocol.table import BAUD_RATES, BY_NAME, DATA_CODES, DEFAULT_BAUD, DEFAULT_FLAGS, Mode
+from bridge.protocol.table import (
+    BAUD_RATES,
+    BY_NAME,
+    DATA_CODES,
+    DEFAULT_BAUD,
+    DEFAULT_FILTER_WIDTH,
+    DEFAULT_FLAGS,
+    Mode,
+)
 
 # The manual names no factory decimation; 100 Hz is what the vendor's units ship with.
 DEFAULT_DECIMATION = 10
@@ -26,7 +34,7 @@ class Sampling:
 
     decimation: int = DEFAULT_DECIMATION
     flags: int = int(DEFAULT_FLAGS)
-    filter_width: int = 15
+    filter_width: int = DEFAULT_FILTER_WIDTH
     mag_filter_width: int = 17
     up_compensation: int = 10
     north_compensation: int = 10

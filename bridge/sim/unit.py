@@ -35,7 +35,7 @@ from bridge.protocol.table import (
 )
 from bridge.sim import state
 from bridge.sim.clock import UnitClock
-from bridge.sim.motion import Motion, MotionConfig
+from bridge.sim.motion import Motion, MotionConfig, SignalChain
 from bridge.sim.state import USER_EEPROM, Sampling, Stored
 
 _HALF_TICKS_PER_CYCLE = 2 * TICKS_PER_SECOND // 1000  # 62.5 ticks a cycle, counted in halves
@@ -83,7 +83,8 @@ class UnitConfig:
         state_file: Where its non-volatile memory is kept across runs (it starts from
             the file when there is one); None: in memory only.
         truth_length: Records whose truth is kept (``SimUnit.truth``).
-        filter_model: Whether its filters' delay and noise averaging are modelled.
+        filter_model: Whether its filters (``SignalChain``) are modelled: their delay
+            and their averaging of the noise.
         usb: On its own USB port: the baud rate has no effect on the line, and a record
             goes to the host whole, once its last byte is in the port's buffer.
         processing_delay_s: From the end of a record's cycle to its first byte on the line.
@@ -257,7 +258,8 @@ class SimUnit:
                  wall_ns: int | None = None) -> None:
         now = time.monotonic() if now is None else now
         self.config = config
-        self.motion = Motion(config.motion)
+        self.motion = Motion(config.motion, None if config.motion.mounting is None
+                             else self._body_time)
         self.stored = state.load(config.state_file, config.stored)
         self._t0 = now
         self._clock = UnitClock(now, config.clock_ppm, config.clock_wander_ppm,
@@ -556,50 +558,45 @@ class SimUnit:
         self.continuous_command = code
         self._new_phase = True
 
+    def signal_chain(self) -> SignalChain:
+        """What its filters do now, from its sampling settings (``SignalChain``).
+
+        Without the filter model: a bare sensor's widths of 1 (no delay, no averaging).
+
+        Returns:
+            The chain.
+        """
+        s = self.sampling
+        coning = bool(s.flags & Flag.CONING_SCULLING)
+        if not self.config.filter_model:
+            return SignalChain(coning_sculling=coning)
+        return SignalChain(s.filter_width, s.mag_filter_width, coning)
+
     def filter_delays(self) -> tuple[float, float]:
         """Seconds by which accel/gyro-derived and magnetometer values lag their cycle.
 
         A moving average of M samples at 1 kHz delays by exactly (M - 1)/2 ms at every
-        frequency; its amplitude response (Equations 2-5, ``convert.fir_response``) at
-        the motion model's <= 0.5 Hz is 1 within 5e-4, and at a hand's <= 0.8 Hz
-        (``handheld``) within 1.1e-3, for any width up to 32, so the filter is modelled
-        as that time shift alone, and noise as white noise averaged over M samples.
+        frequency (``SignalChain``).
 
         Returns:
             (accel and gyro delay, magnetometer delay), seconds; zero without the filter
             model.
         """
-        if not self.config.filter_model:
-            return 0.0, 0.0
-        s = self.sampling
-        return ((s.filter_width - 1) / 2 * CALCULATION_CYCLE_S,
-                (s.mag_filter_width - 1) / 2 * CALCULATION_CYCLE_S)
+        return self.signal_chain().delays()
 
     def _sample(self, device: np.ndarray, period: float, names: list[str]
                 ) -> dict[str, np.ndarray]:
-        """The motion as the unit's filters see it at the end of cycles at ``device``.
+        """The motion through the unit's signal chain at the end of cycles at ``device``.
 
         At least the quantities ``names`` and the quaternion (the truth, always computed).
         """
-        if not self.config.filter_model:
-            return self.motion.sample(self._motion_time(device), period, only=names)
-        delay, mag_delay = self.filter_delays()
-        widths = (self.sampling.filter_width, self.sampling.mag_filter_width)
-        gain = (widths[0] ** -0.5, widths[0] ** -0.5, widths[1] ** -0.5)
-        sample = self.motion.sample(self._motion_time(device - delay), period, gain, names)
-        if "mag" in names and mag_delay != delay:
-            sample["mag"] = self.motion.magnetometer(self._motion_time(device - mag_delay),
-                                                     gain[2])
-        return sample
+        return self.motion.sample(device, period, self.signal_chain(), [*names, "quaternion"])
 
-    def _motion_time(self, device: np.ndarray) -> np.ndarray:
-        """The motion's time at device times: its own, or a shared body's.
+    def _body_time(self, device: np.ndarray) -> np.ndarray:
+        """A shared body's time at device times: host seconds since power-up.
 
-        A body several units share moves in host seconds since power-up: units that
-        power up together see one motion, whatever their clocks.
+        Units that power up together see one motion, whatever their clocks.
         """
-        if self.config.motion.mounting is None:
-            return device
         return self._host_times(device) - self._t0
 
     def _records(self, code: int, cycles: np.ndarray) -> tuple[bytes, list[TruthRow]]:

@@ -238,8 +238,8 @@ class BusSink:
         message = info_message(self.unit, self.port, info, self.allow_commands,
                                self.pipeline.link, self.pipeline.options.poll_hz is not None)
         if self.publisher is not None:
-            if self.ros2 is not None:  # a bring-up may change the rate
-                self.ros2.use_rate(info.output_hz)
+            if self.ros2 is not None:  # a bring-up may change the rate and the width
+                self.ros2.use_settings(info.output_hz, info.filter_width)
             self.publisher.set_info(message)
             return
         claim_name(self.session, self.prefix, self.unit)
@@ -253,8 +253,8 @@ class BusSink:
 
             o = self.ros2_options
             self.ros2 = UnitTopics(self.session, o.domain, self.prefix, self.unit, o.distro,
-                                   o.noise)
-            self.ros2.use_rate(info.output_hz)
+                                   o.noise, o.orientation_stddev)
+            self.ros2.use_settings(info.output_hz, info.filter_width)
         self.publisher.set_info(message)
         for listener in self._listeners:
             listener(self.unit, capture_metadata(message))
