@@ -166,10 +166,14 @@ class _UnitReplay:
         self.result = Replayed(capture.unit)
         little_endian = self._little_endian()
         #: the receive times records are timed by: the raw clock's, or for a capture that
-        #: has realtime stamps only, those with the host clock's steps taken out
-        self.steady = capture.raw_ns if capture.raw_ns is not None else \
-            self._unstepped(little_endian)
+        #: has realtime stamps only, those with the host clock's steps taken out: found
+        #: first as on any link, for telling the link by, then again over its frames
+        records = None if capture.raw_ns is not None else self._record_reads(little_endian)
+        self.steady = self._unstepped(records, 0) if records is not None else \
+            np.asarray(capture.raw_ns)
         self.settings = self._initial_settings(little_endian, transport)
+        if records is not None and self.settings.frame_ns:
+            self.steady = self._unstepped(records, self.settings.frame_ns)
         self.framer = Framer(_EXPECT, little_endian=little_endian)
         self.host = RealtimeReads(self.steady, capture.rx_ns)
         self.timing = StreamTiming(self.host)
@@ -220,25 +224,32 @@ class _UnitReplay:
         reads = self.capture.data[:_SNIFF_READS]
         return [b for found in frame_reads(framer, np.arange(len(reads)), reads) for b in found]
 
-    def _unstepped(self, little_endian: bool) -> np.ndarray:
-        """The capture's realtime receive times with the host clock's steps taken out.
-
-        The steps are those the data records show (``bridge.timing.steps``), epoch by
-        epoch.
-        """
+    def _record_reads(self, little_endian: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Every data record's timer and the read that completed it (index into reads)."""
         framer = Framer(DATA_CODES, little_endian=little_endian)
         found = [b for group in frame_reads(framer, np.arange(len(self.capture.data)),
                                             self.capture.data) for b in group]
         found += framer.flush()
         if not found:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return (np.concatenate([b["timer"] for b in found]),
+                np.concatenate([b.rx_ns for b in found]))
+
+    def _unstepped(self, records: tuple[np.ndarray, np.ndarray], frame_ns: int) -> np.ndarray:
+        """The capture's realtime receive times with the host clock's steps taken out.
+
+        The steps are those the data records (``_record_reads``) show
+        (``bridge.timing.steps``), epoch by epoch; ``frame_ns``: the USB frame that carried
+        the reads, 0 on a UART.
+        """
+        timers, reads = records
+        if not len(timers):
             return self.capture.rx_ns
-        timers = np.concatenate([b["timer"] for b in found])
-        reads = np.concatenate([b.rx_ns for b in found])  # the read that completed each
         ticks, epochs = unwrap_timer(timers)
         steps: list[tuple[int, int]] = []
         for lo, hi in itertools.pairwise([*epochs.tolist(), len(ticks)]):
             steps += [(lo + first, size) for first, size
-                      in find_steps(ticks[lo:hi], self.capture.rx_ns[reads[lo:hi]])]
+                      in find_steps(ticks[lo:hi], self.capture.rx_ns[reads[lo:hi]], frame_ns)]
         return raw_like(self.capture.rx_ns, reads, steps)
 
     def _little_endian(self) -> bool:
