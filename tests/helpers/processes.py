@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import select
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -16,6 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from bridge.fleet.loopback import interrupt
+from tests.helpers.waiting import wait_for
 
 
 def _gx3() -> str:
@@ -53,9 +56,27 @@ def bridge_process(port: str, cfg: Path, *args: str, env: dict[str, str] | None 
 
 
 def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
-    """`gx3 record` into ``out`` with the Zenoh config ``cfg`` (the caller stops it)."""
-    return subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
+    """`gx3 record` into ``out`` with the Zenoh config ``cfg`` (the caller stops it).
+
+    Where ``cfg`` listens, the recorder is returned once it does (or has exited): a
+    bridge started before it would publish into the void, and only what its cache holds
+    (half a second) would reach the archive, as in the field. On a busy machine the
+    recorder's start can take seconds.
+    """
+    proc = subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
                              "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    listens = json.loads(cfg.read_text()).get("listen", {}).get("endpoints", [])
+    ports = [int(e.rsplit(":", 1)[1]) for e in listens if e.startswith("tcp/127.0.0.1:")]
+    for port in ports:
+        wait_for(lambda: proc.poll() is not None or _accepts(port), 60,  # noqa: B023
+                 f"the recorder to listen on port {port}")
+    return proc
+
+
+def _accepts(port: int) -> bool:
+    """Whether something listens on the loopback TCP ``port``."""
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
 
 
 def published(stderr: bytes, unit: str) -> int:
