@@ -26,7 +26,7 @@ from bridge.analysis.mounts import Mounts, read_mounts
 from bridge.protocol.convert import quaternion_to_m
 from bridge.sim.usb import AdapterDelivery, UsbDelivery
 from tests.helpers.body import Body, BodyUnit, body_archive
-from tests.helpers.processes import gx3
+from tests.helpers.cli import gx3_here
 from tests.helpers.rotations import rotation
 
 SECONDS = 180.0
@@ -62,8 +62,8 @@ def aligned(tmp_path_factory: pytest.TempPathFactory) -> Aligned:
     folder = tmp_path_factory.mktemp("align")
     body = body_archive(folder, UNITS, SECONDS)
     out = folder / "mounts.yaml"
-    done = gx3("align", body.path, *(a for u in UNITS for a in ("-u", u.name)), "-o", out)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("align", body.path, *(a for u in UNITS for a in ("-u", u.name)), "-o", out)
+    assert done.exit_code == 0, done.stderr
     return Aligned(body, body.read()[1], read_mounts(out), out, done.stderr)
 
 
@@ -125,9 +125,9 @@ def test_the_file_says_how_sure_it_is_and_what_it_used(aligned: Aligned) -> None
 def exported(aligned: Aligned, tmp_path_factory: pytest.TempPathFactory
              ) -> dict[str, np.ndarray]:
     out = tmp_path_factory.mktemp("mounted") / "mounted.parquet"
-    done = gx3("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
+    done = gx3_here("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
                "--start", "60", "--end", "80")
-    assert done.returncode == 0, done.stderr
+    assert done.exit_code == 0, done.stderr
     table = pq.read_table(out)
     meta = json.loads(table.schema.metadata[b"gx3.mounts"])
     assert meta["file"] == "mounts.yaml" and meta["reference"] == REF
@@ -181,9 +181,9 @@ def test_a_bag_with_mounts_is_in_the_references_frame(aligned: Aligned,
     """ROS 2 and ROS 1 alike: every unit's Imu messages in the reference's frame, and the
     mounts file recorded (a metadata record; a latched String on /gx3/gx3_mounts)."""
     for out in (tmp_path / "mounted.ros2.mcap", tmp_path / "mounted.bag"):
-        done = gx3("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
-                   "--start", "10", "--end", "11")
-        assert done.returncode == 0, done.stderr
+        done = gx3_here("export", aligned.body.path, "-o", out, "--mounts", aligned.path,
+                        "--start", "10", "--end", "11")
+        assert done.exit_code == 0, done.stderr
     frames: dict[str, set[str]] = {}
     with (tmp_path / "mounted.ros2.mcap").open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -211,8 +211,8 @@ def test_a_bag_with_mounts_is_in_the_references_frame(aligned: Aligned,
 
 
 def test_export_refuses_mounts_into_a_csv_file(aligned: Aligned, tmp_path: Path) -> None:
-    done = gx3("export", aligned.body.path, "--mounts", aligned.path, "-o",
+    done = gx3_here("export", aligned.body.path, "--mounts", aligned.path, "-o",
                tmp_path / "out.csv")
-    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.exit_code == 2 and done.stderr.count("\n") == 1, done.stderr
     assert "a CSV file has none (write .parquet" in done.stderr
     assert not list(tmp_path.iterdir())

@@ -14,7 +14,6 @@ import contextlib
 import json
 import os
 import signal
-import subprocess
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -22,11 +21,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from typer.testing import Result
 
 from bridge.bus.gx3_pb2 import Info, Status
 from bridge.bus.subscribe import SampleBatch, subscribe
 from bridge.sim.serve import Simulator
-from tests.helpers.processes import GX3, Stderr, bridge_process
+from tests.helpers.cli import gx3_here
+from tests.helpers.processes import Stderr, bridge_process
 from tests.helpers.units import FAST, SLOW
 from tests.helpers.waiting import wait_for
 
@@ -116,22 +117,18 @@ def test_operator_commands_over_zenoh(network: tuple[Path, Path]) -> None:
     with Simulator([SLOW], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "slow",
                            "--allow-commands"):
-        def gx3(*args: str) -> subprocess.CompletedProcess[str]:
-            return subprocess.run([GX3, *args, "--unit", "slow", "--zenoh-config",
-                                   str(client_cfg), "--json"], capture_output=True, text=True,
-                                  timeout=60, check=False)
+        def gx3(*args: str) -> Result:  # the operator's commands, in this process
+            return gx3_here(*args, "--unit", "slow", "--zenoh-config", client_cfg, "--json")
 
-        wait_for(lambda: gx3("info").returncode == 0)
+        wait_for(lambda: gx3("info").exit_code == 0)
         info = json.loads(gx3("info").stdout)
         timer = gx3("set-timer", "--value", "1000")
         test = gx3("stationary-test")
-        reset = subprocess.run([GX3, "reset", "--unit", "slow", "--zenoh-config",
-                                str(client_cfg)], capture_output=True, text=True, timeout=60,
-                               check=False, stdin=subprocess.DEVNULL)
+        reset = gx3_here("reset", "--unit", "slow", "--zenoh-config", client_cfg)
     assert info["serial"] == "SLOW0001"
-    assert timer.returncode == 0 and json.loads(timer.stdout)["timer"] >= 1000
-    assert test.returncode == 0 and json.loads(test.stdout)["flags"]["system_tick"]
-    assert reset.returncode != 0 and "--yes" in reset.stderr, "a reset must be confirmed"
+    assert timer.exit_code == 0 and json.loads(timer.stdout)["timer"] >= 1000
+    assert test.exit_code == 0 and json.loads(test.stdout)["flags"]["system_tick"]
+    assert reset.exit_code != 0 and "--yes" in reset.stderr, "a reset must be confirmed"
 
 
 def test_killed_bridge_goes_away_and_a_new_one_picks_up(network: tuple[Path, Path]) -> None:

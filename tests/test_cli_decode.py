@@ -14,8 +14,10 @@ from pathlib import Path
 from typing import IO, Any
 
 import pytest
+from typer.testing import CliRunner
 
 from bridge.archive.writer import ArchiveWriter
+from bridge.cli import app
 from bridge.protocol.table import COMMANDS
 from tests.helpers.archives import write_capture
 from tests.helpers.processes import GX3
@@ -23,8 +25,14 @@ from tests.helpers.processes import GX3
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def gx3(*args: str, stdin: bytes = b"", columns: int = 80) -> subprocess.CompletedProcess[bytes]:
-    assert GX3, "the gx3 console script is not installed next to this interpreter"
+def gx3(*args: str, stdin: bytes | None = None, columns: int = 80
+        ) -> subprocess.CompletedProcess[bytes]:
+    """``gx3 ARGS``: exit code, stdout and stderr in bytes. Fed ``stdin``, the console
+    script (decode reads standard input's descriptor); else in this process."""
+    if stdin is None:
+        done = CliRunner().invoke(app, list(args), env={"COLUMNS": str(columns)})
+        return subprocess.CompletedProcess(args, done.exit_code, done.stdout_bytes,
+                                           done.stderr_bytes)
     env = {**os.environ, "COLUMNS": str(columns)}
     return subprocess.run([GX3, *args], input=stdin, capture_output=True, timeout=60,
                           check=False, env=env)
@@ -179,7 +187,7 @@ def test_truncated_record_is_skipped_and_counted(tmp_path: Path, content: bytes)
 
 @pytest.mark.parametrize("source", ["-", "/dev/null"])
 def test_empty_input_decodes_nothing_and_exits_1(source: str) -> None:
-    done = gx3("decode", source)
+    done = gx3("decode", source, stdin=b"" if source == "-" else None)
     assert done.returncode == 1
     assert done.stdout == b""
     summary, error = done.stderr.decode().splitlines()
@@ -260,10 +268,6 @@ def test_command_list_fits_an_80_column_terminal() -> None:
 
 def test_help_names_only_commands_that_exist() -> None:
     """Every `gx3 X` a help text mentions is a command (in-process: one start-up)."""
-    from typer.testing import CliRunner
-
-    from bridge.cli import app
-
     runner = CliRunner()
     top = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
     existing = set(re.findall(r"│ ([a-z][\w-]*)\s{2,}", top.output))
@@ -277,10 +281,6 @@ def test_help_names_only_commands_that_exist() -> None:
 def test_usage_lines_name_each_argument_once() -> None:
     """A repeatable argument reads {LOG}..., not {LOG...}...: Typer adds the ellipsis to
     the metavar itself."""
-    from typer.testing import CliRunner
-
-    from bridge.cli import app
-
     runner = CliRunner()
     top = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
     names = set(re.findall(r"│ ([a-z][\w-]*)\s{2,}", top.output))
@@ -294,10 +294,6 @@ def test_usage_lines_name_each_argument_once() -> None:
 def test_help_paragraphs_fill_an_80_column_terminal() -> None:
     """A command's description wraps at the terminal's width, not at its source's line
     breaks as well (which left lines of a word or two on 80 columns)."""
-    from typer.testing import CliRunner
-
-    from bridge.cli import app
-
     runner = CliRunner()
     top = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
     for name in set(re.findall(r"│ ([a-z][\w-]*)\s{2,}", top.output)):

@@ -22,7 +22,8 @@ from bridge.sim.motion import Motion, MotionConfig, tumbling
 from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
-from tests.helpers.processes import GX3, bridge_process, gx3
+from tests.helpers.cli import gx3_here
+from tests.helpers.processes import GX3, bridge_process
 from tests.helpers.rrd import blueprint_views, plot_values, rerun_rows_so_far
 from tests.helpers.units import TWO_UNITS
 from tests.helpers.waiting import free_port, wait_for
@@ -64,8 +65,8 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_calibration_of_a_tumbling_unit_is_the_true_iron(recording: Path,
                                                               tmp_path: Path) -> None:
     out = tmp_path / "cal.json"
-    done = gx3("calibrate-mag", recording, "--unit", "imu0", "-o", out)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("calibrate-mag", recording, "--unit", "imu0", "-o", out)
+    assert done.exit_code == 0, done.stderr
     assert "wrote" in done.stderr and "warning" not in done.stderr
     cal = json.loads(out.read_text())
     hard, soft = np.array(cal["hard_iron"]), np.array(cal["soft_iron"])
@@ -87,20 +88,20 @@ def test_the_calibration_of_a_tumbling_unit_is_the_true_iron(recording: Path,
 
 def test_a_span_and_a_refused_output(recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "cal.json"
-    done = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--start", "10",
+    done = gx3_here("calibrate-mag", recording, "-u", "imu0", "-o", out, "--start", "10",
                "--end", "40")
-    assert done.returncode == 0, done.stderr
+    assert done.exit_code == 0, done.stderr
     assert 29.9 < json.loads(out.read_text())["span"]["seconds"] < 30.0
-    again = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out)
-    assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
-    assert gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--force").returncode == 0
+    again = gx3_here("calibrate-mag", recording, "-u", "imu0", "-o", out)
+    assert again.exit_code == 2 and again.stderr.count("\n") == 1, again.stderr
+    assert gx3_here("calibrate-mag", recording, "-u", "imu0", "-o", out, "--force").exit_code == 0
 
 
 def test_a_flat_turn_is_refused_naming_the_missing_motion(recording: Path,
                                                           tmp_path: Path) -> None:
     out = tmp_path / "cal.json"
-    done = gx3("calibrate-mag", recording, "--unit", "flat", "-o", out)
-    assert done.returncode == 2
+    done = gx3_here("calibrate-mag", recording, "--unit", "flat", "-o", out)
+    assert done.exit_code == 2
     assert done.stderr.count("\n") == 1, done.stderr
     assert "span a plane" in done.stderr and "its z axis" in done.stderr
     assert "turn it also about its x and y axes" in done.stderr
@@ -115,8 +116,8 @@ def test_a_flat_turn_is_refused_naming_the_missing_motion(recording: Path,
 ])
 def test_bad_input_is_one_line(recording: Path, tmp_path: Path, args: tuple[str, ...],
                                message: str) -> None:
-    done = gx3("calibrate-mag", recording, "-o", tmp_path / "cal.json", *args)
-    assert done.returncode == 2
+    done = gx3_here("calibrate-mag", recording, "-o", tmp_path / "cal.json", *args)
+    assert done.exit_code == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
     assert not (tmp_path / "cal.json").exists()
 
@@ -124,16 +125,16 @@ def test_bad_input_is_one_line(recording: Path, tmp_path: Path, args: tuple[str,
 @pytest.fixture(scope="module")
 def calibration(recording: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cal") / "imu0.json"
-    assert gx3("calibrate-mag", recording, "-u", "imu0", "-o", out).returncode == 0
+    assert gx3_here("calibrate-mag", recording, "-u", "imu0", "-o", out).exit_code == 0
     return out
 
 
 def test_export_applies_the_calibration_and_adds_a_compass_heading(
         recording: Path, calibration: Path, tmp_path: Path) -> None:
     plain, ironed = tmp_path / "plain.parquet", tmp_path / "ironed.parquet"
-    assert gx3("export", recording, "-o", plain).returncode == 0
-    done = gx3("export", recording, "-o", ironed, "--mag-cal", calibration)
-    assert done.returncode == 0, done.stderr
+    assert gx3_here("export", recording, "-o", plain).exit_code == 0
+    done = gx3_here("export", recording, "-o", ironed, "--mag-cal", calibration)
+    assert done.exit_code == 0, done.stderr
     before, after = pq.read_table(plain).to_pydict(), pq.read_table(ironed)
     table = after.to_pydict()
     names = after.column_names
@@ -160,8 +161,8 @@ def test_export_applies_the_calibration_and_adds_a_compass_heading(
 def test_an_aligned_export_has_the_heading_of_the_calibrated_unit(
         recording: Path, calibration: Path, tmp_path: Path) -> None:
     out = tmp_path / "aligned.parquet"
-    done = gx3("export", recording, "-o", out, "--mag-cal", calibration, "--align", "50")
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("export", recording, "-o", out, "--mag-cal", calibration, "--align", "50")
+    assert done.exit_code == 0, done.stderr
     names = pq.read_schema(out).names
     assert "imu0__mag_heading" in names and "flat__mag_heading" not in names
 
@@ -177,16 +178,16 @@ def test_a_bad_calibration_file_is_one_line(recording: Path, tmp_path: Path, tex
                                             message: str) -> None:
     cal = tmp_path / "cal.json"
     cal.write_text(text)
-    done = gx3("export", recording, "-o", tmp_path / "out.parquet", "--mag-cal", cal)
-    assert done.returncode == 2
+    done = gx3_here("export", recording, "-o", tmp_path / "out.parquet", "--mag-cal", cal)
+    assert done.exit_code == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
     assert not (tmp_path / "out.parquet").exists()
 
 
 def test_the_fit_drawn_in_rerun_as_the_manuals_figure_3(recording: Path, tmp_path: Path) -> None:
     out, drawing = tmp_path / "cal.json", tmp_path / "fit.rrd"
-    done = gx3("calibrate-mag", recording, "-u", "imu0", "-o", out, "--rrd", drawing)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("calibrate-mag", recording, "-u", "imu0", "-o", out, "--rrd", drawing)
+    assert done.exit_code == 0, done.stderr
     cal = json.loads(out.read_text())
     store = RrdReader(drawing).stream().collect()
 
@@ -222,8 +223,8 @@ def plotted_mag(rrd: Path, unit: str) -> np.ndarray:
 def test_rrd_shows_the_calibrated_units_mag_corrected(recording: Path, calibration: Path,
                                                       tmp_path: Path) -> None:
     out = tmp_path / "ironed.rrd"
-    done = gx3("rrd", recording, "-o", out, "--mag-cal", calibration)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("rrd", recording, "-o", out, "--mag-cal", calibration)
+    assert done.exit_code == 0, done.stderr
     size = np.linalg.norm(plotted_mag(out, "imu0"), axis=1)
     assert len(size) > 8900
     assert np.sqrt(np.mean((size / size.mean() - 1) ** 2)) < 0.005
@@ -235,8 +236,8 @@ def test_rrd_refuses_a_calibration_of_a_unit_it_lacks(recording: Path, tmp_path:
     cal = tmp_path / "cal.json"
     cal.write_text('{"unit": "imu9", "hard_iron": [0, 0, 0], '
                    '"soft_iron": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}')
-    done = gx3("rrd", recording, "-o", tmp_path / "out.rrd", "--mag-cal", cal)
-    assert done.returncode == 2
+    done = gx3_here("rrd", recording, "-o", tmp_path / "out.rrd", "--mag-cal", cal)
+    assert done.exit_code == 2
     assert done.stderr.count("\n") == 1 and "unit imu9 has no samples" in done.stderr
     assert not (tmp_path / "out.rrd").exists()
 

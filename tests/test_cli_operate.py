@@ -19,6 +19,7 @@ from bridge.sim.motion import MotionConfig
 from bridge.sim.serve import Simulator
 from bridge.sim.state import Sampling, Stored
 from bridge.sim.unit import UnitConfig
+from tests.helpers.cli import gx3_here
 from tests.helpers.processes import GX3, bridge_process
 from tests.helpers.waiting import free_port, wait_for
 
@@ -33,8 +34,9 @@ def port() -> Iterator[str]:
 
 
 def gx3(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([GX3, *args], capture_output=True, text=True, timeout=60,
-                          stdin=subprocess.DEVNULL)
+    """``gx3 ARGS`` in this process: exit code, stdout and stderr."""
+    done = gx3_here(*args)
+    return subprocess.CompletedProcess(args, done.exit_code, done.stdout, done.stderr)
 
 
 def test_info_and_a_temporary_change_on_a_port(port: str) -> None:
@@ -115,7 +117,8 @@ def test_info_finds_a_bridge_reached_through_another_peer_every_time(
         wait_for(lambda: info_ok(operator), what="the bridge")
         answered = sum(info_ok(operator) for _ in range(100))
         assert answered == 100
-        cli = [gx3("info", "--unit", "oper", "--zenoh-config", str(operator), "--json")
+        cli = [subprocess.run([GX3, "info", "--unit", "oper", "--zenoh-config", str(operator),
+                               "--json"], capture_output=True, text=True, timeout=60)
                for _ in range(3)]
         with pytest.raises(RemoteError, match="no bridge is running for gx3/ghost"):
             ask_units("gx3", "ghost", "info", {}, zenoh_config=operator, discovery=0.5)

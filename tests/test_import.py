@@ -18,12 +18,10 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from typer.testing import CliRunner
 
 from bridge.archive.rawcapture import RawCaptureWriter
 from bridge.archive.walk import read_archive
 from bridge.bus.gx3_pb2 import Event, Info, Status
-from bridge.cli import app
 from bridge.ingest.bytelog import LogFile, import_logs
 from bridge.protocol import Framer, checksum, encode_reply
 from bridge.sim.capture import SyntheticCapture, streaming_config, synthesize
@@ -32,7 +30,7 @@ from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UartDelivery
 from bridge.viz import layout
 from tests.helpers.archives import write_two_units
-from tests.helpers.processes import gx3
+from tests.helpers.cli import gx3_here
 from tests.helpers.rrd import rerun_rows
 
 SEGMENT_S = 600.0
@@ -78,11 +76,25 @@ def logged(tmp_path_factory: pytest.TempPathFactory) -> Logged:
     return Logged(segments, logs, _iso(int(segments[0].truth["time_ns"][0])))
 
 
+@dataclass
+class Imported:
+    path: Path
+    stderr: str  # what gx3 import said
+
+
+@pytest.fixture(scope="module")
+def imported(logged: Logged, tmp_path_factory: pytest.TempPathFactory) -> Imported:
+    """Both logs imported as unit moor, from the logger's start."""
+    out = tmp_path_factory.mktemp("imported") / "mooring.mcap"
+    done = gx3_here("import", *logged.logs, "--unit", "moor", "--start", logged.start,
+                    "-o", out)
+    assert done.exit_code == 0, done.stderr
+    return Imported(out, done.stderr)
+
+
 def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
-                                                          tmp_path: Path) -> None:
-    out = tmp_path / "mooring.mcap"
-    done = gx3("import", *logged.logs, "--unit", "moor", "--start", logged.start, "-o", out)
-    assert done.returncode == 0, done.stderr
+                                                          imported: Imported) -> None:
+    done, out = imported, imported.path
     # no 0xDB reply in the logs: the rate from the timer's steps, so no false gaps
     assert "at 10 Hz by the timer" in done.stderr and "1 rollover;" in done.stderr
     assert "gap" not in done.stderr
@@ -113,22 +125,20 @@ def test_every_record_comes_out_at_start_plus_device_time(logged: Logged,
     assert meta["gx3.import"]["filter_width_from"] == "factory"
 
 
-def test_imported_archives_work_with_every_archive_command(logged: Logged,
+def test_imported_archives_work_with_every_archive_command(logged: Logged, imported: Imported,
                                                            tmp_path: Path) -> None:
-    out = tmp_path / "mooring.mcap"
-    assert gx3("import", *logged.logs, "-u", "moor", "--start", logged.start,
-               "-o", out).returncode == 0
+    out = imported.path
     total = len(logged.truth("code"))
-    table = gx3("export", out, "-o", tmp_path / "mooring.csv")
-    assert table.returncode == 0 and f"wrote {total:,} samples of 1 unit" in table.stderr, \
+    table = gx3_here("export", out, "-o", tmp_path / "mooring.csv")
+    assert table.exit_code == 0 and f"wrote {total:,} samples of 1 unit" in table.stderr, \
         table.stderr
     with (tmp_path / "mooring.csv").open() as f:
         rows = list(csv.DictReader(f))
     exported = np.array([int(r["time_ns"]) for r in rows])
     # export keeps the imported times: no host clock to re-estimate them against
     assert np.abs(np.sort(exported) - logged.truth("value_ns")).max() <= 1_000
-    bag = gx3("export", out, "--format", "ros2", "-o", tmp_path / "bag.mcap")
-    assert bag.returncode == 0, bag.stderr
+    bag = gx3_here("export", out, "--format", "ros2", "-o", tmp_path / "bag.mcap")
+    assert bag.exit_code == 0, bag.stderr
     # each Imu stamped with its sample's instant: the start plus device time
     with (tmp_path / "bag.mcap").open("rb") as f:
         imu = [m for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()])
@@ -138,14 +148,14 @@ def test_imported_archives_work_with_every_archive_command(logged: Logged,
     truth = logged.truth("value_ns")
     nearest = truth[np.clip(np.searchsorted(truth, stamps), 0, len(truth) - 1)]
     assert np.abs(stamps - nearest).max() <= 1_000
-    rrd = gx3("rrd", out, "-o", tmp_path / "mooring.rrd")
-    assert rrd.returncode == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
+    rrd = gx3_here("rrd", out, "-o", tmp_path / "mooring.rrd")
+    assert rrd.exit_code == 0 and f"{total:,} samples" in rrd.stderr, rrd.stderr
     # every sample plotted; no host clock plot, since no host received them
     assert rerun_rows(tmp_path / "mooring.rrd", layout.plot_paths("ang_rate", "moor")[0]) == total
     host_clock = layout.plot_paths("host_clock", "moor")[0]
     assert rerun_rows(tmp_path / "mooring.rrd", host_clock) == 0
-    iron = gx3("calibrate-mag", out, "-o", tmp_path / "iron.json")
-    assert iron.returncode == 0, iron.stderr
+    iron = gx3_here("calibrate-mag", out, "-o", tmp_path / "iron.json")
+    assert iron.exit_code == 0, iron.stderr
     # the iron the emulated magnetometer sits among, from the imported readings
     found = json.loads((tmp_path / "iron.json").read_text())
     np.testing.assert_allclose(found["hard_iron"], HARD_IRON, atol=1e-3)
@@ -160,8 +170,8 @@ def test_a_capture_that_switches_record_type_replays_whole(logged: Logged,
         for rx, data in zip(segment.rx_ns.tolist(), segment.data, strict=True):
             writer.write(data, rx)
     writer.close()
-    done = gx3("replay", capture, "-o", tmp_path / "again.mcap")
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("replay", capture, "-o", tmp_path / "again.mcap")
+    assert done.exit_code == 0, done.stderr
     blocks = read_archive(tmp_path / "again.mcap").samples(["moor"])
     by_code = {code: sum(len(b) for b in blocks if b.code == code) for code in (0xCB, 0xCF)}
     assert by_code == {code: int((logged.truth("code") == code).sum())
@@ -196,22 +206,22 @@ def test_what_cannot_be_imported_is_said_in_one_line(logged: Logged, tmp_path: P
               ([logged.logs[0], "-u", "x", "--start", logged.start, "--start", logged.start],
                "one --start per epoch")]
     for args, says in cases:
-        done = gx3("import", *args, "-o", out)
-        assert done.returncode == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
+        done = gx3_here("import", *args, "-o", out)
+        assert done.exit_code == 2 and done.stderr.count("\n") == 1, (args, done.stderr)
         assert says in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert not out.exists()
-    done = gx3("import", little, "-u", "x", "--start", logged.start, "--little-endian",
+    done = gx3_here("import", little, "-u", "x", "--start", logged.start, "--little-endian",
                "-o", out)
-    assert done.returncode == 0 and "50 samples" in done.stderr, done.stderr
+    assert done.exit_code == 0 and "50 samples" in done.stderr, done.stderr
     out.unlink()
     out.write_text("mine\n")
-    done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
-    assert done.returncode == 2 and "--force" in done.stderr and out.read_text() == "mine\n"
+    done = gx3_here("import", logged.logs[0], "-u", "x", "--start", logged.start, "-o", out)
+    assert done.exit_code == 2 and "--force" in done.stderr and out.read_text() == "mine\n"
     # a log named as the output is refused, whatever --force says
     kept = logged.logs[0].read_bytes()
-    done = gx3("import", logged.logs[0], "-u", "x", "--start", logged.start,
+    done = gx3_here("import", logged.logs[0], "-u", "x", "--start", logged.start,
                "-o", logged.logs[0], "--force")
-    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert done.exit_code == 2 and done.stderr.count("\n") == 1, done.stderr
     assert logged.logs[0].read_bytes() == kept
 
 
@@ -229,8 +239,7 @@ def test_an_archive_or_an_empty_file_is_said_for_what_it_is(tmp_path: Path) -> N
             ([empty, archive], f"{archive} is an MCAP archive"),
             ([empty], f"{empty} is empty: nothing to import"),
             ([empty, empty], f"{empty}, {empty} are all empty: nothing to import")):
-        done = CliRunner().invoke(app, ["import", *map(str, logs), *start],
-                                  env={"COLUMNS": "300"})
+        done = gx3_here("import", *logs, *start)
         assert done.exit_code == 2 and done.stderr.startswith(f"error: {says}"), done.stderr
         assert done.stderr.count("\n") == 1, done.stderr
         assert not out.exists()
@@ -247,11 +256,11 @@ def test_a_reset_inside_a_log_takes_the_next_start(tmp_path: Path) -> None:
     log.write_bytes(b"".join(b"".join(s.data) for s in segments))
     starts = [_iso(int(s.truth["time_ns"][0])) for s in segments]
     out = tmp_path / "cycled.mcap"
-    done = gx3("import", log, "-u", "u", "--start", starts[0], "-o", out)
-    assert done.returncode == 2 and "reset 1, at timer" in done.stderr, done.stderr
+    done = gx3_here("import", log, "-u", "u", "--start", starts[0], "-o", out)
+    assert done.exit_code == 2 and "reset 1, at timer" in done.stderr, done.stderr
     assert "further --start" in done.stderr and not out.exists()
-    done = gx3("import", log, "-u", "u", "--start", starts[0], "--start", starts[1], "-o", out)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("import", log, "-u", "u", "--start", starts[0], "--start", starts[1], "-o", out)
+    assert done.exit_code == 0, done.stderr
     assert "1 reset; " in done.stderr and "gap" not in done.stderr
     blocks = read_archive(out).samples(["u"])
     time_ns = np.sort(np.concatenate([b.columns["time_ns"] for b in blocks]))
@@ -267,9 +276,9 @@ def test_a_reset_between_logs_named_by_time_starts_a_new_epoch(logged: Logged,
     for name in names:
         name.write_bytes(logged.logs[1].read_bytes())
     out = tmp_path / "reset.mcap"
-    done = gx3("import", *names, "-u", "u", "--start-from-name", "log_%Y%m%d_%H%M%S",
+    done = gx3_here("import", *names, "-u", "u", "--start-from-name", "log_%Y%m%d_%H%M%S",
                "-o", out)
-    assert done.returncode == 0, done.stderr
+    assert done.exit_code == 0, done.stderr
     assert "1 reset" in done.stderr
     blocks = read_archive(out).samples(["u"])
     time_ns = np.sort(np.concatenate([b.columns["time_ns"] for b in blocks]))
@@ -297,8 +306,8 @@ def test_a_record_with_a_corrupt_timer_is_dropped_as_live(tmp_path: Path) -> Non
     log.write_bytes(bytes(data))
     out = tmp_path / "noisy.mcap"
     start = _iso(int(segment.truth["time_ns"][0]))
-    done = gx3("import", log, "-u", "u", "--start", start, "-o", out)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("import", log, "-u", "u", "--start", start, "-o", out)
+    assert done.exit_code == 0, done.stderr
     assert "2 glitches" in done.stderr, done.stderr
     assert "gap" not in done.stderr and "reset" not in done.stderr, done.stderr
     archive = read_archive(out)

@@ -1,7 +1,9 @@
 """No command destroys a file: outputs that exist, are an input, or are being written.
 
-Real `gx3` processes on real files; each case is judged by what is in the files
-afterwards (bridge/archive/outputs.py holds the rules every command follows).
+Real `gx3` commands on real files; each case is judged by what is in the files
+afterwards (bridge/archive/outputs.py holds the rules every command follows). Refusals
+and failures run in this process; what needs a process (another process's lock, Ctrl-C,
+a crash) runs `gx3` processes.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from bridge.sim.serve import Simulator
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import UsbDelivery
 from tests.helpers.archives import samples_in, write_capture
+from tests.helpers.cli import gx3_here
 from tests.helpers.processes import GX3, bridge_process, recorder
 from tests.helpers.units import TWO_UNITS
 from tests.helpers.waiting import free_port, wait_for
@@ -44,15 +47,16 @@ def one_line_error(done: subprocess.CompletedProcess[str], code: int, says: str)
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
+#: Where a service finds nobody: were an output let through, it would end at once.
+NOBODY = ["--connect", "tcp/127.0.0.1:9", "--mode", "client"]
+
+
 def run_all(*commands: list[str | Path]) -> list[subprocess.CompletedProcess[str]]:
-    """Run ``commands`` side by side (each start costs a second) and wait for all."""
-    procs = [subprocess.Popen([GX3, *map(str, c)], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.PIPE, text=True,
-                              env={**os.environ, "COLUMNS": "300"}) for c in commands]
+    """Run ``commands`` one after another in this process: exit code and stderr each."""
     out = []
-    for proc in procs:
-        _, stderr = proc.communicate(timeout=120)
-        out.append(subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr))
+    for command in commands:
+        done = gx3_here(*command)
+        out.append(subprocess.CompletedProcess(command, done.exit_code, "", done.stderr))
     return out
 
 
@@ -93,18 +97,26 @@ def large(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Path], Path]:
     return captures, folder / "archive.mcap"
 
 
-@pytest.fixture
-def fleet(tmp_path: Path) -> Iterator[tuple[Path, Path, Path]]:
+@pytest.fixture(scope="module")
+def bridged(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Path]]:
     """An emulated unit bridged onto Zenoh towards a recorder's loopback port: (config for
-    the recorder, config to join them, folder). Whatever recorder runs gets its samples."""
+    the recorder, config to join them). Whatever recorder runs gets its samples; the
+    module's tests run their recorders one after another."""
+    folder = tmp_path_factory.mktemp("bridged")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
-    join_cfg = zenoh_config(tmp_path / "join.json5", connect=[endpoint])
-    out = tmp_path / "out"
-    out.mkdir()
+    rec_cfg = zenoh_config(folder / "rec.json5", listen=[endpoint])
+    join_cfg = zenoh_config(folder / "join.json5", connect=[endpoint])
     with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], join_cfg, "--unit", "a"):
-        yield rec_cfg, join_cfg, out
+        yield rec_cfg, join_cfg
+
+
+@pytest.fixture
+def fleet(bridged: tuple[Path, Path], tmp_path: Path) -> tuple[Path, Path, Path]:
+    """The bridged unit's configs, and an empty folder for this test's outputs."""
+    out = tmp_path / "out"
+    out.mkdir()
+    return (*bridged, out)
 
 
 def ticks(path: Path) -> np.ndarray:
@@ -125,10 +137,8 @@ def test_a_second_recorder_on_the_same_file_is_refused_naming_the_first(
     first = recorder(path, cfg)
     try:
         wait_for(lambda: samples_in(path, "a") >= 200, what="the first recorder's samples")
-        second = subprocess.run([GX3, "record", "-o", str(path), "--zenoh-config",
-                                 str(join_cfg),
-                                 "--quiet", "--duration", "3"], capture_output=True,
-                                text=True, timeout=60, check=False)
+        [second] = run_all(["record", "-o", path, "--zenoh-config", join_cfg, "--quiet",
+                            "--duration", "3"])
         one_line_error(second, 2, f"being written by process {first.pid}")
     finally:
         stderr = stop(first)
@@ -160,8 +170,7 @@ def test_a_restarted_split_recorder_adds_parts_and_keeps_the_crashed_one(
     assert numbered(path, 1).read_bytes() == before, "the first run's part was rewritten"
     assert not read_archive(numbered(path, 1)).complete and read_archive(numbered(path, 2)).complete
     assert ticks(numbered(path, 2))[0] > ticks(numbered(path, 1))[-1]
-    repaired = subprocess.run([GX3, "repair", str(numbered(path, 1))], capture_output=True,
-                              text=True, timeout=60, check=False)
+    [repaired] = run_all(["repair", numbered(path, 1)])
     assert repaired.returncode == 0, repaired.stderr
     assert len(ticks(out / "fleet_0001.repaired.mcap")) == len(ticks(numbered(path, 1)))
 
@@ -175,10 +184,10 @@ def test_existing_outputs_are_kept_unless_forced(small: tuple[Path, Path],
         (tmp_path / name).write_bytes(b"the user's " + name.encode())
     before = files_in(tmp_path)
     o = {name.split(".")[0]: tmp_path / name for name in names}
-    refused = run_all(["record", "-o", o["rec"], "--duration", "0"],
+    refused = run_all(["record", "-o", o["rec"], "--duration", "0", *NOBODY],
                       ["replay", capture, "-o", o["replayed"]],
                       ["export", archive, "-o", o["table"]],
-                      ["view", "--save", o["view"], "--duration", "0"],
+                      ["view", "--save", o["view"], "--duration", "0", *NOBODY],
                       ["rrd", archive, "-o", o["render"]],
                       ["repair", archive, "-o", o["fixed"]],
                       ["bridge", "--port", tmp_path / "no-such-port", "--capture", o["raw"]])
@@ -276,11 +285,13 @@ def test_failures_leave_no_output_and_say_so_in_one_line(
         (["export", archive, "-o", tmp_path / "r.csv", "--unit", "nobody"], 2,
          "no samples match"),
         (["rrd", archive, "-o", missing / "y.rrd"], 2, "does not exist"),
-        (["record", "--rrd", missing / "x.rrd", "--duration", "0"], 2, "does not exist"),
-        (["view", "--save", missing / "x.rrd", "--duration", "0"], 2, "does not exist"),
+        (["record", "--rrd", missing / "x.rrd", "--duration", "0", *NOBODY], 2,
+         "does not exist"),
+        (["view", "--save", missing / "x.rrd", "--duration", "0", *NOBODY], 2,
+         "does not exist"),
         (["replay", capture, "-o", missing / "x.mcap"], 2, "does not exist"),
-        (["record", "-o", missing / "x.mcap", "--duration", "0", "--connect",
-          "tcp/127.0.0.1:9", "--mode", "client"], 2, "does not exist"),
+        (["record", "-o", missing / "x.mcap", "--duration", "0", *NOBODY], 2,
+         "does not exist"),
     ]
     cases += [([command, unreadable, "-o", tmp_path / f"r{suffix}"], 2, "not an MCAP file")
               for command, suffix in (("export", ".csv"), ("repair", ".mcap"),
@@ -292,8 +303,7 @@ def test_failures_leave_no_output_and_say_so_in_one_line(
 
 def test_a_second_demo_in_the_same_folder_is_refused(tmp_path: Path) -> None:
     (tmp_path / "demo.mcap").write_bytes(b"an earlier demo")
-    done = subprocess.run([GX3, "demo", "-o", str(tmp_path)], capture_output=True,
-                          text=True, timeout=60, check=False)
+    [done] = run_all(["demo", "-o", tmp_path])
     one_line_error(done, 2, "holds an earlier run's files")
     assert files_in(tmp_path) == {"demo.mcap": b"an earlier demo"}
 

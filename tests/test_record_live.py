@@ -21,6 +21,7 @@ from bridge.archive.walk import read_archive
 from bridge.sim.serve import Simulator
 from bridge.viz.thin import Bins
 from tests.helpers.archives import sample_columns, samples_in
+from tests.helpers.cli import gx3_here
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3, bridge_process, published, recorder
 from tests.helpers.rrd import rerun_rows, rerun_rows_so_far, scalar_lines
@@ -29,22 +30,34 @@ from tests.helpers.waiting import free_port, wait_for
 from tests.helpers.zenoh import zenoh_config
 
 
+def stop_bridges(**bridges: subprocess.Popen[bytes]) -> dict[str, bytes]:
+    """Ctrl-C each bridge and wait for it to end, then give the recorder two seconds to
+    take in what was still on its way: each bridge's stderr."""
+    for bridge in bridges.values():
+        bridge.send_signal(signal.SIGINT)
+    stderr = {unit: bridge.communicate(timeout=30)[1] for unit, bridge in bridges.items()}
+    time.sleep(2.0)
+    return stderr
+
+
 def test_every_published_sample_is_archived(tmp_path: Path) -> None:
+    """Two bridges, one recorder asking their caches for what it missed: every sample
+    each published is archived, and drawn in its --rrd; the --capture file of a's reads,
+    replayed, gives what a published live, each read at the time the bridge received it,
+    timed with the unit's settings."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
     out = tmp_path / "fleet.mcap"
     rrd = tmp_path / "fleet.rrd"
+    capture = tmp_path / "raw.mcap"
     proc = recorder(out, rec_cfg, "--history", "10000", "--rrd", str(rrd))
     with Simulator(TWO_UNITS, "pty") as sim, \
-            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a") as a, \
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", "--capture",
+                           str(capture)) as a, \
             bridge_process(sim.endpoints[1], bridge_cfg, "--unit", "b") as b:
-        wait_for(lambda: min(samples_in(out, "a"), samples_in(out, "b")) >= 200)
-        for bridge in (a, b):
-            bridge.send_signal(signal.SIGINT)
-        stderr = {name: bridge.communicate(timeout=30)[1] for name, bridge in
-                  (("a", a), ("b", b))}
-    time.sleep(2.0)
+        wait_for(lambda: min(samples_in(out, "a"), samples_in(out, "b")) >= 300)
+        stderr = stop_bridges(a=a, b=b)
     proc.send_signal(signal.SIGINT)
     _, rec_err = proc.communicate(timeout=30)
     assert proc.returncode == 0, rec_err.decode()
@@ -60,12 +73,24 @@ def test_every_published_sample_is_archived(tmp_path: Path) -> None:
         assert {f"gx3/{unit}/info", f"gx3/{unit}/status", f"gx3/{unit}/frame"} <= topics
         assert rerun_rows(rrd, f"/plots/accel/x/{unit}") == len(ticks), "--rrd lost samples"
     rendered = tmp_path / "rendered.rrd"
-    done = subprocess.run([GX3, "rrd", str(out), "-o", str(rendered)],
-                          capture_output=True, timeout=120, check=False)
-    assert done.returncode == 0, done.stderr.decode()
+    done = gx3_here("rrd", out, "-o", rendered)
+    assert done.exit_code == 0, done.stderr
     for unit in ("a", "b"):
         entity = f"/plots/accel/x/{unit}"
         assert rerun_rows(rendered, entity) == rerun_rows(rrd, entity)
+    assert_replay_gives_live(capture, out, tmp_path / "re.mcap")
+
+
+def assert_replay_gives_live(source: Path, live: Path, replayed: Path) -> None:
+    """``source``'s raw reads of unit a, replayed, give a's samples in ``live``."""
+    assert read_archive(source).topics("raw") == ["gx3/a/raw"]
+    done = gx3_here("replay", source, "-o", replayed)
+    assert done.exit_code == 0, done.stderr
+    assert "inferred" not in done.stdout + done.stderr
+    a, b = sample_columns(live, "a"), sample_columns(replayed, "a")
+    assert len(a["ticks"]) >= 300
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
 def test_the_recorders_summary_is_for_people_at_80_columns(tmp_path: Path) -> None:
@@ -118,7 +143,8 @@ def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     with Simulator(TWO_UNITS[:1], "pty") as sim, \
             bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a"):
         wait_for(lambda: samples_in(out, "a") >= 200)
-        time.sleep(1.5)
+        first = samples_in(out, "a")
+        wait_for(lambda: samples_in(out, "a") > first, what="a later flush")  # mid-run
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=10)
         killed = time.time_ns()
@@ -133,44 +159,29 @@ def test_killed_recorder_leaves_a_readable_archive(tmp_path: Path) -> None:
     last = max(int(b.receive_ns.max()) for b in blocks)
     assert killed - last < 2.5e9, "more than the last second or so was lost"
     repaired = tmp_path / "repaired.mcap"
-    done = subprocess.run([GX3, "repair", str(out), "-o", str(repaired)],
-                          capture_output=True, timeout=60, check=False)
-    assert done.returncode == 0, done.stderr.decode()
+    done = gx3_here("repair", out, "-o", repaired)
+    assert done.exit_code == 0, done.stderr
     fixed = read_archive(repaired)
     assert fixed.complete and sum(len(b) for b in fixed.samples(["a"])) == len(ticks)
 
 
-@pytest.mark.parametrize("through", ["capture file", "zenoh"])
-def test_replay_of_the_raw_reads_gives_the_live_samples(tmp_path: Path, through: str) -> None:
-    """The bridge's --capture file, or its reads published raw (--publish-raw) into the
-    recorder's archive (--raw): replayed, they give what the bridge published live,
-    each read at the time the bridge received it, timed with the unit's settings."""
+def test_replay_of_the_raw_reads_published_gives_the_live_samples(tmp_path: Path) -> None:
+    """The bridge's reads published raw (--publish-raw) into the recorder's archive
+    (--raw): replayed, they give what the bridge published live (the --capture file does
+    too: test_every_published_sample_is_archived)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rec_cfg = zenoh_config(tmp_path / "rec.json5", listen=[endpoint])
     bridge_cfg = zenoh_config(tmp_path / "bridge.json5", connect=[endpoint])
-    live, capture, replayed = (tmp_path / n for n in ("live.mcap", "raw.mcap", "re.mcap"))
-    if through == "zenoh":
-        rec_args, bridge_args, source = ["--raw"], ["--publish-raw"], live
-    else:
-        rec_args, bridge_args, source = ["--history", "10000"], ["--capture", str(capture)], capture
-    proc = recorder(live, rec_cfg, *rec_args)
+    live = tmp_path / "live.mcap"
+    proc = recorder(live, rec_cfg, "--raw")
     with Simulator(TWO_UNITS[:1], "pty") as sim, \
-            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a", *bridge_args) as bridge:
+            bridge_process(sim.endpoints[0], bridge_cfg, "--unit", "a",
+                           "--publish-raw") as bridge:
         wait_for(lambda: samples_in(live, "a") >= 300)
-        bridge.send_signal(signal.SIGINT)
-        bridge.wait(timeout=30)
-    time.sleep(2.0)
+        stop_bridges(a=bridge)
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=30)
-    assert read_archive(source).topics("raw") == ["gx3/a/raw"]
-    done = subprocess.run([GX3, "replay", str(source), "-o", str(replayed)],
-                          capture_output=True, timeout=120, check=False)
-    assert done.returncode == 0, done.stderr.decode()
-    assert "inferred" not in done.stdout.decode() + done.stderr.decode()
-    a, b = sample_columns(live, "a"), sample_columns(replayed, "a")
-    assert len(a["ticks"]) >= 300
-    for name in a:
-        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    assert_replay_gives_live(live, live, tmp_path / "re.mcap")
 
 
 def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
@@ -190,11 +201,12 @@ def test_view_saves_the_live_fleet(tmp_path: Path) -> None:
     assert "samples shown" in stderr.decode()
 
 
-def test_view_without_a_display_or_sink_says_what_to_do() -> None:
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    done = subprocess.run([GX3, "view"], capture_output=True, text=True, timeout=60,
-                          check=False, env=env)
-    assert done.returncode == 2 and "--serve" in done.stderr and "--save" in done.stderr
+def test_view_without_a_display_or_sink_says_what_to_do(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    done = gx3_here("view")
+    assert done.exit_code == 2 and "--serve" in done.stderr and "--save" in done.stderr
 
 
 def test_bridge_and_recorder_meet_through_a_router(tmp_path: Path) -> None:
@@ -240,9 +252,8 @@ def test_rrd_renders_an_archive_cut_short(tmp_path: Path) -> None:
     data = path.read_bytes()
     path.write_bytes(data[: len(data) * 2 // 3])
     out = tmp_path / "cut.rrd"
-    done = subprocess.run([GX3, "rrd", str(path), "-o", str(out)], capture_output=True,
-                          text=True, timeout=120, check=False)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("rrd", path, "-o", out)
+    assert done.exit_code == 0, done.stderr
     rows = rerun_rows(out, "/plots/accel/x/a")
     assert 0 < rows < 2000, rows
     assert f"{rows:,} samples" in done.stderr and "Traceback" not in done.stderr

@@ -31,6 +31,7 @@ from bridge.sim.state import Sampling
 from bridge.sim.unit import UnitConfig
 from bridge.sim.usb import AdapterDelivery, UsbDelivery
 from tests.helpers.archives import sample_columns, write_capture
+from tests.helpers.cli import gx3_here
 from tests.helpers.mcap_order import order_problems
 from tests.helpers.processes import GX3
 
@@ -69,9 +70,8 @@ def test_garbage_and_empty_captures_are_clear_errors(tmp_path: Path) -> None:
     not_mcap.write_text("hello\n")
     for path, message in ((garbage, "no record found"), (empty, "no raw reads"),
                           (not_mcap, "MCAP"), (tmp_path / "missing.mcap", "no such file")):
-        done = subprocess.run([GX3, "replay", str(path), "-o", str(tmp_path / "o.mcap")],
-                              capture_output=True, text=True, timeout=60, check=False)
-        assert done.returncode != 0, path
+        done = gx3_here("replay", path, "-o", tmp_path / "o.mcap")
+        assert done.exit_code != 0, path
         assert message in done.stderr and "Traceback" not in done.stderr, done.stderr
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
@@ -115,9 +115,8 @@ def test_export_times_on_a_usb_unit_meet_the_targets(tmp_path: Path) -> None:
                                                          strict=True)), meta)
     replay([path], tmp_path / "out.mcap")
     out = tmp_path / "out.parquet"
-    done = subprocess.run([GX3, "export", str(tmp_path / "out.mcap"), "-o", str(out)],
-                          capture_output=True, text=True, timeout=120, check=False)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("export", tmp_path / "out.mcap", "-o", out)
+    assert done.exit_code == 0, done.stderr
     import pyarrow.parquet as pq
 
     table = pq.read_table(out).to_pydict()

@@ -19,7 +19,7 @@ from bridge.viz import layout
 from bridge.viz.logger import RerunLogger
 from bridge.viz.review import FULL_RATE_SAMPLES, plan
 from bridge.viz.sources import log_archive
-from tests.helpers.processes import gx3
+from tests.helpers.cli import gx3_here
 from tests.helpers.rrd import blueprint_views, scalar_lines, table
 
 UNITS = ("imu1", "imu2", "imu3")
@@ -39,8 +39,8 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def render(archive: Path, name: str, *args: str) -> tuple[Path, str]:
     """``gx3 rrd ARCHIVE -o NAME ARGS``: the recording and what was said."""
     out = archive.with_name(name)
-    done = gx3("rrd", archive, "-o", out, *args)
-    assert done.returncode == 0, done.stderr
+    done = gx3_here("rrd", archive, "-o", out, *args)
+    assert done.exit_code == 0, done.stderr
     return out, done.stderr
 
 
@@ -152,8 +152,8 @@ def test_what_cannot_be_rendered_is_one_line(archive: Path, tmp_path: Path) -> N
                         (["--start", "yesterday"], "'yesterday' is neither an ISO time"),
                         (["--max-rate", "0"], "--max-rate: a rate of 0.0 Hz: give one "
                          "above 0")):
-        done = gx3("rrd", archive, "-o", tmp_path / "x.rrd", *args)
-        assert done.returncode == 2 and words in done.stderr, (args, done.stderr)
+        done = gx3_here("rrd", archive, "-o", tmp_path / "x.rrd", *args)
+        assert done.exit_code == 2 and words in done.stderr, (args, done.stderr)
         assert done.stderr.count("\n") == 1 and not (tmp_path / "x.rrd").exists()
 
 

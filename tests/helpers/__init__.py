@@ -3,6 +3,7 @@
 - ``processes``: the installed ``gx3`` console script (``GX3``, ``gx3``) and the processes
   run with it: ``bridge_process``, ``recorder``, ``published`` (a bridge's summary line),
   ``Stderr`` (a child's stderr read without blocking), ``Sim`` (a running `gx3 sim`).
+- ``cli``: ``gx3_here``, a `gx3` command run in this process (refusals, messages, files).
 - ``zenoh``: loopback Zenoh: ``zenoh_config`` (a peer config file, scouting off),
   ``peer_sessions`` (sessions connected to each other), ``make_certificates`` (TLS).
 - ``units``: emulated units several modules run: ``FAST``, ``SLOW``, ``STATIC_UNIT``,
