@@ -62,15 +62,20 @@ def recorder(out: Path, cfg: Path, *args: str) -> subprocess.Popen[bytes]:
     (half a second) would reach the archive, as in the field. On a busy machine the
     recorder's start can take seconds.
     """
-    proc = subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
-                             "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     listen = re.search(r'"?listen"?\s*:\s*\{\s*"?endpoints"?\s*:\s*\[([^\]]*)\]',
                        cfg.read_text())  # JSON5: the tests' own configs and the shipped ones
     ports = [int(p) for p in re.findall(r"tcp/127\.0\.0\.1:(\d+)", listen[1] if listen else "")
              if p != "0"]  # :0, a port of the system's choosing, cannot be waited for
-    for port in ports:
-        wait_for(lambda: proc.poll() is not None or _accepts(port), 60,  # noqa: B023
-                 f"the recorder to listen on port {port}")
+    proc = subprocess.Popen([GX3, "record", "-o", str(out), "--zenoh-config", str(cfg),
+                             "--quiet", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        for port in ports:
+            wait_for(lambda: proc.poll() is not None or _accepts(port), 60,  # noqa: B023
+                     f"the recorder to listen on port {port}")
+    except BaseException:  # nobody else holds it yet: leave no recorder behind
+        proc.kill()
+        proc.communicate()
+        raise
     return proc
 
 
