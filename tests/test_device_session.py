@@ -7,6 +7,7 @@ while streaming, a baud change mid-session, the error reply and the persist guar
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -214,3 +215,19 @@ def test_a_record_cut_by_a_read_is_waited_for_only_where_it_would_come_in_pieces
     assert pace(20, 9.0, baud) == pytest.approx(20 * 10 / baud)
     assert pace(0, 1.0, baud) == 0.0
     assert pace(-4, 1.0, baud) == 0.0
+
+
+def test_a_unit_gone_between_a_write_and_its_drain_is_a_port_gone() -> None:
+    """pyserial drains a write with termios, whose error is no OSError: a pty whose unit
+    closed it between the two says EIO there, and that is a pulled cable (the bridge
+    reconnects), not an internal error that stops the bridge."""
+    master, slave = os.openpty()
+    port = Port.open(os.ttyname(slave), 115_200)
+    os.close(master)
+    try:
+        with pytest.raises(PortError, match="went away") as gone:
+            port.write(b"")  # nothing to write: straight to the drain
+        assert gone.value.why == "port gone"
+    finally:
+        port.close()
+        os.close(slave)

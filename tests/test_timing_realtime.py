@@ -27,6 +27,7 @@ from bridge.timing.realtime import (
     RealtimeReads,
     RealtimeTrack,
 )
+from bridge.timing.stream import StreamTiming
 
 BOOT = 5_000_000_000_000  # the raw clock: ns since boot
 EPOCH = 1_795_000_000_000_000_000  # the realtime clock at BOOT
@@ -258,3 +259,17 @@ def test_the_kernel_is_asked_how_well_the_host_clock_is_synchronised() -> None:
     if not sync.synchronised:
         assert sync.state in ("not synchronised", "ok") and "not synchronised" in \
             sync.describe()
+
+
+def test_a_reads_offset_never_puts_a_later_record_first_and_a_step_back_stays() -> None:
+    """Records the clock model gives instants 1 ns apart (a refit lowered its line) are
+    each put on the realtime clock with their completing read's offset, known to a few
+    µs: a later read's may put a later record before an earlier one, and a subscriber
+    would see time go back. Such a wobble gives the least later instant; a step of the
+    host's clock back (STEP_MIN_NS or more, named as a step) still moves time back."""
+    timing = StreamTiming()
+    first = timing._onward([1_000_000, 1_000_001])
+    wobbled = timing._onward([1_000_002 - 4_000, 1_000_003 - 4_000, 1_010_000])
+    assert first + wobbled == [1_000_000, 1_000_001, 1_000_002, 1_000_003, 1_010_000]
+    stepped = timing._onward([1_010_000 - STEP_MIN_NS, 1_020_000 - STEP_MIN_NS])
+    assert stepped == [1_010_000 - STEP_MIN_NS, 1_020_000 - STEP_MIN_NS]

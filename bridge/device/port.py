@@ -15,6 +15,7 @@ import contextlib
 import errno
 import os
 import select
+import termios
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,11 +26,17 @@ from bridge.device import clock
 from bridge.exceptions import PortError
 
 _READ_SIZE = 1 << 16
+#: What a transport that went away raises. pyserial lets ``termios.error`` (not an
+#: OSError) through where it drains or flushes the line: a pty whose unit closed it
+#: between a write and its drain says EIO so.
+_LINK_ERRORS = (serial.SerialException, OSError, termios.error)
 
 
 def _error(url: str, exc: BaseException) -> PortError:
     text = str(exc)
     code = getattr(exc, "errno", None)
+    if code is None and exc.args and isinstance(exc.args[0], int):  # termios.error
+        code = exc.args[0]
     if code == errno.ENOENT or "No such file" in text:
         return PortError(f"{url}: no such port; check the cable and the device name "
                          "(ls /dev/tty*)", "port missing")
@@ -75,7 +82,7 @@ class Port:
             kwargs["exclusive"] = True
         try:
             raw = serial.serial_for_url(url, **kwargs)
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (*_LINK_ERRORS, ValueError) as exc:
             raise _error(url, exc) from None
         return cls(url, raw)
 
@@ -88,13 +95,13 @@ class Port:
     def baud(self, value: int) -> None:
         try:
             self.raw.baudrate = value
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (*_LINK_ERRORS, ValueError) as exc:
             raise _error(self.url, exc) from None
 
     def _fileno(self) -> int | None:
         try:
             return int(self.raw.fileno())
-        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+        except (AttributeError, NotImplementedError, *_LINK_ERRORS):
             return None
 
     def read(self, wait_s: float) -> tuple[bytes, int, int]:
@@ -129,7 +136,7 @@ class Port:
             return (bytes(data), *clock.stamp())
         except PortError:
             raise
-        except (serial.SerialException, OSError) as exc:
+        except _LINK_ERRORS as exc:
             raise _error(self.url, exc) from None
 
     def read_until(self, need: int, wait_s: float
@@ -177,11 +184,11 @@ class Port:
         try:
             self.raw.write(data)
             self.raw.flush()
-        except (serial.SerialException, OSError) as exc:
+        except _LINK_ERRORS as exc:
             raise _error(self.url, exc) from None
 
     def close(self) -> None:
         """Close the transport; errors on the way are ignored."""
-        with contextlib.suppress(serial.SerialException, OSError):
+        with contextlib.suppress(*_LINK_ERRORS):
             self.raw.close()
 

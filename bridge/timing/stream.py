@@ -20,7 +20,7 @@ from bridge.protocol.codec import Batch
 from bridge.protocol.table import PROCESSING_DELAY_S, REPLIES, TICKS_PER_SECOND
 from bridge.timing.clock import ClockState
 from bridge.timing.offline import OfflineClock
-from bridge.timing.realtime import ClockChange, RealtimeReads, RealtimeTrack
+from bridge.timing.realtime import STEP_MIN_NS, ClockChange, RealtimeReads, RealtimeTrack
 from bridge.timing.timeline import Timeline
 from bridge.timing.unwrap import TimingEvent
 
@@ -229,6 +229,7 @@ class StreamTiming:
         #: (record length, floor ns, byte ns), with which partial reads time records,
         #: fixed by the settings and so worked out once, not per read
         self._parts = (0, 0, 0.0)
+        self._last_ns: int | None = None  # the latest realtime instant given out
 
     @property
     def state(self) -> ClockState | None:
@@ -295,9 +296,35 @@ class StreamTiming:
         if invalid:
             batch = batch.select(keep)
         map_array = self.host.map_array
-        return Timed(batch, timed.ticks[keep], map_array(timed.time_ns[keep], batch.rx_ns),
+        instants = map_array(timed.time_ns[keep], batch.rx_ns)
+        later = np.diff(instants) if self._last_ns is None else \
+            np.diff(instants, prepend=[self._last_ns])
+        if ((later <= 0) & (later > -STEP_MIN_NS)).any():  # rare: see _onward
+            instants = np.array(self._onward(instants.tolist()), np.int64)
+        elif len(instants):
+            self._last_ns = int(instants[-1])
+        return Timed(batch, timed.ticks[keep], instants,
                      map_array(batch.rx_ns, batch.rx_ns), self._carried(batch), timed.events,
                      timed.dropped, invalid)
+
+    def _onward(self, instants: list[int]) -> list[int]:
+        """Realtime instants that go back only where the host's clock was stepped back.
+
+        The clock model's instants only move forward (``OnlineClock``), but each is put on
+        the realtime clock with the offset of the read that completed its record, known
+        to the few µs the two stamps of a read are apart. Where the model gives records
+        instants 1 ns apart (a refit that lowered the line), a later read's offset can
+        put a later record before an earlier one. A move back of less than
+        ``STEP_MIN_NS`` is such a wobble, and the record gets the least later instant; a
+        step of the host's clock is ``STEP_MIN_NS`` or more, named, and kept.
+        """
+        last = self._last_ns
+        for i, value in enumerate(instants):
+            if last is not None and last - STEP_MIN_NS < value <= last:
+                value = instants[i] = last + 1
+            last = value
+        self._last_ns = last
+        return instants
 
     def _carried(self, batch: Batch) -> tuple[np.ndarray, np.ndarray]:
         """The records' partial reads as their ImuSamples carry them (``Timed.part``)."""
@@ -333,4 +360,5 @@ class StreamTiming:
             return None
         ticks, instants, events = run
         host = self.host.map
-        return TimedFew(ticks, host(instants, rx_ns), host(rx_ns, rx_ns), carried, events)
+        return TimedFew(ticks, self._onward(host(instants, rx_ns)), host(rx_ns, rx_ns), carried,
+                        events)
