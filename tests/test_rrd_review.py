@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from bridge.archive.times import TimeBound
+from bridge.archive.times import TimeSpan
 from bridge.archive.walk import SampleSpan, read_archive, sample_span
 from bridge.sim.archived import fleet_archive
 from bridge.viz import layout
@@ -173,8 +173,7 @@ def test_the_default_bound_picks_full_rate_or_the_rate_that_fits() -> None:
     assert plan(span(1, 24 * 365, 1000)).max_rate_hz == 1 / 60  # the lowest there is
     day = span(16, 8, 100)
     assert plan(day, ["u3"]).max_rate_hz == 10.0  # one unit's day
-    tenth = plan(day, None, TimeBound(3600 * 10**9, True), TimeBound(3600 * 10**9 + 600 * 10**9,
-                                                                         True))
+    tenth = plan(day, None, TimeSpan("3600", "4200"))
     assert tenth.max_rate_hz is None and tenth.samples == 16 * 600 * 100
     assert plan(day, max_rate_hz=5).max_rate_hz == 5.0
     overview = plan(day)

@@ -41,7 +41,12 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Path:
      "--end 1 is the same instant as --start 1"),
     (["calibrate-mag", "-u", "u1", "-o", "{d}/iron.json"], ["--start", LATE, "--end", "1"],
      f"--end 1 is before --start {LATE}"),
-], ids=["export", "export, read first", "allan", "calibrate-mag, read first"])
+    (["rrd", "-o", "{d}/w.rrd"], ["--start", "30", "--end", "10"],
+     "--end 10 is before --start 30"),
+    (["rrd", "-o", "{d}/w.rrd"], ["--start", LATE, "--end", "0.5"],
+     f"--end 0.5 is before --start {LATE}"),
+], ids=["export", "export, read first", "allan", "calibrate-mag, read first", "rrd",
+        "rrd, read first"])
 def test_an_end_before_the_start_is_said_so(archive: Path, tmp_path: Path,
                                             command: list[str], span: list[str],
                                             says: str) -> None:

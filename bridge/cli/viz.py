@@ -98,13 +98,14 @@ def rrd(
     """
     from bridge.analysis.mounts import read_mounts
     from bridge.archive.outputs import named_format
-    from bridge.archive.times import parse_time
+    from bridge.archive.times import TimeSpan
     from bridge.archive.walk import sample_span
     from bridge.exceptions import ArchiveReadError
     from bridge.viz.review import plan
     from bridge.viz.thin import bin_width_ns
 
     named_format(output, ".rrd")  # refused before the archive is read
+    window = TimeSpan(start, end)  # and a span that is none, where it can be
     irons = _irons(mag_cal)
     mounted = None if mounts is None else read_mounts(mounts)  # a refusal is exit 2
     if not archive.is_file():
@@ -115,16 +116,11 @@ def rrd(
         except ValueError as exc:
             raise fail(f"--max-rate: {exc}") from None
     try:
-        first = None if start is None else parse_time(start)
-        after = None if end is None else parse_time(end)
-    except ValueError as exc:
-        raise fail(str(exc)) from None
-    try:
         span = sample_span(archive)
     except ArchiveReadError as exc:
         raise fail(str(exc)) from None
     try:
-        review = plan(span, unit, first, after, max_rate)
+        review = plan(span, unit, window, max_rate)
     except ValueError as exc:
         raise fail(f"{archive}: {exc}") from None
     if missing := [i.unit for i in irons if i.unit not in review.units]:

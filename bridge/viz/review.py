@@ -16,13 +16,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # gx3's command line reads this module's numbers: it stays light
-    from bridge.archive.times import TimeBound
+    from bridge.archive.times import TimeSpan
     from bridge.archive.walk import SampleSpan
 
 __all__ = ["FULL_RATE_SAMPLES", "OVERVIEW_RATES_HZ", "Review", "plan"]
 
 #: The most samples rendered at full rate unless a rate is asked for: a recording of
-#: about 430 MB, which Rerun's viewer opens in about 0.9 GB (docs/guides/rerun.md).
+#: about 430 MB, which Rerun's viewer holds in about 0.3 GiB (docs/guides/rerun.md).
 FULL_RATE_SAMPLES = 1_000_000
 #: Overview rates, bins a second, from the highest: each bin width divides a minute, so
 #: every minute's extremes are among its bins'.
@@ -73,16 +73,15 @@ class Review:
         return float(math.floor(fits / 60) * 60) if fits >= 60 else fits
 
 
-def plan(span: SampleSpan, units: Sequence[str] | None = None, start: TimeBound | None = None,
-         end: TimeBound | None = None, max_rate_hz: float | None = None,
+def plan(span: SampleSpan, units: Sequence[str] | None = None,
+         window: TimeSpan | None = None, max_rate_hz: float | None = None,
          bound: int = FULL_RATE_SAMPLES) -> Review:
     """What to render of an archive, from what its summary says of its samples.
 
     Args:
         span: The archive's samples (``bridge.archive.walk.sample_span``).
         units: The units asked for; None: every unit with samples.
-        start: The window's first instant; None: the first sample.
-        end: The instant after the window's last; None: after the last sample.
+        window: The --start and --end asked for; None: every sample.
         max_rate_hz: The overview's rate asked for (``RerunLogger`` checks it); None:
             full rate if the window holds at most ``bound`` samples, else the highest of
             ``OVERVIEW_RATES_HZ`` that keeps each line within it.
@@ -92,7 +91,8 @@ def plan(span: SampleSpan, units: Sequence[str] | None = None, start: TimeBound 
         The plan.
 
     Raises:
-        ValueError: The archive has no samples, a unit has none, or the window holds none.
+        ValueError: The archive has no samples, a unit has none, or the window holds none
+            (TimeSpanError: its end is not after its start).
     """
     if not span.counts or span.first_ns is None or span.last_ns is None:
         raise ValueError("no samples in it; give an archive gx3 recorded units into")
@@ -101,8 +101,7 @@ def plan(span: SampleSpan, units: Sequence[str] | None = None, start: TimeBound 
         raise ValueError(f"no samples of unit {missing[0]} in it (units: "
                          f"{', '.join(sorted(span.counts))}); check --unit")
     first, last = span.first_ns, span.last_ns + 1
-    lo = None if start is None else start.resolve(first)
-    hi = None if end is None else end.resolve(first)
+    lo, hi = (None, None) if window is None else window.resolve(first)
     since = first if lo is None else max(first, lo)
     until = last if hi is None else min(last, hi)
     if since >= until:
