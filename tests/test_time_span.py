@@ -45,8 +45,10 @@ def archive(tmp_path_factory: pytest.TempPathFactory) -> Path:
      "--end 10 is before --start 30"),
     (["rrd", "-o", "{d}/w.rrd"], ["--start", LATE, "--end", "0.5"],
      f"--end 0.5 is before --start {LATE}"),
+    (["align", "-u", "u1", "-u", "u2", "-o", "{d}/m.yaml"], ["--start", LATE, "--end", "1"],
+     f"--end 1 is before --start {LATE}"),
 ], ids=["export", "export, read first", "allan", "calibrate-mag, read first", "rrd",
-        "rrd, read first"])
+        "rrd, read first", "align, read first"])
 def test_an_end_before_the_start_is_said_so(archive: Path, tmp_path: Path,
                                             command: list[str], span: list[str],
                                             says: str) -> None:
