@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 from bridge.exceptions import TimeSpanError
 
-__all__ = ["TimeBound", "TimeSpan", "parse_time"]
+__all__ = ["TimeBound", "TimeSpan", "epoch_ns", "parse_time"]
 
 
 @dataclass(frozen=True)
@@ -37,11 +37,14 @@ def parse_time(text: str) -> TimeBound:
     except ValueError:
         raise TimeSpanError(f"{text!r} is neither an ISO time such as 2026-11-22T02:50:00Z "
                             "nor seconds from the start such as 12.5") from None
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=UTC)
+    return TimeBound(epoch_ns(when if when.tzinfo is not None else when.replace(tzinfo=UTC)),
+                     relative=False)
+
+
+def epoch_ns(when: datetime) -> int:
+    """An aware ``datetime`` as ns since the epoch, exactly (no float in between)."""
     delta = when - datetime(1970, 1, 1, tzinfo=UTC)
-    return TimeBound((delta.days * 86_400 + delta.seconds) * 10**9
-                     + delta.microseconds * 1000, relative=False)
+    return (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
 
 
 class TimeSpan:

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bridge._text import counted, number
+from bridge.archive.times import epoch_ns
 from bridge.archive.walk import is_mcap
 from bridge.archive.writer import ArchiveWriter
 from bridge.bus.codec import encode_batch
@@ -138,7 +139,7 @@ def parse_start(text: str) -> int:
     if when.tzinfo is None:
         raise LogImportError(f"--start {text!r} has no zone; add Z for UTC or the "
                              "logger's offset (+02:00)")
-    return _ns(when)
+    return epoch_ns(when)
 
 
 def name_time(path: Path, pattern: str) -> int:
@@ -162,11 +163,7 @@ def name_time(path: Path, pattern: str) -> int:
         raise LogImportError(f"{path.name}: its name does not match --start-from-name "
                              f"{pattern!r} (the name without its extension is matched "
                              "whole)") from None
-    return _ns(when if when.tzinfo is not None else when.replace(tzinfo=UTC))
-
-
-def _ns(when: datetime) -> int:
-    return round(when.timestamp() * 1e6) * 1000
+    return epoch_ns(when if when.tzinfo is not None else when.replace(tzinfo=UTC))
 
 
 class _Timeline:
